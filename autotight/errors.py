@@ -1,0 +1,21 @@
+"""Exceptions with one-line messages; the CLI prints them without a traceback."""
+
+
+class AutotightError(Exception):
+    """Base class for errors caused by bad input or a problem that cannot be done."""
+
+
+class ProblemDefinitionError(AutotightError):
+    """A problem module is malformed (missing part, inconsistent block sizes, …)."""
+
+
+class ParameterError(AutotightError):
+    """A problem parameter is missing, unknown or out of range."""
+
+
+class LearningError(AutotightError):
+    """Constraint learning cannot proceed (no spectral gap, infeasible samples, …)."""
+
+
+class SolverError(AutotightError):
+    """An SDP or local solve failed in a way that leaves no usable result."""

@@ -1,0 +1,64 @@
+"""Gauss-Newton with Levenberg-Marquardt damping on a manifold, for the problems' local solvers.
+
+The problem supplies ``linearize(state) -> (e, J, W)``: the stacked residual e (m,), its
+Jacobian J (m×p, dense or scipy.sparse) with respect to a perturbation ε ∈ R^p, and the
+weight W (m×m, dense or sparse), so that cost = eᵀWe; and ``retract(state, ε) -> state``.
+Each step solves (JᵀWJ + λ diag(JᵀWJ)) ε = −JᵀWe; λ shrinks after a cost decrease and grows
+after an increase, so the cost never goes up.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Any, Callable
+
+import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+
+from .problem import LocalResult
+
+
+def _solve(Hm: Any, g: np.ndarray) -> np.ndarray:
+    if sp.issparse(Hm):
+        return spla.spsolve(sp.csc_array(Hm), g)
+    return np.linalg.solve(Hm, g)
+
+
+def gauss_newton(linearize: Callable[[Any], tuple[np.ndarray, Any, Any]], retract: Callable[[Any, np.ndarray], Any],
+                 state: Any, max_iter: int = 200, rel_tol: float = 1e-12, lam0: float = 0.0) -> LocalResult:
+    """Minimise eᵀWe from ``state``.  Converged when the relative cost decrease is below rel_tol."""
+    t0 = time.perf_counter()
+    e, J, W = linearize(state)
+    f = float(e @ (W @ e))
+    lam, it, converged, msg = lam0, 0, False, "max_iter reached"
+    for it in range(1, max_iter + 1):
+        JW = J.T @ W
+        Hm = JW @ J
+        g = JW @ e
+        diag = Hm.diagonal() if sp.issparse(Hm) else np.diag(Hm)
+        accepted = False
+        for _ in range(40):
+            Hd = Hm + sp.diags(lam * np.maximum(diag, 1e-12)) if sp.issparse(Hm) else \
+                Hm + np.diag(lam * np.maximum(diag, 1e-12))
+            try:
+                eps = -_solve(Hd, g)
+                cand = retract(state, eps)
+                e2, J2, W2 = linearize(cand)
+                f2 = float(e2 @ (W2 @ e2))
+            except (ValueError, np.linalg.LinAlgError):
+                f2 = np.inf
+            if np.isfinite(f2) and f2 <= f:
+                accepted = True
+                break
+            lam = max(1e-6, lam * 10 if lam > 0 else 1e-4)
+        if not accepted:
+            converged, msg = True, "no decrease possible (stationary within precision)"
+            break
+        decrease = f - f2
+        state, e, J, W, f = cand, e2, J2, W2, f2
+        lam = lam / 10 if lam > 1e-9 else 0.0
+        if decrease <= rel_tol * max(f, 1e-300) or np.linalg.norm(eps) < 1e-14:
+            converged, msg = True, "converged"
+            break
+    return LocalResult(state, f, it, converged, time.perf_counter() - t0, msg)

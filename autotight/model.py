@@ -1,0 +1,280 @@
+"""A problem as a factor graph over a lifted variable.
+
+The lifted variable is Θ = [h, x₁, x₂, …] of width d: a vector x (d = 1, h a scalar with
+h² = 1) or a matrix Θ (d = 2, 3, h = I_d).  Each named block is a set of N_b columns of Θ;
+the SDP variable is X = ΘᵀΘ (N×N).  Every quadratic form is a sparse symmetric N×N
+matrix A, meaning ⟨A, X⟩ = Σ_ab tr(Θ_a A_ab Θ_bᵀ) (for d = 1: xᵀAx).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Iterable, Sequence
+
+import numpy as np
+import scipy.sparse as sp
+
+from .errors import ProblemDefinitionError
+
+HOMOGENISING = "h"
+
+
+class Variables:
+    """Ordered named blocks of the lifted variable; the first block is h of size d."""
+
+    def __init__(self, blocks: Sequence[tuple[str, int]], d: int = 1):
+        if d not in (1, 2, 3):
+            raise ProblemDefinitionError(f"lifting width d must be 1, 2 or 3, got {d}")
+        self.d = d
+        names = [HOMOGENISING] + [str(n) for n, _ in blocks]
+        sizes = [d] + [int(s) for _, s in blocks]
+        if len(set(names)) != len(names):
+            dup = sorted({n for n in names if names.count(n) > 1})
+            raise ProblemDefinitionError(f"duplicate block names: {dup} ('h' is reserved)")
+        if any(s < 1 for s in sizes):
+            raise ProblemDefinitionError(f"every block needs a positive size: {dict(zip(names, sizes))}")
+        self.names: list[str] = names
+        self.sizes: dict[str, int] = dict(zip(names, sizes))
+        offsets = np.concatenate([[0], np.cumsum(sizes)])
+        self.offsets: dict[str, int] = {n: int(o) for n, o in zip(names, offsets[:-1])}
+        self.N = int(offsets[-1])
+
+    def __contains__(self, name: str) -> bool:
+        return name in self.sizes
+
+    def __repr__(self) -> str:
+        return f"Variables(d={self.d}, N={self.N}, blocks={[(n, self.sizes[n]) for n in self.names]})"
+
+    def slice(self, name: str) -> slice:
+        self._check(name)
+        o = self.offsets[name]
+        return slice(o, o + self.sizes[name])
+
+    def index(self, names: Iterable[str]) -> np.ndarray:
+        """Column indices of the given blocks, in the given order."""
+        return np.concatenate([np.arange(self.slice(n).start, self.slice(n).stop) for n in names])
+
+    def block_of(self, column: int) -> tuple[str, int]:
+        """(block name, position inside the block) of a column of Θ."""
+        for n in self.names:
+            o = self.offsets[n]
+            if o <= column < o + self.sizes[n]:
+                return n, column - o
+        raise IndexError(column)
+
+    def _check(self, name: str) -> None:
+        if name not in self.sizes:
+            raise ProblemDefinitionError(f"unknown block {name!r}; blocks are {self.names}")
+
+    def assemble(self, values: dict[str, np.ndarray]) -> np.ndarray:
+        """Θ (d×N) from block values (each (d, N_b), or (N_b,) when d = 1); h is filled in."""
+        Theta = np.zeros((self.d, self.N))
+        Theta[:, self.slice(HOMOGENISING)] = np.eye(self.d)
+        missing = [n for n in self.names[1:] if n not in values]
+        if missing:
+            raise ProblemDefinitionError(f"lift is missing blocks {missing}")
+        for n in self.names[1:]:
+            v = np.asarray(values[n], dtype=float)
+            v = v.reshape(self.d, -1) if self.d > 1 or v.ndim == 2 else v[None, :]
+            if v.shape != (self.d, self.sizes[n]):
+                raise ProblemDefinitionError(
+                    f"block {n!r} has shape {v.shape}, expected {(self.d, self.sizes[n])}")
+            Theta[:, self.slice(n)] = v
+        return Theta
+
+
+class QuadForm:
+    """Builds a sparse symmetric N×N matrix by block name.
+
+    ``add(a, b, M)`` adds Σ_ij M_ij θ_{a,i}ᵀ θ_{b,j}  (for d = 1: x_aᵀ M x_b);
+    ``linear(b, v)`` adds vᵀ x_b · h (d = 1) and ``const(c)`` adds c (= c h² for d = 1).
+    """
+
+    def __init__(self, variables: Variables):
+        self.v = variables
+        self._rows: list[np.ndarray] = []
+        self._cols: list[np.ndarray] = []
+        self._vals: list[np.ndarray] = []
+
+    def add(self, a: str, b: str, M: np.ndarray | float) -> "QuadForm":
+        sa, sb = self.v.slice(a), self.v.slice(b)
+        na, nb = sa.stop - sa.start, sb.stop - sb.start
+        M = np.asarray(M, dtype=float)
+        if M.ndim == 0:
+            if na != nb:
+                raise ProblemDefinitionError(f"scalar coefficient between blocks of sizes {na}, {nb}")
+            M = M * np.eye(na)
+        if M.ndim == 1 and (na == 1 or nb == 1):
+            M = M.reshape(na, nb)
+        if M.shape != (na, nb):
+            raise ProblemDefinitionError(f"coefficient for ({a}, {b}) has shape {M.shape}, expected {(na, nb)}")
+        r, c = np.nonzero(M)
+        vals = M[r, c] / 2.0
+        r, c = r + sa.start, c + sb.start
+        self._rows += [r, c]
+        self._cols += [c, r]
+        self._vals += [vals, vals]
+        return self
+
+    def linear(self, b: str, v: np.ndarray) -> "QuadForm":
+        if self.v.d != 1:
+            raise ProblemDefinitionError("linear() is for vector liftings; use add('h', block, M) for d > 1")
+        return self.add(HOMOGENISING, b, np.asarray(v, dtype=float).reshape(1, -1))
+
+    def const(self, c: float) -> "QuadForm":
+        return self.add(HOMOGENISING, HOMOGENISING, (float(c) / self.v.d) * np.eye(self.v.d))
+
+    def matrix(self) -> sp.csr_array:
+        N = self.v.N
+        if not self._vals:
+            return sp.csr_array((N, N))
+        A = sp.coo_array((np.concatenate(self._vals), (np.concatenate(self._rows), np.concatenate(self._cols))),
+                         shape=(N, N)).tocsr()
+        A.sum_duplicates()
+        A.eliminate_zeros()
+        return A
+
+
+@dataclass
+class Constraint:
+    """⟨A, X⟩ = b with A sparse symmetric N×N.
+
+    family: "homogenisation", "primary", a paper family ("R1", …) or "learned".
+    factor: the factor it belongs to (None for model-wide constraints).
+    identity: for learned constraints, its canonical name within the factor type.
+    """
+
+    A: sp.csr_array
+    b: float = 0.0
+    name: str = ""
+    family: str = "primary"
+    factor: str | None = None
+    identity: str | None = None
+
+    def value(self, X: np.ndarray) -> float:
+        """⟨A, X⟩ − b."""
+        return float((self.A.multiply(X)).sum() - self.b)
+
+
+@dataclass
+class Factor:
+    """A named group of blocks with its cost term and its primary constraints.
+
+    blocks: the blocks the factor touches, h first; factors of the same ``type`` list
+    corresponding blocks in the same order (this order fixes learned identities).
+    roles: names of those blocks within the factor type (default: the block names).
+    """
+
+    name: str
+    type: str
+    blocks: tuple[str, ...]
+    cost: sp.csr_array | None = None
+    constraints: list[Constraint] = field(default_factory=list)
+    roles: tuple[str, ...] | None = None
+
+    def __post_init__(self) -> None:
+        self.blocks = tuple(self.blocks)
+        if not self.blocks or self.blocks[0] != HOMOGENISING:
+            self.blocks = (HOMOGENISING,) + tuple(b for b in self.blocks if b != HOMOGENISING)
+        if self.roles is None:
+            self.roles = self.blocks
+        self.roles = tuple(self.roles)
+        if len(self.roles) != len(self.blocks):
+            raise ProblemDefinitionError(f"factor {self.name}: {len(self.roles)} roles for {len(self.blocks)} blocks")
+        for c in self.constraints:
+            c.factor = c.factor or self.name
+
+
+@dataclass
+class Model:
+    """The QCQP of one instance: min ⟨Q, X⟩ s.t. primary constraints, X = ΘᵀΘ.
+
+    ``paper`` holds the hand-derived redundant constraints as named families.
+    ``Q`` is the sum of factor costs unless ``cost`` is given (e.g. a Schur complement);
+    ``cost_offset`` is a constant added to ⟨Q, X⟩ to give the original cost.
+    ``cliques``: block-name tuples of a chordal cover of the aggregate sparsity (each with h);
+    when given, SDP solvers may decompose X ⪰ 0 into these clique blocks.
+    """
+
+    variables: Variables
+    factors: list[Factor]
+    constraints: list[Constraint] = field(default_factory=list)
+    paper: dict[str, list[Constraint]] = field(default_factory=dict)
+    cost: sp.csr_array | None = None
+    cost_offset: float = 0.0
+    cliques: list[tuple[str, ...]] | None = None
+
+    def __post_init__(self) -> None:
+        names = [f.name for f in self.factors]
+        if len(set(names)) != len(names):
+            raise ProblemDefinitionError("factor names must be unique")
+        for f in self.factors:
+            for b in f.blocks:
+                if b not in self.variables:
+                    raise ProblemDefinitionError(f"factor {f.name} uses unknown block {b!r}")
+        sizes: dict[str, tuple[int, ...]] = {}
+        for f in self.factors:
+            shape = tuple(self.variables.sizes[b] for b in f.blocks)
+            if sizes.setdefault(f.type, shape) != shape:
+                raise ProblemDefinitionError(
+                    f"factors of type {f.type!r} have inconsistent block sizes: {sizes[f.type]} vs {shape} ({f.name})")
+        N = self.variables.N
+        for c in self.all_constraints():
+            if c.A.shape != (N, N):
+                raise ProblemDefinitionError(f"constraint {c.name} has shape {c.A.shape}, expected {(N, N)}")
+
+    @property
+    def d(self) -> int:
+        return self.variables.d
+
+    @property
+    def Q(self) -> sp.csr_array:
+        if self.cost is not None:
+            return sp.csr_array(self.cost)
+        Q = sp.csr_array((self.variables.N, self.variables.N))
+        for f in self.factors:
+            if f.cost is not None:
+                Q = Q + f.cost
+        return sp.csr_array(Q)
+
+    def homogenisation(self) -> list[Constraint]:
+        """h² = 1 (d = 1) or X_hh = I_d (d > 1)."""
+        d, out = self.d, []
+        for i in range(d):
+            for j in range(i, d):
+                E = sp.coo_array(([1.0] if i == j else [0.5, 0.5], ([i] if i == j else [i, j], [j] if i == j else [j, i])),
+                                 shape=(self.variables.N, self.variables.N)).tocsr()
+                out.append(Constraint(E, 1.0 if i == j else 0.0, name=f"h{i}{j}", family="homogenisation"))
+        return out
+
+    def primary(self) -> list[Constraint]:
+        """Homogenisation, model-wide and per-factor primary constraints."""
+        return self.homogenisation() + list(self.constraints) + [c for f in self.factors for c in f.constraints]
+
+    def paper_constraints(self, families: Iterable[str] | None = None) -> list[Constraint]:
+        fams = list(self.paper) if families is None else list(families)
+        unknown = [f for f in fams if f not in self.paper]
+        if unknown:
+            raise ProblemDefinitionError(f"unknown paper families {unknown}; known: {list(self.paper)}")
+        return [c for f in fams for c in self.paper[f]]
+
+    def all_constraints(self) -> list[Constraint]:
+        return self.primary() + [c for fam in self.paper.values() for c in fam]
+
+    def clique_indices(self) -> list[np.ndarray] | None:
+        """Column indices of each clique (None when the model gives no cliques)."""
+        if self.cliques is None:
+            return None
+        return [self.variables.index(("h",) + tuple(b for b in c if b != "h")) for c in self.cliques]
+
+    def factor(self, name: str) -> Factor:
+        for f in self.factors:
+            if f.name == name:
+                return f
+        raise ProblemDefinitionError(f"no factor named {name!r}")
+
+    def factor_types(self) -> dict[str, list[Factor]]:
+        out: dict[str, list[Factor]] = {}
+        for f in self.factors:
+            out.setdefault(f.type, []).append(f)
+        return out

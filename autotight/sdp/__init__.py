@@ -1,0 +1,43 @@
+"""One ``solve`` for the Shor relaxation  min ⟨Q,X⟩ s.t. ⟨Aᵢ,X⟩ = bᵢ, X ⪰ 0.
+
+Backends (one module each): ``clarabel`` (direct, sparse, default), ``clarabel`` with
+``cliques`` (clique decomposition of a chordal pattern), ``cvxpy:<SOLVER>`` (SCS, MOSEK, …).
+A failed or inaccurate solve is returned with its status; it never raises.
+"""
+
+from __future__ import annotations
+
+from typing import Sequence
+
+import numpy as np
+import scipy.sparse as sp
+
+from ..model import Constraint
+from .clarabel_direct import solve_cliques, solve_dense
+from .cvxpy_path import solve_cvxpy
+from .result import SDPResult, SolverOptions, log_svr, rank_d_factor
+
+__all__ = ["solve", "SDPResult", "SolverOptions", "log_svr", "rank_d_factor"]
+
+
+def solve(Q: sp.spmatrix | sp.sparray, constraints: Sequence[Constraint], *, d: int = 1,
+          solver: str = "clarabel", cliques: Sequence[np.ndarray] | None = None,
+          options: SolverOptions | None = None) -> SDPResult:
+    """Solve the SDP; ``constraints`` are ``Constraint`` objects (A sparse symmetric, b)."""
+    opts = options or SolverOptions()
+    Q = sp.csr_array(Q)
+    As = [sp.csr_array(c.A) for c in constraints]
+    b = np.array([c.b for c in constraints], dtype=float)
+    try:
+        if solver == "clarabel":
+            if cliques is not None:
+                return solve_cliques(Q, As, b, d, cliques, opts)
+            return solve_dense(Q, As, b, d, opts)
+        if solver.startswith("cvxpy"):
+            name = solver.split(":", 1)[1] if ":" in solver else "SCS"
+            return solve_cvxpy(Q, As, b, d, name, opts)
+    except (ValueError, RuntimeError, np.linalg.LinAlgError) as e:
+        return SDPResult(status=f"Failed: {type(e).__name__}: {e}".splitlines()[0], solver=solver, d=d, X=None,
+                         y=None, primal_cost=float("nan"), dual_cost=float("nan"), solve_time_s=0.0,
+                         message=str(e))
+    raise ValueError(f"unknown solver {solver!r}; use 'clarabel' or 'cvxpy:SCS', 'cvxpy:MOSEK', …")

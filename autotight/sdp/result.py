@@ -1,0 +1,111 @@
+"""The result of an SDP solve, and what is read off X (eigenvalues, log SVR, rank-d factor)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+SOLVED = "Solved"
+
+
+@dataclass(frozen=True)
+class SolverOptions:
+    """Options for one solve; passed explicitly, never stored module-wide.
+
+    tol: the solver's relative gap and feasibility tolerance.
+    max_iter, time_limit: stopping limits.  threads: solver threads (0 = solver default).
+    """
+
+    tol: float = 1e-9
+    max_iter: int = 500
+    time_limit: float = float("inf")
+    threads: int = 1
+    verbose: bool = False
+
+
+@dataclass
+class SDPResult:
+    """Solution of min ⟨Q,X⟩ s.t. ⟨A_i,X⟩ = b_i, X ⪰ 0.
+
+    status: the solver's own status string ("Solved", "AlmostSolved", "NumericalError", …).
+    X: the N×N solution (assembled from clique blocks when the solve was decomposed).
+    y: the multipliers of the constraints, in the order given.
+    eigvals: eigenvalues of X, descending.  log_svr = log10(λ_d / λ_{d+1}) (for cliques: the
+    minimum over the clique blocks).  Theta: the rank-d factor (d×N) with its h block = I_d.
+    """
+
+    status: str
+    solver: str
+    d: int
+    X: np.ndarray | None
+    y: np.ndarray | None
+    primal_cost: float
+    dual_cost: float
+    solve_time_s: float
+    setup_time_s: float = 0.0
+    iterations: int = 0
+    eigvals: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    log_svr: float = float("nan")
+    Theta: np.ndarray | None = None
+    clique_log_svr: list[float] | None = None
+    message: str = ""
+
+    @property
+    def solved(self) -> bool:
+        return self.status == SOLVED
+
+    @property
+    def usable(self) -> bool:
+        """A solution was returned (Solved or AlmostSolved) and X is finite."""
+        return self.X is not None and self.status in (SOLVED, "AlmostSolved") and bool(np.all(np.isfinite(self.X)))
+
+    @property
+    def cost(self) -> float:
+        return self.primal_cost
+
+    def summary(self) -> str:
+        return (f"status={self.status} cost={self.primal_cost:.8g} dual={self.dual_cost:.8g} "
+                f"log_svr={self.log_svr:.2f} time={self.solve_time_s:.3f}s")
+
+
+def log_svr(eigvals: np.ndarray, d: int = 1) -> float:
+    """log10(λ_d / λ_{d+1}) of a PSD matrix's descending eigenvalues (∞ if λ_{d+1} ≤ 0)."""
+    ev = np.asarray(eigvals, dtype=float)
+    if ev.size <= d:
+        return float("inf")
+    top, nxt = ev[d - 1], max(ev[d], 0.0)
+    if top <= 0:
+        return float("nan")
+    return float("inf") if nxt <= 0 else float(np.log10(top / nxt))
+
+
+def rank_d_factor(X: np.ndarray, d: int, h: slice = slice(0, None)) -> tuple[np.ndarray, np.ndarray]:
+    """Eigenvalues (descending) and the best rank-d factor Θ (d×N) of X ≈ ΘᵀΘ.
+
+    Θ is fixed up to the left orthogonal ambiguity by making its h block (columns
+    ``0:d``) the identity where possible (Θ ← Θ_h⁻¹ Θ for invertible Θ_h; for d = 1 h > 0).
+    """
+    Xs = (X + X.T) / 2
+    w, V = np.linalg.eigh(Xs)
+    w, V = w[::-1], V[:, ::-1]
+    Theta = (V[:, :d] * np.sqrt(np.maximum(w[:d], 0.0))).T
+    Th = Theta[:, :d]
+    if d == 1:
+        if Th[0, 0] < 0:
+            Theta = -Theta
+    else:
+        U, _, Vt = np.linalg.svd(Th)
+        Theta = (U @ Vt).T @ Theta  # nearest rotation that maps Θ_h to a symmetric PSD block
+    return w, Theta
+
+
+def finish(res: SDPResult, h_cols: int | None = None) -> SDPResult:
+    """Fill eigvals, log SVR and Θ from res.X (when X is available)."""
+    if res.X is None or not np.all(np.isfinite(res.X)):
+        return res
+    w, Theta = rank_d_factor(res.X, res.d)
+    res.eigvals, res.Theta = w, Theta
+    if res.clique_log_svr is None:
+        res.log_svr = log_svr(w, res.d)
+    return res

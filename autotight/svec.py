@@ -1,0 +1,117 @@
+"""The one place that fixes the svec convention.
+
+svec(X) of a symmetric n×n matrix X stacks its upper triangle column by column,
+(0,0), (0,1), (1,1), (0,2), (1,2), (2,2), …, with the off-diagonal entries multiplied
+by √2.  This is exactly the layout of Clarabel's ``PSDTriangleConeT(n)``, and it makes
+svec an isometry: ⟨A, X⟩ = tr(AX) = svec(A) · svec(X).  ``smat`` is its inverse.
+
+A monomial vector m(x) lists the products x_i x_j (i ≤ j) in the same order *without*
+the √2, so a coefficient vector p with p · m(x) = 0 reads directly as a polynomial.
+``poly_to_sym`` turns such coefficients into the symmetric A with xᵀAx = p · m(x).
+"""
+
+from __future__ import annotations
+
+from functools import lru_cache
+
+import numpy as np
+import scipy.sparse as sp
+
+SQRT2 = np.sqrt(2.0)
+
+
+def svec_dim(n: int) -> int:
+    """Length n(n+1)/2 of svec for an n×n matrix."""
+    return n * (n + 1) // 2
+
+
+@lru_cache(maxsize=64)
+def triu_indices(n: int) -> tuple[np.ndarray, np.ndarray]:
+    """Row and column indices (i ≤ j) of the svec order, column-major upper triangle."""
+    jj, ii = np.tril_indices(n)  # row-major lower (j, i) == column-major upper (i, j)
+    return ii.astype(np.int64), jj.astype(np.int64)
+
+
+def _scale(n: int) -> np.ndarray:
+    i, j = triu_indices(n)
+    return np.where(i == j, 1.0, SQRT2)
+
+
+def svec(X: np.ndarray | sp.spmatrix) -> np.ndarray:
+    """svec of a symmetric n×n matrix (dense or sparse) → (n(n+1)/2,)."""
+    n = X.shape[0]
+    i, j = triu_indices(n)
+    if sp.issparse(X):
+        vals = np.asarray(sp.csr_array(X)[i, j]).ravel()
+    else:
+        vals = np.asarray(X)[i, j]
+    return vals * _scale(n)
+
+
+def svec_sparse(A: sp.spmatrix | sp.sparray) -> sp.csc_array:
+    """svec of a sparse symmetric matrix as an (n(n+1)/2, 1) sparse column, no dense n²."""
+    n = A.shape[0]
+    U = sp.triu(sp.coo_array(A)).tocoo()
+    r, c = U.row.astype(np.int64), U.col.astype(np.int64)
+    idx = c * (c + 1) // 2 + r
+    vals = U.data * np.where(r == c, 1.0, SQRT2)
+    return sp.csc_array((vals, (idx, np.zeros_like(idx))), shape=(svec_dim(n), 1))
+
+
+def smat(v: np.ndarray, n: int | None = None) -> np.ndarray:
+    """Inverse of svec: (n(n+1)/2,) → symmetric n×n."""
+    v = np.asarray(v, dtype=float)
+    if n is None:
+        n = int(round((np.sqrt(8 * v.size + 1) - 1) / 2))
+    if svec_dim(n) != v.size:
+        raise ValueError(f"svec length {v.size} is not n(n+1)/2 for any n")
+    i, j = triu_indices(n)
+    X = np.zeros((n, n))
+    vals = v / _scale(n)
+    X[i, j] = vals
+    X[j, i] = vals
+    return X
+
+
+def as_theta(x: np.ndarray) -> np.ndarray:
+    """A lifted point as a (d, N) array: a vector x (N,) becomes (1, N)."""
+    T = np.asarray(x, dtype=float)
+    if T.ndim == 1:
+        return T[None, :]
+    if T.ndim != 2:
+        raise ValueError(f"a lifted point must be (N,) or (d, N), got shape {T.shape}")
+    return T
+
+
+def monomials(Thetas: np.ndarray) -> np.ndarray:
+    """Monomials of a batch of liftings.
+
+    Thetas: (S, d, N).  Returns the entries of ΘᵀΘ in svec order *without* √2,
+    shape (S, N(N+1)/2).  For d = 1 these are the products x_i x_j.
+    """
+    T = np.asarray(Thetas, dtype=float)
+    if T.ndim != 3:
+        raise ValueError(f"expected a batch (S, d, N), got shape {T.shape}")
+    i, j = triu_indices(T.shape[-1])
+    return np.einsum("sdk,sdk->sk", T[:, :, i], T[:, :, j])
+
+
+def poly_to_sym(p: np.ndarray, n: int) -> sp.csr_array:
+    """Monomial coefficients p (svec order, no √2) → sparse symmetric A with ⟨A, ΘᵀΘ⟩ = p·m."""
+    p = np.asarray(p, dtype=float)
+    i, j = triu_indices(n)
+    nz = np.flatnonzero(p)
+    ii, jj, pp = i[nz], j[nz], p[nz]
+    off = ii != jj
+    rows = np.concatenate([ii, jj[off]])
+    cols = np.concatenate([jj, ii[off]])
+    vals = np.concatenate([np.where(off, pp / 2.0, pp), pp[off] / 2.0])
+    return sp.csr_array((vals, (rows, cols)), shape=(n, n))
+
+
+def sym_to_poly(A: sp.spmatrix | sp.sparray | np.ndarray) -> np.ndarray:
+    """Inverse of ``poly_to_sym``: symmetric A → monomial coefficients (dense, n(n+1)/2)."""
+    n = A.shape[0]
+    i, j = triu_indices(n)
+    vals = np.asarray(sp.csr_array(A)[i, j]).ravel() if sp.issparse(A) else np.asarray(A)[i, j]
+    return np.where(i == j, vals, 2.0 * vals)
