@@ -66,12 +66,21 @@ def _mat(M: np.ndarray, n: int, name: str) -> np.ndarray:
     return a
 
 
+def _det3(C: np.ndarray) -> float:
+    return float(C[0, 0] * (C[1, 1] * C[2, 2] - C[1, 2] * C[2, 1]) - C[0, 1] * (C[1, 0] * C[2, 2] - C[1, 2] * C[2, 0])
+                 + C[0, 2] * (C[1, 0] * C[2, 1] - C[1, 1] * C[2, 0]))
+
+
 def _check_rotation(C: np.ndarray, name: str = "C") -> np.ndarray:
     C = _mat(C, 3, name)
-    err = np.linalg.norm(C.T @ C - np.eye(3))
-    if err > ORTHO_TOL or np.linalg.det(C) <= 0:
+    E = C.T @ C
+    E[0, 0] -= 1.0
+    E[1, 1] -= 1.0
+    E[2, 2] -= 1.0
+    err = float(np.sqrt((E * E).sum()))
+    if err > ORTHO_TOL or _det3(C) <= 0:
         raise ValueError(
-            f"{name} is not a rotation matrix (‖CᵀC − I‖ = {err:.2e}, det = {np.linalg.det(C):.3f}); "
+            f"{name} is not a rotation matrix (‖CᵀC − I‖ = {err:.2e}, det = {_det3(C):.3f}); "
             "use project_to_so3 first"
         )
     return C
@@ -191,10 +200,13 @@ def cay_inv(C: np.ndarray) -> np.ndarray:
     CayleySingularityError if cond₂(C + I) > CAYLEY_COND_MAX (angle ≈ π).
     """
     C = _check_rotation(C)
-    _check_cayley_invertible(C)
-    I = np.eye(3)
-    # (C − I)(C + I)⁻¹ = ((C + I)⁻ᵀ (C − I)ᵀ)ᵀ
-    return vee(2.0 * np.linalg.solve((C + I).T, (C - I).T).T)
+    # For a rotation, 2(C − I)(C + I)⁻¹ = (C − Cᵀ)·2/(1 + tr C), i.e. φ = 2 tan(θ/2) a, and
+    # cond₂(C + I) = 1/|cos(θ/2)| = 2/√(1 + tr C).
+    t1 = 1.0 + C[0, 0] + C[1, 1] + C[2, 2]
+    if t1 <= 4.0 / CAYLEY_COND_MAX**2:
+        _check_cayley_invertible(C)
+    s = 2.0 / t1
+    return np.array([C[2, 1] - C[1, 2], C[0, 2] - C[2, 0], C[1, 0] - C[0, 1]]) * s
 
 
 def cay_se3(xi: np.ndarray) -> np.ndarray:
@@ -212,7 +224,8 @@ def cay_inv_se3(T: np.ndarray) -> np.ndarray:
     """
     T = _check_pose(T)
     phi = cay_inv(T[:3, :3])
-    rho = T[:3, 3] - 0.5 * np.cross(phi, T[:3, 3])
+    r = T[:3, 3]
+    rho = r - 0.5 * np.array([phi[1] * r[2] - phi[2] * r[1], phi[2] * r[0] - phi[0] * r[2], phi[0] * r[1] - phi[1] * r[0]])
     return np.concatenate([rho, phi])
 
 

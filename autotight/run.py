@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from .threads import single_blas_thread
 import time
 from dataclasses import dataclass, field
 from typing import Any, Sequence
@@ -89,6 +90,7 @@ class SolveOutcome:
         }
 
 
+@single_blas_thread
 def solve_instance(problem: Problem, inst: Instance, *, set_name: str | None = None,
                    extra: Sequence[Constraint] | None = None, solver: str = "clarabel",
                    options: SolverOptions | None = None, criteria: Criteria = Criteria(),

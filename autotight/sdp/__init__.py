@@ -7,6 +7,7 @@ A failed or inaccurate solve is returned with its status; it never raises.
 
 from __future__ import annotations
 
+from ..threads import single_blas_thread
 from typing import Sequence
 
 import numpy as np
@@ -20,6 +21,7 @@ from .result import SDPResult, SolverOptions, log_svr, rank_d_factor
 __all__ = ["solve", "SDPResult", "SolverOptions", "log_svr", "rank_d_factor"]
 
 
+@single_blas_thread
 def solve(Q: sp.spmatrix | sp.sparray, constraints: Sequence[Constraint], *, d: int = 1,
           solver: str = "clarabel", cliques: Sequence[np.ndarray] | None = None,
           options: SolverOptions | None = None) -> SDPResult:

@@ -1,0 +1,104 @@
+"""``autotight discover PROBLEM``: progress, the comparison table, JSON output."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from typing import Callable
+
+from ..io import jsonable
+from ..pretty import polynomial
+from ..problem import load, parse_assignments
+from .learn import LearnOptions
+from .pipeline import DiscoveryResult, discover
+
+
+def register(sub: argparse._SubParsersAction, add_problem_args: Callable) -> None:
+    p = sub.add_parser("discover", help="learn, tighten and reduce redundant constraints; compare with the paper")
+    add_problem_args(p)
+    p.add_argument("--out", default=None, help="save the discovered set as JSON to this file")
+    p.add_argument("--groups", default="factors", help="'factors' (default), 'whole', or blocks 'a,b;c,d'")
+    p.add_argument("--heldout", type=int, default=10, help="held-out instances for the sufficiency check (default 10)")
+    p.add_argument("--min-gap", type=float, default=6.0, help="spectral gap in decades that decides the rank (default 6)")
+    p.add_argument("--gap-tol", type=float, default=1e-5, help="relative cost gap counted as tight (default 1e-5)")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.set_defaults(func=cmd_discover)
+
+
+def _groups(spec: str):
+    if spec in ("factors", "whole"):
+        return spec
+    return [tuple(x.strip() for x in g.split(",") if x.strip()) for g in spec.split(";") if g.strip()]
+
+
+def cmd_discover(args: argparse.Namespace) -> int:
+    from ..tightness import Criteria
+
+    prob = load(args.problem)
+    params = prob.parse_params(parse_assignments(args.param))
+    bar = None
+    if not args.json and not args.no_progress:
+        from tqdm import tqdm
+
+        bar = tqdm(desc="discover", unit="step", leave=False)
+
+    def progress(stage: str, text: str) -> None:
+        if bar is not None:
+            bar.set_description(f"{stage} {text}"[:60])
+            bar.update(1)
+
+    try:
+        res = discover(prob, params, args.seed, groups=_groups(args.groups),
+                       learn_options=LearnOptions(min_gap_decades=args.min_gap),
+                       criteria=Criteria(gap_tol=args.gap_tol), n_heldout=args.heldout, progress=progress)
+    finally:
+        if bar is not None:
+            bar.close()
+    if args.out:
+        res.discovered.save(args.out, res.model, res.constraints, {"summary": res.summary()})
+    if args.json:
+        print(json.dumps(jsonable(res.summary()), ensure_ascii=False))
+    else:
+        print(table(res))
+        if args.out:
+            print(f"\nsaved to {args.out}")
+    return 0
+
+
+def _frac(h) -> str:
+    return f"{h.fraction:.0%} of {len(h.seeds)}" if h is not None and h.seeds else "—"
+
+
+def table(res: DiscoveryResult) -> str:
+    """The comparison with the paper, and the discovered constraints grouped by factor."""
+    s = res.summary()
+    lines = [f"problem {res.problem}  params {res.params}  seed {res.seed}",
+             f"learned per group: {len(res.catalog.groups)} groups, {s['n_candidates']} new candidates in "
+             f"{s['n_candidate_pairs']} (factor type, identity) pairs, {s['n_rejected_heldout']} rejected on held-out samples",
+             f"smallest spectral gap: {min(s['spectral_gaps'].values()):.1f} decades",
+             f"result: {'TIGHT' if res.tight else 'NOT TIGHT'} — {res.tightened.message}; "
+             f"log SVR {res.final_log_svr:.2f} (primary alone {s['log_svr_primary']:.2f}); {res.n_solves} SDP solves", "",
+             f"{'set':<28}{'constraints':>12}{'in learned span':>18}{'tight (learn inst.)':>21}{'tight (held-out)':>18}",
+             f"{'primary':<28}{s['n_primary']:>12}{'yes':>18}{str(res.tightened.primary_verdict.tight):>21}{'':>18}"]
+    for fam, info in res.paper_span.items():
+        r = info["max_residual"]
+        span = f"{'yes' if r < 1e-8 else 'NO'} ({r:.0e})"
+        lines.append(f"{'paper ' + fam:<28}{info['count']:>12}{span:>18}")
+    if res.paper_tight is not None:
+        ph = res.paper_heldout
+        lines.append(f"{'paper (all families)':<28}{s['n_paper']:>12}{'':>18}{str(res.paper_tight):>21}"
+                     f"{_frac(ph):>18}")
+    like = sorted(set(res.resembles.values()))
+    lines.append(f"{'discovered (irreducible)' if s['irreducible'] else 'discovered':<28}"
+                 f"{s['n_minimal']:>12}{'':>18}{str(res.tight):>21}"
+                 f"{_frac(res.heldout):>18}")
+    lines.append(f"  {len(res.discovered.pairs)} pairs; resembles: {', '.join(like) or '—'}")
+    lines.append("")
+    by_factor: dict[str, list] = {}
+    for c in res.constraints:
+        by_factor.setdefault(c.factor or "", []).append(c)
+    for f, cons in by_factor.items():
+        lines.append(f"[{f}]")
+        for c in cons:
+            lines.append(f"  ({c.identity}, like {res.resembles.get(c.name, '?')})  {polynomial(c.A, res.model.variables)}")
+    return "\n".join(lines)

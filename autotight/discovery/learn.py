@@ -1,0 +1,210 @@
+"""Learning the valid quadratic constraints of one variable group from feasible samples."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Sequence
+
+import numpy as np
+import scipy.sparse as sp
+
+from ..model import HOMOGENISING, Constraint, Factor, Model
+from ..svec import sym_to_poly, triu_indices
+from .nullspace import basic_solutions, free_monomials, nullspace, spectrum
+from .samples import SampleBank
+
+
+@dataclass(frozen=True)
+class LearnOptions:
+    """Settings of learning.
+
+    sample_factor: samples per monomial (≥ 1.2).  min_gap_decades: the spectral gap that
+    decides the rank (log10 units).  spread: how far samples stray from the nominal state.
+    heldout: held-out samples per instance; heldout_tol: the largest relative violation
+    |Σ p_i m_i| / Σ|p_i m_i| a learned constraint may show on them.  span_tol: relative
+    residual below which a candidate counts as in the span of the primary constraints.
+    """
+
+    sample_factor: float = 1.2
+    min_gap_decades: float = 6.0
+    spread: float = 0.5
+    heldout: int = 60
+    heldout_tol: float = 1e-8
+    span_tol: float = 1e-6
+    free_tol: float = 1e-7
+
+
+@dataclass(frozen=True)
+class Group:
+    """A learning group: blocks (h first) with role names that are the same for every group of ``type``."""
+
+    name: str
+    type: str
+    blocks: tuple[str, ...]
+    roles: tuple[str, ...]
+
+    @staticmethod
+    def of(f: Factor) -> "Group":
+        return Group(f.name, f.type, tuple(f.blocks), tuple(f.roles or f.blocks))
+
+
+def groups_of(model: Model, how: str | Sequence[Sequence[str]] = "factors") -> list[Group]:
+    """'factors' (default), 'whole' (all blocks), or explicit block lists."""
+    if how == "factors":
+        return [Group.of(f) for f in model.factors]
+    if how == "whole":
+        names = tuple(model.variables.names)
+        return [Group("whole", "whole", names, names)]
+    out = []
+    for i, blocks in enumerate(how):
+        b = (HOMOGENISING,) + tuple(x for x in blocks if x != HOMOGENISING)
+        for x in b:
+            model.variables.slice(x)  # validates
+        out.append(Group(f"group{i}", f"group{i}", b, b))
+    return out
+
+
+def scan_order(n: int, d: int) -> np.ndarray:
+    """Monomial order for the scan: constants (h·h), then linear (h·x), then quadratic, each in svec order."""
+    i, j = triu_indices(n)
+    degree = (i >= d).astype(int) + (j >= d).astype(int)
+    return np.argsort(degree, kind="stable")
+
+
+@dataclass
+class LearnedGroup:
+    """The constraints learned on one group.
+
+    ``coeffs`` (m × k): polynomial coefficients (svec order, no √2) of the k basic
+    solutions, coefficient 1 on its free monomial.  ``identities[j]`` names solution j within the
+    group type.  ``in_primary_span[j]``: already spanned by the primary constraints (with the
+    solutions before it).  ``heldout_violation[j]``: the largest relative violation on held-out samples.
+    """
+
+    group: Group
+    columns: np.ndarray
+    n_samples: int
+    spectrum_rel: np.ndarray
+    rank: int
+    gap_decades: float
+    identities: list[str]
+    coeffs: np.ndarray
+    in_primary_span: np.ndarray
+    heldout_violation: np.ndarray
+    heldout_tol: float
+    times: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def n_monomials(self) -> int:
+        return self.coeffs.shape[0]
+
+    def passed(self) -> np.ndarray:
+        return self.heldout_violation <= self.heldout_tol
+
+    def candidate_index(self) -> np.ndarray:
+        """Solutions that are new (not in the primary span) and passed the held-out check."""
+        return np.flatnonzero(~self.in_primary_span & self.passed())
+
+    def rejected(self) -> list[tuple[str, float]]:
+        return [(self.identities[j], float(self.heldout_violation[j])) for j in np.flatnonzero(~self.passed())]
+
+    def constraint(self, j: int, N: int) -> Constraint:
+        """Basic solution j as a Constraint on the full N×N lifting."""
+        n = len(self.columns)
+        i, jj = triu_indices(n)
+        p = self.coeffs[:, j]
+        nz = np.flatnonzero(p)
+        gi, gj = self.columns[i[nz]], self.columns[jj[nz]]
+        off = gi != gj
+        rows = np.concatenate([gi, gj[off]])
+        cols = np.concatenate([gj, gi[off]])
+        vals = np.concatenate([np.where(off, p[nz] / 2, p[nz]), p[nz][off] / 2])
+        A = sp.csr_array((vals, (rows, cols)), shape=(N, N))
+        ident = self.identities[j]
+        return Constraint(A, 0.0, name=f"{self.group.name}:{ident}", family="learned", factor=self.group.name,
+                          identity=f"{self.group.type}:{ident}")
+
+
+def _monomial_names(group: Group, sizes: dict[str, int], d: int) -> list[str]:
+    names = []
+    for b, role in zip(group.blocks, group.roles):
+        n = sizes[b]
+        names += [role if (n == 1 or b == HOMOGENISING and d == 1) else f"{role}[{k}]" for k in range(n)]
+    return names
+
+
+def learn_group(model: Model, group: Group, bank: SampleBank, heldout: SampleBank, opts: LearnOptions,
+                known: Sequence[Constraint] = ()) -> LearnedGroup:
+    """Nullspace of the group's monomial data → basic solutions, primary-span flags, held-out check.
+
+    ``known``: constraints learned already on other groups; those supported inside this group
+    count as spanned, like the primary constraints, so no relation is proposed twice.
+    """
+    import time
+
+    t0 = time.perf_counter()
+    V = model.variables
+    cols = V.index(group.blocks)
+    n, d = len(cols), V.d
+    order = scan_order(n, d)
+    ii, jj = triu_indices(n)
+    m = ii.size
+    need = int(np.ceil(opts.sample_factor * m))
+    if bank.size < need:
+        raise ValueError(f"group {group.name} needs {need} samples, the bank has {bank.size}")
+    T = bank.thetas[:need][:, :, cols]
+    Y = np.einsum("sdk,sdk->sk", T[:, :, ii[order]], T[:, :, jj[order]])
+    D = np.linalg.norm(Y, axis=0)
+    D[D == 0] = 1.0
+    Yn = Y / D
+    spec = spectrum(Yn, opts.min_gap_decades, where=f" in group {group.name} ({m} monomials)")
+    t1 = time.perf_counter()
+    k = m - spec.rank
+    if k == 0:
+        coeffs = np.zeros((m, 0))
+        free = np.zeros(0, int)
+    else:
+        Nn = nullspace(Yn, spec.rank)
+        free = free_monomials(Nn, opts.free_tol)
+        Vn = basic_solutions(Nn, free)
+        P = Vn / D[:, None]  # back to polynomial coefficients (scan order)
+        P = P / P[free, np.arange(k)]
+        coeffs = np.zeros((m, k))
+        coeffs[order] = P
+    names = _monomial_names(group, V.sizes, d)
+    idents = [f"{names[ii[order[f]]]}·{names[jj[order[f]]]}" for f in free]
+    # which solutions the primary constraints (and earlier solutions) already span, in the normalised space
+    sub = {int(c): q for q, c in enumerate(cols)}
+    prim = []
+    for c in list(model.primary()) + list(known):
+        if c.b != 0:
+            continue
+        U = sp.coo_array(c.A)
+        if U.nnz and all(int(r) in sub for r in U.row):
+            loc = sp.coo_array((U.data, ([sub[int(r)] for r in U.row], [sub[int(q)] for q in U.col])), shape=(n, n))
+            prim.append(sym_to_poly(loc)[order] * D)
+    basis = np.zeros((m, 0))
+    if prim:
+        Qp, Rp = np.linalg.qr(np.array(prim).T)
+        keep = np.abs(np.diag(Rp)) > 1e-10 * np.max(np.abs(np.diag(Rp)))
+        basis = Qp[:, keep]
+    in_span = np.zeros(k, bool)
+    for q in range(k):
+        v = coeffs[order, q] * D
+        r = v - basis @ (basis.T @ v)
+        if np.linalg.norm(r) <= opts.span_tol * np.linalg.norm(v):
+            in_span[q] = True
+        else:
+            basis = np.column_stack([basis, r / np.linalg.norm(r)])
+    # held-out check of every basic solution
+    Th = heldout.thetas[:, :, cols]
+    Mh = np.einsum("sdk,sdk->sk", Th[:, :, ii], Th[:, :, jj])
+    viol = np.max(np.abs(Mh @ coeffs) / np.maximum(np.abs(Mh) @ np.abs(coeffs), 1e-300), axis=0) if k else np.zeros(0)
+    t2 = time.perf_counter()
+    return LearnedGroup(group, cols, need, spec.rel, spec.rank, spec.gap_decades, idents, coeffs, in_span, viol,
+                        opts.heldout_tol, {"nullspace_s": t1 - t0, "basis_s": t2 - t1})
+
+
+def monomials_needed(model: Model, groups: Sequence[Group], opts: LearnOptions) -> int:
+    n = max(len(model.variables.index(g.blocks)) for g in groups)
+    return int(np.ceil(opts.sample_factor * n * (n + 1) / 2))

@@ -1,0 +1,100 @@
+"""The nullspace of lifted monomial data, as a sparse basis with canonical names.
+
+Data: Y (S×m), row s = the monomials of sample s in svec order without √2 (see ``svec``);
+this equals the svec(ΘᵀΘ) rows up to a fixed column scaling, and every column is scaled to
+unit norm before the SVD, so the √2 makes no difference to ranks or nullspaces.
+
+Rank: from the relative spectrum σ_i/σ_1 at its largest gap in log10 (decades); no absolute
+threshold.  Basis: the basic solutions of the reduced echelon form.  Monomials are scanned
+backwards; the "free" ones F are those whose nullspace rows are independent of the rows
+already kept, and constraint f reads  m_f = Σ_{p ∉ F} c_p m_p.  F depends only on which
+monomials are related, not on the measurements, so "the constraint of free monomial f"
+names the same relation on every factor of a type.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.linalg as sla
+
+from ..errors import LearningError
+
+
+@dataclass
+class Spectrum:
+    """Relative singular values and the rank read off the largest gap."""
+
+    rel: np.ndarray
+    rank: int
+    gap_decades: float
+
+    @property
+    def nullity(self) -> int:
+        return self.rel.size - self.rank
+
+
+def spectrum(Yn: np.ndarray, min_gap_decades: float, full_rank_floor: float = 1e-8, where: str = "") -> Spectrum:
+    """Rank of column-normalised data from its largest relative spectral gap.
+
+    Full rank (no constraint) when σ_min/σ_1 > full_rank_floor and no gap is clearer.
+    Raises LearningError when the largest gap spans fewer than ``min_gap_decades``.
+    """
+    s = sla.svdvals(Yn)
+    m = Yn.shape[1]
+    if s.size < m:
+        s = np.concatenate([s, np.zeros(m - s.size)])
+    rel = s / s[0]
+    logs = np.log10(np.maximum(rel, 1e-300))
+    gaps = logs[:-1] - logs[1:]
+    k = int(np.argmax(gaps)) if gaps.size else 0
+    gap = float(gaps[k]) if gaps.size else np.inf
+    if rel[-1] > full_rank_floor and gap < min_gap_decades:
+        return Spectrum(rel, m, float(-logs[-1]))
+    if gap < min_gap_decades:
+        raise LearningError(
+            f"no clear spectral gap{where}: the largest gap is {gap:.1f} decades at rank {k + 1} of {m} "
+            f"(need ≥ {min_gap_decades:g}); learn on smaller variable groups (e.g. the problem's factors)")
+    return Spectrum(rel, k + 1, gap)
+
+
+def nullspace(Yn: np.ndarray, rank: int) -> np.ndarray:
+    """Orthonormal nullspace basis (m × (m − rank)) of column-normalised data."""
+    _, _, Vt = sla.svd(Yn, full_matrices=True)
+    return Vt[rank:].T
+
+
+def free_monomials(N: np.ndarray, tol: float = 1e-7) -> np.ndarray:
+    """Indices F (ascending) of the free monomials: rows of N scanned from the last, kept when
+    independent of the kept rows (relative residual > tol).  |F| = N.shape[1]."""
+    m, k = N.shape
+    Q = np.zeros((k, k))
+    r = 0
+    free: list[int] = []
+    for i in range(m - 1, -1, -1):
+        if r == k:
+            break
+        row = N[i]
+        nrm = np.linalg.norm(row)
+        if nrm < 1e-12:
+            continue
+        res = row - Q[:, :r] @ (Q[:, :r].T @ row)
+        res -= Q[:, :r] @ (Q[:, :r].T @ res)  # re-orthogonalise once
+        rn = np.linalg.norm(res)
+        if rn > tol * nrm:
+            Q[:, r] = res / rn
+            r += 1
+            free.append(i)
+    if len(free) != k:
+        raise LearningError(f"could not find {k} independent free monomials (found {len(free)})")
+    return np.array(sorted(free))
+
+
+def basic_solutions(N: np.ndarray, free: np.ndarray, clean: float = 1e-10) -> np.ndarray:
+    """Basis V (m × k) of range(N) with V[free] = I; entries below clean·max|column| set to 0."""
+    V = np.linalg.solve(N[free].T, N.T).T  # N · N_F⁻¹
+    V[free] = np.eye(len(free))
+    mx = np.max(np.abs(V), axis=0, keepdims=True)
+    V[np.abs(V) < clean * mx] = 0.0
+    return V

@@ -1,0 +1,69 @@
+"""Tightness of an instance's SDP with the primary constraints plus a chosen set of pairs.
+
+The oracle counts its solves; every solve's status is kept (a failed solve is "not tight",
+with its status in ``log``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Iterable
+
+import numpy as np
+
+from ..model import Constraint, Model
+from ..run import solve_sdp
+from ..sdp.result import SDPResult, SolverOptions
+from ..tightness import Criteria, Verdict, judge
+from .catalog import Pair
+
+
+@dataclass
+class Oracle:
+    model: Model
+    pairs: dict[Pair, list[Constraint]]
+    best_local: float
+    criteria: Criteria = Criteria()
+    options: SolverOptions = SolverOptions()
+    solver: str = "clarabel"
+    n_solves: int = 0
+    solve_time_s: float = 0.0
+    log: list[dict] = field(default_factory=list)
+
+    def constraints(self, chosen: Iterable[Pair]) -> list[Constraint]:
+        return self.model.primary() + [c for p in chosen for c in self.pairs[p]]
+
+    def solve(self, chosen: Iterable[Pair], stage: str = "") -> tuple[Verdict, SDPResult]:
+        """Primary constraints plus the chosen pairs."""
+        chosen = list(chosen)
+        return self._solve(self.constraints(chosen), stage, len(chosen))
+
+    def solve_extra(self, extra: list[Constraint], stage: str = "") -> tuple[Verdict, SDPResult]:
+        """Primary constraints plus arbitrary extra constraints (e.g. the paper's)."""
+        return self._solve(self.model.primary() + list(extra), stage, 0)
+
+    def _solve(self, cons: list[Constraint], stage: str, n_pairs: int) -> tuple[Verdict, SDPResult]:
+        res = solve_sdp(self.model, cons, solver=self.solver, options=self.options)
+        self.n_solves += 1
+        self.solve_time_s += res.solve_time_s + res.setup_time_s
+        v = judge(res, self.best_local, self.criteria)
+        self.log.append({"stage": stage, "n_pairs": n_pairs, "status": res.status, "log_svr": res.log_svr,
+                         "rel_gap": v.rel_gap, "tight": v.tight})
+        return v, res
+
+    def violation(self, X: np.ndarray, pair: Pair) -> float:
+        """max over the pair's constraints of |⟨A,X⟩| / (‖A‖_F ‖X‖_F): 0 at every rank-1 feasible X."""
+        nx = np.linalg.norm(X)
+        return max(abs(c.value(X)) / (np.sqrt((c.A.multiply(c.A)).sum()) * nx) for c in self.pairs[pair])
+
+    def importance(self, res: SDPResult, chosen: list[Pair]) -> dict[Pair, float]:
+        """Σ |yᵢ|·‖Aᵢ‖_F over a pair's constraints, from the multipliers of a solve with ``chosen``."""
+        out = {p: 0.0 for p in chosen}
+        if res.y is None:
+            return out
+        k = len(self.model.primary())
+        for p in chosen:
+            for c in self.pairs[p]:
+                out[p] += abs(res.y[k]) * float(np.sqrt((c.A.multiply(c.A)).sum()))
+                k += 1
+        return out

@@ -1,0 +1,175 @@
+"""discover(): learn → tighten greedily → reduce → check on held-out instances → compare with the paper."""
+
+from __future__ import annotations
+
+from ..threads import single_blas_thread
+import time
+from dataclasses import asdict, dataclass, field
+from typing import Any, Callable, Sequence
+
+import numpy as np
+
+from ..model import Constraint, Model
+from ..problem import Instance, Problem, load
+from ..run import local_search, solve_sdp
+from ..sdp.result import SolverOptions
+from ..tightness import Criteria, judge
+from .catalog import Catalog, Pair, instantiate, learn
+from .compare import paper_in_span, resemblance
+from .discovered import DiscoveredSet
+from .learn import LearnOptions
+from .oracle import Oracle
+from .reduce import ReduceResult, reduce_pairs
+from .tighten import TightenResult, tighten
+
+
+@dataclass
+class HeldOut:
+    """Tightness of a constraint set re-instantiated on fresh instances at the same parameters."""
+
+    seeds: list[int]
+    tight: list[bool]
+    log_svr: list[float]
+    rel_gap: list[float]
+    status: list[str]
+    issues: list[str] = field(default_factory=list)
+
+    @property
+    def fraction(self) -> float:
+        return float(np.mean(self.tight)) if self.tight else float("nan")
+
+
+@dataclass
+class DiscoveryResult:
+    problem: str
+    params: dict[str, Any]
+    seed: int
+    instance: Instance
+    model: Model
+    catalog: Catalog
+    tightened: TightenResult
+    reduction: ReduceResult | None
+    discovered: DiscoveredSet
+    constraints: list[Constraint]
+    heldout: HeldOut
+    paper_heldout: HeldOut | None
+    paper_tight: bool | None
+    paper_span: dict[str, dict]
+    resembles: dict[str, str]
+    n_solves: int
+    times: dict[str, float]
+    best_local_cost: float
+    final_log_svr: float
+
+    @property
+    def tight(self) -> bool:
+        return self.tightened.tight
+
+    def summary(self) -> dict[str, Any]:
+        """The JSON summary (``autotight discover --json``)."""
+        n_prim = len(self.model.primary())
+        return {
+            "problem": self.problem, "params": self.params, "seed": self.seed, "tight": self.tight,
+            "message": self.tightened.message, "log_svr": self.final_log_svr,
+            "log_svr_primary": self.tightened.primary_verdict.log_svr,
+            "n_primary": n_prim, "n_paper": len(self.model.paper_constraints()),
+            "n_candidates": len(self.catalog.candidates()), "n_candidate_pairs": len(self.catalog.by_pair()),
+            "n_rejected_heldout": len(self.catalog.rejected()),
+            "n_greedy_pairs": len(self.tightened.chosen),
+            "n_minimal": len(self.constraints), "n_minimal_pairs": len(self.discovered.pairs),
+            "irreducible": bool(self.reduction and self.reduction.irreducible),
+            "heldout_tight_fraction": self.heldout.fraction, "heldout_instances": len(self.heldout.seeds),
+            "paper_tight": self.paper_tight,
+            "paper_heldout_tight_fraction": None if self.paper_heldout is None else self.paper_heldout.fraction,
+            "paper_in_span": self.paper_span, "resembles": self.resembles,
+            "pairs": [f"{t}:{i}" for t, i in self.discovered.pairs], "n_solves": self.n_solves,
+            "best_local_cost": self.best_local_cost, "times": self.times,
+            "spectral_gaps": {g.group.name: g.gap_decades for g in self.catalog.groups},
+        }
+
+
+def heldout_check(problem: Problem, params: dict[str, Any], seeds: Sequence[int],
+                  make: Callable[[Instance, Model, np.random.Generator], tuple[list[Constraint], list[str]]],
+                  criteria: Criteria, options: SolverOptions, n_random: int = 1) -> HeldOut:
+    """Solve each fresh instance with primary + make(...) and judge it against its local solutions."""
+    out = HeldOut([], [], [], [], [])
+    for s in seeds:
+        inst = problem.generate(params, s)
+        model = problem.build(inst)
+        rng = np.random.default_rng([s, 7])
+        extra, issues = make(inst, model, rng)
+        out.issues += [f"seed {s}: {i}" for i in issues]
+        res = solve_sdp(model, model.primary() + extra, options=options)
+        loc = local_search(problem, inst, rng, n_random)
+        v = judge(res, loc.best.cost, criteria)
+        out.seeds.append(int(s)); out.tight.append(v.tight); out.log_svr.append(res.log_svr)
+        out.rel_gap.append(v.rel_gap); out.status.append(res.status)
+    return out
+
+
+@single_blas_thread
+def discover(problem: Problem | str, params: dict[str, Any] | None = None, seed: int = 0, *,
+             groups: str | Sequence[Sequence[str]] = "factors", learn_options: LearnOptions = LearnOptions(),
+             criteria: Criteria = Criteria(), options: SolverOptions = SolverOptions(), n_heldout: int = 10,
+             n_random: int = 2, verify: bool = True, compare: bool = True,
+             progress: Callable[[str, str], None] | None = None) -> DiscoveryResult:
+    """Discover an irreducible set of redundant constraints for ``problem`` at ``params``.
+
+    The learning instance is ``generate(params, seed)``; held-out instances use seeds
+    seed + 1 … seed + n_heldout.  progress(stage, text) is called as work proceeds.
+    """
+    prob = load(problem) if isinstance(problem, str) else problem
+    say = progress or (lambda stage, text: None)
+    full = prob.parse_params(params)
+    times: dict[str, float] = {}
+    t0 = time.perf_counter()
+    inst = prob.generate(full, seed)
+    model = prob.build(inst)
+    rng = np.random.default_rng([seed, 1])
+    loc = local_search(prob, inst, rng, n_random)
+    times["local_s"] = time.perf_counter() - t0
+    t = time.perf_counter()
+    cat = learn(prob, inst, model, rng, groups, learn_options, progress=lambda g: say("learn", g))
+    times["sampling_s"] = cat.times["sampling_s"]
+    times["nullspace_s"] = cat.times["nullspace_s"]
+    pairs = cat.by_pair()
+    oracle = Oracle(model, pairs, loc.best.cost, criteria, options)
+    t = time.perf_counter()
+    tr = tighten(oracle, progress=lambda s: say("tighten", s))
+    times["tighten_s"] = time.perf_counter() - t
+    t = time.perf_counter()
+    red = None
+    chosen = tr.chosen
+    if tr.tight and tr.chosen:
+        red = reduce_pairs(oracle, tr.chosen, tr.sdp, verify=verify, progress=lambda s: say("reduce", s))
+        chosen = red.pairs
+    times["reduce_s"] = time.perf_counter() - t
+    constraints = [c for p in chosen for c in pairs[p]]
+    final_v, final_res = (tr.verdict, tr.sdp)
+    if red is not None:
+        final_v, final_res = oracle.solve(chosen, stage="final")
+    n_solves = oracle.n_solves
+    times["sdp_s"] = oracle.solve_time_s
+    ds = DiscoveredSet(prob.name, full, seed, list(chosen), asdict(learn_options),
+                       {"criteria": asdict(criteria), "tight": tr.tight, "message": tr.message})
+    t = time.perf_counter()
+    seeds = [seed + 1 + k for k in range(n_heldout)]
+    hold = HeldOut([], [], [], [], [])
+    if tr.tight:
+        hold = heldout_check(prob, full, seeds, lambda i, m, r: instantiate(prob, i, ds.pairs, r, ds.options(), m),
+                             criteria, options, n_random)
+    times["heldout_s"] = time.perf_counter() - t
+    paper_tight, paper_hold, span, like = None, None, {}, {}
+    if compare and model.paper:
+        t = time.perf_counter()
+        pv, _ = oracle.solve_extra(model.paper_constraints(), stage="paper")
+        paper_tight = pv.tight
+        paper_hold = heldout_check(prob, full, seeds, lambda i, m, r: (m.paper_constraints(), []), criteria, options,
+                                   n_random)
+        span = paper_in_span(cat)
+        like = {c.name: resemblance(c, cat) for c in constraints}
+        times["compare_s"] = time.perf_counter() - t
+    times["total_s"] = time.perf_counter() - t0
+    say("done", "")
+    return DiscoveryResult(prob.name, full, seed, inst, model, cat, tr, red, ds, constraints, hold, paper_hold,
+                           paper_tight, span, like, n_solves, times, loc.best.cost, final_res.log_svr)

@@ -1,0 +1,67 @@
+"""Feasible samples of an instance, lifted once and shared by every learning group."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Sequence
+
+import numpy as np
+import scipy.sparse as sp
+
+from ..errors import LearningError
+from ..model import Constraint, Model
+from ..problem import Instance, Problem
+from ..svec import as_theta
+
+
+@dataclass
+class SampleBank:
+    """Θ of S feasible states near a nominal state: ``thetas`` is (S, d, N)."""
+
+    thetas: np.ndarray
+
+    @property
+    def size(self) -> int:
+        return self.thetas.shape[0]
+
+
+def draw(problem: Problem, inst: Instance, n: int, rng: np.random.Generator, spread: float) -> SampleBank:
+    """n samples from the problem's sampler around the ground truth, lifted."""
+    thetas = [as_theta(problem.lift(inst, problem.sample(inst, rng, inst.truth, spread))) for _ in range(n)]
+    return SampleBank(np.stack(thetas))
+
+
+def residuals(constraints: Sequence[Constraint], thetas: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(⟨A,ΘᵀΘ⟩ − b, Σ|A_ij θ_iᵀθ_j| + |b|) for every sample and constraint, each (S, n_c).
+
+    Their ratio is the relative violation: 0 for a valid constraint, up to 1 for none at all.
+    Works on the sparse entries only; never forms ΘᵀΘ.
+    """
+    S = thetas.shape[0]
+    val = np.zeros((S, len(constraints)))
+    mag = np.zeros((S, len(constraints)))
+    for k, c in enumerate(constraints):
+        U = sp.coo_array(c.A)
+        prod = np.einsum("sdk,sdk->sk", thetas[:, :, U.row], thetas[:, :, U.col]) * U.data
+        val[:, k] = prod.sum(axis=1) - c.b
+        mag[:, k] = np.abs(prod).sum(axis=1) + abs(c.b)
+    return val, mag
+
+
+def relative_violation(constraints: Sequence[Constraint], thetas: np.ndarray) -> np.ndarray:
+    """max over samples of |⟨A,ΘᵀΘ⟩ − b| / (Σ|A_ij θ_iᵀθ_j| + |b|), per constraint."""
+    if not constraints:
+        return np.zeros(0)
+    val, mag = residuals(constraints, thetas)
+    return np.max(np.abs(val) / np.maximum(mag, 1e-300), axis=0)
+
+
+def check_feasible(model: Model, bank: SampleBank, tol: float) -> None:
+    """Raise LearningError naming the worst primary constraint if the samples violate it."""
+    cons = model.primary()
+    viol = relative_violation(cons, bank.thetas)
+    if viol.size and viol.max() > tol:
+        k = int(np.argmax(viol))
+        raise LearningError(
+            f"the sampler returned infeasible points: primary constraint {cons[k].name!r} is violated by "
+            f"{viol[k]:.1e} (relative; tolerance {tol:g}); fix the problem's sample() or lift()")

@@ -1,0 +1,84 @@
+"""Constraints printed as readable polynomials in the variable names.
+
+⟨A, X⟩ = Σ_{a≤b} terms of block pair (a, b).  A pair whose coefficient block is α·I reads
+``α aᵀb``; otherwise each entry reads ``α a.x·b.y``.  h·x prints as x and h² as a constant.
+For d > 1 the same text describes tr(Θ_a M Θ_bᵀ) with aᵀb meaning the column products.
+"""
+
+from __future__ import annotations
+
+import re
+
+import numpy as np
+import scipy.sparse as sp
+
+from .model import HOMOGENISING, Variables
+
+GREEK = {"rho": "ρ", "phi": "φ", "xi": "ξ", "ell": "ℓ", "varpi": "ϖ", "w": "ϖ", "theta": "θ", "psi": "ψ"}
+AXES = "xyz"
+
+
+def symbol(block: str) -> str:
+    """'rho_3' → 'ρ_3', 'phi' → 'φ'."""
+    m = re.match(r"([A-Za-z]+)(.*)", block)
+    if not m:
+        return block
+    head, tail = m.groups()
+    return GREEK.get(head, head) + tail
+
+
+def _elem(block: str, k: int, size: int) -> str:
+    s = symbol(block)
+    return s if size == 1 else f"{s}.{AXES[k] if size <= 3 else k}"
+
+
+def _num(c: float, first: bool) -> str:
+    sign = "−" if c < 0 else "+"
+    a = abs(c)
+    txt = "" if np.isclose(a, 1.0, rtol=1e-9) else f"{a:.4g} "
+    if first:
+        return ("−" if c < 0 else "") + txt
+    return f" {sign} {txt}"
+
+
+def polynomial(A: sp.spmatrix | sp.sparray, V: Variables, b: float = 0.0, tol: float = 1e-10) -> str:
+    """``A`` (N×N symmetric) as text ``… = b``; coefficients below tol·max|A| are dropped."""
+    A = sp.csr_array(A)
+    scale = abs(A).max() if A.nnz else 1.0
+    names = V.names
+    terms: list[tuple[float, str]] = []
+    const = 0.0
+    for ia, a in enumerate(names):
+        for b_ in names[ia:]:
+            M = A[V.slice(a), :][:, V.slice(b_)].toarray()
+            if a != b_:
+                M = 2.0 * M  # (a,b) and (b,a) blocks
+            if not np.any(np.abs(M) > tol * scale):
+                continue
+            na, nb = M.shape
+            if a == HOMOGENISING and b_ == HOMOGENISING:
+                const += float(np.trace(M)) if V.d > 1 else float(M[0, 0])
+                continue
+            if a == HOMOGENISING and V.d == 1:
+                for k in np.flatnonzero(np.abs(M[0]) > tol * scale):
+                    terms.append((M[0, k], _elem(b_, k, nb)))
+                continue
+            if na == nb and na > 1 and np.allclose(M, M[0, 0] * np.eye(na), atol=tol * scale):
+                terms.append((M[0, 0], f"{symbol(a)}ᵀ{symbol(b_)}" if a != b_ else f"{symbol(a)}ᵀ{symbol(a)}"))
+                continue
+            if a == b_:
+                M = np.triu(M + M.T - np.diag(np.diag(M)))
+            for i, j in zip(*np.nonzero(np.abs(M) > tol * scale)):
+                ea, eb = _elem(a, i, na), _elem(b_, j, nb)
+                terms.append((M[i, j], f"{ea}²" if (a == b_ and i == j) else f"{ea}·{eb}"))
+    if abs(const) > tol * scale:
+        terms.append((const, "§"))
+    if not terms:
+        return f"0 = {b:g}"
+    out = ""
+    for n, (c, t) in enumerate(terms):
+        if t == "§":
+            out += (f"{c:.4g}" if n == 0 else f" {'−' if c < 0 else '+'} {abs(c):.4g}")
+        else:
+            out += _num(c, n == 0) + t
+    return f"{out} = {b:g}"

@@ -1,0 +1,1 @@
+"""Noise-sweep tightness reports: ``autotight report PROBLEM`` (figures, report.md, report.html)."""

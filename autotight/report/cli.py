@@ -1,0 +1,79 @@
+"""``autotight report PROBLEM``: run (or resume) a noise sweep and write the report."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+from pathlib import Path
+from typing import Any, Callable
+
+from ..io import jsonable
+from ..problem import load, parse_assignments
+from .render import render
+from .spec import SETS, make_spec
+from .store import Store
+from .sweep import run_sweep
+
+
+def _cores() -> int:
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # not on Linux
+        return os.cpu_count() or 1
+
+
+def register(sub: Any, add_problem_args: Callable[[argparse.ArgumentParser], None]) -> None:
+    p = sub.add_parser("report", help="noise sweep: tightness per constraint set, trapped local solves, figures",
+                       description="Sweep the noise level σ: per σ and trial, a fresh instance, the SDP with each "
+                                   "constraint set and the local solver from the truth and a random start. "
+                                   "Resumable; writes trials.csv, meta.json, PNG figures, report.md, report.html.")
+    add_problem_args(p)
+    p.add_argument("--sigmas", metavar="LIST", default=None,
+                   help="comma-separated noise levels (default: the problem's SIGMAS, else 7 levels over 1e-3…1)")
+    p.add_argument("--trials", type=int, default=100, help="trials per noise level (default 100)")
+    p.add_argument("--sets", metavar="LIST", default=None,
+                   help=f"constraint sets, a subset of {','.join(SETS)} "
+                        "(default: primary, plus paper if the problem has paper families)")
+    p.add_argument("--jobs", "-j", type=int, default=None, help="local worker processes (default: all cores)")
+    p.add_argument("--scheduler", metavar="ADDRESS", default=None,
+                   help="run on a Dask distributed cluster at this scheduler address (e.g. tcp://host:8786)")
+    p.add_argument("--out", metavar="DIR", default=None, help="report folder (default: reports/PROBLEM)")
+    p.add_argument("--discovered", metavar="FILE", default=None,
+                   help="a saved discovered-set JSON for the 'discovered' set (default: run discovery)")
+    p.add_argument("--limit", type=int, default=None, metavar="N",
+                   help="compute at most N missing trials now (the rest on a later run)")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.set_defaults(func=cmd_report)
+
+
+def cmd_report(args: argparse.Namespace) -> int:
+    prob = load(args.problem)
+    spec = make_spec(prob, args.problem, parse_assignments(args.param), sigmas=args.sigmas, trials=args.trials,
+                     sets=args.sets, seed=args.seed, discovered=args.discovered)
+    out = Path(args.out) if args.out else Path("reports") / prob.name
+    jobs = _cores() if args.jobs is None else args.jobs
+    try:
+        summary = run_sweep(spec, out, jobs=jobs, scheduler=args.scheduler, limit=args.limit,
+                            progress=not args.no_progress)
+    except KeyboardInterrupt:
+        print(f"autotight: interrupted; finished trials are saved in {out / 'trials.csv'} — "
+              "re-run the same command to resume", file=sys.stderr)
+        return 130
+    meta = Store(out).meta() or {}
+    files = render(out, meta)
+    rec = {"problem": prob.name, "params": spec.params, "sigmas": spec.sigmas, "trials": spec.trials,
+           "sets": spec.sets, "seed": spec.seed, "out": str(out), "total": summary.total,
+           "done_before": summary.done_before, "computed": summary.computed, "failed": summary.failed,
+           "complete": summary.complete, "files": sorted(p.name for p in files.values())}
+    if args.json:
+        print(json.dumps(jsonable(rec), ensure_ascii=False))
+        return 0
+    done = summary.done_before + summary.computed
+    print(f"report {prob.name}: {done}/{summary.total} trials in {out} ({summary.computed} computed now"
+          f"{f', {summary.failed} failed' if summary.failed else ''})")
+    if not summary.complete:
+        print("incomplete: re-run the same command to compute the remaining trials")
+    print("files: " + ", ".join(["trials.csv", "meta.json", *rec["files"]]))
+    return 0

@@ -1,0 +1,174 @@
+"""The readable report: summary tables, ``report.md`` and a self-contained ``report.html``."""
+
+from __future__ import annotations
+
+import base64
+import html
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+import pandas as pd
+
+from ..io import atomic_write_text
+from . import figures
+from .store import load_trials
+
+CAPTIONS = {
+    "trapped": "Fraction of local solves from a random start that end above the global cost "
+               "(the lowest local cost, or the SDP cost where the relaxation is tight); bars: 95 % Wilson interval.",
+    "log_svr": "log SVR of the SDP solution per constraint set; above the dashed line counts as rank 1.",
+    "tight": "Fraction of SDP solves judged tight (rank 1 and cost equal to the best local cost).",
+    "times": "Median solve times of the SDP per constraint set and of the local solver.",
+}
+
+
+@dataclass
+class Table:
+    title: str
+    header: list[str]
+    rows: list[list[str]]
+    note: str = ""
+
+
+@dataclass
+class Summary:
+    """What the report shows: facts about the sweep, tables, figures."""
+
+    title: str
+    facts: list[tuple[str, str]]
+    tables: list[Table]
+    figures: dict[str, Path] = field(default_factory=dict)
+
+
+def _sig(s: float) -> str:
+    return f"{s:.3g}"
+
+
+def _frac(v: pd.Series) -> str:
+    return f"{v.mean():.2f}" if len(v) else "–"
+
+
+def _median(v: pd.Series, fmt: str = ".3g") -> str:
+    x = v.to_numpy(float)
+    x = x[~np.isnan(x)]
+    return format(np.median(x), fmt) if x.size else "–"
+
+
+def tables(df: pd.DataFrame, sigmas: Sequence[float], sets: Sequence[str]) -> list[Table]:
+    """Constraint counts, fraction tight, median log SVR, median times, solver statuses."""
+    ok = df[~df["status"].astype(str).str.startswith("Error")]
+    per_trial = ok.drop_duplicates(["sigma_index", "trial"])
+    counts = []
+    for s in sets:
+        n = ok[ok["constraint_set"] == s]["n_constraints"].to_numpy(float)
+        counts.append([s, "–" if not n.size else f"{int(np.median(n))}" if n.min() == n.max()
+                       else f"{int(np.median(n))} (range {int(n.min())}–{int(n.max())})"])
+    out = [Table("Constraints per set", ["set", "constraints"], counts,
+                 "Counts include the homogenisation and primary constraints.")]
+    rows_t, rows_s, rows_time = [], [], []
+    for i, sg in enumerate(sigmas):
+        at = df[df["sigma_index"] == i]
+        trials = at.drop_duplicates("trial")
+        rows_t.append([_sig(sg), str(len(trials))]
+                      + [_frac(at[at["constraint_set"] == s]["tight"]) for s in sets]
+                      + [_frac(per_trial[per_trial["sigma_index"] == i]["trapped"])])
+        rows_s.append([_sig(sg)] + [_median(at[at["constraint_set"] == s]["log_svr"], ".1f") for s in sets])
+        pt = per_trial[per_trial["sigma_index"] == i]
+        rows_time.append([_sig(sg)] + [_median(at[at["constraint_set"] == s]["sdp_time_s"]) for s in sets]
+                         + [_median(pt["local_truth_time_s"]), _median(pt["local_random_time_s"])])
+    out.append(Table("Fraction tight per noise level", ["σ", "trials", *[f"tight: {s}" for s in sets],
+                                                        "trapped (random start)"], rows_t,
+                     "Tight: log SVR above the rank-1 threshold and SDP cost equal to the best local cost."))
+    out.append(Table("Median log SVR", ["σ", *sets], rows_s))
+    out.append(Table("Median times (s)", ["σ", *[f"SDP {s}" for s in sets], "local (truth)", "local (random)"],
+                     rows_time))
+    status = df.groupby("constraint_set")["status"].value_counts().unstack(fill_value=0)
+    if set(status.columns) != {"Solved"}:
+        cols = list(status.columns)
+        out.append(Table("Solver statuses", ["set", *cols],
+                         [[s, *[str(int(status.loc[s, c])) for c in cols]] for s in sets if s in status.index]))
+    return out
+
+
+def summarize(out: Path, meta: dict[str, Any]) -> Summary:
+    """Read the results in ``out`` and draw the figures."""
+    df = load_trials(out, meta["trials"])
+    sigmas, sets = meta["sigmas"], meta["sets"]
+    crit = meta["criteria"]
+    done = df.drop_duplicates(["sigma_index", "trial"]).shape[0]
+    facts = [("Problem", f"{meta['problem']} — {meta.get('description', '')}".rstrip(" —")),
+             ("Parameters", ", ".join(f"{k} = {v}" for k, v in meta["params"].items()) or "defaults"),
+             ("Noise levels σ", ", ".join(_sig(s) for s in sigmas)),
+             ("Trials", f"{done} of {meta['trials'] * len(sigmas)} done ({meta['trials']} per σ)"),
+             ("Constraint sets", ", ".join(sets)),
+             ("Base seed", f"{meta['seed']} (trial seeds: SeedSequence((seed, σ index, trial)))"),
+             ("Tight", f"log SVR > {crit['min_log_svr']:g} and |relative cost gap| ≤ {crit['gap_tol']:g}"),
+             ("Trapped", f"random-start local cost above the global cost by more than {meta['trap_rtol']:g} "
+                         "relative"),
+             ("Command", meta["runs"][-1].get("command", "") if meta.get("runs") else ""),
+             ("Versions", ", ".join(f"{k} {v}" for k, v in meta.get("versions", {}).items())),
+             ("Generated", time.strftime("%Y-%m-%d %H:%M"))]
+    figs = figures.make_all(df, sigmas, sets, out, trap_rtol=meta["trap_rtol"], rank_line=crit["min_log_svr"]) \
+        if len(df) else {}
+    return Summary(f"Tightness report: {meta['problem']}", facts, tables(df, sigmas, sets), figs)
+
+
+def markdown(s: Summary) -> str:
+    lines = [f"# {s.title}", ""]
+    lines += [f"- **{k}**: {v}" if k != "Command" else f"- **{k}**: `{v}`" for k, v in s.facts]
+    for t in s.tables:
+        lines += ["", f"## {t.title}", ""]
+        if t.note:
+            lines += [t.note, ""]
+        lines += ["| " + " | ".join(t.header) + " |", "|" + "---|" * len(t.header)]
+        lines += ["| " + " | ".join(r) + " |" for r in t.rows]
+    if s.figures:
+        lines += ["", "## Figures", ""]
+        for name, path in s.figures.items():
+            lines += [f"![{name}]({path.name})", "", CAPTIONS.get(name, ""), ""]
+    return "\n".join(lines).rstrip() + "\n"
+
+
+STYLE = ("body{font-family:system-ui,sans-serif;max-width:60rem;margin:2rem auto;padding:0 1rem;color:#222}"
+         "table{border-collapse:collapse;margin:.5rem 0 1rem}th,td{border:1px solid #ccc;padding:.25rem .6rem;"
+         "text-align:right}th{background:#f4f4f4}td:first-child,th:first-child{text-align:left}"
+         "figure{margin:1rem 0}img{max-width:100%}figcaption{font-size:.9rem;color:#555}"
+         "code{background:#f4f4f4;padding:0 .2rem}dt{font-weight:600}dd{margin:0 0 .4rem 1rem}")
+
+
+def html_page(s: Summary) -> str:
+    e = html.escape
+    parts = ["<!DOCTYPE html>", '<html lang="en">', "<head>", '<meta charset="utf-8">',
+             f"<title>{e(s.title)}</title>", f"<style>{STYLE}</style>", "</head>", "<body>", f"<h1>{e(s.title)}</h1>",
+             "<dl>"]
+    for k, v in s.facts:
+        parts.append(f"<dt>{e(k)}</dt><dd>{f'<code>{e(v)}</code>' if k == 'Command' else e(v)}</dd>")
+    parts.append("</dl>")
+    for t in s.tables:
+        parts.append(f"<h2>{e(t.title)}</h2>")
+        if t.note:
+            parts.append(f"<p>{e(t.note)}</p>")
+        parts.append("<table><thead><tr>" + "".join(f"<th>{e(h)}</th>" for h in t.header) + "</tr></thead><tbody>")
+        parts += ["<tr>" + "".join(f"<td>{e(c)}</td>" for c in r) + "</tr>" for r in t.rows]
+        parts.append("</tbody></table>")
+    if s.figures:
+        parts.append("<h2>Figures</h2>")
+    for name, path in s.figures.items():
+        data = base64.b64encode(path.read_bytes()).decode("ascii")
+        parts.append(f'<figure><img alt="{e(name)}" src="data:image/png;base64,{data}">'
+                     f"<figcaption>{e(CAPTIONS.get(name, name))}</figcaption></figure>")
+    parts += ["</body>", "</html>", ""]
+    return "\n".join(parts)
+
+
+def render(out: str | Path, meta: dict[str, Any]) -> dict[str, Path]:
+    """Figures, ``report.md`` and ``report.html`` in ``out``; returns every file written."""
+    out = Path(out)
+    s = summarize(out, meta)
+    md, page = out / "report.md", out / "report.html"
+    atomic_write_text(md, markdown(s))
+    atomic_write_text(page, html_page(s))
+    return {**s.figures, "report.md": md, "report.html": page}

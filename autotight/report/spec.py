@@ -1,0 +1,147 @@
+"""What a noise sweep is: problem, fixed parameters, noise levels, trials, constraint sets, seeds."""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field
+from typing import Any, Sequence
+
+import numpy as np
+
+from ..errors import ParameterError
+from ..problem import Problem, load
+from ..tightness import Criteria
+
+SETS = ("primary", "paper", "discovered")
+DEFAULT_SIGMAS = tuple(float(s) for s in np.logspace(-3, 0, 7))
+TRAP_RTOL = 1e-4
+"""A random-start local solve is trapped if its cost exceeds the global cost by this (relative)."""
+
+
+class ReportError(ParameterError):
+    """Bad report input: noise levels, trials, sets, or an output folder holding another sweep."""
+
+
+@dataclass(frozen=True)
+class SweepSpec:
+    """One sweep.  ``params`` are the fixed problem parameters (all but ``sigma``, parsed).
+
+    Trial ``(i, t)`` solves a fresh instance at ``sigmas[i]``; its seeds come from
+    ``SeedSequence((seed, i, t))`` only, so results never depend on the backend or worker.
+    """
+
+    problem: str
+    params: dict[str, Any]
+    sigmas: tuple[float, ...]
+    trials: int
+    sets: tuple[str, ...]
+    seed: int = 0
+    trap_rtol: float = TRAP_RTOL
+    criteria: Criteria = field(default_factory=Criteria)
+    solver: str = "clarabel"
+    discovered: str | None = None
+    """A discovered-set JSON file, or None (run discovery when ``sets`` asks for it)."""
+    source: str = ""
+    """What ``autotight.problem.load`` takes (a name or a .py path); defaults to ``problem``."""
+
+    def load(self) -> Problem:
+        return load(self.source or self.problem)
+
+    def identity(self) -> dict[str, Any]:
+        """What must match for results to be mixed in one folder (``trials`` may grow or shrink)."""
+        return {"problem": self.problem, "params": dict(self.params), "sigmas": list(self.sigmas),
+                "sets": list(self.sets), "seed": self.seed, "trap_rtol": self.trap_rtol,
+                "criteria": asdict(self.criteria), "solver": self.solver}
+
+    def tasks(self) -> list[tuple[int, int]]:
+        """Every (σ index, trial), σ-major."""
+        return [(i, t) for i in range(len(self.sigmas)) for t in range(self.trials)]
+
+    def command(self) -> str:
+        """The ``autotight report`` command that reproduces this sweep."""
+        parts = ["autotight report", self.source or self.problem]
+        parts += [f"--param {k}={_fmt(v)}" for k, v in self.params.items()]
+        parts += [f"--sigmas {','.join(f'{s:g}' for s in self.sigmas)}", f"--trials {self.trials}",
+                  f"--sets {','.join(self.sets)}", f"--seed {self.seed}"]
+        if self.discovered:
+            parts.append(f"--discovered {self.discovered}")
+        return " ".join(parts)
+
+
+def _fmt(v: Any) -> str:
+    if isinstance(v, tuple):
+        return ",".join(f"{x:g}" for x in v)
+    return str(v)
+
+
+def trial_seeds(seed: int, sigma_index: int, trial: int) -> tuple[int, np.random.Generator, np.random.Generator]:
+    """(instance seed, rng for the random start, rng for re-instantiating discovered constraints)."""
+    inst, local, disc = np.random.SeedSequence([seed, sigma_index, trial]).spawn(3)
+    return int(inst.generate_state(1, np.uint32)[0]), np.random.default_rng(local), np.random.default_rng(disc)
+
+
+def default_sigmas(problem: Problem) -> tuple[float, ...]:
+    """The module's ``SIGMAS`` if it defines them, else 7 log-spaced levels over 1e-3 … 1."""
+    return tuple(float(s) for s in getattr(problem.module, "SIGMAS", DEFAULT_SIGMAS))
+
+
+def parse_sigmas(problem: Problem, text: str | Sequence[float] | None) -> tuple[float, ...]:
+    """Noise levels from "0.001,0.01,0.1" (or a sequence), validated by the problem's sigma range; sorted."""
+    if text is None:
+        values = list(default_sigmas(problem))
+    elif isinstance(text, str):
+        try:
+            values = [float(s) for s in text.split(",") if s.strip()]
+        except ValueError:
+            raise ReportError(f"--sigmas {text!r}: expected comma-separated numbers, e.g. 0.001,0.01,0.1") from None
+    else:
+        values = [float(s) for s in text]
+    if not values:
+        raise ReportError("no noise levels given; e.g. --sigmas 0.001,0.01,0.1")
+    if any(not np.isfinite(s) or s <= 0 for s in values):
+        raise ReportError(f"noise levels must be finite and > 0 (the σ axis is logarithmic), got {values}")
+    if len(set(values)) != len(values):
+        raise ReportError(f"duplicate noise levels in {values}")
+    sigma = require_sigma(problem)
+    return tuple(sorted(float(sigma.parse("sigma", s)) for s in values))
+
+
+def require_sigma(problem: Problem):
+    if "sigma" not in problem.params:
+        raise ReportError(f"problem {problem.name} has no 'sigma' parameter to sweep")
+    return problem.params["sigma"]
+
+
+def parse_sets(text: str | Sequence[str]) -> tuple[str, ...]:
+    names = [s.strip() for s in (text.split(",") if isinstance(text, str) else text) if s.strip()]
+    bad = [s for s in names if s not in SETS]
+    if bad or not names:
+        raise ReportError(f"--sets {','.join(names) or text!r}: use a comma-separated subset of {','.join(SETS)}")
+    if len(set(names)) != len(names):
+        raise ReportError(f"--sets lists a constraint set twice: {','.join(names)}")
+    return tuple(names)
+
+
+def make_spec(problem: Problem, source: str, params: dict[str, Any] | None = None, *, sigmas: str | Sequence[float] | None = None,
+              trials: int = 100, sets: str | Sequence[str] | None = None, seed: int = 0,
+              discovered: str | None = None, **kw: Any) -> SweepSpec:
+    """A validated sweep; ``sets`` defaults to primary plus paper when the problem has paper families."""
+    params = dict(params or {})
+    require_sigma(problem)
+    if "sigma" in params:
+        raise ReportError("sigma is swept by the report; give the noise levels with --sigmas")
+    if trials < 1:
+        raise ReportError(f"--trials {trials}: need at least 1 trial per noise level")
+    if seed < 0:
+        raise ReportError(f"--seed {seed}: must be ≥ 0")
+    full = problem.parse_params(params)
+    full.pop("sigma")
+    if sets is None:
+        sets = ("primary", "paper") if has_paper(problem, full) else ("primary",)
+    return SweepSpec(problem.name, full, parse_sigmas(problem, sigmas), int(trials), parse_sets(sets), int(seed),
+                     discovered=discovered, source=str(source), **kw)
+
+
+def has_paper(problem: Problem, params: dict[str, Any]) -> bool:
+    """Whether the problem's model has hand-derived (paper) constraint families."""
+    inst = problem.generate(params, 0)
+    return bool(problem.build(inst).paper)

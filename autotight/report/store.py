@@ -1,0 +1,183 @@
+"""The results folder: ``meta.json`` (what the sweep is) and ``trials.csv`` (one row per trial and set).
+
+Each finished trial is appended with one ``write`` and an fsync.  On reading, a torn last line or
+a trial with missing set rows (a crash mid-write) is dropped and the file rewritten atomically,
+so a trial is either fully present or absent.  A folder holding a different sweep is refused.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import math
+import os
+import time
+from pathlib import Path
+from typing import Any, Iterable, Sequence
+
+import pandas as pd
+
+from ..io import atomic_write_text, jsonable, versions, write_json
+from .spec import ReportError
+
+CSV_NAME = "trials.csv"
+META_NAME = "meta.json"
+BOOL_COLUMNS = ("tight", "rank_tight", "cost_tight", "local_converged_truth", "local_converged_random", "trapped")
+
+
+def _cell(v: Any) -> str:
+    if v is None:
+        return ""
+    if isinstance(v, bool):
+        return str(v)
+    if isinstance(v, float):
+        return "nan" if math.isnan(v) else repr(v)
+    if hasattr(v, "item"):  # numpy scalar
+        return _cell(v.item())
+    return str(v).replace("\r", " ").replace("\n", " ")
+
+
+def _norm(obj: Any) -> Any:
+    """JSON-normalised (tuples → lists, floats round-tripped) for comparing settings."""
+    return json.loads(json.dumps(jsonable(obj)))
+
+
+class Store:
+    """``out/meta.json`` and ``out/trials.csv`` for one sweep."""
+
+    def __init__(self, out: str | Path):
+        self.out = Path(out)
+        self.csv = self.out / CSV_NAME
+        self.meta_path = self.out / META_NAME
+        self.columns: list[str] = []
+        self.sets: list[str] = []
+
+    # -- settings ---------------------------------------------------------------------------
+    def open(self, identity: dict[str, Any], columns: Sequence[str], sets: Sequence[str], trials: int,
+             info: dict[str, Any] | None = None, run_info: dict[str, Any] | None = None) -> set[tuple[int, int]]:
+        """Create or check the folder; returns the (σ index, trial) keys already done.
+
+        ``identity`` must match a previous run's; ``info`` (e.g. a description) is stored, not compared;
+        ``run_info`` is appended to the list of runs.
+        """
+        self.columns, self.sets = list(columns), list(sets)
+        ident = _norm(dict(identity, columns=list(columns)))
+        meta = self.meta()
+        if meta is None:
+            if self.csv.exists() and self.csv.stat().st_size:
+                raise ReportError(f"{self.csv} exists without {META_NAME}; cannot check its settings — "
+                                  "use another --out or remove it")
+            meta = {"format": 1, **ident, "created": time.strftime("%Y-%m-%dT%H:%M:%S"), "runs": []}
+        else:
+            diff = [k for k in ident if _norm(meta.get(k)) != ident[k]]
+            if diff:
+                k = diff[0]
+                raise ReportError(f"{self.out} holds a different sweep ({k}: {_short(meta.get(k))} there, "
+                                  f"{_short(ident[k])} here; {len(diff)} setting(s) differ: {', '.join(diff)}) — "
+                                  "use another --out or remove that folder")
+        rows = self._load_rows()
+        meta.update(info or {})
+        meta["trials"] = int(trials)
+        meta["versions"] = versions()
+        meta["runs"] = [*meta.get("runs", []), {"started": time.strftime("%Y-%m-%dT%H:%M:%S"),
+                                                "versions": meta["versions"], **(run_info or {})}]
+        write_json(self.meta_path, meta)
+        return self._keys(rows)
+
+    def meta(self) -> dict[str, Any] | None:
+        if not self.meta_path.exists():
+            return None
+        try:
+            return json.loads(self.meta_path.read_text(encoding="utf-8"))
+        except json.JSONDecodeError as e:
+            raise ReportError(f"{self.meta_path} is not valid JSON ({e}); remove it or use another --out") from None
+
+    # -- rows -------------------------------------------------------------------------------
+    def _load_rows(self) -> list[list[str]]:
+        """Complete trials' rows (raw strings); repairs the file if anything was dropped or duplicated."""
+        header_line = ",".join(self.columns) + "\n"
+        if not self.csv.exists():
+            atomic_write_text(self.csv, header_line)
+            return []
+        text = self.csv.read_text(encoding="utf-8")
+        lines = text.split("\n")
+        damaged = lines[-1] != ""  # a torn last line has no newline
+        lines = lines[:-1]
+        if not lines:
+            atomic_write_text(self.csv, header_line)
+            return []
+        header = next(csv.reader([lines[0]]))
+        if header != self.columns:
+            raise ReportError(f"{self.csv} has other columns than this sweep writes; use another --out")
+        parsed = [next(csv.reader([ln]), []) for ln in lines[1:]]
+        good = [r for r in parsed if len(r) == len(self.columns)]
+        damaged |= len(good) != len(parsed)
+        kept = self._complete(good)
+        if damaged or len(kept) != len(good):
+            self._rewrite(kept)
+        return kept
+
+    def _complete(self, rows: list[list[str]]) -> list[list[str]]:
+        """Rows of trials that have exactly one row per set (first occurrence of each trial kept)."""
+        iset, ii, it = (self.columns.index(c) for c in ("constraint_set", "sigma_index", "trial"))
+        groups: dict[tuple[str, str], dict[str, list[str]]] = {}
+        for r in rows:
+            groups.setdefault((r[ii], r[it]), {}).setdefault(r[iset], r)
+        out = []
+        for g in groups.values():
+            if sorted(g) == sorted(self.sets):
+                out += [g[s] for s in self.sets]
+        return out
+
+    def _keys(self, rows: Iterable[list[str]]) -> set[tuple[int, int]]:
+        ii, it = self.columns.index("sigma_index"), self.columns.index("trial")
+        return {(int(r[ii]), int(r[it])) for r in rows}
+
+    def _text(self, rows: Iterable[Sequence[Any]]) -> str:
+        buf = io.StringIO()
+        w = csv.writer(buf, lineterminator="\n")
+        w.writerows(rows)
+        return buf.getvalue()
+
+    def _rewrite(self, rows: list[list[str]]) -> None:
+        atomic_write_text(self.csv, self._text([self.columns, *rows]))
+
+    def append(self, rows: Sequence[dict[str, Any]]) -> None:
+        """Append one trial's rows with a single write, then fsync."""
+        data = self._text([[_cell(r.get(c)) for c in self.columns] for r in rows]).encode("utf-8")
+        fd = os.open(self.csv, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
+        try:
+            view = memoryview(data)
+            while view:
+                view = view[os.write(fd, view):]
+            os.fsync(fd)
+        finally:
+            os.close(fd)
+
+    def finalize(self) -> None:
+        """Rewrite the CSV sorted by (σ index, trial, set) unless it already is."""
+        rows = self._load_rows()
+        ii, it, iset = (self.columns.index(c) for c in ("sigma_index", "trial", "constraint_set"))
+        order = sorted(rows, key=lambda r: (int(r[ii]), int(r[it]), self.sets.index(r[iset])))
+        if order != rows:
+            self._rewrite(order)
+
+
+def load_trials(out: str | Path, trials: int | None = None) -> pd.DataFrame:
+    """``trials.csv`` as a DataFrame (booleans parsed), optionally only trials < ``trials``."""
+    path = Path(out) / CSV_NAME
+    if not path.exists():
+        raise ReportError(f"no {CSV_NAME} in {out}")
+    df = pd.read_csv(path, keep_default_na=False, na_values=["nan", ""])
+    for c in BOOL_COLUMNS:
+        if c in df:
+            df[c] = df[c].astype(str) == "True"
+    if trials is not None:
+        df = df[df["trial"] < trials].reset_index(drop=True)
+    return df
+
+
+def _short(v: Any, n: int = 80) -> str:
+    s = json.dumps(v, ensure_ascii=False)
+    return s if len(s) <= n else s[: n - 1] + "…"

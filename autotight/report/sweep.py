@@ -1,0 +1,95 @@
+"""Run a sweep into a folder: skip done trials, run the rest on a backend, save each as it finishes."""
+
+from __future__ import annotations
+
+import hashlib
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from tqdm import tqdm
+
+from ..problem import Problem
+from .backends import execute
+from .spec import ReportError, SweepSpec
+from .store import Store
+from .trial import columns, error_keys, run_trial
+
+DISCOVERED_NAME = "discovered.json"
+
+
+@dataclass
+class SweepSummary:
+    """How many trials the sweep has, had before this run, computed now, and how many failed."""
+
+    out: Path
+    total: int
+    done_before: int
+    computed: int
+    failed: int
+
+    @property
+    def complete(self) -> bool:
+        return self.done_before + self.computed >= self.total
+
+
+def run_sweep(spec: SweepSpec, out: str | Path, *, jobs: int = 1, scheduler: Any = None, limit: int | None = None,
+              progress: bool = True) -> SweepSummary:
+    """Compute the trials of ``spec`` missing from ``out`` (at most ``limit`` of them)."""
+    out = Path(out)
+    problem = spec.load()
+    discovered, disc_id = prepare_discovered(spec, problem, out)
+    store = Store(out)
+    backend = "dask" if scheduler is not None else ("joblib" if jobs > 1 else "serial")
+    done = store.open(dict(spec.identity(), discovered=disc_id), columns(error_keys(problem, spec)), spec.sets,
+                      spec.trials, info={"description": problem.description, "source": spec.source},
+                      run_info={"backend": backend, "jobs": jobs, "command": spec.command()})
+    tasks = spec.tasks()
+    pending = [k for k in tasks if k not in done]
+    if limit is not None:
+        if limit < 0:
+            raise ReportError(f"--limit {limit}: must be ≥ 0")
+        pending = pending[:limit]
+    before = len(tasks) - len([k for k in tasks if k not in done])
+    computed = failed = 0
+    with tqdm(total=len(tasks), initial=before, disable=not progress, unit="trial", desc=problem.name,
+              dynamic_ncols=True) as bar:
+        calls = [(spec, i, t, discovered) for i, t in pending]
+        for res in execute(run_trial, calls, jobs=jobs, scheduler=scheduler):
+            store.append(res.rows)
+            computed += 1
+            failed += str(res.rows[0]["status"]).startswith("Error")
+            bar.update()
+    summary = SweepSummary(out, len(tasks), before, computed, failed)
+    if summary.complete:
+        store.finalize()
+    return summary
+
+
+def _sha256(path: Path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def prepare_discovered(spec: SweepSpec, problem: Problem, out: Path) -> tuple[Any, dict[str, Any] | None]:
+    """The discovered set (loaded from ``spec.discovered``, from ``out``, or by running discovery) and its identity."""
+    if "discovered" not in spec.sets:
+        return None, None
+    path = Path(spec.discovered) if spec.discovered else None
+    if path is not None and not path.is_file():
+        raise ReportError(f"no discovered-set file {path}")
+    try:
+        from ..discovery import DiscoveredSet, discover
+    except ImportError:
+        raise ReportError("the 'discovered' set needs autotight.discovery, which is not available "
+                          "(give a saved set with --discovered FILE once it is)") from None
+    if path is not None:
+        return DiscoveredSet.load(path), {"file": path.name, "sha256": _sha256(path)}
+    saved = out / DISCOVERED_NAME
+    if not saved.is_file():
+        params = problem.parse_params(spec.params)  # σ at the problem's default
+        ds = discover(problem, params, seed=spec.seed).discovered
+        if not hasattr(ds, "save"):
+            return ds, {"source": "discover", "seed": spec.seed, "sha256": None}
+        out.mkdir(parents=True, exist_ok=True)
+        ds.save(saved)
+    return DiscoveredSet.load(saved), {"source": "discover", "seed": spec.seed, "sha256": _sha256(saved)}

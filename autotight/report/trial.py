@@ -1,0 +1,124 @@
+"""One trial of a sweep: a fresh instance, local solves, and the SDP with every constraint set.
+
+Runs in a worker; returns rows (one per constraint set) and writes nothing.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from typing import Any, Sequence
+
+import numpy as np
+from threadpoolctl import threadpool_limits
+
+from ..errors import AutotightError
+from ..problem import Instance, Problem
+from ..run import constraint_set, local_search, solve_sdp
+from ..sdp.result import SolverOptions
+from ..tightness import judge
+from .spec import SweepSpec, trial_seeds
+
+KEY = ("sigma_index", "trial")
+BASE_COLUMNS = ("problem", "sigma_index", "sigma", "trial", "seed", "constraint_set", "n_constraints", "status",
+                "tight", "rank_tight", "cost_tight", "log_svr", "sdp_cost", "sdp_dual_cost", "rel_gap",
+                "local_cost_truth", "local_cost_random", "local_converged_truth", "local_converged_random",
+                "global_cost", "trapped")
+TIME_COLUMNS = ("sdp_time_s", "sdp_setup_s", "local_truth_time_s", "local_random_time_s", "build_time_s",
+                "trial_time_s")
+TAIL_COLUMNS = ("verdict",)
+ERROR_PREFIXES = ("err_sdp_", "err_truth_", "err_random_")
+
+
+def columns(error_keys: Sequence[str]) -> list[str]:
+    """CSV columns for a problem whose ``errors`` returns ``error_keys``."""
+    errs = [p + k for p in ERROR_PREFIXES for k in error_keys]
+    return [*BASE_COLUMNS, *errs, *TIME_COLUMNS, *TAIL_COLUMNS]
+
+
+def error_keys(problem: Problem, spec: SweepSpec) -> list[str]:
+    """Names of the problem's estimation errors (from the ground truth of the first trial's instance)."""
+    seed, _, _ = trial_seeds(spec.seed, 0, 0)
+    inst = problem.generate(dict(spec.params, sigma=spec.sigmas[0]), seed)
+    return list(problem.errors(inst, inst.truth))
+
+
+def is_trapped(random_cost: float, global_cost: float, rtol: float, floor: float = 1e-9) -> bool:
+    """Random-start cost above the global cost by more than ``rtol`` relative (floored at ``floor``)."""
+    if not np.isfinite(random_cost):
+        return True
+    return bool(random_cost - global_cost > rtol * max(abs(global_cost), floor))
+
+
+@dataclass
+class TrialResult:
+    key: tuple[int, int]
+    rows: list[dict[str, Any]]
+
+
+def run_trial(spec: SweepSpec, sigma_index: int, trial: int, discovered: Any = None) -> TrialResult:
+    """Trial ``(sigma_index, trial)`` of ``spec``, BLAS limited to one thread; failures become rows."""
+    with threadpool_limits(limits=1):
+        t0 = time.perf_counter()
+        problem = spec.load()
+        try:
+            rows = _solve(problem, spec, sigma_index, trial, discovered)
+        except (AutotightError, ValueError, ArithmeticError, np.linalg.LinAlgError) as e:
+            msg = f"Error: {type(e).__name__}: {e}".splitlines()[0]
+            seed, _, _ = trial_seeds(spec.seed, sigma_index, trial)
+            rows = [_row(problem, spec, sigma_index, trial, seed, s, status=msg) for s in spec.sets]
+        dt = time.perf_counter() - t0
+        for r in rows:
+            r["trial_time_s"] = dt
+        return TrialResult((sigma_index, trial), rows)
+
+
+def _row(problem: Problem, spec: SweepSpec, i: int, t: int, seed: int, set_name: str, **kw: Any) -> dict[str, Any]:
+    return {"problem": problem.name, "sigma_index": i, "sigma": spec.sigmas[i], "trial": t, "seed": seed,
+            "constraint_set": set_name, **kw}
+
+
+def _errors(problem: Problem, inst: Instance, state: dict | None, prefix: str) -> dict[str, float]:
+    if state is None:
+        return {}
+    return {prefix + k: v for k, v in problem.errors(inst, state).items()}
+
+
+def _solve(problem: Problem, spec: SweepSpec, i: int, t: int, discovered: Any) -> list[dict[str, Any]]:
+    seed, rng_local, rng_disc = trial_seeds(spec.seed, i, t)
+    t0 = time.perf_counter()
+    inst = problem.generate(dict(spec.params, sigma=spec.sigmas[i]), seed)
+    model = problem.build(inst)
+    build_s = time.perf_counter() - t0
+    loc = local_search(problem, inst, rng_local, n_random=1)
+    truth, rand = loc.from_truth, loc.from_random[0]
+    common = {"local_cost_truth": truth.cost, "local_cost_random": rand.cost,
+              "local_converged_truth": truth.converged, "local_converged_random": rand.converged,
+              "local_truth_time_s": truth.time_s, "local_random_time_s": rand.time_s, "build_time_s": build_s,
+              **_errors(problem, inst, truth.state, "err_truth_"), **_errors(problem, inst, rand.state, "err_random_")}
+    options = SolverOptions(threads=1)
+    rows, tight_costs = [], []
+    for name in spec.sets:
+        extra = discovered.instantiate(problem, inst, rng_disc) if name == "discovered" else None
+        cons = constraint_set(model, name, extra)
+        res = solve_sdp(model, cons, solver=spec.solver, options=options)
+        verdict = judge(res, loc.best.cost, spec.criteria)
+        errs: dict[str, float] = {}
+        if res.Theta is not None and res.usable:
+            try:
+                errs = _errors(problem, inst, problem.recover(inst, res.Theta), "err_sdp_")
+            except (ValueError, np.linalg.LinAlgError) as e:
+                verdict.reason += f"; recovery failed: {e}"
+        if verdict.tight:
+            tight_costs.append(res.primal_cost)
+        rows.append(_row(problem, spec, i, t, seed, name, n_constraints=len(cons), status=res.status,
+                         tight=verdict.tight, rank_tight=verdict.rank_tight, cost_tight=verdict.cost_tight,
+                         log_svr=res.log_svr, sdp_cost=res.primal_cost, sdp_dual_cost=res.dual_cost,
+                         rel_gap=verdict.rel_gap, sdp_time_s=res.solve_time_s, sdp_setup_s=res.setup_time_s,
+                         verdict=verdict.reason, **common, **errs))
+    finite = [c for c in (truth.cost, rand.cost, *tight_costs) if np.isfinite(c)]
+    global_cost = min(finite) if finite else float("nan")
+    trapped = is_trapped(rand.cost, global_cost, spec.trap_rtol, spec.criteria.cost_floor)
+    for r in rows:
+        r["global_cost"], r["trapped"] = global_cost, trapped
+    return rows
