@@ -35,11 +35,12 @@ class Spectrum:
         return self.rel.size - self.rank
 
 
-def spectrum(Yn: np.ndarray, min_gap_decades: float, full_rank_floor: float = 1e-8, where: str = "") -> Spectrum:
+def spectrum(Yn: np.ndarray, min_gap_decades: float, where: str = "") -> Spectrum:
     """Rank of column-normalised data from its largest relative spectral gap.
 
-    Full rank (no constraint) when σ_min/σ_1 > full_rank_floor and no gap is clearer.
-    Raises LearningError when the largest gap spans fewer than ``min_gap_decades``.
+    Full rank (no relation) when the whole spectrum spans fewer than min_gap_decades/2
+    decades.  Otherwise the largest gap must span at least ``min_gap_decades``, else
+    LearningError: near-relations that are neither exact nor absent cannot be read off.
     """
     s = sla.svdvals(Yn)
     m = Yn.shape[1]
@@ -50,7 +51,7 @@ def spectrum(Yn: np.ndarray, min_gap_decades: float, full_rank_floor: float = 1e
     gaps = logs[:-1] - logs[1:]
     k = int(np.argmax(gaps)) if gaps.size else 0
     gap = float(gaps[k]) if gaps.size else np.inf
-    if rel[-1] > full_rank_floor and gap < min_gap_decades:
+    if rel[-1] > 10.0 ** (-min_gap_decades / 2):
         return Spectrum(rel, m, float(-logs[-1]))
     if gap < min_gap_decades:
         raise LearningError(

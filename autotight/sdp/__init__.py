@@ -32,12 +32,16 @@ def solve(Q: sp.spmatrix | sp.sparray, constraints: Sequence[Constraint], *, d: 
     b = np.array([c.b for c in constraints], dtype=float)
     try:
         if solver == "clarabel":
-            if cliques is not None:
-                return solve_cliques(Q, As, b, d, cliques, opts)
-            return solve_dense(Q, As, b, d, opts)
-        if solver.startswith("cvxpy"):
+            res = solve_cliques(Q, As, b, d, cliques, opts) if cliques is not None else solve_dense(Q, As, b, d, opts)
+        elif solver.startswith("cvxpy"):
             name = solver.split(":", 1)[1] if ":" in solver else "SCS"
-            return solve_cvxpy(Q, As, b, d, name, opts)
+            res = solve_cvxpy(Q, As, b, d, name, opts)
+        else:
+            res = None
+        if res is not None:
+            if res.X is not None:
+                res.cost_scale = float(abs(Q.multiply(res.X)).sum())
+            return res
     except (ValueError, RuntimeError, np.linalg.LinAlgError) as e:
         return SDPResult(status=f"Failed: {type(e).__name__}: {e}".splitlines()[0], solver=solver, d=d, X=None,
                          y=None, primal_cost=float("nan"), dual_cost=float("nan"), solve_time_s=0.0,

@@ -30,7 +30,7 @@ def _settings(opts: SolverOptions) -> "clarabel.DefaultSettings":
     s.verbose = opts.verbose
     s.max_iter = opts.max_iter
     s.time_limit = opts.time_limit
-    s.tol_gap_abs = opts.tol
+    s.tol_gap_abs = opts.tol * 1e-3  # the scaled cost can be ≪ 1: keep the relative gap in charge
     s.tol_gap_rel = opts.tol
     s.tol_feas = opts.tol
     s.tol_ktratio = max(opts.tol, 1e-8)

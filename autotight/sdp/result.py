@@ -50,6 +50,7 @@ class SDPResult:
     Theta: np.ndarray | None = None
     clique_log_svr: list[float] | None = None
     message: str = ""
+    cost_scale: float = 0.0  # Σ|Q_ij X_ij|: the magnitude of the terms that the cost sums
 
     @property
     def solved(self) -> bool:
