@@ -21,7 +21,7 @@ class LearnOptions:
     sample_factor: samples per monomial (≥ 1.2).  min_gap_decades: the spectral gap that
     decides the rank (log10 units).  spread: how far samples stray from the nominal state.
     heldout: held-out samples per instance; heldout_tol: the largest relative violation
-    |Σ p_i m_i| / Σ|p_i m_i| a learned constraint may show on them.  span_tol: relative
+    |Σ p_ij θ_iᵀθ_j| / Σ|p_ij|‖θ_i‖‖θ_j‖ a learned constraint may show on them.  span_tol: relative
     residual below which a candidate counts as in the span of the primary constraints.
     """
 
@@ -199,7 +199,9 @@ def learn_group(model: Model, group: Group, bank: SampleBank, heldout: SampleBan
     # held-out check of every basic solution
     Th = heldout.thetas[:, :, cols]
     Mh = np.einsum("sdk,sdk->sk", Th[:, :, ii], Th[:, :, jj])
-    viol = np.max(np.abs(Mh @ coeffs) / np.maximum(np.abs(Mh) @ np.abs(coeffs), 1e-300), axis=0) if k else np.zeros(0)
+    nh = np.linalg.norm(Th, axis=1)
+    mag = nh[:, ii] * nh[:, jj]  # ‖θ_i‖‖θ_j‖ ≥ |θ_iᵀθ_j|: the size of each monomial's factors
+    viol = np.max(np.abs(Mh @ coeffs) / np.maximum(mag @ np.abs(coeffs), 1e-300), axis=0) if k else np.zeros(0)
     t2 = time.perf_counter()
     return LearnedGroup(group, cols, need, spec.rel, spec.rank, spec.gap_decades, idents, coeffs, in_span, viol,
                         opts.heldout_tol, {"nullspace_s": t1 - t0, "basis_s": t2 - t1})

@@ -32,19 +32,20 @@ def draw(problem: Problem, inst: Instance, n: int, rng: np.random.Generator, spr
 
 
 def residuals(constraints: Sequence[Constraint], thetas: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(⟨A,ΘᵀΘ⟩ − b, Σ|A_ij θ_iᵀθ_j| + |b|) for every sample and constraint, each (S, n_c).
+    """(⟨A,ΘᵀΘ⟩ − b, Σ|A_ij|‖θ_i‖‖θ_j‖ + |b|) for every sample and constraint, each (S, n_c).
 
-    Their ratio is the relative violation: 0 for a valid constraint, up to 1 for none at all.
-    Works on the sparse entries only; never forms ΘᵀΘ.
+    θ_i is column i of Θ.  Their ratio is the relative violation: 0 for a valid constraint,
+    up to 1 for none at all.  Works on the sparse entries only; never forms ΘᵀΘ.
     """
     S = thetas.shape[0]
+    norms = np.linalg.norm(thetas, axis=1)  # (S, N)
     val = np.zeros((S, len(constraints)))
     mag = np.zeros((S, len(constraints)))
     for k, c in enumerate(constraints):
         U = sp.coo_array(c.A)
         prod = np.einsum("sdk,sdk->sk", thetas[:, :, U.row], thetas[:, :, U.col]) * U.data
         val[:, k] = prod.sum(axis=1) - c.b
-        mag[:, k] = np.abs(prod).sum(axis=1) + abs(c.b)
+        mag[:, k] = (norms[:, U.row] * norms[:, U.col]) @ np.abs(U.data) + abs(c.b)
     return val, mag
 
 

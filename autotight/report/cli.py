@@ -56,7 +56,7 @@ def cmd_report(args: argparse.Namespace) -> int:
     jobs = _cores() if args.jobs is None else args.jobs
     try:
         summary = run_sweep(spec, out, jobs=jobs, scheduler=args.scheduler, limit=args.limit,
-                            progress=not args.no_progress)
+                            progress=not args.no_progress, log=lambda msg: print(msg, file=sys.stderr))
     except KeyboardInterrupt:
         print(f"autotight: interrupted; finished trials are saved in {out / 'trials.csv'} — "
               "re-run the same command to resume", file=sys.stderr)

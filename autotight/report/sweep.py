@@ -5,7 +5,7 @@ from __future__ import annotations
 import hashlib
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 from tqdm import tqdm
 
@@ -34,23 +34,24 @@ class SweepSummary:
 
 
 def run_sweep(spec: SweepSpec, out: str | Path, *, jobs: int = 1, scheduler: Any = None, limit: int | None = None,
-              progress: bool = True) -> SweepSummary:
-    """Compute the trials of ``spec`` missing from ``out`` (at most ``limit`` of them)."""
+              progress: bool = True, log: Callable[[str], None] = lambda msg: None) -> SweepSummary:
+    """Compute the trials of ``spec`` missing from ``out`` (at most ``limit`` of them); ``log`` gets notes."""
+    if jobs < 1:
+        raise ReportError(f"--jobs {jobs}: need at least 1 worker")
+    if limit is not None and limit < 0:
+        raise ReportError(f"--limit {limit}: must be ≥ 0")
     out = Path(out)
     problem = spec.load()
-    discovered, disc_id = prepare_discovered(spec, problem, out)
+    discovered, disc_id = prepare_discovered(spec, problem, out, log)
     store = Store(out)
     backend = "dask" if scheduler is not None else ("joblib" if jobs > 1 else "serial")
     done = store.open(dict(spec.identity(), discovered=disc_id), columns(error_keys(problem, spec)), spec.sets,
                       spec.trials, info={"description": problem.description, "source": spec.source},
                       run_info={"backend": backend, "jobs": jobs, "command": spec.command()})
     tasks = spec.tasks()
-    pending = [k for k in tasks if k not in done]
-    if limit is not None:
-        if limit < 0:
-            raise ReportError(f"--limit {limit}: must be ≥ 0")
-        pending = pending[:limit]
-    before = len(tasks) - len([k for k in tasks if k not in done])
+    missing = [k for k in tasks if k not in done]
+    pending = missing if limit is None else missing[:limit]
+    before = len(tasks) - len(missing)
     computed = failed = 0
     with tqdm(total=len(tasks), initial=before, disable=not progress, unit="trial", desc=problem.name,
               dynamic_ncols=True) as bar:
@@ -70,7 +71,8 @@ def _sha256(path: Path) -> str:
     return hashlib.sha256(path.read_bytes()).hexdigest()
 
 
-def prepare_discovered(spec: SweepSpec, problem: Problem, out: Path) -> tuple[Any, dict[str, Any] | None]:
+def prepare_discovered(spec: SweepSpec, problem: Problem, out: Path,
+                       log: Callable[[str], None] = lambda msg: None) -> tuple[Any, dict[str, Any] | None]:
     """The discovered set (loaded from ``spec.discovered``, from ``out``, or by running discovery) and its identity."""
     if "discovered" not in spec.sets:
         return None, None
@@ -87,9 +89,8 @@ def prepare_discovered(spec: SweepSpec, problem: Problem, out: Path) -> tuple[An
     saved = out / DISCOVERED_NAME
     if not saved.is_file():
         params = problem.parse_params(spec.params)  # σ at the problem's default
-        ds = discover(problem, params, seed=spec.seed).discovered
-        if not hasattr(ds, "save"):
-            return ds, {"source": "discover", "seed": spec.seed, "sha256": None}
+        log(f"running discovery for {problem.name} at {params} (seed {spec.seed}); saving it to {saved}")
+        res = discover(problem, params, seed=spec.seed, criteria=spec.criteria)
         out.mkdir(parents=True, exist_ok=True)
-        ds.save(saved)
+        res.discovered.save(saved, res.model, res.constraints, {"summary": res.summary()})
     return DiscoveredSet.load(saved), {"source": "discover", "seed": spec.seed, "sha256": _sha256(saved)}

@@ -99,7 +99,7 @@ def _solve(problem: Problem, spec: SweepSpec, i: int, t: int, discovered: Any) -
     options = SolverOptions(threads=1)
     rows, tight_costs = [], []
     for name in spec.sets:
-        extra = discovered.instantiate(problem, inst, rng_disc) if name == "discovered" else None
+        extra = discovered.instantiate(problem, inst, rng_disc, model=model) if name == "discovered" else None
         cons = constraint_set(model, name, extra)
         res = solve_sdp(model, cons, solver=spec.solver, options=options)
         verdict = judge(res, loc.best.cost, spec.criteria)

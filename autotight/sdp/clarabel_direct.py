@@ -22,6 +22,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..svec import SQRT2, smat, svec_dim, svec_sparse
+from .chordal import has_running_intersection, maximal
 from .result import SDPResult, SolverOptions, finish
 
 
@@ -86,7 +87,10 @@ def solve_cliques(Q: sp.csr_array, As: Sequence[sp.csr_array], b: np.ndarray, d:
     t0 = time.perf_counter()
     N = Q.shape[0]
     c = _scale(Q)
-    cliques = [np.sort(np.asarray(C, dtype=np.int64)) for C in cliques]
+    cliques = maximal(cliques)
+    if not has_running_intersection(cliques):
+        raise ValueError("the cliques do not form a clique tree (running intersection fails): "
+                         "the decomposed SDP would be weaker than the dense one")
     idx = _pattern_index(N, cliques)
     nv = len(idx)
 
