@@ -52,11 +52,31 @@ def local_search(problem: Problem, inst: Instance, rng: np.random.Generator, n_r
     return LocalSearch(truth, rand)
 
 
+AUTO_DECOMPOSE_N = 80  # lifted size above which the SDP is decomposed into cliques by default
+
+
+def cliques_for(model: Model, constraints: Sequence[Constraint]) -> list[np.ndarray]:
+    """Column cliques of a chordal cover of Q and the constraints (h in every clique)."""
+    from .sdp.chordal import column_cliques
+
+    h = model.variables.index(["h"])
+    return column_cliques(model.variables.N, [model.Q] + [c.A for c in constraints], always=h)
+
+
 def solve_sdp(model: Model, constraints: Sequence[Constraint], *, solver: str = "clarabel",
               decompose: bool | None = None, options: SolverOptions | None = None) -> SDPResult:
-    """The Shor SDP of ``model`` with ``constraints``; decomposed into the model's cliques by default when it has them."""
-    use = model.cliques is not None if decompose is None else decompose
-    cliques = model.clique_indices() if use and solver == "clarabel" else None
+    """The Shor SDP of ``model`` with ``constraints``.
+
+    decompose: None → into cliques when N > AUTO_DECOMPOSE_N (Clarabel only); True/False forces it.
+    The cliques are the model's own when it gives them, else those of the chordal structure of Q
+    and these constraints (see ``cliques_for``).
+    """
+    use = (model.variables.N > AUTO_DECOMPOSE_N) if decompose is None else decompose
+    cliques = None
+    if use and solver == "clarabel":
+        cliques = model.clique_indices() or cliques_for(model, constraints)
+        if len(cliques) == 1:
+            cliques = None
     return sdp.solve(model.Q, constraints, d=model.d, solver=solver, cliques=cliques, options=options)
 
 

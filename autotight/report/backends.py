@@ -40,7 +40,8 @@ def _joblib(fn: Callable[..., Any], calls: Sequence[tuple], jobs: int) -> Iterat
     try:
         yield from results
     except TerminatedWorkerError as e:
-        raise AutotightError(f"a worker process died ({str(e).splitlines()[0][:120]}); {RESUME}") from e
+        first = str(e).split(". ")[0].splitlines()[0] if str(e) else type(e).__name__
+        raise AutotightError(f"a worker process died ({first}); {RESUME}") from e
 
 
 def _dask(fn: Callable[..., Any], calls: Sequence[tuple], scheduler: Any) -> Iterator[Any]:

@@ -57,9 +57,10 @@ class SweepSpec:
         return [(i, t) for i in range(len(self.sigmas)) for t in range(self.trials)]
 
     def command(self) -> str:
-        """The ``autotight report`` command that reproduces this sweep."""
+        """The ``autotight report`` command that reproduces this sweep (parameters other than defaults)."""
+        defaults = self.load().parse_params()
         parts = ["autotight report", self.source or self.problem]
-        parts += [f"--param {k}={_fmt(v)}" for k, v in self.params.items()]
+        parts += [f"--param {k}={_fmt(v)}" for k, v in self.params.items() if v != defaults.get(k)]
         parts += [f"--sigmas {','.join(f'{s:g}' for s in self.sigmas)}", f"--trials {self.trials}",
                   f"--sets {','.join(self.sets)}", f"--seed {self.seed}"]
         if self.discovered:

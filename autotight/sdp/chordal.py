@@ -47,3 +47,57 @@ def maximal(cliques: Sequence[np.ndarray]) -> list[np.ndarray]:
             continue
         out.append(np.array(sorted(s), dtype=np.int64))
     return out
+
+
+def column_cliques(N: int, matrices: Sequence[sp.sparray], always: Sequence[int] = (0,)) -> list[np.ndarray]:
+    """Cliques (column indices) of a chordal extension of the aggregate sparsity of ``matrices``.
+
+    Columns i ≠ j are adjacent when some matrix has a nonzero at (i, j).  The ``always``
+    columns (h) touch everything; they are left out of the graph and added to every clique.
+    Greedy minimum-fill elimination gives the chordal extension; its elimination cliques, kept
+    maximal, form a clique tree.
+    """
+    import heapq
+
+    fixed = set(int(a) for a in always)
+    adj: list[set[int]] = [set() for _ in range(N)]
+    for A in matrices:
+        U = sp.coo_array(A)
+        for i, j in zip(U.row.tolist(), U.col.tolist()):
+            if i != j and i not in fixed and j not in fixed:
+                adj[i].add(j)
+                adj[j].add(i)
+    alive = [i not in fixed for i in range(N)]
+
+    def fill(v: int) -> int:
+        nb = list(adj[v])
+        return sum(1 for i, a in enumerate(nb) for b in nb[i + 1:] if b not in adj[a])
+
+    key = {i: (fill(i), len(adj[i])) for i in range(N) if alive[i]}
+    heap = [(k, i) for i, k in key.items()]
+    heapq.heapify(heap)
+    cliques: list[frozenset[int]] = []
+    while heap:
+        k, v = heapq.heappop(heap)
+        if not alive[v] or key[v] != k:
+            continue  # stale entry
+        nb = list(adj[v])
+        for i, a in enumerate(nb):
+            adj[a].discard(v)
+            for b in nb[i + 1:]:
+                if b not in adj[a]:
+                    adj[a].add(b)
+                    adj[b].add(a)
+        alive[v] = False
+        cliques.append(frozenset([v, *nb]))
+        touched = set(nb)
+        for a in nb:
+            touched |= adj[a]
+        for u in touched:
+            if alive[u]:
+                key[u] = (fill(u), len(adj[u]))
+                heapq.heappush(heap, (key[u], u))
+    keep = [c for c in cliques if not any(c < d for d in cliques if len(d) > len(c))]
+    uniq = list(dict.fromkeys(keep))
+    head = sorted(fixed)
+    return [np.array(head + sorted(c), dtype=np.int64) for c in uniq]
