@@ -92,7 +92,8 @@ def learn(problem: Problem, inst: Instance, model: Model, rng: np.random.Generat
 
 @single_blas_thread
 def instantiate(problem: Problem, inst: Instance, pairs: Sequence[Pair], rng: np.random.Generator,
-                opts: LearnOptions = LearnOptions(), model: Model | None = None) -> tuple[list[Constraint], list[str]]:
+                opts: LearnOptions = LearnOptions(), model: Model | None = None,
+                groups: str | Sequence[Sequence[str]] = "factors") -> tuple[list[Constraint], list[str]]:
     """Re-learn the factors of the needed types on ``inst`` and keep the given identities.
 
     Returns the constraints and a list of problems (identities not found or failing the
@@ -102,7 +103,7 @@ def instantiate(problem: Problem, inst: Instance, pairs: Sequence[Pair], rng: np
         return [], []
     model = model or problem.build(inst)
     types = sorted({t for t, _ in pairs})
-    cat = learn(problem, inst, model, rng, opts=opts, types=types)
+    cat = learn(problem, inst, model, rng, groups, opts=opts, types=types)
     want = set(pairs)
     found: dict[Pair, int] = {p: 0 for p in pairs}
     out, issues = [], []

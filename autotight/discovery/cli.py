@@ -17,7 +17,8 @@ def register(sub: argparse._SubParsersAction, add_problem_args: Callable) -> Non
     p = sub.add_parser("discover", help="learn, tighten and reduce redundant constraints; compare with the paper")
     add_problem_args(p)
     p.add_argument("--out", default=None, help="save the discovered set as JSON to this file")
-    p.add_argument("--groups", default="factors", help="'factors' (default), 'whole', or blocks 'a,b;c,d'")
+    p.add_argument("--groups", default="factors", help="'factors' (default), 'whole', 'adjacent:TYPE+TYPE' (unions of neighbouring factors), "
+                        "comma-joined, or explicit blocks 'a,b;c,d'")
     p.add_argument("--heldout", type=int, default=10, help="held-out instances for the sufficiency check (default 10)")
     p.add_argument("--min-gap", type=float, default=6.0, help="spectral gap in decades that decides the rank (default 6)")
     p.add_argument("--gap-tol", type=float, default=1e-5, help="relative cost gap counted as tight (default 1e-5)")
@@ -26,7 +27,8 @@ def register(sub: argparse._SubParsersAction, add_problem_args: Callable) -> Non
 
 
 def _groups(spec: str):
-    if spec in ("factors", "whole"):
+    if ";" not in spec and all(p.strip() in ("factors", "whole") or p.strip().startswith("adjacent:")
+                               for p in spec.split(",")):
         return spec
     return [tuple(x.strip() for x in g.split(",") if x.strip()) for g in spec.split(";") if g.strip()]
 

@@ -39,6 +39,7 @@ class DiscoveredSet:
     pairs: list[Pair]
     learn_options: dict[str, Any] = field(default_factory=dict)
     info: dict[str, Any] = field(default_factory=dict)
+    groups: str | list[list[str]] = "factors"
 
     def options(self) -> LearnOptions:
         return LearnOptions(**self.learn_options) if self.learn_options else LearnOptions()
@@ -48,7 +49,7 @@ class DiscoveredSet:
         """The set's constraints on ``inst`` (each checked on held-out samples of ``inst``)."""
         if problem.name != self.problem:
             raise AutotightError(f"discovered set is for {self.problem!r}, not {problem.name!r}")
-        cons, issues = instantiate(problem, inst, self.pairs, rng, self.options(), model)
+        cons, issues = instantiate(problem, inst, self.pairs, rng, self.options(), model, self.groups)
         if issues and strict:
             raise LearningError(f"cannot re-instantiate the discovered set: {issues[0]} ({len(issues)} issue(s))")
         return cons
@@ -57,7 +58,7 @@ class DiscoveredSet:
              extra: dict[str, Any] | None = None) -> None:
         obj: dict[str, Any] = {
             "format": FORMAT, "problem": self.problem, "params": self.params, "seed": self.seed,
-            "versions": versions(), "learn_options": self.learn_options,
+            "versions": versions(), "learn_options": self.learn_options, "groups": self.groups,
             "pairs": [{"factor_type": t, "identity": i} for t, i in self.pairs], "info": self.info,
         }
         if model is not None:
@@ -82,4 +83,4 @@ class DiscoveredSet:
             raise AutotightError(f"{path} is not a discovered-set file (format {obj.get('format')!r})")
         pairs = [(p["factor_type"], p["identity"]) for p in obj["pairs"]]
         return cls(obj["problem"], obj["params"], obj.get("seed"), pairs, obj.get("learn_options", {}),
-                   obj.get("info", {}))
+                   obj.get("info", {}), obj.get("groups", "factors"))

@@ -8,6 +8,7 @@ from typing import Sequence
 import numpy as np
 import scipy.sparse as sp
 
+from ..errors import ProblemDefinitionError
 from ..model import HOMOGENISING, Constraint, Factor, Model
 from ..svec import sym_to_poly, triu_indices
 from .nullspace import basic_solutions, free_monomials, nullspace, spectrum
@@ -48,13 +49,55 @@ class Group:
         return Group(f.name, f.type, tuple(f.blocks), tuple(f.roles or f.blocks))
 
 
+def adjacent_groups(model: Model, type_a: str, type_b: str) -> list[Group]:
+    """Unions of a factor of type_a with each later factor of type_b that shares a block with it.
+
+    Roles: the first factor's roles prefixed "1.", the second's new blocks prefixed "2.", so that
+    the union has the same roles wherever it sits (e.g. two consecutive motion factors).
+    """
+    fs = model.factors
+    out = []
+    for i, fa in enumerate(fs):
+        if fa.type != type_a:
+            continue
+        for fb in fs[i + 1:]:
+            if fb.type != type_b or not (set(fa.blocks) & set(fb.blocks)) - {HOMOGENISING}:
+                continue
+            blocks = list(fa.blocks)
+            roles = [r if b == HOMOGENISING else f"1.{r}" for b, r in zip(fa.blocks, fa.roles or fa.blocks)]
+            for b, r in zip(fb.blocks, fb.roles or fb.blocks):
+                if b not in blocks:
+                    blocks.append(b)
+                    roles.append(f"2.{r}")
+            out.append(Group(f"{fa.name}+{fb.name}", f"{type_a}+{type_b}", tuple(blocks), tuple(roles)))
+    return out
+
+
 def groups_of(model: Model, how: str | Sequence[Sequence[str]] = "factors") -> list[Group]:
-    """'factors' (default), 'whole' (all blocks), or explicit block lists."""
-    if how == "factors":
-        return [Group.of(f) for f in model.factors]
-    if how == "whole":
-        names = tuple(model.variables.names)
-        return [Group("whole", "whole", names, names)]
+    """Learning groups.
+
+    how: "factors" (default: one group per factor), "whole" (all blocks), "adjacent:A+B" (unions of
+    neighbouring factors of types A and B), several of these joined by commas, or explicit block lists.
+    """
+    if isinstance(how, str):
+        out: list[Group] = []
+        for part in [p.strip() for p in how.split(",") if p.strip()]:
+            if part == "factors":
+                out += [Group.of(f) for f in model.factors]
+            elif part == "whole":
+                names = tuple(model.variables.names)
+                out.append(Group("whole", "whole", names, names))
+            elif part.startswith("adjacent:") and "+" in part:
+                ta, tb = part.split(":", 1)[1].split("+", 1)
+                types = {f.type for f in model.factors}
+                for t in (ta, tb):
+                    if t not in types:
+                        raise ProblemDefinitionError(f"no factor type {t!r}; types are {sorted(types)}")
+                out += adjacent_groups(model, ta, tb)
+            else:
+                raise ProblemDefinitionError(
+                    f"unknown group spec {part!r}; use factors, whole, adjacent:TYPE+TYPE or block lists")
+        return out
     out = []
     for i, blocks in enumerate(how):
         b = (HOMOGENISING,) + tuple(x for x in blocks if x != HOMOGENISING)

@@ -151,12 +151,13 @@ def discover(problem: Problem | str, params: dict[str, Any] | None = None, seed:
     n_solves = oracle.n_solves
     times["sdp_s"] = oracle.solve_time_s
     ds = DiscoveredSet(prob.name, full, seed, list(chosen), asdict(learn_options),
-                       {"criteria": asdict(criteria), "tight": tr.tight, "message": tr.message})
+                       {"criteria": asdict(criteria), "tight": tr.tight, "message": tr.message},
+                       groups if isinstance(groups, str) else [list(g) for g in groups])
     t = time.perf_counter()
     seeds = [seed + 1 + k for k in range(n_heldout)]
     hold = HeldOut([], [], [], [], [])
     if tr.tight:
-        hold = heldout_check(prob, full, seeds, lambda i, m, r: instantiate(prob, i, ds.pairs, r, ds.options(), m),
+        hold = heldout_check(prob, full, seeds, lambda i, m, r: instantiate(prob, i, ds.pairs, r, ds.options(), m, groups),
                              criteria, options, n_random)
     times["heldout_s"] = time.perf_counter() - t
     paper_tight, paper_hold, span, like = None, None, {}, {}
