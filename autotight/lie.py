@@ -203,8 +203,10 @@ def cay_inv(C: np.ndarray) -> np.ndarray:
     # For a rotation, 2(C − I)(C + I)⁻¹ = (C − Cᵀ)·2/(1 + tr C), i.e. φ = 2 tan(θ/2) a, and
     # cond₂(C + I) = 1/|cos(θ/2)| = 2/√(1 + tr C).
     t1 = 1.0 + C[0, 0] + C[1, 1] + C[2, 2]
-    if t1 <= 4.0 / CAYLEY_COND_MAX**2:
+    if t1 < 1e-4:  # near π the closed form loses accuracy: check and use the solve
         _check_cayley_invertible(C)
+        I = np.eye(3)
+        return vee(2.0 * np.linalg.solve((C + I).T, (C - I).T).T)
     s = 2.0 / t1
     return np.array([C[2, 1] - C[1, 2], C[0, 2] - C[2, 0], C[1, 0] - C[0, 1]]) * s
 

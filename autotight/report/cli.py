@@ -11,10 +11,7 @@ from typing import Any, Callable
 
 from ..io import jsonable
 from ..problem import load, parse_assignments
-from .render import render
 from .spec import SETS, make_spec
-from .store import Store
-from .sweep import run_sweep
 
 
 def _cores() -> int:
@@ -30,6 +27,9 @@ def register(sub: Any, add_problem_args: Callable[[argparse.ArgumentParser], Non
                                    "constraint set and the local solver from the truth and a random start. "
                                    "Resumable; writes trials.csv, meta.json, PNG figures, report.md, report.html.")
     add_problem_args(p)
+    for action in p._actions:  # the shared --seed is the sweep's base seed here
+        if action.dest == "seed":
+            action.help = "base seed: trial (i, t) uses SeedSequence((seed, i, t)) (default 0)"
     p.add_argument("--sigmas", metavar="LIST", default=None,
                    help="comma-separated noise levels (default: the problem's SIGMAS, else 7 levels over 1e-3…1)")
     p.add_argument("--trials", type=int, default=100, help="trials per noise level (default 100)")
@@ -44,11 +44,16 @@ def register(sub: Any, add_problem_args: Callable[[argparse.ArgumentParser], Non
                    help="a saved discovered-set JSON for the 'discovered' set (default: run discovery)")
     p.add_argument("--limit", type=int, default=None, metavar="N",
                    help="compute at most N missing trials now (the rest on a later run)")
-    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.add_argument("--no-progress", action="store_true",
+                   help="no progress bar (there is none either when stderr is not a terminal)")
     p.set_defaults(func=cmd_report)
 
 
 def cmd_report(args: argparse.Namespace) -> int:
+    from .render import render  # heavy imports (matplotlib, pandas) only when reporting
+    from .store import Store
+    from .sweep import run_sweep
+
     prob = load(args.problem)
     spec = make_spec(prob, args.problem, parse_assignments(args.param), sigmas=args.sigmas, trials=args.trials,
                      sets=args.sets, seed=args.seed, discovered=args.discovered)

@@ -1,6 +1,7 @@
 """Figures in the style of the paper's Figs. 3, 5, 8, 11: trapped fraction and log SVR box plots against σ.
 
-Every σ axis is logarithmic; every function writes one PNG and returns its path.
+Every σ axis is logarithmic; every function writes one PNG and returns its path.  Figures are
+built as ``matplotlib.figure.Figure`` objects (Agg canvas), never through pyplot's global state.
 """
 
 from __future__ import annotations
@@ -8,12 +9,10 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Sequence
 
-import matplotlib
-
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-import pandas as pd  # noqa: E402
+import numpy as np
+import pandas as pd
+from matplotlib.axes import Axes
+from matplotlib.figure import Figure
 
 COLORS = {"primary": "tab:blue", "paper": "tab:orange", "discovered": "tab:green"}
 LOG_SVR_CAP = 16.0
@@ -25,7 +24,7 @@ def _color(name: str) -> str:
     return COLORS.get(name, "tab:gray")
 
 
-def _sigma_axis(ax: plt.Axes, sigmas: Sequence[float]) -> None:
+def _sigma_axis(ax: Axes, sigmas: Sequence[float]) -> None:
     ax.set_xscale("log")
     lo, hi = min(sigmas), max(sigmas)
     pad = _group_width(sigmas)
@@ -45,17 +44,21 @@ def _per_trial(df: pd.DataFrame) -> pd.DataFrame:
     return df.drop_duplicates(["sigma_index", "trial"])
 
 
-def _save(fig: plt.Figure, path: Path) -> Path:
+def _figure(width: float, height: float) -> tuple[Figure, Axes]:
+    fig = Figure(figsize=(width, height))
+    return fig, fig.subplots()
+
+
+def _save(fig: Figure, path: Path) -> Path:
     fig.tight_layout()
     fig.savefig(path, dpi=DPI)
-    plt.close(fig)
     return path
 
 
 def trapped(df: pd.DataFrame, sigmas: Sequence[float], path: Path, trap_rtol: float) -> Path:
     """Fraction of random-start local solves trapped above the global cost, with 95 % Wilson intervals."""
     trials = _per_trial(df[~df["status"].astype(str).str.startswith("Error")])
-    fig, ax = plt.subplots(figsize=(5.6, 3.8))
+    fig, ax = _figure(5.6, 3.8)
     xs, p, lo, hi = [], [], [], []
     for i, s in enumerate(sigmas):
         t = trials[trials["sigma_index"] == i]["trapped"]
@@ -84,7 +87,7 @@ def _wilson(k: int, n: int, z: float = 1.96) -> tuple[float, float]:
 def log_svr(df: pd.DataFrame, sigmas: Sequence[float], sets: Sequence[str], path: Path,
             rank_line: float = 5.0) -> Path:
     """Box plots of log SVR against σ, one box per constraint set, with the rank-1 line."""
-    fig, ax = plt.subplots(figsize=(6.4, 4.0))
+    fig, ax = _figure(6.4, 4.0)
     group = _group_width(sigmas)
     w = group / len(sets)
     capped = False
@@ -119,13 +122,13 @@ def log_svr(df: pd.DataFrame, sigmas: Sequence[float], sets: Sequence[str], path
     if capped:
         title += f"\n(infinite log SVR drawn at {LOG_SVR_CAP:g})"
     ax.set_title(title, fontsize=9)
-    ax.legend(fontsize=8, loc="best")
+    ax.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.17), ncol=len(sets) + 1, frameon=False)
     return _save(fig, path)
 
 
 def tight(df: pd.DataFrame, sigmas: Sequence[float], sets: Sequence[str], path: Path) -> Path:
     """Fraction of trials judged tight (rank 1 and cost gap) per constraint set."""
-    fig, ax = plt.subplots(figsize=(5.6, 3.8))
+    fig, ax = _figure(5.6, 3.8)
     for name in sets:
         sub = df[df["constraint_set"] == name]
         frac = [sub[sub["sigma_index"] == i]["tight"].mean() for i in range(len(sigmas))]
@@ -140,7 +143,7 @@ def tight(df: pd.DataFrame, sigmas: Sequence[float], sets: Sequence[str], path: 
 
 def times(df: pd.DataFrame, sigmas: Sequence[float], sets: Sequence[str], path: Path) -> Path:
     """Median solve times against σ (shaded: interquartile range): SDP per set, local solver."""
-    fig, ax = plt.subplots(figsize=(5.6, 3.8))
+    fig, ax = _figure(5.6, 3.8)
     trials = _per_trial(df)
     series = [(f"SDP, {n}", df[df["constraint_set"] == n], "sdp_time_s", _color(n), "-") for n in sets]
     series += [("local, from truth", trials, "local_truth_time_s", "tab:gray", "--"),

@@ -57,21 +57,24 @@ class SweepSpec:
         return [(i, t) for i in range(len(self.sigmas)) for t in range(self.trials)]
 
     def command(self) -> str:
-        """The ``autotight report`` command that reproduces this sweep (parameters other than defaults)."""
-        defaults = self.load().parse_params()
+        """The ``autotight report`` command that reproduces this sweep (non-default values only, exact σ)."""
+        problem = self.load()
+        defaults = problem.parse_params()
         parts = ["autotight report", self.source or self.problem]
         parts += [f"--param {k}={_fmt(v)}" for k, v in self.params.items() if v != defaults.get(k)]
-        parts += [f"--sigmas {','.join(f'{s:g}' for s in self.sigmas)}", f"--trials {self.trials}",
-                  f"--sets {','.join(self.sets)}", f"--seed {self.seed}"]
+        if self.sigmas != default_sigmas(problem):
+            parts.append(f"--sigmas {_fmt(self.sigmas)}")
+        parts += [f"--trials {self.trials}", f"--sets {','.join(self.sets)}", f"--seed {self.seed}"]
         if self.discovered:
             parts.append(f"--discovered {self.discovered}")
         return " ".join(parts)
 
 
 def _fmt(v: Any) -> str:
+    """A parameter value as the command line takes it; floats exactly (repr round-trips)."""
     if isinstance(v, tuple):
-        return ",".join(f"{x:g}" for x in v)
-    return str(v)
+        return ",".join(repr(float(x)) for x in v)
+    return repr(v) if isinstance(v, float) else str(v)
 
 
 def trial_seeds(seed: int, sigma_index: int, trial: int) -> tuple[int, np.random.Generator, np.random.Generator]:
@@ -122,9 +125,10 @@ def parse_sets(text: str | Sequence[str]) -> tuple[str, ...]:
     return tuple(names)
 
 
-def make_spec(problem: Problem, source: str, params: dict[str, Any] | None = None, *, sigmas: str | Sequence[float] | None = None,
-              trials: int = 100, sets: str | Sequence[str] | None = None, seed: int = 0,
-              discovered: str | None = None, **kw: Any) -> SweepSpec:
+def make_spec(problem: Problem, source: str, params: dict[str, Any] | None = None, *,
+              sigmas: str | Sequence[float] | None = None, trials: int = 100,
+              sets: str | Sequence[str] | None = None, seed: int = 0, discovered: str | None = None,
+              **kw: Any) -> SweepSpec:
     """A validated sweep; ``sets`` defaults to primary plus paper when the problem has paper families."""
     params = dict(params or {})
     require_sigma(problem)

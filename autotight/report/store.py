@@ -52,6 +52,7 @@ class Store:
         self.meta_path = self.out / META_NAME
         self.columns: list[str] = []
         self.sets: list[str] = []
+        self.version_changes: list[str] = []
 
     # -- settings ---------------------------------------------------------------------------
     def open(self, identity: dict[str, Any], columns: Sequence[str], sets: Sequence[str], trials: int,
@@ -79,7 +80,10 @@ class Store:
         rows = self._load_rows()
         meta.update(info or {})
         meta["trials"] = int(trials)
-        meta["versions"] = versions()
+        now = versions()
+        old = meta.get("versions", now)
+        self.version_changes = [f"{k} {old.get(k)} → {v}" for k, v in now.items() if old.get(k) != v]
+        meta["versions"] = now
         meta["runs"] = [*meta.get("runs", []), {"started": time.strftime("%Y-%m-%dT%H:%M:%S"),
                                                 "versions": meta["versions"], **(run_info or {})}]
         write_json(self.meta_path, meta)

@@ -47,13 +47,16 @@ def run_sweep(spec: SweepSpec, out: str | Path, *, jobs: int = 1, scheduler: Any
     backend = "dask" if scheduler is not None else ("joblib" if jobs > 1 else "serial")
     done = store.open(dict(spec.identity(), discovered=disc_id), columns(error_keys(problem, spec)), spec.sets,
                       spec.trials, info={"description": problem.description, "source": spec.source},
-                      run_info={"backend": backend, "jobs": jobs, "command": spec.command()})
+                      run_info={"backend": backend, "jobs": jobs, "command": f"{spec.command()} --out {out}"})
+    if store.version_changes:
+        log(f"note: package versions changed since the last run ({', '.join(store.version_changes)}); "
+            f"each run's versions are in {store.meta_path}")
     tasks = spec.tasks()
     missing = [k for k in tasks if k not in done]
     pending = missing if limit is None else missing[:limit]
     before = len(tasks) - len(missing)
     computed = failed = 0
-    with tqdm(total=len(tasks), initial=before, disable=not progress, unit="trial", desc=problem.name,
+    with tqdm(total=len(tasks), initial=before, disable=None if progress else True, unit="trial", desc=problem.name,
               dynamic_ncols=True) as bar:
         calls = [(spec, i, t, discovered) for i, t in pending]
         for res in execute(run_trial, calls, jobs=jobs, scheduler=scheduler):
@@ -85,7 +88,10 @@ def prepare_discovered(spec: SweepSpec, problem: Problem, out: Path,
         raise ReportError("the 'discovered' set needs autotight.discovery, which is not available "
                           "(give a saved set with --discovered FILE once it is)") from None
     if path is not None:
-        return DiscoveredSet.load(path), {"file": path.name, "sha256": _sha256(path)}
+        ds = DiscoveredSet.load(path)
+        if getattr(ds, "problem", problem.name) != problem.name:
+            raise ReportError(f"{path} is a discovered set for {ds.problem}, not {problem.name}")
+        return ds, {"file": path.name, "sha256": _sha256(path)}
     saved = out / DISCOVERED_NAME
     if not saved.is_file():
         params = problem.parse_params(spec.params)  # σ at the problem's default

@@ -41,6 +41,10 @@ def _settings(opts: SolverOptions) -> "clarabel.DefaultSettings":
     # then limits accuracy (AlmostSolved, costs ~1e-5 off).  A smaller one solves them to tol.
     s.static_regularization_constant = 1e-10
     s.static_regularization_proportional = 1e-16
+    s.dynamic_regularization_enable = False
+    if opts.clarabel_chordal:
+        s.chordal_decomposition_enable = True
+        s.chordal_decomposition_complete_dual = True
     return s
 
 
@@ -55,7 +59,7 @@ def solve_dense(Q: sp.csr_array, As: Sequence[sp.csr_array], b: np.ndarray, d: i
     t0 = time.perf_counter()
     N = Q.shape[0]
     c = _scale(Q)
-    Acl = sp.hstack([svec_sparse(A) for A in As], format="csc") if As else sp.csc_array((svec_dim(N), 0))
+    Acl = svec_columns(As, N)
     bcl = (svec_sparse(Q) * c).toarray().ravel()
     m = Acl.shape[1]
     P = sp.csc_matrix((m, m))
@@ -64,7 +68,10 @@ def solve_dense(Q: sp.csr_array, As: Sequence[sp.csr_array], b: np.ndarray, d: i
     t1 = time.perf_counter()
     sol = solver.solve()
     t2 = time.perf_counter()
-    status = str(sol.status)
+    # Clarabel solved the SDP's dual: its "primal infeasible" is our dual infeasible and vice versa
+    status = {"PrimalInfeasible": "DualInfeasible", "DualInfeasible": "PrimalInfeasible",
+              "AlmostPrimalInfeasible": "AlmostDualInfeasible",
+              "AlmostDualInfeasible": "AlmostPrimalInfeasible"}.get(str(sol.status), str(sol.status))
     z = np.asarray(sol.z, float)
     X = smat(z, N) if z.size == svec_dim(N) and np.all(np.isfinite(z)) else None
     y = np.asarray(sol.x, float) / c
@@ -73,6 +80,21 @@ def solve_dense(Q: sp.csr_array, As: Sequence[sp.csr_array], b: np.ndarray, d: i
     res = SDPResult(status=status, solver="clarabel", d=d, X=X, y=y, primal_cost=primal, dual_cost=dual,
                     solve_time_s=t2 - t1, setup_time_s=t1 - t0, iterations=int(sol.iterations))
     return finish(res)
+
+
+def svec_columns(As: Sequence[sp.csr_array], N: int) -> sp.csc_array:
+    """[svec A₁ … svec A_m] as one sparse (N(N+1)/2 × m) matrix, assembled in one pass."""
+    rows, cols, vals = [], [], []
+    for k, A in enumerate(As):
+        U = sp.triu(sp.coo_array(A)).tocoo()
+        r, c = U.row.astype(np.int64), U.col.astype(np.int64)
+        rows.append(c * (c + 1) // 2 + r)
+        cols.append(np.full(r.size, k))
+        vals.append(U.data * np.where(r == c, 1.0, SQRT2))
+    if not As:
+        return sp.csc_array((svec_dim(N), 0))
+    return sp.csc_array((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+                        shape=(svec_dim(N), len(As)))
 
 
 def _pattern_index(N: int, cliques: Sequence[np.ndarray]) -> dict[tuple[int, int], int]:

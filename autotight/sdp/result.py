@@ -15,6 +15,7 @@ class SolverOptions:
 
     tol: the solver's relative gap and feasibility tolerance.
     max_iter, time_limit: stopping limits.  threads: solver threads (0 = solver default).
+    clarabel_chordal: let Clarabel decompose the dense cone itself (for comparison with ours).
     """
 
     tol: float = 1e-9
@@ -22,6 +23,7 @@ class SolverOptions:
     time_limit: float = float("inf")
     threads: int = 1
     verbose: bool = False
+    clarabel_chordal: bool = False  # dense path only: Clarabel's built-in chordal decomposition
 
 
 @dataclass

@@ -1,0 +1,568 @@
+"""Continuous-time trajectory estimation with a WNOA prior (Barfoot, Holmes, Dümbgen 2024, §5).
+
+States {T_k, ϖ_k} at timestamps t_k (k = 0 … K−1 here; the paper counts from 1), Δt_k = t_{k+1} − t_k.
+Pose measurements T̃_k = cay(ν_k^∧) T_k, ν_k ~ N(0, σ² I₆), at the measured k only (default: start,
+middle, end).  Cost (paper (46)–(47)), with W_k = I/σ²:
+
+    Σ_{measured k} ξ_kᵀ W_k ξ_k + (ϖ̌₀ − ϖ₀)ᵀ Q₁⁻¹ (ϖ̌₀ − ϖ₀) + Σ_{k<K−1} e_{k+1,k}ᵀ Q_{k+1,k}⁻¹ e_{k+1,k},
+    e_{k+1,k} = [Δt_k ϖ_k − ξ_{k+1,k}; ϖ_k − ϖ_{k+1}],  Q_{k+1,k} = [[Δt³/3, Δt²/2], [Δt²/2, Δt]] ⊗ Q_c,
+    ξ_k = cay⁻¹(T_k T̃_k⁻¹)^∨,  ξ_{k+1,k} = cay⁻¹(T_{k+1} T_k⁻¹)^∨.
+
+Lifting x = [h, (c_{k,1}, c_{k,2}, c_{k,3}, r_k)_k, (ρ_k, φ_k)_{measured k}, (ρ_{k+1,k}, φ_{k+1,k})_{k<K−1}]
+and, when ``marginalize`` is False, also ϖ_k (6 each).  With ``marginalize`` (default, as in the paper)
+ϖ is removed by the Schur complement: ``Model.cost`` = Q_xx − Q_xw Q_ww⁻¹ Q_wx, so ⟨Q, xxᵀ⟩ is the
+cost minimised over ϖ (h stays in x: the ϖ₀ prior gives linear terms; the constant sits on h²), and
+ϖ* = −Q_ww⁻¹ Q_wx x* is recovered after the solve.
+
+The Schur complement does *not* keep the chain sparsity: Q_ww⁻¹ is dense, so the cost couples h and
+every ξ_{k+1,k} with every other (by 2 − √3 ≈ 0.27 less per step for uniform Δt, never zero).
+With Q_c diagonal it couples only equal components, so entry by entry it is 6 dense (K−1)-cliques,
+which Clarabel's own (entry-level) chordal decomposition finds; any block-level cover needs one bag
+with h and every motion block (``marginalized_cliques``, largest bag 25 + 6(K−1)), which makes the
+clique-decomposed SDP far slower than Clarabel's own (≈ 10 GB at K = 21).  So ``Model.cliques`` is
+None when marginalising, and the chain {h, pose k, pose k+1, ξ_{k+1,k}, ϖ_k, ϖ_{k+1}} when ϖ is kept.
+
+Factors: "so3" per pose (orthonormality), "pose_meas" {h, C_k, r_k, ξ_k} per measured k (the 12
+Cayley rows of (I − ½ξ_k^∧) T_k = (I + ½ξ_k^∧) T̃_k), "motion" {h, pose k, pose k+1, ξ_{k+1,k}}
+(the 12 rows of (I − ½ξ^∧) T_{k+1} = (I + ½ξ^∧) T_k, i.e. the discrete-time relation with C̃ = I,
+r̃ = 0).  Paper families (notes §4): R1, R2, R4, R5, R7 per measured k; R3, R6, R8 per k < K−1.
+R7 uses c_ℓ × c_m = c_n, so it holds on SO(3) only, not on O(3).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+
+from autotight import lie
+from autotight.affine import Affine, H, const, quad, sum_quads, var
+from autotight.errors import ParameterError, ProblemDefinitionError, SolverError
+from autotight.gauss_newton import gauss_newton
+from autotight.model import Constraint, Factor, Model, QuadForm, Variables
+from autotight.problem import Instance, LocalResult, Param
+
+from ._pose import (POSE_ROLES, XI_ROLES, binary_cayley, declare_pose, declare_xi, pose_blocks, pose_from_x,
+                    pose_orthonormality, pose_values, r1_unary, r2_unary, r3_binary, rot_blocks, trans_block,
+                    unary_cayley, weighted_cost, xi_blocks, xi_values)
+
+NAME = "continuous_trajectory"
+DESCRIPTION = "Continuous-time (WNOA prior) SE(3) trajectory from sparse pose measurements (paper §5)."
+PARAMS = {
+    "K": Param(21, "number of states {T_k, ϖ_k}", low=2),
+    "sigma": Param(0.1, "pose measurement noise std per ξ component (W_k = I/σ²)", low=0.0, low_open=True),
+    "dt": Param(1.0, "time step Δt between states (used when `times` is empty)", low=0.0, low_open=True),
+    "qc": Param(1.0, "power spectral density scale: Q_c = qc · diag(qc_diag)", low=0.0, low_open=True),
+    "qc_diag": Param((), "6 diagonal entries of Q_c/qc (empty: all ones)"),
+    "prior_sigma": Param(0.1, "std of the prior on the first twist ϖ₀ (Q₁ = prior_sigma² I)", low=0.0,
+                         low_open=True),
+    "motion": Param(1.0, "twist scale: the true body twist is about motion·(1 m/s forward, 0.3 rad/s yaw)",
+                    low=0.0),
+    "measured": Param((), "indices of the measured states, 0-based (empty: start, middle, end)"),
+    "times": Param((), "K increasing timestamps (empty: t_k = k·dt)"),
+    "marginalize": Param(True, "remove ϖ from the lifting by the Schur complement (paper); else keep it"),
+}
+
+#: the true body twist [ρ̇; φ̇] per unit of `motion`: 1 m/s forward, 0.3 rad/s about the body z axis
+BASE_TWIST = np.array([1.0, 0.0, 0.0, 0.0, 0.0, 0.3])
+#: the true twist wanders as a random walk with this std per component and √s, per unit of `motion`
+TWIST_WANDER = 0.05
+
+#: roles of a motion factor: pose k, pose k+1 (primed), ξ_{k+1,k} (as discrete_trajectory's odometry factor)
+MOTION_ROLES = ("h", *POSE_ROLES, *(f"{r}'" for r in POSE_ROLES), *XI_ROLES)
+
+
+# ----------------------------------------------------------------------------- parameters and data
+
+
+def _indices(params: dict, K: int) -> np.ndarray:
+    raw = params.get("measured", ())
+    if len(raw) == 0:
+        return np.array(sorted({0, K // 2, K - 1}))
+    idx = np.asarray(raw, dtype=float)
+    if np.any(idx != np.round(idx)):
+        raise ParameterError(f"measured indices must be integers, got {list(raw)}")
+    idx = idx.astype(int)
+    bad = idx[(idx < 0) | (idx >= K)]
+    if bad.size:
+        raise ParameterError(f"measured index {int(bad[0])} is outside the trajectory (0 … {K - 1})")
+    if len(set(idx.tolist())) != idx.size:
+        raise ParameterError(f"measured indices repeat: {idx.tolist()}")
+    return np.sort(idx)
+
+
+def _times(params: dict, K: int) -> np.ndarray:
+    raw = params.get("times", ())
+    if len(raw) == 0:
+        return params["dt"] * np.arange(K, dtype=float)
+    t = np.asarray(raw, dtype=float)
+    if t.shape != (K,):
+        raise ParameterError(f"times must list K = {K} timestamps, got {t.size}")
+    if not np.all(np.isfinite(t)) or np.any(np.diff(t) <= 0):
+        raise ParameterError(f"timestamps must increase strictly, got {t.tolist()}")
+    return t
+
+
+def _qc(params: dict) -> np.ndarray:
+    diag = np.ones(6) if len(params.get("qc_diag", ())) == 0 else np.asarray(params["qc_diag"], dtype=float)
+    if diag.shape != (6,):
+        raise ParameterError(f"qc_diag needs 6 entries, got {diag.size}")
+    Qc = params["qc"] * np.diag(diag)
+    _check_pd(Qc, "Q_c")
+    return Qc
+
+
+def _check_pd(M: np.ndarray, name: str) -> None:
+    M = np.asarray(M, dtype=float)
+    if M.shape != (6, 6) or not np.all(np.isfinite(M)) or not np.allclose(M, M.T):
+        raise ParameterError(f"{name} must be a finite symmetric 6×6 matrix")
+    if np.linalg.eigvalsh(M)[0] <= 0:
+        raise ParameterError(f"{name} is not positive definite (smallest eigenvalue {np.linalg.eigvalsh(M)[0]:.3g})")
+
+
+def generate(params: dict, rng: np.random.Generator) -> Instance:
+    """Truth: C₀ random, T_{k+1} = cay((Δt_k ϖ_k)^∧) T_k, ϖ_k = motion·(BASE_TWIST + random walk);
+    T_k is world-to-body, the world origin at the centroid of the positions.  T̃_k = cay(ν_k^∧) T_k."""
+    K = int(params["K"])
+    if K < 2:
+        raise ParameterError(f"K must be ≥ 2, got {K}")
+    t, idx, Qc = _times(params, K), _indices(params, K), _qc(params)
+    s, sig = float(params["motion"]), float(params["sigma"])
+    dts = np.diff(t)
+    w = np.empty((K, 6))
+    w[0] = s * (BASE_TWIST + TWIST_WANDER * rng.standard_normal(6))
+    for k in range(K - 1):
+        w[k + 1] = w[k] + s * TWIST_WANDER * np.sqrt(dts[k]) * rng.standard_normal(6)
+    T = np.empty((K, 4, 4))
+    T[0] = lie.make_pose(lie.random_rotation(rng), np.zeros(3))
+    for k in range(K - 1):
+        T[k + 1] = lie.cay_se3(dts[k] * w[k]) @ T[k]
+    # world origin at the centroid of the vehicle positions p_k = −C_kᵀ r_k: T_k ← T_k T_w.  The
+    # relaxation is invariant to the world frame; the SDP's conditioning is not (|r_k| enters X).
+    centroid = np.mean([-Tk[:3, :3].T @ Tk[:3, 3] for Tk in T], axis=0)
+    T = T @ lie.make_pose(np.eye(3), centroid)
+    T_meas = np.array([lie.cay_se3(sig * rng.standard_normal(6)) @ T[k] for k in idx])
+    Q1 = params["prior_sigma"] ** 2 * np.eye(6)
+    w_prior = rng.multivariate_normal(w[0], Q1)
+    meas = {"times": t, "measured": idx, "T_meas": T_meas, "W": np.repeat(np.eye(6)[None] / sig**2, idx.size, 0),
+            "Qc": Qc, "Q1": Q1, "w_prior": w_prior}
+    return Instance(NAME, dict(params), meas, {"T": T, "w": w})
+
+
+@dataclass(frozen=True)
+class _Data:
+    """Validated measurements of an instance."""
+
+    K: int
+    times: np.ndarray
+    measured: np.ndarray
+    T_meas: np.ndarray
+    W: np.ndarray
+    Qc: np.ndarray
+    Q1: np.ndarray
+    w_prior: np.ndarray
+    marginalize: bool
+
+
+def _data(inst: Instance) -> _Data:
+    m = inst.measurements
+    t = np.asarray(m["times"], dtype=float)
+    K = t.size
+    if K < 2:
+        raise ParameterError(f"K must be ≥ 2, got {K}")
+    if np.any(np.diff(t) <= 0):
+        raise ParameterError(f"timestamps must increase strictly, got {t.tolist()}")
+    idx = np.asarray(m["measured"], dtype=int).reshape(-1)
+    if np.any((idx < 0) | (idx >= K)):
+        raise ParameterError(f"a measured index in {idx.tolist()} is outside the trajectory (0 … {K - 1})")
+    _check_pd(m["Qc"], "Q_c")
+    _check_pd(m["Q1"], "Q₁")
+    T_meas, W = np.asarray(m["T_meas"], dtype=float), np.asarray(m["W"], dtype=float)
+    if T_meas.shape != (idx.size, 4, 4) or W.shape != (idx.size, 6, 6):
+        raise ProblemDefinitionError(f"need one T_meas (4×4) and W (6×6) per measured index ({idx.size})")
+    return _Data(K, t, idx, T_meas, W, np.asarray(m["Qc"], float), np.asarray(m["Q1"], float),
+                 np.asarray(m["w_prior"], float), bool(inst.params.get("marginalize", True)))
+
+
+# ----------------------------------------------------------------------------- lifting
+
+
+def pose_prefix(k: int) -> str:
+    return f"p{k}_"
+
+
+def meas_xi(k: int) -> str:
+    """Suffix of the measurement residual ξ_k (blocks rho_{k}, phi_{k})."""
+    return str(k)
+
+
+def motion_xi(k: int) -> str:
+    """Suffix of the motion residual ξ_{k+1,k} (blocks rho_{k+1}_{k}, phi_{k+1}_{k})."""
+    return f"{k + 1}_{k}"
+
+
+def twist_block(k: int) -> str:
+    return f"w_{k}"
+
+
+def _variables(d: _Data, with_twists: bool) -> Variables:
+    blocks = [b for k in range(d.K) for b in declare_pose(pose_prefix(k))]
+    blocks += [b for k in d.measured for b in declare_xi(meas_xi(int(k)))]
+    blocks += [b for k in range(d.K - 1) for b in declare_xi(motion_xi(k))]
+    if with_twists:
+        blocks += [(twist_block(k), 6) for k in range(d.K)]
+    return Variables(blocks)
+
+
+def wnoa_inverse_covariance(dt: float, Qc: np.ndarray) -> np.ndarray:
+    """Q_{k+1,k}⁻¹ = [[12/Δt³, −6/Δt²], [−6/Δt², 4/Δt]] ⊗ Q_c⁻¹ (12×12)."""
+    return np.kron(np.array([[12 / dt**3, -6 / dt**2], [-6 / dt**2, 4 / dt]]), np.linalg.inv(Qc))
+
+
+def _full_cost(d: _Data, V: Variables) -> sp.csr_array:
+    """The whole cost as a quadratic form in [x; ϖ] (V must hold the twist blocks)."""
+    qf = QuadForm(V)
+    for j, k in enumerate(d.measured):
+        rho, phi = xi_blocks(meas_xi(int(k)))
+        Wk = d.W[j]
+        qf.add(rho, rho, Wk[:3, :3]).add(rho, phi, 2 * Wk[:3, 3:]).add(phi, phi, Wk[3:, 3:])
+    u = const(d.w_prior) - var(twist_block(0), np.eye(6))
+    sel_rho, sel_phi = np.zeros((12, 3)), np.zeros((12, 3))
+    sel_rho[:3], sel_phi[3:6] = -np.eye(3), -np.eye(3)
+    parts = [(u, u, np.linalg.inv(d.Q1))]
+    for k, dt in enumerate(np.diff(d.times)):
+        rho, phi = xi_blocks(motion_xi(k))
+        e = Affine({twist_block(k): np.vstack([dt * np.eye(6), np.eye(6)]),
+                    twist_block(k + 1): np.vstack([np.zeros((6, 6)), -np.eye(6)]), rho: sel_rho, phi: sel_phi})
+        parts.append((e, e, wnoa_inverse_covariance(dt, d.Qc)))
+    for a, b, L in parts:
+        quad(V, a, b, L, into=qf)
+    return qf.matrix()
+
+
+@dataclass(frozen=True)
+class Marginal:
+    """The cost [x; ϖ]ᵀ Q_full [x; ϖ] split at ϖ: Q_xw (N×6K), the LU factor of Q_ww (6K×6K), and the
+    Schur complement S = Q_xx − Q_xw Q_ww⁻¹ Q_wx (N×N, sparse; dense on h and the motion ξ blocks).
+    Vx lifts x, Vfull lifts [x; ϖ] (ϖ blocks last)."""
+
+    Vx: Variables
+    Vfull: Variables
+    Q_full: sp.csr_array
+    Q_xw: sp.csr_array
+    lu: spla.SuperLU
+    S: sp.csr_array
+
+    def twists(self, x: np.ndarray) -> np.ndarray:
+        """ϖ* = −Q_ww⁻¹ Q_wx x for a lifted x (h = 1), as (K, 6)."""
+        return -self.lu.solve(self.Q_xw.T @ x).reshape(-1, 6)
+
+
+def marginal(inst: Instance) -> Marginal:
+    """The Schur complement of the ϖ blocks in the full cost."""
+    d = _data(inst)
+    Vf, Vx = _variables(d, True), _variables(d, False)
+    Q = _full_cost(d, Vf)
+    ix = Vf.index(Vx.names)
+    iw = Vf.index([twist_block(k) for k in range(d.K)])
+    Qxx, Qxw, Qww = Q[ix][:, ix], Q[ix][:, iw], Q[iw][:, iw]
+    lu = spla.splu(sp.csc_matrix(Qww))
+    cols = np.unique(Qxw.tocoo().row)  # h and the motion ξ blocks
+    Z = lu.solve(Qxw[cols].T.toarray())  # Q_ww⁻¹ Q_wx restricted to the coupled columns
+    dense = Qxw[cols].toarray() @ Z
+    r, c = np.meshgrid(cols, cols, indexing="ij")
+    corr = sp.coo_array((dense.ravel(), (r.ravel(), c.ravel())), shape=Qxx.shape)
+    S = sp.csr_array(Qxx - corr)
+    S = sp.csr_array((S + S.T) / 2)
+    return Marginal(Vx, Vf, Q, sp.csr_array(Qxw), lu, S)
+
+
+# ----------------------------------------------------------------------------- paper families R4–R8
+
+
+def r4_unary(V: Variables, prefix: str, T_meas: np.ndarray, xi: str, name: str) -> list[Constraint]:
+    """(R4) φᵀ c_i = φᵀ c̃_i, i = 1, 2, 3 (paper (52))."""
+    phi = var(xi_blocks(xi)[1])
+    return [Constraint(sum_quads(V, [(phi, var(c) - const(T_meas[:3, i]), None)]), 0.0,
+                       name=f"{name}:R4[{i + 1}]", family="R4", factor=name)
+            for i, c in enumerate(rot_blocks(prefix))]
+
+
+def r5_unary(V: Variables, prefix: str, T_meas: np.ndarray, xi: str, name: str) -> list[Constraint]:
+    """(R5) φᵀ r = φᵀ r̃ + φᵀ ρ (paper (53))."""
+    rho, phi = (var(b) for b in xi_blocks(xi))
+    A = sum_quads(V, [(phi, var(trans_block(prefix)) - const(T_meas[:3, 3]) - rho, None)])
+    return [Constraint(A, 0.0, name=f"{name}:R5", family="R5", factor=name)]
+
+
+def r7_unary(V: Variables, prefix: str, T_meas: np.ndarray, xi: str, name: str) -> list[Constraint]:
+    """(R7) −½ φᵀ c_n = c_mᵀ c̃_ℓ − ½ c_mᵀ c̃_ℓ^∧ φ for ℓmn ∈ {123, 231, 312} (paper (55); SO(3) only)."""
+    phi = var(xi_blocks(xi)[1])
+    cols = rot_blocks(prefix)
+    out = []
+    for l, m, n in ((0, 1, 2), (1, 2, 0), (2, 0, 1)):
+        cm = T_meas[:3, l]
+        A = sum_quads(V, [(phi, var(cols[n]), 0.5 * np.eye(3)), (var(cols[m]), H, cm.reshape(3, 1)),
+                          (var(cols[m]), phi, -0.5 * lie.hat(cm))])
+        out.append(Constraint(A, 0.0, name=f"{name}:R7[{l + 1}{m + 1}{n + 1}]", family="R7", factor=name))
+    return out
+
+
+def r6_binary(V: Variables, pa: str, pb: str, xi: str, name: str) -> list[Constraint]:
+    """(R6) φᵀ c_{b,i} = φᵀ c_{a,i} (i = 1, 2, 3) and φᵀ r_b = φᵀ r_a + φᵀ ρ (paper (54)), b = a + 1."""
+    rho, phi = (var(b) for b in xi_blocks(xi))
+    out = [Constraint(sum_quads(V, [(phi, var(cb) - var(ca), None)]), 0.0, name=f"{name}:R6[{i + 1}]",
+                      family="R6", factor=name) for i, (ca, cb) in enumerate(zip(rot_blocks(pa), rot_blocks(pb)))]
+    A = sum_quads(V, [(phi, var(trans_block(pb)) - var(trans_block(pa)) - rho, None)])
+    return out + [Constraint(A, 0.0, name=f"{name}:R6[r]", family="R6", factor=name)]
+
+
+def r8_binary(V: Variables, pa: str, pb: str, xi: str, name: str) -> list[Constraint]:
+    """(R8) r_bᵀ r_b = (r_b + r_a)ᵀ ρ + r_aᵀ r_a (paper (56))."""
+    ra, rb, rho = var(trans_block(pa)), var(trans_block(pb)), var(xi_blocks(xi)[0])
+    A = sum_quads(V, [(rb, rb, None), (rb + ra, rho, -np.eye(3)), (ra, ra, -np.eye(3))])
+    return [Constraint(A, 0.0, name=f"{name}:R8", family="R8", factor=name)]
+
+
+# ----------------------------------------------------------------------------- the model
+
+
+def _cliques_chain(d: _Data) -> list[tuple[str, ...]]:
+    """ϖ kept: per k < K−1 {h, pose k, pose k+1, ξ_{k+1,k}, ϖ_k, ϖ_{k+1}}, per measured k {h, pose k, ξ_k}."""
+    out = [("h", *pose_blocks(pose_prefix(k)), *pose_blocks(pose_prefix(k + 1)), *xi_blocks(motion_xi(k)),
+            twist_block(k), twist_block(k + 1)) for k in range(d.K - 1)]
+    return out + [("h", *pose_blocks(pose_prefix(int(k))), *xi_blocks(meas_xi(int(k)))) for k in d.measured]
+
+
+def _marginalized_cover(d: _Data) -> list[tuple[str, ...]]:
+    """ϖ marginalised: the Schur complement couples h and all motion ξ, so one bag must hold them all.
+
+    A tree decomposition (path B_0 – … – B_{K−2}) with the full bag in the middle, j = (K−2)//2:
+    B_i = {h, pose i, pose i+1} ∪ {ξ_{l+1,l} : i lies between l and j}, so B_i holds ξ_{l+1,l} for
+    l ≤ i (i < j), for l ≥ i (i > j) and for every l (i = j).  Pose i+1 lies in B_i and B_{i+1} only
+    and each ξ_{l+1,l} in the contiguous run from B_l to B_j: the running intersection property
+    holds.  Per measured k a leaf {h, pose k, ξ_k}.  Largest bag: 1 + 24 + 6(K−1).
+    """
+    j = (d.K - 2) // 2
+    out = []
+    for i in range(d.K - 1):
+        ls = range(d.K - 1) if i == j else range(0, i + 1) if i < j else range(i, d.K - 1)
+        out.append(("h", *pose_blocks(pose_prefix(i)), *pose_blocks(pose_prefix(i + 1)),
+                    *(b for l in ls for b in xi_blocks(motion_xi(l)))))
+    return out + [("h", *pose_blocks(pose_prefix(int(k))), *xi_blocks(meas_xi(int(k)))) for k in d.measured]
+
+
+def marginalized_cliques(inst: Instance) -> list[tuple[str, ...]]:
+    """A block-level clique tree covering the marginalised model (not used by default; see above)."""
+    return _marginalized_cover(_data(inst))
+
+
+def build(inst: Instance) -> Model:
+    d = _data(inst)
+    if d.marginalize:
+        mg = marginal(inst)
+        V, Q, cliques = mg.Vx, mg.S, None
+    else:
+        V = _variables(d, True)
+        Q, cliques = _full_cost(d, V), _cliques_chain(d)
+    factors: list[Factor] = []
+    paper: dict[str, list[Constraint]] = {f"R{i}": [] for i in range(1, 9)}
+    for k in range(d.K):
+        p = pose_prefix(k)
+        factors.append(Factor(f"so3_{k}", "so3", ("h", *rot_blocks(p)),
+                              constraints=pose_orthonormality(V, p, factor=f"so3_{k}"), roles=("h", "c1", "c2", "c3")))
+    for j, k in enumerate(d.measured):
+        k, name, p, s, Tm = int(k), f"meas_{k}", pose_prefix(int(k)), meas_xi(int(k)), d.T_meas[j]
+        factors.append(Factor(name, "pose_meas", ("h", *pose_blocks(p), *xi_blocks(s)),
+                              cost=weighted_cost(V, s, d.W[j]), constraints=unary_cayley(V, p, Tm, s, name),
+                              roles=("h", *POSE_ROLES, *XI_ROLES)))
+        paper["R1"] += r1_unary(V, p, Tm, s, name, factor=name)
+        paper["R2"] += r2_unary(V, p, Tm, s, name, factor=name)
+        paper["R4"] += r4_unary(V, p, Tm, s, name)
+        paper["R5"] += r5_unary(V, p, Tm, s, name)
+        paper["R7"] += r7_unary(V, p, Tm, s, name)
+    for k in range(d.K - 1):
+        name, pa, pb, s = f"motion_{k + 1}_{k}", pose_prefix(k), pose_prefix(k + 1), motion_xi(k)
+        factors.append(Factor(name, "motion", ("h", *pose_blocks(pa), *pose_blocks(pb), *xi_blocks(s)),
+                              constraints=binary_cayley(V, pa, pb, None, s, name), roles=MOTION_ROLES))
+        paper["R3"] += r3_binary(V, pa, pb, None, s, name, factor=name)
+        paper["R6"] += r6_binary(V, pa, pb, s, name)
+        paper["R8"] += r8_binary(V, pa, pb, s, name)
+    return Model(V, factors, paper=paper, cost=Q, cost_offset=0.0, cliques=cliques)
+
+
+# ----------------------------------------------------------------------------- states and costs
+
+
+def residuals(inst: Instance, T: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Measurement residuals ξ_k (M, 6) and motion residuals ξ_{k+1,k} (K−1, 6) of poses T (K, 4, 4)."""
+    d = _data(inst)
+    meas = np.array([lie.cay_inv_se3(T[k] @ lie.inv_se3(Tm)) for k, Tm in zip(d.measured, d.T_meas)]).reshape(-1, 6)
+    motion = np.array([lie.cay_inv_se3(T[k + 1] @ lie.inv_se3(T[k])) for k in range(d.K - 1)]).reshape(-1, 6)
+    return meas, motion
+
+
+def _lift_values(inst: Instance, T: np.ndarray) -> dict[str, np.ndarray]:
+    d = _data(inst)
+    meas, motion = residuals(inst, T)
+    vals: dict[str, np.ndarray] = {}
+    for k in range(d.K):
+        vals |= pose_values(T[k][:3, :3], T[k][:3, 3], pose_prefix(k))
+    for k, xi in zip(d.measured, meas):
+        vals |= xi_values(xi, meas_xi(int(k)))
+    for k, xi in enumerate(motion):
+        vals |= xi_values(xi, motion_xi(k))
+    return vals
+
+
+def optimal_twists(inst: Instance, T: np.ndarray) -> np.ndarray:
+    """argmin over ϖ of the cost for fixed poses T, (K, 6): ϖ* = −Q_ww⁻¹ Q_wx x(T)."""
+    mg = marginal(inst)
+    return mg.twists(mg.Vx.assemble(_lift_values(inst, T))[0])
+
+
+def lift(inst: Instance, state: dict) -> np.ndarray:
+    """x (N,): ϖ blocks are included (from state["w"]) only when the instance keeps ϖ in the lifting."""
+    d = _data(inst)
+    vals = _lift_values(inst, state["T"])
+    if not d.marginalize:
+        vals |= {twist_block(k): np.asarray(state["w"][k], dtype=float) for k in range(d.K)}
+    return _variables(d, not d.marginalize).assemble(vals)[0]
+
+
+def cost(inst: Instance, state: dict) -> float:
+    """The cost (46) at poses state["T"] and twists state["w"] (the optimal twists if "w" is absent)."""
+    d = _data(inst)
+    T = np.asarray(state["T"], dtype=float)
+    w = optimal_twists(inst, T) if "w" not in state else np.asarray(state["w"], dtype=float)
+    e, _, W = linearize(inst, (T, w), jacobian=False)
+    return float(e @ (W @ e))
+
+
+# ----------------------------------------------------------------------------- local solver (App. A.5)
+
+
+def linearize(inst: Instance, state: tuple[np.ndarray, np.ndarray], jacobian: bool = True
+              ) -> tuple[np.ndarray, sp.csr_array | None, sp.csr_array]:
+    """Stacked residual e, sparse Jacobian and weight for T_k = cay(ε_k^∧) T_k,op, ϖ_k = ϖ_k,op + η_k.
+
+    Perturbation order [ε₀, η₀, ε₁, η₁, …] (12 per state).  Rows: ξ_k per measured k (weight W_k),
+    ϖ₀ − ϖ̌₀ (Q₁⁻¹), e_{k+1,k} = [Δt ϖ_k − ξ_{k+1,k}; ϖ_k − ϖ_{k+1}] (Q_{k+1,k}⁻¹).  With the
+    left Jacobians of ``lie``: ∂ξ_k/∂ε_k = 𝒥(ξ_k)⁻¹, ∂ξ_{k+1,k}/∂ε_k = −𝒥⁻¹ Ad(T_{k+1}T_k⁻¹),
+    ∂ξ_{k+1,k}/∂ε_{k+1} = 𝒥⁻¹ (paper (84): F_k, E_{k+1}).
+    """
+    d = _data(inst)
+    T, w = state
+    es, Ws, blocks = [], [], []  # blocks: (row offset, column offset, matrix)
+    row = 0
+
+    def put(col_state: int, col_part: int, M: np.ndarray) -> None:
+        blocks.append((row, 12 * col_state + 6 * col_part, M))
+
+    for k, Tm, Wk in zip(d.measured, d.T_meas, d.W):
+        xi, J = lie.residual_se3(T[k], Tm)
+        es.append(xi); Ws.append(Wk); put(int(k), 0, J); row += 6
+    es.append(w[0] - d.w_prior); Ws.append(np.linalg.inv(d.Q1)); put(0, 1, np.eye(6)); row += 6
+    I6, Z6 = np.eye(6), np.zeros((6, 6))
+    for k, dt in enumerate(np.diff(d.times)):
+        xi, J1, J2 = lie.residual_se3_binary(T[k], T[k + 1])
+        es.append(np.concatenate([dt * w[k] - xi, w[k] - w[k + 1]]))
+        Ws.append(wnoa_inverse_covariance(dt, d.Qc))
+        put(k, 0, np.vstack([-J1, Z6])); put(k + 1, 0, np.vstack([-J2, Z6]))
+        put(k, 1, np.vstack([dt * I6, I6])); put(k + 1, 1, np.vstack([Z6, -I6]))
+        row += 12
+    e = np.concatenate(es)
+    W = sp.csr_array(sp.block_diag(Ws))
+    if not jacobian:
+        return e, None, W
+    r, c, v = [], [], []
+    for r0, c0, M in blocks:
+        rr, cc = np.nonzero(np.ones_like(M))
+        r.append(rr + r0); c.append(cc + c0); v.append(M.ravel())
+    J = sp.csr_array((np.concatenate(v), (np.concatenate(r), np.concatenate(c))), shape=(row, 12 * d.K))
+    return e, J, W
+
+
+def retract(state: tuple[np.ndarray, np.ndarray], delta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """T_k ← cay(ε_k^∧) T_k, ϖ_k ← ϖ_k + η_k (paper (82))."""
+    T, w = state
+    dl = np.asarray(delta, dtype=float).reshape(-1, 2, 6)
+    return np.array([lie.cay_se3(e) @ Tk for e, Tk in zip(dl[:, 0], T)]), w + dl[:, 1]
+
+
+def local_solve(inst: Instance, init: dict, max_iter: int = 200) -> LocalResult:
+    """Gauss-Newton on the sparse stacked system (App. A.5, LM-damped), poses and twists jointly.
+
+    Missing init["w"] is replaced by the optimal twists for init["T"].
+    """
+    T0 = np.asarray(init["T"], dtype=float)
+    w0 = optimal_twists(inst, T0) if "w" not in init else np.asarray(init["w"], dtype=float)
+    res = gauss_newton(lambda s: linearize(inst, s), retract, (T0, w0), max_iter=max_iter)
+    res.state = {"T": res.state[0], "w": res.state[1]}
+    return res
+
+
+# ----------------------------------------------------------------------------- sampling, recovery, errors
+
+
+def _valid(inst: Instance, T: np.ndarray) -> bool:
+    try:
+        residuals(inst, T)
+        return True
+    except lie.CayleySingularityError:
+        return False
+
+
+def sample(inst: Instance, rng: np.random.Generator, nominal: dict, spread: float) -> dict:
+    """T_k = exp((spread·ν_k)^∧) T_k,nominal (det C = +1), ϖ_k = ϖ_k,nominal + spread·η_k; ν, η ~ N(0, I₆)."""
+    Tn, wn = np.asarray(nominal["T"], dtype=float), np.asarray(nominal["w"], dtype=float)
+    for _ in range(100):
+        T = np.array([lie.exp_se3(spread * rng.standard_normal(6)) @ Tk for Tk in Tn])
+        if _valid(inst, T):
+            return {"T": T, "w": wn + spread * rng.standard_normal(wn.shape)}
+    raise SolverError("could not draw a sample away from the Cayley singularity; reduce the spread")
+
+
+def random_state(inst: Instance, rng: np.random.Generator) -> dict:
+    """Independent uniform rotations, translations ~ N(0, L² I) with L half the nominal path length,
+    and the optimal twists for those poses (a start that knows nothing of the measurements)."""
+    d = _data(inst)
+    L = max(0.5 * float(inst.params.get("motion", 1.0)) * (d.times[-1] - d.times[0]), 1.0)
+    for _ in range(100):
+        T = np.array([lie.make_pose(lie.random_rotation(rng), L * rng.standard_normal(3)) for _ in range(d.K)])
+        if _valid(inst, T):
+            return {"T": T, "w": optimal_twists(inst, T)}
+    raise SolverError("could not draw a random state away from the Cayley singularity")
+
+
+def recover(inst: Instance, Theta: np.ndarray) -> dict:
+    """Poses from the rank-1 factor (raw rotations projected to SO(3), dets reported) and the twists:
+    read from x when kept, else ϖ* = −Q_ww⁻¹ Q_wx x."""
+    d = _data(inst)
+    x = np.asarray(Theta, dtype=float).reshape(-1)
+    x = x / x[0]
+    V = _variables(d, not d.marginalize)
+    if x.size != V.N:
+        raise ProblemDefinitionError(f"Θ has {x.size} columns, the lifting has {V.N}")
+    T, dets = np.empty((d.K, 4, 4)), np.empty(d.K)
+    for k in range(d.K):
+        C, r = pose_from_x(V, x, pose_prefix(k))
+        T[k], dets[k] = lie.make_pose(lie.project_to_so3(C), r), np.linalg.det(C)
+    if d.marginalize:
+        w = marginal(inst).twists(x)
+    else:
+        w = np.array([x[V.slice(twist_block(k))] for k in range(d.K)])
+    return {"T": T, "w": w, "det_raw": dets}
+
+
+def errors(inst: Instance, state: dict) -> dict:
+    """Largest rotation error (deg), RMS translation error and RMS twist error against the truth."""
+    T, Tt = np.asarray(state["T"]), inst.truth["T"]
+    ang = [np.degrees(np.arccos(np.clip((np.trace(a[:3, :3] @ b[:3, :3].T) - 1) / 2, -1, 1))) for a, b in zip(T, Tt)]
+    out = {"rotation_deg_max": float(np.max(ang)),
+           "translation_rms": float(np.sqrt(np.mean(np.sum((T[:, :3, 3] - Tt[:, :3, 3]) ** 2, axis=1))))}
+    if "w" in state:
+        out["twist_rms"] = float(np.sqrt(np.mean(np.sum((np.asarray(state["w"]) - inst.truth["w"]) ** 2, axis=1))))
+    return out

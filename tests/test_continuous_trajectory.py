@@ -1,0 +1,336 @@
+"""Continuous-time trajectory with a WNOA prior (paper §5): constraints, the Schur complement,
+Jacobians, cliques, tightness of the paper's families and where it ends, bad input."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+
+from autotight import lie
+from autotight.errors import ParameterError
+from autotight.problem import load
+from autotight.run import solve_sdp
+from autotight.sdp.chordal import has_running_intersection
+from autotight.sdp.result import SolverOptions
+from autotight.tightness import relative_gap
+from problems import continuous_trajectory as ct
+
+PROB = load("continuous_trajectory")
+#: |xᵀAx − b| / (‖A‖_F ‖xxᵀ‖_F) on an exact sample: rounding only
+CONSTRAINT_RTOL = 1e-10
+#: two evaluations of the same cost (different formulas), relative to the cost: rounding only
+COST_RTOL = 1e-9
+#: SDP cost against the local optimum from the ground truth, relative to the cost.  The optimum is
+#: ~1 % of the terms that cancel in ⟨Q, X⟩ (constant velocity is nearly free under the WNOA prior),
+#: so Clarabel's default accuracy (1e-9) gives the cost to ~1e-6 … 5e-6 (measured, SDP above local);
+#: a tolerance of 1e-10 gets ≤ 1.3e-6 but mostly ends AlmostSolved.  A relaxation gap where the
+#: families fail is ≥ 1e-3 (K = 17: 2.5e-3 … 3.6e-2), so 1e-5 separates the two cleanly.
+TIGHT_COST_RTOL = 1e-5
+#: the largest K at which the paper's families are tight for every seed tried (0–4), default setting;
+#: at K = 17 only seed 0 of 0–4 is tight (see the slow tests)
+TIGHT_K = 15
+#: a K at which they are tight for every seed and which solves in a few seconds (default run)
+FAST_TIGHT_K = 11
+LOOSE_K = 17
+
+
+def _instance(seed: int, **params):
+    return PROB.generate(params, seed)
+
+
+def _relative_violations(model, x: np.ndarray) -> np.ndarray:
+    return np.array([abs(x @ (c.A @ x) - c.b) / (np.sqrt((c.A.multiply(c.A)).sum()) * (x @ x))
+                     for c in model.all_constraints()])
+
+
+def _paper_cost(inst, T: np.ndarray, w: np.ndarray) -> float:
+    """The cost (46)–(47) written out directly from the paper, independently of the module."""
+    m = inst.measurements
+    out = 0.0
+    for k, Tm, W in zip(m["measured"], m["T_meas"], m["W"]):
+        xi = lie.cay_inv_se3(T[k] @ lie.inv_se3(Tm))
+        out += xi @ W @ xi
+    dp = m["w_prior"] - w[0]
+    out += dp @ np.linalg.solve(m["Q1"], dp)
+    for k in range(len(T) - 1):
+        dt = m["times"][k + 1] - m["times"][k]
+        e = np.concatenate([dt * w[k] - lie.cay_inv_se3(T[k + 1] @ lie.inv_se3(T[k])), w[k] - w[k + 1]])
+        Qk = np.block([[dt**3 / 3 * m["Qc"], dt**2 / 2 * m["Qc"]], [dt**2 / 2 * m["Qc"], dt * m["Qc"]]])
+        out += e @ np.linalg.solve(Qk, e)
+    return float(out)
+
+
+# ----------------------------------------------------------------------------- structure
+
+
+def test_structure_counts_and_roles():
+    inst = _instance(0, K=7)
+    model = PROB.build(inst)
+    K, M = 7, 3
+    assert list(inst.measurements["measured"]) == [0, 3, 6]
+    assert model.variables.N == 1 + 12 * K + 6 * M + 6 * (K - 1)
+    counts = {f: len(model.paper[f]) for f in model.paper}
+    assert counts == {"R1": 3 * M, "R2": M, "R3": 3 * (K - 1), "R4": 3 * M, "R5": M, "R6": 4 * (K - 1),
+                      "R7": 3 * M, "R8": K - 1}
+    types = model.factor_types()
+    assert [len(types[t]) for t in ("so3", "pose_meas", "motion")] == [K, M, K - 1]
+    assert all(len(f.constraints) == 12 for t in ("pose_meas", "motion") for f in types[t])
+    assert {f.roles for f in types["motion"]} == {ct.MOTION_ROLES}
+    kept = PROB.build(_instance(0, K=7, marginalize=False))
+    assert kept.variables.N == model.variables.N + 6 * K
+
+
+@pytest.mark.parametrize("marginalize", [True, False])
+def test_every_constraint_vanishes_on_fresh_so3_samples(marginalize):
+    inst = _instance(3, K=7, marginalize=marginalize)
+    model = PROB.build(inst)
+    rng = np.random.default_rng(7)
+    worst = 0.0
+    for _ in range(30):
+        s = PROB.sample(inst, rng, spread=0.3)
+        assert min(np.linalg.det(T[:3, :3]) for T in s["T"]) > 0.999  # R7 needs SO(3)
+        worst = max(worst, _relative_violations(model, PROB.lift(inst, s)).max())
+    assert worst < CONSTRAINT_RTOL
+    z = np.concatenate([[1.0], rng.standard_normal(model.variables.N - 1)])
+    fams = np.array([c.family for c in model.all_constraints()])
+    assert _relative_violations(model, z)[fams != "homogenisation"].min() > 1e-6
+
+
+def test_r7_fails_off_so3_while_the_other_constraints_hold():
+    """R7 uses c_ℓ × c_m = c_n: reflect every C and C̃ (C ← C F, det −1) and all else still holds."""
+    F = np.diag([1.0, 1.0, -1.0])
+    inst = _instance(1, K=3, measured=(1,))
+    T = inst.truth["T"]
+    meas, motion = ct.residuals(inst, T)  # unchanged by the reflection: C F (C̃ F)ᵀ = C C̃ᵀ
+    Tm = inst.measurements["T_meas"][0]
+    inst.measurements["T_meas"] = np.array([lie.make_pose(Tm[:3, :3] @ F, Tm[:3, 3])])
+    model = PROB.build(inst)
+    vals = ct.xi_values(meas[0], ct.meas_xi(1))
+    for k in range(3):
+        vals |= ct.pose_values(T[k][:3, :3] @ F, T[k][:3, 3], ct.pose_prefix(k))
+    for k in range(2):
+        vals |= ct.xi_values(motion[k], ct.motion_xi(k))
+    viol = _relative_violations(model, model.variables.assemble(vals)[0])
+    is_r7 = np.array([c.family == "R7" for c in model.all_constraints()])
+    assert viol[~is_r7].max() < CONSTRAINT_RTOL
+    assert viol[is_r7].min() > 1e-6
+
+
+# ----------------------------------------------------------------------------- cost and Schur complement
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_schur_cost_is_the_full_cost_at_the_optimal_twists(seed):
+    inst = _instance(seed, K=9)
+    model = PROB.build(inst)
+    rng = np.random.default_rng(10 + seed)
+    s = PROB.sample(inst, rng, spread=0.3)
+    w_opt = ct.optimal_twists(inst, s["T"])
+    full = _paper_cost(inst, s["T"], w_opt)
+    x = PROB.lift(inst, s)
+    assert abs(x @ (model.Q @ x) + model.cost_offset - full) <= COST_RTOL * full
+    assert abs(PROB.cost(inst, {"T": s["T"]}) - full) <= COST_RTOL * full
+    # w_opt is the minimiser: the cost is quadratic in ϖ, so its central-difference gradient is exact
+    h = 1e-3
+    grad = np.array([(_paper_cost(inst, s["T"], w_opt + h * E) - _paper_cost(inst, s["T"], w_opt - h * E)) / (2 * h)
+                     for E in np.eye(w_opt.size).reshape(-1, *w_opt.shape)])
+    assert np.abs(grad).max() <= 1e-6 * full
+    # any other ϖ costs more, by exactly the quadratic form of the deviation
+    assert _paper_cost(inst, s["T"], w_opt + 0.1 * rng.standard_normal(w_opt.shape)) > full
+
+
+def test_kept_twist_lifting_gives_the_full_cost_for_any_twists():
+    inst = _instance(2, K=6, marginalize=False)
+    model = PROB.build(inst)
+    rng = np.random.default_rng(5)
+    for _ in range(5):
+        s = PROB.sample(inst, rng, spread=0.5)
+        x = PROB.lift(inst, s)
+        full = _paper_cost(inst, s["T"], s["w"])
+        assert abs(x @ (model.Q @ x) + model.cost_offset - full) <= COST_RTOL * full
+        assert abs(PROB.cost(inst, s) - full) <= COST_RTOL * full
+
+
+def test_schur_complement_couples_the_whole_chain_with_geometric_decay():
+    """Q_ww⁻¹ is dense: far motion blocks are coupled, decaying by 2 − √3 per step (uniform Δt, Q_c ∝ I)."""
+    K = 15
+    mg = ct.marginal(_instance(0, K=K))
+    S = mg.S.toarray()
+    V = mg.Vx
+
+    def block(a: int, b: int) -> float:
+        return np.abs(S[np.ix_(V.index(ct.xi_blocks(ct.motion_xi(a))), V.index(ct.xi_blocks(ct.motion_xi(b))))]).max()
+
+    assert block(0, K - 2) > 0
+    mid = K // 2 - 1
+    ratios = [block(mid, mid + j + 1) / block(mid, mid + j) for j in range(1, 4)]
+    assert np.allclose(ratios, 2 - np.sqrt(3), rtol=2e-2)
+    # with Q_c diagonal the 6 components decouple: ρ never couples with φ in the Schur complement
+    rho, phi = V.index([ct.xi_blocks(ct.motion_xi(k))[0] for k in range(K - 1)]), \
+        V.index([ct.xi_blocks(ct.motion_xi(k))[1] for k in range(K - 1)])
+    assert np.abs(S[np.ix_(rho, phi)]).max() == 0.0
+
+
+@pytest.mark.parametrize("marginalize", [True, False])
+def test_cliques_cover_every_nonzero_and_form_a_clique_tree(marginalize):
+    inst = _instance(0, K=8, measured=(0, 2, 7), marginalize=marginalize)
+    model = PROB.build(inst)
+    if marginalize:
+        assert model.cliques is None  # Clarabel's entry-level decomposition is used instead
+        cl = [model.variables.index(c) for c in ct.marginalized_cliques(inst)]
+    else:
+        cl = model.clique_indices()
+    assert has_running_intersection(cl)
+    covered = np.zeros((model.variables.N,) * 2, bool)
+    for c in cl:
+        covered[np.ix_(c, c)] = True
+    for A in [model.Q] + [c.A for c in model.all_constraints()]:
+        r, c = sp.coo_array(A).nonzero()
+        assert covered[r, c].all()
+    largest = max(len(c) for c in cl)
+    assert largest == (1 + 24 + 6 * 7 if marginalize else 1 + 24 + 6 + 12)
+
+
+# ----------------------------------------------------------------------------- local solver
+
+
+def test_jacobians_match_finite_differences():
+    inst = _instance(4, K=5, measured=(0, 2, 4))
+    rng = np.random.default_rng(11)
+    s = PROB.sample(inst, rng, spread=0.4)
+    state = (s["T"], s["w"])
+    e0, J, _ = ct.linearize(inst, state)
+    J = J.toarray()
+    h = 1e-6
+    num = np.column_stack([(ct.linearize(inst, ct.retract(state, h * d), jacobian=False)[0]
+                            - ct.linearize(inst, ct.retract(state, -h * d), jacobian=False)[0]) / (2 * h)
+                           for d in np.eye(J.shape[1])])
+    assert np.abs(num - J).max() <= 1e-6 * np.abs(J).max()
+    assert np.abs(J).max() > 1.0  # not vacuous
+
+
+def test_local_solver_from_truth_is_stationary_and_beats_the_truth():
+    inst = _instance(0, K=11)
+    res = PROB.local_solve(inst, inst.truth)
+    assert res.converged
+    assert res.cost < PROB.cost(inst, inst.truth)
+    e, J, W = ct.linearize(inst, (res.state["T"], res.state["w"]))
+    grad = J.T @ (W @ e)
+    assert np.abs(grad).max() <= 1e-6 * np.abs(J.T @ (W @ np.abs(e))).max()
+    # the twists it returns are the optimal ones for its poses
+    np.testing.assert_allclose(res.state["w"], ct.optimal_twists(inst, res.state["T"]), atol=1e-6)
+
+
+# ----------------------------------------------------------------------------- tightness
+
+
+def _solve(inst, with_paper: bool = True):
+    model = PROB.build(inst)
+    cons = model.primary() + (model.paper_constraints() if with_paper else [])
+    return solve_sdp(model, cons, decompose=False, options=SolverOptions())
+
+
+def _assert_tight(inst) -> None:
+    res = _solve(inst)
+    local = PROB.local_solve(inst, inst.truth)
+    assert res.status == "Solved", res.summary()
+    assert res.log_svr > 5.0, res.summary()
+    assert abs(relative_gap(res.primal_cost, local.cost)) < TIGHT_COST_RTOL, (res.primal_cost, local.cost)
+    est = PROB.recover(inst, res.Theta)
+    assert np.all(est["det_raw"] > 0.999)  # det C = +1 comes out although the QCQP only has O(3)
+    pos = lambda T: np.array([-t[:3, :3].T @ t[:3, 3] for t in T])  # noqa: E731
+    assert np.abs(pos(est["T"]) - pos(local.state["T"])).max() < 1e-3
+    np.testing.assert_allclose(est["w"], local.state["w"], atol=1e-3)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_paper_families_tight_default_setting_small_k(seed):
+    _assert_tight(_instance(seed, K=FAST_TIGHT_K))
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_paper_families_tight_at_the_largest_tight_k(seed):
+    _assert_tight(_instance(seed, K=TIGHT_K))
+
+
+def _assert_not_tight(inst, min_gap: float) -> None:
+    res = _solve(inst)
+    local = PROB.local_solve(inst, inst.truth)
+    assert res.log_svr < 3.0, res.summary()
+    assert relative_gap(res.primal_cost, local.cost) > min_gap, res.summary()  # SDP strictly below
+
+
+def test_boundary_not_tight_at_high_noise():
+    """K = 7, σ = 1 (seed 1): the paper's families leave a relaxation gap (measured 8 %, log SVR 0.65)."""
+    _assert_not_tight(_instance(1, K=7, sigma=1.0), 1e-2)
+
+
+@pytest.mark.slow
+def test_boundary_not_tight_beyond_the_largest_tight_k():
+    """K = 17, seed 1: measured log SVR 1.5, SDP 1.6 % below the local optimum."""
+    _assert_not_tight(_instance(1, K=LOOSE_K), 1e-3)
+
+
+@pytest.mark.slow
+def test_boundary_not_tight_at_the_paper_k21():
+    """K = 21 (the paper's size), seed 0: measured log SVR ≈ 1–2, Clarabel stops at AlmostSolved."""
+    res = _solve(_instance(0, K=21))
+    assert not (res.status == "Solved" and res.log_svr > 5.0), res.summary()
+    assert res.log_svr < 3.0, res.summary()
+
+
+def test_primary_constraints_alone_are_not_tight():
+    inst = _instance(0, K=7)
+    res = _solve(inst, with_paper=False)
+    local = PROB.local_solve(inst, inst.truth)
+    assert res.log_svr < 2.0, res.summary()  # measured 0.32
+    assert relative_gap(res.primal_cost, local.cost) > 0.1, res.summary()  # measured: SDP 54 % below
+
+
+def test_random_start_trapped_where_the_sdp_is_not():
+    """K = 7, seed 0: random starts (independent uniform rotations, spread translations) end in poor
+    local minima (measured: 4 of 5, costs 23× and 47× the optimum); the SDP is tight and its
+    recovered estimate attains the optimum."""
+    inst = _instance(0, K=7)
+    res = _solve(inst)
+    assert res.status == "Solved" and res.log_svr > 5.0, res.summary()
+    rng = np.random.default_rng(2024)
+    runs = [PROB.local_solve(inst, PROB.random_state(inst, rng)) for _ in range(5)]
+    assert all(r.converged for r in runs)
+    trapped = [r.cost for r in runs if r.cost > 1.01 * res.primal_cost]
+    assert len(trapped) >= 1
+    est = PROB.recover(inst, res.Theta)
+    assert abs(PROB.cost(inst, est) - res.primal_cost) <= TIGHT_COST_RTOL * res.primal_cost
+    assert min(trapped) > 10 * PROB.cost(inst, est)
+
+
+# ----------------------------------------------------------------------------- bad input
+
+
+@pytest.mark.parametrize("params, message", [
+    ({"K": 1}, "K"),
+    ({"K": 4, "times": (0.0, 1.0, 1.0, 2.0)}, "increase"),
+    ({"K": 3, "times": (0.0, 1.0)}, "timestamps"),
+    ({"qc_diag": (1, 1, 1, 1, 1, -1)}, "positive definite"),
+    ({"qc": 0.0}, "qc"),
+    ({"K": 5, "measured": (0, 5)}, "outside the trajectory"),
+    ({"K": 5, "measured": (-1, 2)}, "outside the trajectory"),
+    ({"K": 5, "measured": (1.5,)}, "integers"),
+])
+def test_bad_input_gets_a_one_line_error(params, message):
+    with pytest.raises(ParameterError, match=message) as info:
+        PROB.generate(params, 0)
+    assert "\n" not in str(info.value)
+
+
+def test_custom_timestamps_are_used():
+    inst = _instance(0, K=4, times=(0.0, 0.5, 2.0, 2.5), measured=(0, 3))
+    np.testing.assert_allclose(inst.measurements["times"], [0.0, 0.5, 2.0, 2.5])
+    model = PROB.build(inst)
+    s = PROB.sample(inst, np.random.default_rng(0), spread=0.2)
+    w = ct.optimal_twists(inst, s["T"])
+    x = PROB.lift(inst, s)
+    full = _paper_cost(inst, s["T"], w)
+    assert abs(x @ (model.Q @ x) - full) <= COST_RTOL * full

@@ -1,0 +1,127 @@
+"""Pose averaging (paper §3.2): constraints on samples, lifted cost, Jacobians, and tightness of the paper's set."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from autotight import lie
+from autotight.errors import ParameterError
+from autotight.problem import load
+from autotight.run import solve_sdp
+from autotight.tightness import relative_gap
+from problems import pose_averaging as pa
+
+PROB = load("pose_averaging")
+#: relative size of a constraint's value on an exact sample, |⟨A,X⟩ − b| / (‖A‖_F ‖X‖_F)
+CONSTRAINT_RTOL = 1e-10
+
+
+def _instance(seed: int, **params) -> object:
+    return PROB.generate({"M": 10, "sigma": 0.1} | params, seed)
+
+
+def _relative_violations(model, x: np.ndarray) -> np.ndarray:
+    """|xᵀAx − b| / (‖A‖_F ‖xxᵀ‖_F) for every constraint of the model (primary and paper)."""
+    out = []
+    for c in model.all_constraints():
+        val = x @ (c.A @ x) - c.b
+        out.append(abs(val) / (np.sqrt((c.A.multiply(c.A)).sum()) * (x @ x)))
+    return np.array(out)
+
+
+def test_structure_and_counts():
+    inst = _instance(0, M=4)
+    model = PROB.build(inst)
+    assert model.variables.N == 13 + 6 * 4
+    assert [len(model.paper[f]) for f in ("R1", "R2")] == [3 * 4, 4]
+    assert all(c.family == f for f in ("R1", "R2") for c in model.paper[f])
+    types = model.factor_types()
+    assert len(types["so3"]) == 1 and len(types["pose_meas"]) == 4
+    for f in types["pose_meas"]:
+        assert f.roles == ("h", "c1", "c2", "c3", "r", "rho", "phi")
+        assert len(f.constraints) == 12
+    assert len(types["so3"][0].constraints) == 6
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_every_constraint_vanishes_on_fresh_samples(seed):
+    inst = _instance(seed)
+    model = PROB.build(inst)
+    rng = np.random.default_rng(100 + seed)
+    worst = 0.0
+    for _ in range(100):
+        x = PROB.lift(inst, PROB.sample(inst, rng, spread=0.5)).ravel()
+        worst = max(worst, _relative_violations(model, x).max())
+    assert worst < CONSTRAINT_RTOL
+    # the constraints are not vacuous: a generic (infeasible) vector with h = 1 violates each of them
+    z = np.concatenate([[1.0], rng.standard_normal(model.variables.N - 1)])
+    fams = np.array([c.family for c in model.all_constraints()])
+    assert _relative_violations(model, z)[fams != "homogenisation"].min() > 1e-6
+
+
+def test_lifted_cost_equals_cost():
+    inst = _instance(3)
+    model = PROB.build(inst)
+    Q = model.Q
+    rng = np.random.default_rng(7)
+    for _ in range(20):
+        state = PROB.sample(inst, rng, spread=0.8)
+        x = PROB.lift(inst, state).ravel()
+        f = PROB.cost(inst, state)
+        assert f > 0
+        assert abs(x @ (Q @ x) - f) <= 1e-12 * f
+
+
+def test_jacobian_matches_finite_differences():
+    inst = _instance(4)
+    rng = np.random.default_rng(11)
+    T = lie.make_pose(*(lambda s: (s["C"], s["r"]))(PROB.sample(inst, rng, spread=0.4)))
+    e0, J, _ = pa.linearize(inst, T)
+    step = 1e-6
+    num = np.column_stack([(pa.linearize(inst, pa.retract(T, step * d))[0] -
+                            pa.linearize(inst, pa.retract(T, -step * d))[0]) / (2 * step) for d in np.eye(6)])
+    assert np.abs(e0).max() > 0.1  # a point away from the optimum, so the test is informative
+    assert np.linalg.norm(num - J) <= 1e-6 * np.linalg.norm(J)
+
+
+def test_local_solver_reaches_a_stationary_point():
+    inst = _instance(5)
+    res = PROB.local_solve(inst, inst.truth)
+    assert res.converged
+    assert res.cost <= PROB.cost(inst, inst.truth)
+    e, J, W = pa.linearize(inst, lie.make_pose(res.state["C"], res.state["r"]))
+    grad = J.T @ W @ e
+    assert np.linalg.norm(grad) <= 1e-6 * np.linalg.norm(J.T @ W @ J, 2) * max(np.linalg.norm(e), 1e-12)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_primary_not_tight_paper_tight(seed):
+    inst = _instance(seed)
+    model = PROB.build(inst)
+    local = PROB.local_solve(inst, inst.truth)
+    assert local.converged
+
+    prim = solve_sdp(model, model.primary())
+    # without the redundant constraints the relaxation is loose: a clear cost gap and no rank-1 solution
+    assert np.isfinite(prim.primal_cost)
+    assert relative_gap(prim.primal_cost, local.cost) > 0.05
+    assert prim.log_svr < 2
+
+    res = solve_sdp(model, model.primary() + model.paper_constraints())
+    assert res.status == "Solved", res.summary()
+    assert res.log_svr > 5
+    assert abs(relative_gap(res.primal_cost, local.cost)) < 1e-6
+    est = PROB.recover(inst, res.Theta)
+    assert abs(float(est["det_raw"]) - 1.0) < 1e-6
+    # the recovered pose is the local optimum
+    assert abs(PROB.cost(inst, est) - local.cost) <= 1e-6 * local.cost
+    err = PROB.errors(inst, est)
+    assert err["rotation_deg"] < 10 and err["translation"] < 0.5
+
+
+def test_bad_parameters_are_refused():
+    with pytest.raises(ParameterError, match="M=0"):
+        PROB.generate({"M": 0}, 0)
+    with pytest.raises(ParameterError, match="sigma"):
+        PROB.generate({"sigma": -0.1}, 0)

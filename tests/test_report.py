@@ -1,0 +1,419 @@
+"""Tests for ``autotight report``: files, rows, resume, backends, mismatch refusal, HTML, errors."""
+
+from __future__ import annotations
+
+import base64
+import json
+import shlex
+import shutil
+import signal
+import subprocess
+import sys
+import time
+import types
+from html.parser import HTMLParser
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from autotight.cli import main
+from autotight.errors import AutotightError
+from autotight.problem import load
+from autotight.report import trial as trial_mod
+from autotight.report.render import render
+from autotight.report.spec import ReportError, make_spec, parse_sigmas, trial_seeds
+from autotight.report.store import CSV_NAME, Store, load_trials
+from autotight.report.sweep import run_sweep
+from autotight.report.trial import TIME_COLUMNS, columns, is_trapped, run_trial
+from autotight.run import solve_instance
+from autotight.sdp.result import SolverOptions
+
+PROBLEM = "rotation_averaging"
+SIGMAS = (0.01, 0.3)
+TRIALS = 3
+FILES = ("trials.csv", "meta.json", "trapped.png", "log_svr.png", "tight.png", "times.png", "report.md",
+         "report.html")
+
+
+def _spec(**kw):
+    args = dict(params={"M": 3}, sigmas=",".join(map(str, SIGMAS)), trials=TRIALS, sets="primary,paper")
+    args.update(kw)
+    return make_spec(load(PROBLEM), PROBLEM, **args)
+
+
+def _det(df: pd.DataFrame) -> pd.DataFrame:
+    """The deterministic columns (all but times), in canonical row order."""
+    keep = [c for c in df.columns if c not in TIME_COLUMNS]
+    return df[keep].sort_values(["sigma_index", "trial", "constraint_set"]).reset_index(drop=True)
+
+
+def _render(out: Path) -> dict[str, Path]:
+    return render(out, Store(out).meta())
+
+
+@pytest.fixture(scope="module")
+def reference(tmp_path_factory) -> Path:
+    """An uninterrupted sweep on two loky workers (joblib backend)."""
+    out = tmp_path_factory.mktemp("ref") / "report"
+    s = run_sweep(_spec(), out, jobs=2, progress=False)
+    assert (s.total, s.done_before, s.computed, s.failed) == (6, 0, 6, 0)
+    _render(out)
+    return out
+
+
+def test_tiny_sweep_writes_every_file_and_expected_rows(reference):
+    for name in FILES:
+        assert (reference / name).is_file() and (reference / name).stat().st_size > 0, name
+    df = load_trials(reference)
+    assert list(df.columns) == columns(["rotation_deg"])
+    assert len(df) == len(SIGMAS) * TRIALS * 2
+    keys = list(zip(df["sigma_index"], df["trial"], df["constraint_set"]))
+    assert keys == [(i, t, s) for i in range(2) for t in range(TRIALS) for s in ("primary", "paper")]
+    assert sorted(df["sigma"].unique()) == list(SIGMAS)
+    for _, r in df.iterrows():
+        assert r["seed"] == trial_seeds(0, r["sigma_index"], r["trial"])[0]
+    prob = load(PROBLEM)
+    n_primary = len(prob.build(prob.generate({"M": 3}, 0)).primary())
+    assert n_primary == 1 + 6 + 9 * 3
+    assert (df["n_constraints"] == n_primary).all()
+    assert (df["status"] == "Solved").all()
+    assert (df["log_svr"] > 5).all() and df["tight"].all()  # rotation averaging is tight with primary only
+    assert np.isfinite(df[["sdp_cost", "local_cost_truth", "local_cost_random", "global_cost"]]).all().all()
+    assert (df["global_cost"] <= df["local_cost_truth"] + 1e-12).all()
+    assert (df["err_sdp_rotation_deg"] < 45).all()
+    assert df["trapped"].dtype == bool
+    # the two sets share each trial's instance and local solves
+    for col in ("seed", "local_cost_truth", "local_cost_random", "trapped"):
+        assert (df[col].to_numpy()[0::2] == df[col].to_numpy()[1::2]).all(), col
+    meta = json.loads((reference / "meta.json").read_text())
+    assert meta["problem"] == PROBLEM and meta["params"] == {"M": 3, "anisotropy": 1.0}
+    assert meta["sigmas"] == list(SIGMAS) and meta["trials"] == TRIALS and meta["seed"] == 0
+    assert meta["sets"] == ["primary", "paper"] and meta["columns"] == list(df.columns)
+    assert meta["versions"]["numpy"] == np.__version__
+    assert meta["runs"][0]["backend"] == "joblib" and meta["runs"][0]["jobs"] == 2
+
+
+def test_a_row_equals_a_direct_solve_of_its_instance(reference):
+    df = load_trials(reference)
+    r = df[(df["sigma_index"] == 1) & (df["trial"] == 2) & (df["constraint_set"] == "primary")].iloc[0]
+    prob = load(PROBLEM)
+    inst = prob.generate({"M": 3, "sigma": 0.3}, int(r["seed"]))
+    _, rng_local, _ = trial_seeds(0, 1, 2)
+    out = solve_instance(prob, inst, set_name="primary", options=SolverOptions(threads=1), rng=rng_local)
+    assert r["log_svr"] == pytest.approx(out.sdp.log_svr, rel=1e-9)
+    assert r["sdp_cost"] == pytest.approx(out.sdp.primal_cost, rel=1e-9)
+    assert r["local_cost_truth"] == pytest.approx(out.local.from_truth.cost, rel=1e-12)
+    assert r["local_cost_random"] == pytest.approx(out.local.from_random[0].cost, rel=1e-12)
+    assert r["err_sdp_rotation_deg"] == pytest.approx(out.errors_sdp["rotation_deg"], rel=1e-6)
+
+
+def test_report_md_tables_agree_with_the_csv(reference):
+    df = load_trials(reference)
+    md = (reference / "report.md").read_text()
+    assert "| primary | 34 |" in md and "| paper | 34 |" in md
+    for i, s in enumerate(SIGMAS):
+        at = df[df["sigma_index"] == i]
+        tp = at[at["constraint_set"] == "primary"]["tight"].mean()
+        tq = at[at["constraint_set"] == "paper"]["tight"].mean()
+        trapped = at.drop_duplicates("trial")["trapped"].mean()
+        assert f"| {s:.3g} | {TRIALS} | {tp:.2f} | {tq:.2f} | {trapped:.2f} |" in md
+        med = np.median(at[at["constraint_set"] == "primary"]["log_svr"])
+        assert f"| {s:.3g} | {med:.1f} |" in md
+    assert "--sigmas 0.01,0.3 --trials 3 --sets primary,paper --seed 0" in md
+    for fig in ("trapped.png", "log_svr.png", "tight.png", "times.png"):
+        assert f"]({fig})" in md
+
+
+class _Checker(HTMLParser):
+    VOID = {"meta", "img", "br", "hr", "link", "input"}
+
+    def __init__(self):
+        super().__init__()
+        self.stack: list[str] = []
+        self.errors: list[str] = []
+        self.images: list[str] = []
+        self.doctype = False
+
+    def handle_decl(self, decl):
+        self.doctype |= decl.lower() == "doctype html"
+
+    def handle_starttag(self, tag, attrs):
+        if tag == "img":
+            self.images.append(dict(attrs)["src"])
+        if tag not in self.VOID:
+            self.stack.append(tag)
+
+    def handle_endtag(self, tag):
+        if not self.stack or self.stack.pop() != tag:
+            self.errors.append(f"unexpected </{tag}>")
+
+
+def test_html_is_valid_and_embeds_every_figure(reference):
+    page = (reference / "report.html").read_text()
+    c = _Checker()
+    c.feed(page)
+    c.close()
+    assert c.doctype and c.errors == [] and c.stack == []
+    assert "<title>Tightness report: rotation_averaging</title>" in page
+    assert len(c.images) == 4
+    pngs = {(reference / f).read_bytes() for f in ("trapped.png", "log_svr.png", "tight.png", "times.png")}
+    for src in c.images:
+        assert src.startswith("data:image/png;base64,")
+        data = base64.b64decode(src.split(",", 1)[1])
+        assert data[:8] == b"\x89PNG\r\n\x1a\n" and data in pngs
+        width, height = int.from_bytes(data[16:20], "big"), int.from_bytes(data[20:24], "big")
+        assert width >= 600 and height >= 400
+    assert "src=" not in page.replace('src="data:image/png;base64,', "")  # nothing loaded from outside
+
+
+def test_complete_sweep_rerun_computes_nothing(reference):
+    before = (reference / CSV_NAME).read_bytes()
+    s = run_sweep(_spec(), reference, jobs=1, progress=False)
+    assert (s.done_before, s.computed, s.complete) == (6, 0, True)
+    assert (reference / CSV_NAME).read_bytes() == before
+
+
+def test_stopped_sweep_resumes_only_missing_trials_and_equals_uninterrupted(reference, tmp_path):
+    out = tmp_path / "r"
+    s1 = run_sweep(_spec(), out, jobs=1, limit=2, progress=False)
+    assert (s1.computed, s1.complete) == (2, False)
+    first = load_trials(out)
+    assert len(first) == 4 and set(zip(first["sigma_index"], first["trial"])) == {(0, 0), (0, 1)}
+    with open(out / CSV_NAME, "a") as f:  # a torn write from a crash: half a line, no newline
+        f.write("rotation_averaging,0,0.01,2,1234,prim")
+    s2 = run_sweep(_spec(), out, jobs=1, progress=False)
+    assert (s2.done_before, s2.computed, s2.complete) == (2, 4, True)
+    final = load_trials(out)
+    pd.testing.assert_frame_equal(_det(final), _det(load_trials(reference)))
+    # the trials from the first run were kept, not recomputed (their timings are unchanged)
+    kept = final[(final["trial"] < 2) & (final["sigma_index"] == 0)].reset_index(drop=True)
+    pd.testing.assert_frame_equal(kept, first.reset_index(drop=True))
+
+
+def test_more_trials_extends_the_sweep(reference, tmp_path):
+    out = tmp_path / "r"
+    shutil.copytree(reference, out)
+    s = run_sweep(_spec(trials=4), out, jobs=1, progress=False)
+    assert (s.total, s.done_before, s.computed) == (8, 6, 2)
+    df = load_trials(out)
+    assert len(df) == 16 and sorted(set(df["trial"])) == [0, 1, 2, 3]
+
+
+def test_changed_package_versions_are_noted_on_resume(reference, tmp_path, monkeypatch):
+    out = tmp_path / "r"
+    shutil.copytree(reference, out)
+    monkeypatch.setattr("autotight.report.store.versions", lambda: {"numpy": "0.0.1"})
+    notes: list[str] = []
+    s = run_sweep(_spec(), out, jobs=1, progress=False, log=notes.append)
+    assert s.computed == 0 and len(notes) == 1 and f"numpy {np.__version__} → 0.0.1" in notes[0]
+    runs = json.loads((out / "meta.json").read_text())["runs"]
+    assert [r["versions"]["numpy"] for r in runs[-2:]] == [np.__version__, "0.0.1"]
+
+
+def test_dask_local_cluster_gives_the_same_results_as_joblib(reference, tmp_path):
+    distributed = pytest.importorskip("distributed")
+    with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=False,
+                                  dashboard_address=None) as cluster:
+        s = run_sweep(_spec(), tmp_path / "d", scheduler=cluster.scheduler_address, progress=False)
+    assert (s.computed, s.complete) == (6, True)
+    meta = json.loads((tmp_path / "d" / "meta.json").read_text())
+    assert meta["runs"][0]["backend"] == "dask"
+    pd.testing.assert_frame_equal(_det(load_trials(tmp_path / "d")), _det(load_trials(reference)))
+
+
+@pytest.mark.parametrize("change, setting", [({"params": {"M": 4}}, "params"), ({"sigmas": "0.01,0.1"}, "sigmas"),
+                                             ({"sets": "primary"}, "sets"), ({"seed": 1}, "seed")])
+def test_a_different_sweep_in_the_same_folder_is_refused(reference, change, setting):
+    before = (reference / CSV_NAME).read_bytes()
+    with pytest.raises(ReportError, match=f"holds a different sweep \\({setting}:"):
+        run_sweep(_spec(**change), reference, jobs=1, progress=False)
+    assert (reference / CSV_NAME).read_bytes() == before
+
+
+def test_cli_refuses_a_mismatch_with_one_line(reference, capsys):
+    rc = main(["report", PROBLEM, "-p", "M=5", "--sigmas", "0.01,0.3", "--trials", "3", "--jobs", "1",
+               "--out", str(reference), "--no-progress"])
+    err = capsys.readouterr().err.strip()
+    assert rc == 2 and len(err.splitlines()) == 1
+    assert err.startswith("autotight: error:") and '"M": 3' in err and '"M": 5' in err
+
+
+def test_the_recorded_command_reproduces_the_same_sweep(reference, capsys):
+    command = Store(reference).meta()["runs"][0]["command"]
+    assert command.startswith("autotight report rotation_averaging --param M=3 --sigmas 0.01,0.3 ")
+    rc = main(["report", *shlex.split(command)[2:], "--jobs", "1", "--no-progress", "--json"])
+    assert rc == 0, capsys.readouterr().err
+    rec = json.loads(capsys.readouterr().out)
+    assert (rec["done_before"], rec["computed"], rec["complete"]) == (6, 0, True)
+
+
+def test_cli_runs_a_sweep_and_prints_json(tmp_path, capsys):
+    out = tmp_path / "c"
+    rc = main(["report", PROBLEM, "-p", "M=2", "--sigmas", "0.1,0.01", "--trials", "1", "--sets", "primary",
+               "--jobs", "1", "--out", str(out), "--no-progress", "--json"])
+    assert rc == 0
+    rec = json.loads(capsys.readouterr().out)
+    assert rec["sigmas"] == [0.01, 0.1] and rec["computed"] == 2 and rec["complete"] is True
+    assert set(rec["files"]) == {"trapped.png", "log_svr.png", "tight.png", "times.png", "report.md", "report.html"}
+    assert len(load_trials(out)) == 2
+
+
+@pytest.mark.parametrize("args, words", [
+    (["--param", "sigma=0.1"], "sigma is swept"),
+    (["--sigmas", "0,0.1"], "must be finite and > 0"),
+    (["--sigmas", "0.1,abc"], "comma-separated numbers"),
+    (["--sigmas", "0.1,0.1"], "duplicate"),
+    (["--sets", "primary,bogus"], "subset of primary,paper,discovered"),
+    (["--trials", "0"], "at least 1 trial"),
+    (["--jobs", "0"], "at least 1 worker"),
+    (["--param", "M=0"], "M=0"),
+    (["--sets", "primary,discovered", "--discovered", "missing.json"], "no discovered-set file"),
+])
+def test_bad_input_gives_one_line_errors(tmp_path, capsys, args, words):
+    rc = main(["report", PROBLEM, "--out", str(tmp_path / "x"), "--no-progress", *args])
+    err = capsys.readouterr().err.strip()
+    assert rc == 2 and len(err.splitlines()) == 1 and err.startswith("autotight: error:") and words in err, err
+    assert not (tmp_path / "x" / CSV_NAME).exists()
+
+
+def test_discovered_without_discovery_is_a_clear_error(tmp_path, monkeypatch):
+    monkeypatch.setitem(sys.modules, "autotight.discovery", None)  # as if the package were absent
+    with pytest.raises(ReportError, match="needs autotight.discovery"):
+        run_sweep(_spec(sets="primary,discovered"), tmp_path / "x", progress=False)
+
+
+class _FakeSet:
+    """Stands in for autotight.discovery.DiscoveredSet: re-instantiates n copies of primary constraints."""
+
+    problem = PROBLEM
+
+    def __init__(self, n: int):
+        self.n = n
+
+    @classmethod
+    def load(cls, path):
+        return cls(json.loads(Path(path).read_text())["n"])
+
+    def save(self, path, model=None, constraints=None, extra=None):
+        Path(path).write_text(json.dumps({"n": self.n}))
+
+    def instantiate(self, problem, inst, rng, model=None):
+        return (model or problem.build(inst)).primary()[1:1 + self.n]
+
+
+@pytest.fixture
+def fake_discovery(monkeypatch):
+    calls = []
+
+    def discover(problem, params, seed=0, **kw):
+        calls.append((problem.name, params["sigma"], seed))
+        return types.SimpleNamespace(discovered=_FakeSet(2), model=None, constraints=None, summary=lambda: {})
+
+    monkeypatch.setitem(sys.modules, "autotight.discovery",
+                        types.SimpleNamespace(DiscoveredSet=_FakeSet, discover=discover))
+    return calls
+
+
+def test_discovered_set_from_a_file_is_instantiated_per_trial(tmp_path, fake_discovery):
+    path = tmp_path / "set.json"
+    path.write_text(json.dumps({"n": 3}))
+    out = tmp_path / "d"
+    s = run_sweep(_spec(sets="primary,discovered", trials=1, discovered=str(path)), out, progress=False)
+    assert s.computed == 2 and fake_discovery == []
+    df = load_trials(out)
+    assert list(df["constraint_set"]) == ["primary", "discovered"] * 2
+    assert list(df["n_constraints"]) == [34, 37] * 2
+    meta = json.loads((out / "meta.json").read_text())
+    assert meta["discovered"]["file"] == "set.json" and len(meta["discovered"]["sha256"]) == 64
+    path.write_text(json.dumps({"n": 4}))  # another set: refused on resume
+    with pytest.raises(ReportError, match="discovered"):
+        run_sweep(_spec(sets="primary,discovered", trials=1, discovered=str(path)), out, progress=False)
+
+
+def test_discovery_runs_once_and_its_set_is_saved_for_resume(tmp_path, fake_discovery):
+    out = tmp_path / "d"
+    spec = _spec(sets="discovered", trials=2)
+    run_sweep(spec, out, limit=1, progress=False)
+    s = run_sweep(spec, out, progress=False)
+    assert (s.done_before, s.computed) == (1, 3)
+    assert fake_discovery == [(PROBLEM, 0.1, 0)]  # at the problem's default σ, once
+    assert json.loads((out / "discovered.json").read_text()) == {"n": 2}
+    assert list(load_trials(out)["n_constraints"]) == [36] * 4
+
+
+def test_trial_seeds_depend_only_on_base_seed_sigma_index_and_trial():
+    seeds = {trial_seeds(0, i, t)[0] for i in range(3) for t in range(3)}
+    assert len(seeds) == 9
+    a, b = trial_seeds(7, 2, 5), trial_seeds(7, 2, 5)
+    assert a[0] == b[0] and a[1].random() == b[1].random() and a[2].random() == b[2].random()
+    assert trial_seeds(8, 2, 5)[0] != a[0]
+
+
+def test_is_trapped_uses_the_stated_relative_tolerance():
+    assert not is_trapped(100.0 * (1 + 5e-5), 100.0, 1e-4)
+    assert is_trapped(100.0 * (1 + 2e-4), 100.0, 1e-4)
+    assert is_trapped(float("inf"), 1.0, 1e-4)
+    assert not is_trapped(1e-14, 0.0, 1e-4)  # a zero global cost: the slack is rtol × floor (1e-9)
+    assert is_trapped(1e-12, 0.0, 1e-4)
+
+
+def test_sigmas_default_sorted_and_validated():
+    prob = load(PROBLEM)
+    assert parse_sigmas(prob, None) == pytest.approx(tuple(np.logspace(-3, 0, 7)))
+    assert parse_sigmas(prob, "1,0.001,0.1") == (0.001, 0.1, 1.0)
+    with pytest.raises(ReportError):
+        parse_sigmas(prob, "")
+
+
+def test_a_failing_trial_is_recorded_and_reported(tmp_path, monkeypatch):
+    real = trial_mod._solve
+
+    def flaky(problem, spec, i, t, discovered):
+        if (i, t) == (1, 0):
+            raise AutotightError("boom\nsecond line")
+        return real(problem, spec, i, t, discovered)
+
+    monkeypatch.setattr(trial_mod, "_solve", flaky)
+    out = tmp_path / "f"
+    s = run_sweep(_spec(trials=1), out, jobs=1, progress=False)
+    assert (s.computed, s.failed) == (2, 1)
+    df = load_trials(out)
+    bad = df[df["sigma_index"] == 1]
+    assert list(bad["status"]) == ["Error: AutotightError: boom"] * 2 and bad["log_svr"].isna().all()
+    assert (df[df["sigma_index"] == 0]["status"] == "Solved").all()
+    _render(out)
+    md = (out / "report.md").read_text()
+    assert "## Solver statuses" in md and "| primary | 1 | 1 |" in md
+
+
+def test_run_trial_is_reproducible():
+    spec = _spec(trials=1)
+    a, b = run_trial(spec, 1, 0), run_trial(spec, 1, 0)
+    assert a.key == (1, 0) and [r["constraint_set"] for r in a.rows] == ["primary", "paper"]
+    for ra, rb in zip(a.rows, b.rows):
+        assert {k: v for k, v in ra.items() if k not in TIME_COLUMNS} == \
+               {k: v for k, v in rb.items() if k not in TIME_COLUMNS}
+
+
+def test_ctrl_c_keeps_finished_trials_and_the_rerun_resumes(tmp_path):
+    out = tmp_path / "k"
+    cmd = [sys.executable, "-m", "autotight.cli", "report", PROBLEM, "-p", "M=3", "--sigmas", "0.01,0.3",
+           "--sets", "primary,paper", "--trials", "40", "--jobs", "1", "--out", str(out), "--no-progress"]
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    csv, deadline = out / CSV_NAME, time.time() + 60
+    while time.time() < deadline and proc.poll() is None:
+        if csv.exists() and csv.read_text().count("\n") >= 1 + 2 * 3:
+            break
+        time.sleep(0.05)
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 130 and "re-run the same command to resume" in err
+    saved = load_trials(out)
+    done = len(saved) // 2
+    assert 3 <= done < 80 and len(saved) == 2 * done
+    s = run_sweep(_spec(trials=40), out, jobs=1, limit=1, progress=False)
+    assert (s.done_before, s.computed) == (done, 1)
+    again = load_trials(out)
+    pd.testing.assert_frame_equal(again.iloc[: len(saved)].reset_index(drop=True), saved)
