@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from .threads import single_blas_thread
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, Sequence
 
 import numpy as np
@@ -67,17 +67,22 @@ def solve_sdp(model: Model, constraints: Sequence[Constraint], *, solver: str = 
               decompose: bool | None = None, options: SolverOptions | None = None) -> SDPResult:
     """The Shor SDP of ``model`` with ``constraints``.
 
-    decompose: None → into cliques when N > AUTO_DECOMPOSE_N (Clarabel only); True/False forces it.
-    The cliques are the model's own when it gives them, else those of the chordal structure of Q
-    and these constraints (see ``cliques_for``).
+    decompose: None → for N > AUTO_DECOMPOSE_N, Clarabel's chordal decomposition with
+    parent-child merging (the fastest and most accurate on the trajectories; see
+    benchmarks/trajectory_sdp.py); True → our own clique decomposition (the model's cliques when
+    it gives them, else a min-fill chordal cover of Q and the constraints, ``cliques_for``);
+    False → one dense PSD cone.
     """
-    use = (model.variables.N > AUTO_DECOMPOSE_N) if decompose is None else decompose
+    opts = options or SolverOptions()
     cliques = None
-    if use and solver == "clarabel":
-        cliques = model.clique_indices() or cliques_for(model, constraints)
-        if len(cliques) == 1:
-            cliques = None
-    return sdp.solve(model.Q, constraints, d=model.d, solver=solver, cliques=cliques, options=options)
+    if solver == "clarabel":
+        if decompose:
+            cliques = model.clique_indices() or cliques_for(model, constraints)
+            if len(cliques) == 1:
+                cliques = None
+        elif decompose is None and model.variables.N > AUTO_DECOMPOSE_N and not opts.clarabel_chordal:
+            opts = replace(opts, clarabel_chordal=True)
+    return sdp.solve(model.Q, constraints, d=model.d, solver=solver, cliques=cliques, options=opts)
 
 
 @dataclass

@@ -45,6 +45,7 @@ def _settings(opts: SolverOptions) -> "clarabel.DefaultSettings":
     if opts.clarabel_chordal:
         s.chordal_decomposition_enable = True
         s.chordal_decomposition_complete_dual = True
+        s.chordal_decomposition_merge_method = opts.chordal_merge
     return s
 
 
