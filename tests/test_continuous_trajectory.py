@@ -24,7 +24,7 @@ COST_RTOL = 1e-9
 #: SDP cost against the local optimum from the ground truth, relative to the cost.  The optimum is
 #: ~1 % of the terms that cancel in ⟨Q, X⟩ (constant velocity is nearly free under the WNOA prior),
 #: so Clarabel's default accuracy (1e-9) gives the cost to ~1e-6 … 5e-6 (measured, SDP above local);
-#: a tolerance of 1e-10 gets ≤ 1.3e-6 but mostly ends AlmostSolved.  A relaxation gap where the
+#: a tolerance of 1e-10 gets ≤ 1.3e-6 but often ends AlmostSolved.  A relaxation gap where the
 #: families fail is ≥ 1e-3 (K = 17: 2.5e-3 … 3.6e-2), so 1e-5 separates the two cleanly.
 TIGHT_COST_RTOL = 1e-5
 #: the largest K at which the paper's families are tight for every seed tried (0–4), default setting;

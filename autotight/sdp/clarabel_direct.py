@@ -78,9 +78,38 @@ def solve_dense(Q: sp.csr_array, As: Sequence[sp.csr_array], b: np.ndarray, d: i
     y = np.asarray(sol.x, float) / c
     primal = float((Q.multiply(X)).sum()) if X is not None else float("nan")
     dual = float(np.dot(b, y))
-    res = SDPResult(status=status, solver="clarabel", d=d, X=X, y=y, primal_cost=primal, dual_cost=dual,
+    svrs = None
+    if opts.clarabel_chordal and X is not None:
+        # Clarabel completes X off the pattern with some PSD completion, not the rank-d one:
+        # judge rank on the clique blocks of the pattern and complete X from their factors.
+        from .chordal import column_cliques
+
+        X, svrs = complete_from_cliques(X, column_cliques(N, [Q, *As], always=range(d)), d)
+    res = SDPResult(status=status, solver="clarabel-chordal" if opts.clarabel_chordal else "clarabel", d=d, X=X, y=y, primal_cost=primal, dual_cost=dual,
                     solve_time_s=t2 - t1, setup_time_s=t1 - t0, iterations=int(sol.iterations))
-    return finish(res)
+    res.clique_log_svr = svrs
+    res = finish(res)
+    if svrs:
+        res.log_svr = float(np.min(svrs))
+    return res
+
+
+def complete_from_cliques(Xp: np.ndarray, cliques: Sequence[np.ndarray], d: int) -> tuple[np.ndarray, list[float]]:
+    """X known on the cliques' pattern → per-clique log SVR, and X with the entries off the pattern
+    filled from the rank-d factors of the clique blocks (each clique contains h, which fixes
+    their alignment; the completion is exact when every block has rank d)."""
+    from .result import log_svr, rank_d_factor
+
+    N = Xp.shape[0]
+    Theta = np.zeros((d, N))
+    svrs = []
+    on = np.zeros((N, N), bool)
+    for C in cliques:
+        w, Th = rank_d_factor(Xp[np.ix_(C, C)], d)
+        svrs.append(log_svr(w, d))
+        Theta[:, C] = Th
+        on[np.ix_(C, C)] = True
+    return np.where(on, Xp, Theta.T @ Theta), svrs
 
 
 def svec_columns(As: Sequence[sp.csr_array], N: int) -> sp.csc_array:
@@ -162,26 +191,12 @@ def solve_cliques(Q: sp.csr_array, As: Sequence[sp.csr_array], b: np.ndarray, d:
     xv = np.asarray(sol.x, float)
     y = -np.asarray(sol.z, float)[:m] / c
     status = str(sol.status)
-    # clique blocks → per-clique log SVR and a completed rank-d X
-    from .result import log_svr, rank_d_factor
-
-    svrs, X = [], None
+    X, svrs = None, []
     if np.all(np.isfinite(xv)):
         Xp = np.zeros((N, N))
         for (i, j), k in idx.items():
             Xp[i, j] = Xp[j, i] = xv[k]
-        Theta = np.zeros((d, N))
-        for C in cliques:
-            w, Th = rank_d_factor(Xp[np.ix_(C, C)], d)
-            svrs.append(log_svr(w, d))
-            Theta[:, C] = Th
-        X = Xp
-        # entries off the pattern are completed from the rank-d factor (exact when tight)
-        full = Theta.T @ Theta
-        mask = np.ones((N, N), bool)
-        for (i, j) in idx:
-            mask[i, j] = mask[j, i] = False
-        X = np.where(mask, full, Xp)
+        X, svrs = complete_from_cliques(Xp, cliques, d)
     primal = float(np.dot(q, xv) / c) if np.all(np.isfinite(xv)) else float("nan")
     res = SDPResult(status=status, solver="clarabel-cliques", d=d, X=X, y=y, primal_cost=primal,
                     dual_cost=float(np.dot(b, y)), solve_time_s=t2 - t1, setup_time_s=t1 - t0,
