@@ -301,7 +301,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{s['M']:>4} {s['N']:>4} {d['median_full_s']:>12.4f} {d['median_solve_s']:>13.4f} {cf:>12} {cs:>12} "
               f"{rf:>11} {rs:>12}  direct {d['status']}, cvxpy "
               f"{c['status'] if c['n'] else c['failure']}")
-    print(f"median CPU time of the full call: " + ", ".join(
+    print("median CPU time of the full call: " + ", ".join(
         f"M = {s['M']}: direct {s['direct']['median_cpu_s']:.3f} s, cvxpy "
         + (f"{s['cvxpy']['median_cpu_s']:.3f} s" if s["cvxpy"]["n"] else "-") for s in sizes))
     print(f"load average (1 min) before/after: {load_before[0]:.2f} / {load_after[0]:.2f} on {os.cpu_count()} CPUs")

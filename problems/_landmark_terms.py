@@ -16,6 +16,7 @@ The same residuals give the direct cost and the Gauss-Newton Jacobians of the lo
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Callable
 
 import numpy as np
 import scipy.sparse as sp
@@ -24,7 +25,7 @@ from autotight import lie
 from autotight.errors import ParameterError, ProblemDefinitionError
 from autotight.gauss_newton import gauss_newton
 from autotight.model import HOMOGENISING as H, Constraint, Factor, Model, QuadForm, Variables
-from autotight.problem import LocalResult, Param
+from autotight.problem import Instance, LocalResult, Param
 
 LIFTINGS = ("matrix", "vector")
 Residual = list[tuple[str, np.ndarray]]  # [(block, M_b)]: E = Σ_b Θ_b M_b
@@ -407,3 +408,35 @@ def noisy_rotation(rng: np.random.Generator, C: np.ndarray, sigma: float) -> np.
     """exp(σν^∧) C with ν ~ N(0, I)."""
     d = C.shape[0]
     return exp_rot(sigma * rng.standard_normal(rot_dof(d)), d) @ C
+
+
+def graph_problem(graph: Callable[[Instance], "PoseLandmarkGraph"], extent_param: str) -> tuple[Callable, ...]:
+    """The parts of a pose-landmark problem module that only delegate to its graph:
+    (build, lift, cost, sample, random_state, local_solve, recover, errors).
+    ``extent_param`` names the parameter that scales random starts."""
+
+    def build(inst: Instance) -> Model:
+        return graph(inst).model()
+
+    def lift(inst: Instance, state: dict) -> np.ndarray:
+        return graph(inst).lift(state)
+
+    def cost(inst: Instance, state: dict) -> float:
+        return graph(inst).cost(state)
+
+    def sample(inst: Instance, rng: np.random.Generator, nominal: dict, spread: float) -> dict:
+        return sample_state(rng, nominal, spread)
+
+    def random_start(inst: Instance, rng: np.random.Generator) -> dict:
+        return random_state(rng, inst.truth, inst.params[extent_param])
+
+    def local_solve(inst: Instance, init: dict, max_iter: int = 200) -> LocalResult:
+        return graph(inst).local_solve(init, max_iter)
+
+    def recover(inst: Instance, Theta: np.ndarray) -> dict:
+        return graph(inst).recover(Theta)
+
+    def errors(inst: Instance, state: dict) -> dict:
+        return state_errors(state, inst.truth)
+
+    return build, lift, cost, sample, random_start, local_solve, recover, errors

@@ -13,8 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from autotight.model import Model
-from autotight.problem import Instance, LocalResult, Param
+from autotight.problem import Instance, Param
 
 from . import _landmark_terms as lt
 
@@ -51,33 +50,4 @@ def graph(inst: Instance) -> lt.PoseLandmarkGraph:
     return g
 
 
-def build(inst: Instance) -> Model:
-    return graph(inst).model()
-
-
-def lift(inst: Instance, state: dict) -> np.ndarray:
-    return graph(inst).lift(state)
-
-
-def cost(inst: Instance, state: dict) -> float:
-    return graph(inst).cost(state)
-
-
-def sample(inst: Instance, rng: np.random.Generator, nominal: dict, spread: float) -> dict:
-    return lt.sample_state(rng, nominal, spread)
-
-
-def random_state(inst: Instance, rng: np.random.Generator) -> dict:
-    return lt.random_state(rng, inst.truth, inst.params["extent"])
-
-
-def local_solve(inst: Instance, init: dict, max_iter: int = 200) -> LocalResult:
-    return graph(inst).local_solve(init, max_iter)
-
-
-def recover(inst: Instance, Theta: np.ndarray) -> dict:
-    return graph(inst).recover(Theta)
-
-
-def errors(inst: Instance, state: dict) -> dict:
-    return lt.state_errors(state, inst.truth)
+build, lift, cost, sample, random_state, local_solve, recover, errors = lt.graph_problem(graph, "extent")

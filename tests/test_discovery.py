@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from autotight.cli import main
-from autotight.discovery import DiscoveredSet, LearnOptions, discover, instantiate, learn
+from autotight.discovery import DiscoveredSet, discover, learn
 from autotight.discovery.compare import span_residual
 from autotight.discovery.samples import draw, relative_violation
 from autotight.errors import LearningError, ProblemDefinitionError

@@ -14,7 +14,7 @@ from ..problem import Instance, Problem, load
 from ..run import local_search, solve_sdp
 from ..sdp.result import SolverOptions
 from ..tightness import Criteria, judge
-from .catalog import Catalog, Pair, instantiate, learn
+from .catalog import Catalog, instantiate, learn
 from .compare import paper_in_span, resemblance
 from .discovered import DiscoveredSet
 from .learn import LearnOptions
