@@ -71,6 +71,10 @@ def _frac(h) -> str:
     return f"{h.fraction:.0%} of {len(h.seeds)}" if h is not None and h.seeds else "—"
 
 
+def _primary_frac(h) -> str:
+    return f"{h.primary_fraction:.0%} of {len(h.seeds)}" if h is not None and h.primary_tight else ""
+
+
 def table(res: DiscoveryResult) -> str:
     """The comparison with the paper, and the discovered constraints grouped by factor."""
     s = res.summary()
@@ -81,7 +85,8 @@ def table(res: DiscoveryResult) -> str:
              f"result: {'TIGHT' if res.tight else 'NOT TIGHT'} — {res.tightened.message}; "
              f"log SVR {res.final_log_svr:.2f} (primary alone {s['log_svr_primary']:.2f}); {res.n_solves} SDP solves", "",
              f"{'set':<28}{'constraints':>12}{'in learned span':>18}{'tight (learn inst.)':>21}{'tight (held-out)':>18}",
-             f"{'primary':<28}{s['n_primary']:>12}{'yes':>18}{str(res.tightened.primary_verdict.tight):>21}{'':>18}"]
+             f"{'primary':<28}{s['n_primary']:>12}{'yes':>18}{str(res.tightened.primary_verdict.tight):>21}"
+             f"{_primary_frac(res.heldout):>18}"]
     for fam, info in res.paper_span.items():
         r = info["max_residual"]
         span = f"{'yes' if r < 1e-8 else 'NO'} ({r:.0e})"

@@ -33,10 +33,16 @@ class HeldOut:
     rel_gap: list[float]
     status: list[str]
     issues: list[str] = field(default_factory=list)
+    primary_tight: list[bool] = field(default_factory=list)
 
     @property
     def fraction(self) -> float:
         return float(np.mean(self.tight)) if self.tight else float("nan")
+
+    @property
+    def primary_fraction(self) -> float:
+        """The primary constraints' own fraction on the same instances (what the set adds is the difference)."""
+        return float(np.mean(self.primary_tight)) if self.primary_tight else float("nan")
 
 
 @dataclass
@@ -79,6 +85,7 @@ class DiscoveryResult:
             "n_minimal": len(self.constraints), "n_minimal_pairs": len(self.discovered.pairs),
             "irreducible": bool(self.reduction and self.reduction.irreducible),
             "heldout_tight_fraction": self.heldout.fraction, "heldout_instances": len(self.heldout.seeds),
+            "heldout_primary_tight_fraction": self.heldout.primary_fraction,
             "paper_tight": self.paper_tight,
             "paper_heldout_tight_fraction": None if self.paper_heldout is None else self.paper_heldout.fraction,
             "paper_in_span": self.paper_span, "resembles": self.resembles,
@@ -90,8 +97,9 @@ class DiscoveryResult:
 
 def heldout_check(problem: Problem, params: dict[str, Any], seeds: Sequence[int],
                   make: Callable[[Instance, Model, np.random.Generator], tuple[list[Constraint], list[str]]],
-                  criteria: Criteria, options: SolverOptions, n_random: int = 1) -> HeldOut:
-    """Solve each fresh instance with primary + make(...) and judge it against its local solutions."""
+                  criteria: Criteria, options: SolverOptions, n_random: int = 1, with_primary: bool = True) -> HeldOut:
+    """Solve each fresh instance with primary + make(...) and judge it against its local solutions;
+    with_primary also judges the primary constraints alone on the same instances."""
     out = HeldOut([], [], [], [], [])
     for s in seeds:
         inst = problem.generate(params, s)
@@ -104,6 +112,9 @@ def heldout_check(problem: Problem, params: dict[str, Any], seeds: Sequence[int]
         v = judge(res, loc.best.cost, criteria)
         out.seeds.append(int(s)); out.tight.append(v.tight); out.log_svr.append(res.log_svr)
         out.rel_gap.append(v.rel_gap); out.status.append(res.status)
+        if with_primary:
+            out.primary_tight.append(judge(solve_sdp(model, model.primary(), options=options), loc.best.cost,
+                                           criteria).tight if extra else v.tight)
     return out
 
 
@@ -166,7 +177,7 @@ def discover(problem: Problem | str, params: dict[str, Any] | None = None, seed:
         pv, _ = oracle.solve_extra(model.paper_constraints(), stage="paper")
         paper_tight = pv.tight
         paper_hold = heldout_check(prob, full, seeds, lambda i, m, r: (m.paper_constraints(), []), criteria, options,
-                                   n_random)
+                                   n_random, with_primary=False)
         span = paper_in_span(cat)
         like = {c.name: resemblance(c, cat) for c in constraints}
         times["compare_s"] = time.perf_counter() - t

@@ -86,7 +86,7 @@ def _wilson(k: int, n: int, z: float = 1.96) -> tuple[float, float]:
 
 def log_svr(df: pd.DataFrame, sigmas: Sequence[float], sets: Sequence[str], path: Path,
             rank_line: float = 5.0) -> Path:
-    """Box plots of log SVR against σ, one box per constraint set, with the rank-1 line."""
+    """Box plots of log SVR against σ, one box per constraint set, with the rank-d line."""
     fig, ax = _figure(6.4, 4.0)
     group = _group_width(sigmas)
     w = group / len(sets)
@@ -113,7 +113,7 @@ def log_svr(df: pd.DataFrame, sigmas: Sequence[float], sets: Sequence[str], path
             box.set_facecolor(_color(name))
             box.set_alpha(0.75)
         ax.plot([], [], "s", color=_color(name), label=name)
-    ax.axhline(rank_line, color="tab:red", ls="--", lw=1.2, label=f"rank 1 (log SVR = {rank_line:g})")
+    ax.axhline(rank_line, color="tab:red", ls="--", lw=1.2, label=f"rank d (log SVR = {rank_line:g})")
     lo, hi = ax.get_ylim()
     ax.set_ylim(min(0.0, lo), max(hi, rank_line + 1.0))
     _sigma_axis(ax, sigmas)
@@ -127,7 +127,7 @@ def log_svr(df: pd.DataFrame, sigmas: Sequence[float], sets: Sequence[str], path
 
 
 def tight(df: pd.DataFrame, sigmas: Sequence[float], sets: Sequence[str], path: Path) -> Path:
-    """Fraction of trials judged tight (rank 1 and cost gap) per constraint set."""
+    """Fraction of trials judged tight (rank d and cost gap) per constraint set."""
     fig, ax = _figure(5.6, 3.8)
     for name in sets:
         sub = df[df["constraint_set"] == name]
@@ -136,7 +136,7 @@ def tight(df: pd.DataFrame, sigmas: Sequence[float], sets: Sequence[str], path: 
     _sigma_axis(ax, sigmas)
     ax.set_ylim(-0.03, 1.03)
     ax.set_ylabel("fraction of SDP solves tight")
-    ax.set_title("Tight: rank 1 and SDP cost = best local cost", fontsize=9)
+    ax.set_title("Tight: rank d and SDP cost = best local cost", fontsize=9)
     ax.legend(fontsize=8, loc="best")
     return _save(fig, path)
 
