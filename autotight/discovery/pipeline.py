@@ -95,26 +95,27 @@ class DiscoveryResult:
         }
 
 
-def heldout_check(problem: Problem, params: dict[str, Any], seeds: Sequence[int],
-                  make: Callable[[Instance, Model, np.random.Generator], tuple[list[Constraint], list[str]]],
-                  criteria: Criteria, options: SolverOptions, n_random: int = 1, with_primary: bool = True) -> HeldOut:
-    """Solve each fresh instance with primary + make(...) and judge it against its local solutions;
-    with_primary also judges the primary constraints alone on the same instances."""
-    out = HeldOut([], [], [], [], [])
+Maker = Callable[[Instance, Model, np.random.Generator], tuple[list[Constraint], list[str]]]
+
+
+def heldout_check(problem: Problem, params: dict[str, Any], seeds: Sequence[int], sets: dict[str, Maker],
+                  criteria: Criteria, options: SolverOptions, n_random: int = 1) -> dict[str, HeldOut]:
+    """For each fresh instance (one local search each), solve primary + make(...) for every set
+    and judge it against the instance's best local solution."""
+    out = {name: HeldOut([], [], [], [], []) for name in sets}
     for s in seeds:
         inst = problem.generate(params, s)
         model = problem.build(inst)
         rng = np.random.default_rng([s, 7])
-        extra, issues = make(inst, model, rng)
-        out.issues += [f"seed {s}: {i}" for i in issues]
-        res = solve_sdp(model, model.primary() + extra, options=options)
         loc = local_search(problem, inst, rng, n_random)
-        v = judge(res, loc.best.cost, criteria)
-        out.seeds.append(int(s)); out.tight.append(v.tight); out.log_svr.append(res.log_svr)
-        out.rel_gap.append(v.rel_gap); out.status.append(res.status)
-        if with_primary:
-            out.primary_tight.append(judge(solve_sdp(model, model.primary(), options=options), loc.best.cost,
-                                           criteria).tight if extra else v.tight)
+        for name, make in sets.items():
+            extra, issues = make(inst, model, rng)
+            h = out[name]
+            h.issues += [f"seed {s}: {i}" for i in issues]
+            res = solve_sdp(model, model.primary() + extra, options=options)
+            v = judge(res, loc.best.cost, criteria)
+            h.seeds.append(int(s)); h.tight.append(v.tight); h.log_svr.append(res.log_svr)
+            h.rel_gap.append(v.rel_gap); h.status.append(res.status)
     return out
 
 
@@ -156,9 +157,9 @@ def discover(problem: Problem | str, params: dict[str, Any] | None = None, seed:
         chosen = red.pairs
     times["reduce_s"] = time.perf_counter() - t
     constraints = [c for p in chosen for c in pairs[p]]
-    final_v, final_res = (tr.verdict, tr.sdp)
+    final_res = tr.sdp
     if red is not None:
-        final_v, final_res = oracle.solve(chosen, stage="final")
+        _, final_res = oracle.solve(chosen, stage="final")
     n_solves = oracle.n_solves
     times["sdp_s"] = oracle.solve_time_s
     ds = DiscoveredSet(prob.name, full, seed, list(chosen), asdict(learn_options),
@@ -166,18 +167,21 @@ def discover(problem: Problem | str, params: dict[str, Any] | None = None, seed:
                        groups if isinstance(groups, str) else [list(g) for g in groups])
     t = time.perf_counter()
     seeds = [seed + 1 + k for k in range(n_heldout)]
-    hold = HeldOut([], [], [], [], [])
-    if tr.tight:
-        hold = heldout_check(prob, full, seeds, lambda i, m, r: instantiate(prob, i, ds.pairs, r, ds.options(), m, groups),
-                             criteria, options, n_random)
+    sets: dict[str, Maker] = {"primary": lambda i, m, r: ([], [])}
+    if tr.tight and chosen:
+        sets["discovered"] = lambda i, m, r: instantiate(prob, i, ds.pairs, r, ds.options(), m, groups)
+    if compare and model.paper:
+        sets["paper"] = lambda i, m, r: (m.paper_constraints(), [])
+    held = heldout_check(prob, full, seeds, sets, criteria, options, n_random) if tr.tight else {}
+    hold = held.get("discovered", held.get("primary", HeldOut([], [], [], [], [])))
+    hold.primary_tight = list(held["primary"].tight) if held else []
     times["heldout_s"] = time.perf_counter() - t
-    paper_tight, paper_hold, span, like = None, None, {}, {}
+    paper_tight, span, like = None, {}, {}
+    paper_hold = held.get("paper")
     if compare and model.paper:
         t = time.perf_counter()
         pv, _ = oracle.solve_extra(model.paper_constraints(), stage="paper")
         paper_tight = pv.tight
-        paper_hold = heldout_check(prob, full, seeds, lambda i, m, r: (m.paper_constraints(), []), criteria, options,
-                                   n_random, with_primary=False)
         span = paper_in_span(cat)
         like = {c.name: resemblance(c, cat) for c in constraints}
         times["compare_s"] = time.perf_counter() - t
