@@ -53,8 +53,8 @@ class SweepSpec:
                 "criteria": asdict(self.criteria), "solver": self.solver}
 
     def tasks(self) -> list[tuple[int, int]]:
-        """Every (σ index, trial), σ-major."""
-        return [(i, t) for i in range(len(self.sigmas)) for t in range(self.trials)]
+        """Every (σ index, trial), trial-major: a partial sweep (--limit, an interruption) covers every σ evenly."""
+        return [(i, t) for t in range(self.trials) for i in range(len(self.sigmas))]
 
     def command(self) -> str:
         """The ``autotight report`` command that reproduces this sweep (non-default values only, exact σ)."""
