@@ -210,8 +210,8 @@ def learn_group(model: Model, group: Group, bank: SampleBank, heldout: SampleBan
         Nn = nullspace(Yn, spec.rank)
         free = free_monomials(Nn, opts.free_tol)
         Vn = basic_solutions(Nn, free)
-        P = Vn / D[:, None]  # back to polynomial coefficients (scan order)
-        P = P / P[free, np.arange(k)]
+        P = Vn / D[:, None]  # back to polynomial coefficients (scan order); P[free] = diag(1/D[free])
+        P = P * D[free][None, :]
         coeffs = np.zeros((m, k))
         coeffs[order] = P
     names = _monomial_names(group, V.sizes, d)

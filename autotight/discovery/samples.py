@@ -25,9 +25,24 @@ class SampleBank:
         return self.thetas.shape[0]
 
 
-def draw(problem: Problem, inst: Instance, n: int, rng: np.random.Generator, spread: float) -> SampleBank:
-    """n samples from the problem's sampler around the ground truth, lifted."""
-    thetas = [as_theta(problem.lift(inst, problem.sample(inst, rng, inst.truth, spread))) for _ in range(n)]
+def draw(problem: Problem, inst: Instance, n: int, rng: np.random.Generator, spread: float,
+         max_growth: float = 1e3) -> SampleBank:
+    """n samples from the problem's sampler around the ground truth, lifted.
+
+    A sample whose lifting is not finite or exceeds ``max_growth`` times the largest entry of the
+    nominal lifting is drawn again: near a Cayley singularity (angle π) the residual variables blow
+    up and would wreck the conditioning of the data.
+    """
+    scale = max_growth * max(1.0, float(np.abs(as_theta(problem.lift(inst, inst.truth))).max()))
+    thetas, tries = [], 0
+    while len(thetas) < n:
+        tries += 1
+        if tries > 10 * n + 100:
+            raise LearningError(f"the sampler keeps returning liftings that are not finite or exceed {scale:.3g}; "
+                                f"reduce the spread ({spread:g})")
+        T = as_theta(problem.lift(inst, problem.sample(inst, rng, inst.truth, spread)))
+        if np.all(np.isfinite(T)) and np.abs(T).max() <= scale:
+            thetas.append(T)
     return SampleBank(np.stack(thetas))
 
 
