@@ -6,10 +6,14 @@ Residual convention: φ = cay⁻¹(C C̃ᵀ)^∨, i.e. column-wise  c_i − c̃_
 
 from __future__ import annotations
 
+from typing import Callable
+
 import numpy as np
 import scipy.sparse as sp
 
+from autotight import lie
 from autotight.affine import H, Affine, cayley_rows, const, quad, var
+from autotight.errors import SolverError
 from autotight.model import Constraint, QuadForm, Variables
 
 COLS = ("c1", "c2", "c3")
@@ -61,4 +65,16 @@ def weighted_norm(V: Variables, block: str, W: np.ndarray) -> sp.csr_array:
 
 
 __all__ = ["H", "orthonormality", "rotation_cayley", "measured_columns", "state_columns", "rotation_values",
-           "weighted_norm", "rot_blocks"]
+           "weighted_norm", "rot_blocks", "draw_valid"]
+
+
+def draw_valid(draw: Callable[[], dict], residuals: Callable[[dict], object], tries: int = 100) -> dict:
+    """draw() a state until its residuals avoid the Cayley singularity (rotation angle π)."""
+    for _ in range(tries):
+        state = draw()
+        try:
+            residuals(state)
+            return state
+        except lie.CayleySingularityError:
+            continue
+    raise SolverError(f"no sample away from the Cayley singularity in {tries} draws; reduce the spread")

@@ -27,11 +27,12 @@ import numpy as np
 import scipy.sparse as sp
 
 from autotight import lie
-from autotight.errors import ParameterError, SolverError
+from autotight.errors import ParameterError
 from autotight.gauss_newton import gauss_newton
 from autotight.model import Factor, Model, Variables
 from autotight.problem import Instance, LocalResult, Param
 
+from ._cayley import draw_valid
 from ._pose import (POSE_ROLES, XI_ROLES, binary_cayley, declare_pose, declare_xi, pose_blocks, pose_from_x,
                     pose_orthonormality, pose_values, r1_unary, r2_unary, r3_binary, unary_cayley, weighted_cost,
                     xi_blocks, xi_values)
@@ -199,15 +200,8 @@ def cost(inst: Instance, state: dict) -> float:
 def sample(inst: Instance, rng: np.random.Generator, nominal: dict, spread: float) -> dict:
     """T_k = exp((spread·ν_k)^∧) T_nominal,k, ν_k ~ N(0, I₆) independently; redrawn near the Cayley singularity."""
     T0 = _poses(nominal)
-    for _ in range(100):
-        Ts = np.array([lie.exp_se3(spread * rng.standard_normal(6)) @ T for T in T0])
-        state = _state(Ts)
-        try:
-            residuals(inst, state)
-            return state
-        except lie.CayleySingularityError:
-            continue
-    raise SolverError("could not draw a sample away from the Cayley singularity; reduce the spread")
+    return draw_valid(lambda: _state(np.array([lie.exp_se3(spread * rng.standard_normal(6)) @ T for T in T0])),
+                      lambda state: residuals(inst, state))
 
 
 def random_state(inst: Instance, rng: np.random.Generator) -> dict:

@@ -9,6 +9,7 @@ So every cost here is σ² times the paper's.
 Lifting  x = [h, c₁, c₂, c₃, r, ρ₁, φ₁, …, ρ_M, φ_M]  (n = 13 + 6M),  cost  Σ ξ_mᵀ W_m ξ_m, ξ_m = [ρ_m; φ_m].
 Factors: "so3" (h, c₁, c₂, c₃) with c_iᵀc_j = δ_ij; per m "pose_meas" (h, c₁, c₂, c₃, r, ρ_m, φ_m) with
 the 12 Cayley rows of ξ_m = cay⁻¹(T T̃_m⁻¹).  Paper families: R1 (3 per m), R2 (1 per m).
+Cliques: the "pose_meas" block sets (size 19), used when the SDP is decomposed (large M).
 """
 
 from __future__ import annotations
@@ -17,11 +18,11 @@ import numpy as np
 from scipy.linalg import block_diag
 
 from autotight import lie
-from autotight.errors import SolverError
 from autotight.gauss_newton import gauss_newton
 from autotight.model import Factor, Model, Variables
 from autotight.problem import Instance, LocalResult, Param
 
+from ._cayley import draw_valid
 from ._pose import (POSE_ROLES, XI_ROLES, declare_pose, declare_xi, pose_blocks, pose_from_x, pose_orthonormality,
                     pose_values, r1_unary, r2_unary, unary_cayley, unary_residuals, weighted_cost, xi_blocks,
                     xi_values)
@@ -61,7 +62,12 @@ def build(inst: Instance) -> Model:
                               roles=("h", *POSE_ROLES, *XI_ROLES)))
         paper["R1"] += r1_unary(V, "", T_meas[m], s, name, factor=name)
         paper["R2"] += r2_unary(V, "", T_meas[m], s, name, factor=name)
-    return Model(V, factors, paper=paper)
+    return Model(V, factors, paper=paper, cliques=cliques(M))
+
+
+def cliques(M: int) -> list[tuple[str, ...]]:
+    """{h, C, r, ξ_m} per m: a star-shaped clique tree (all share {h, C, r}), so the decomposition is exact."""
+    return [("h", *pose_blocks(), *xi_blocks(str(m))) for m in range(M)]
 
 
 def _pose(state: dict) -> np.ndarray:
@@ -87,15 +93,12 @@ def cost(inst: Instance, state: dict) -> float:
 def sample(inst: Instance, rng: np.random.Generator, nominal: dict, spread: float) -> dict:
     """T = exp((spread·ν)^∧) T_nominal, ν ~ N(0, I₆); redrawn if a residual hits the Cayley singularity."""
     T0 = _pose(nominal)
-    for _ in range(100):
+
+    def draw() -> dict:
         T = lie.exp_se3(spread * rng.standard_normal(6)) @ T0
-        state = {"C": T[:3, :3], "r": T[:3, 3]}
-        try:
-            residuals(inst, state)
-            return state
-        except lie.CayleySingularityError:
-            continue
-    raise SolverError("could not draw a sample away from the Cayley singularity; reduce the spread")
+        return {"C": T[:3, :3], "r": T[:3, 3]}
+
+    return draw_valid(draw, lambda state: residuals(inst, state))
 
 
 def random_state(inst: Instance, rng: np.random.Generator) -> dict:

@@ -13,12 +13,11 @@ import numpy as np
 from scipy.linalg import block_diag
 
 from autotight import lie
-from autotight.errors import SolverError
 from autotight.gauss_newton import gauss_newton
 from autotight.model import Factor, Model, Variables
 from autotight.problem import Instance, LocalResult, Param
 
-from ._cayley import measured_columns, orthonormality, rot_blocks, rotation_cayley, rotation_values, state_columns, \
+from ._cayley import draw_valid, measured_columns, orthonormality, rot_blocks, rotation_cayley, rotation_values, state_columns, \
     weighted_norm
 
 NAME = "rotation_averaging"
@@ -83,14 +82,8 @@ def cost(inst: Instance, state: dict) -> float:
 
 def sample(inst: Instance, rng: np.random.Generator, nominal: dict, spread: float) -> dict:
     """C = exp(spread·ν^∧) C_nominal, ν ~ N(0, I); redrawn if a residual hits the Cayley singularity."""
-    for _ in range(100):
-        C = lie.exp_so3(spread * rng.standard_normal(3)) @ nominal["C"]
-        try:
-            residuals(inst, C)
-            return {"C": C}
-        except lie.CayleySingularityError:
-            continue
-    raise SolverError("could not draw a sample away from the Cayley singularity; reduce the spread")
+    return draw_valid(lambda: {"C": lie.exp_so3(spread * rng.standard_normal(3)) @ nominal["C"]},
+                      lambda state: residuals(inst, state["C"]))
 
 
 def random_state(inst: Instance, rng: np.random.Generator) -> dict:
