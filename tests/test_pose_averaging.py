@@ -76,7 +76,8 @@ def test_lifted_cost_equals_cost():
 def test_jacobian_matches_finite_differences():
     inst = _instance(4)
     rng = np.random.default_rng(11)
-    T = lie.make_pose(*(lambda s: (s["C"], s["r"]))(PROB.sample(inst, rng, spread=0.4)))
+    state = PROB.sample(inst, rng, spread=0.4)
+    T = lie.make_pose(state["C"], state["r"])
     e0, J, _ = pa.linearize(inst, T)
     step = 1e-6
     num = np.column_stack([(pa.linearize(inst, pa.retract(T, step * d))[0] -
@@ -118,6 +119,18 @@ def test_primary_not_tight_paper_tight(seed):
     assert abs(PROB.cost(inst, est) - local.cost) <= 1e-6 * local.cost
     err = PROB.errors(inst, est)
     assert err["rotation_deg"] < 10 and err["translation"] < 0.5
+
+
+def test_clique_solve_equals_dense_solve():
+    inst = _instance(6)
+    model = PROB.build(inst)
+    cons = model.primary() + model.paper_constraints()
+    dense = solve_sdp(model, cons, decompose=False)
+    split = solve_sdp(model, cons, decompose=True)
+    assert dense.status == "Solved" and split.status == "Solved", (dense.summary(), split.summary())
+    assert split.solver == "clarabel-cliques" and len(split.clique_log_svr) == 10
+    assert abs(dense.primal_cost - split.primal_cost) <= 1e-6 * dense.primal_cost
+    assert split.log_svr > 5
 
 
 def test_bad_parameters_are_refused():

@@ -42,8 +42,9 @@ def _settings(opts: SolverOptions) -> "clarabel.DefaultSettings":
     s.static_regularization_constant = 1e-10
     s.static_regularization_proportional = 1e-16
     s.dynamic_regularization_enable = False
+    # Clarabel decomposes by default; "dense" must mean dense, so it is on only when asked for
+    s.chordal_decomposition_enable = opts.clarabel_chordal
     if opts.clarabel_chordal:
-        s.chordal_decomposition_enable = True
         s.chordal_decomposition_complete_dual = True
         s.chordal_decomposition_merge_method = opts.chordal_merge
     return s
