@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from .threads import single_blas_thread
 import time
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from typing import Any, Sequence
 
 import numpy as np
@@ -52,9 +52,6 @@ def local_search(problem: Problem, inst: Instance, rng: np.random.Generator, n_r
     return LocalSearch(truth, rand)
 
 
-AUTO_DECOMPOSE_N = 80  # lifted size above which the SDP is decomposed into cliques by default
-
-
 def cliques_for(model: Model, constraints: Sequence[Constraint]) -> list[np.ndarray]:
     """Column cliques of a chordal cover of Q and the constraints (h in every clique)."""
     from .sdp.chordal import column_cliques
@@ -67,22 +64,16 @@ def solve_sdp(model: Model, constraints: Sequence[Constraint], *, solver: str = 
               decompose: bool | None = None, options: SolverOptions | None = None) -> SDPResult:
     """The Shor SDP of ``model`` with ``constraints``.
 
-    decompose: None → for N > AUTO_DECOMPOSE_N, Clarabel's chordal decomposition with
-    parent-child merging (the fastest and most accurate on the trajectories; see
-    benchmarks/trajectory_sdp.py); True → our own clique decomposition (the model's cliques when
-    it gives them, else a min-fill chordal cover of Q and the constraints, ``cliques_for``);
-    False → one dense PSD cone.
+    decompose: True → our own clique decomposition (the model's cliques when it gives them, else a
+    min-fill chordal cover of Q and the constraints, ``cliques_for``); otherwise Clarabel with
+    ``options`` (by default its chordal decomposition with parent-child merging, see SolverOptions).
     """
-    opts = options or SolverOptions()
     cliques = None
-    if solver == "clarabel":
-        if decompose:
-            cliques = model.clique_indices() or cliques_for(model, constraints)
-            if len(cliques) == 1:
-                cliques = None
-        elif decompose is None and model.variables.N > AUTO_DECOMPOSE_N and not opts.clarabel_chordal:
-            opts = replace(opts, clarabel_chordal=True)
-    return sdp.solve(model.Q, constraints, d=model.d, solver=solver, cliques=cliques, options=opts)
+    if solver == "clarabel" and decompose:
+        cliques = model.clique_indices() or cliques_for(model, constraints)
+        if len(cliques) == 1:
+            cliques = None
+    return sdp.solve(model.Q, constraints, d=model.d, solver=solver, cliques=cliques, options=options)
 
 
 @dataclass

@@ -8,6 +8,7 @@ A failed or inaccurate solve is returned with its status; it never raises.
 from __future__ import annotations
 
 from ..threads import single_blas_thread
+from dataclasses import replace
 from typing import Sequence
 
 import numpy as np
@@ -38,6 +39,13 @@ def solve(Q: sp.spmatrix | sp.sparray, constraints: Sequence[Constraint], *, d: 
             res = solve_cvxpy(Q, As, b, d, name, opts)
         else:
             res = None
+        if (res is not None and solver == "clarabel" and cliques is None and opts.clarabel_chordal
+                and opts.chordal_merge == "parent_child" and res.status != "Solved"):
+            retry = solve_dense(Q, As, b, d, replace(opts, chordal_merge="clique_graph"))
+            first = f"parent_child merge ended {res.status}; retried with clique_graph merge"
+            if retry.status == "Solved" or not res.usable:
+                res = retry
+            res.message = (first + (f" ({retry.status})" if res is not retry else "")).strip()
         if res is not None:
             if res.X is not None:
                 res.cost_scale = float(abs(Q.multiply(res.X)).sum())

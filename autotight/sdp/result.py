@@ -15,9 +15,11 @@ class SolverOptions:
 
     tol: the solver's relative gap and feasibility tolerance.
     max_iter, time_limit: stopping limits.  threads: solver threads (0 = solver default).
-    clarabel_chordal: let Clarabel decompose the dense cone itself, merging cliques by ``chordal_merge``
-    (Clarabel's default "clique_graph" took > 120 s on the discrete trajectory at K = 10, where
-    "parent_child" takes 1 s).
+    clarabel_chordal: let Clarabel decompose the PSD cone along the chordal sparsity of the data,
+    merging cliques by ``chordal_merge`` (default on: 4× faster on rotation averaging, 30× on pose
+    averaging than one dense cone).  "parent_child" is the default merge: Clarabel's own default
+    "clique_graph" took > 120 s on the discrete trajectory at K = 10, where "parent_child" takes
+    1 s; when "parent_child" does not reach Solved, ``sdp.solve`` retries with "clique_graph".
     """
 
     tol: float = 1e-9
@@ -25,7 +27,7 @@ class SolverOptions:
     time_limit: float = float("inf")
     threads: int = 1
     verbose: bool = False
-    clarabel_chordal: bool = False  # dense path only: Clarabel's built-in chordal decomposition
+    clarabel_chordal: bool = True  # Clarabel's built-in chordal decomposition of the PSD cone
     chordal_merge: str = "parent_child"  # its clique merging: parent_child, clique_graph (Clarabel's default), none
 
 
