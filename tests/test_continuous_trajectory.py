@@ -252,7 +252,6 @@ def test_paper_families_tight_default_setting_small_k(seed):
     _assert_tight(_instance(seed, K=FAST_TIGHT_K))
 
 
-@pytest.mark.slow
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_paper_families_tight_at_the_largest_tight_k(seed):
     _assert_tight(_instance(seed, K=TIGHT_K))
@@ -270,7 +269,6 @@ def test_boundary_not_tight_at_high_noise():
     _assert_not_tight(_instance(1, K=7, sigma=1.0), 1e-2)
 
 
-@pytest.mark.slow
 def test_boundary_not_tight_beyond_the_largest_tight_k():
     """K = 17, seed 1: measured log SVR 1.5, SDP 1.6 % below the local optimum."""
     _assert_not_tight(_instance(1, K=LOOSE_K), 1e-3)
