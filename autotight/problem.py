@@ -27,7 +27,7 @@ import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import ModuleType
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
@@ -213,5 +213,3 @@ def parse_assignments(items: list[str] | None) -> dict[str, str]:
         out[k.strip()] = v.strip()
     return out
 
-
-Sampler = Callable[[Instance, np.random.Generator, State, float], State]
