@@ -208,7 +208,7 @@ def weighted_cost(V: Variables, xi: str, W: np.ndarray) -> sp.csr_array:
     return sum_quads(V, [(rho, rho, W[:3, :3]), (rho, phi, 2.0 * W[:3, 3:]), (phi, phi, W[3:, 3:])])
 
 
-__all__ = ["POSE_ROLES", "XI_ROLES", "pose_blocks", "trans_block", "xi_blocks", "declare_pose", "declare_xi",
-           "split_pose", "pose_values", "xi_values", "pose_from_x", "state_pose", "measured_pose",
+__all__ = ["POSE_ROLES", "XI_ROLES", "rot_blocks", "pose_blocks", "trans_block", "xi_blocks", "declare_pose",
+           "declare_xi", "split_pose", "pose_values", "xi_values", "pose_from_x", "state_pose", "measured_pose",
            "pose_orthonormality", "pose_cayley", "unary_cayley", "binary_cayley", "r1_unary", "r2_unary",
            "r3_binary", "unary_residuals", "weighted_cost"]
