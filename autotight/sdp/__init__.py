@@ -21,6 +21,11 @@ from .result import SDPResult, SolverOptions, log_svr, rank_d_factor
 
 __all__ = ["solve", "SDPResult", "SolverOptions", "log_svr", "rank_d_factor"]
 
+#: A parent-child-merged solve that fails this way is retried with clique-graph merging, on liftings
+#: of at most RETRY_MAX_N columns only: clique-graph merging can take many minutes on larger chains.
+RETRY_STATUSES = ("NumericalError", "InsufficientProgress")
+RETRY_MAX_N = 100
+
 
 @single_blas_thread
 def solve(Q: sp.spmatrix | sp.sparray, constraints: Sequence[Constraint], *, d: int = 1,
@@ -40,7 +45,8 @@ def solve(Q: sp.spmatrix | sp.sparray, constraints: Sequence[Constraint], *, d: 
         else:
             res = None
         if (res is not None and solver == "clarabel" and cliques is None and opts.clarabel_chordal
-                and opts.chordal_merge == "parent_child" and res.status != "Solved"):
+                and opts.chordal_merge == "parent_child" and res.status in RETRY_STATUSES
+                and Q.shape[0] <= RETRY_MAX_N):
             retry = solve_dense(Q, As, b, d, replace(opts, chordal_merge="clique_graph"))
             first = f"parent_child merge ended {res.status}; retried with clique_graph merge"
             if retry.status == "Solved" or not res.usable:

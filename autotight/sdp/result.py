@@ -19,7 +19,7 @@ class SolverOptions:
     merging cliques by ``chordal_merge`` (default on: 4× faster on rotation averaging, 30× on pose
     averaging than one dense cone).  "parent_child" is the default merge: Clarabel's own default
     "clique_graph" took > 120 s on the discrete trajectory at K = 10, where "parent_child" takes
-    1 s; when "parent_child" does not reach Solved, ``sdp.solve`` retries with "clique_graph".
+    1 s; when "parent_child" fails on a small lifting, ``sdp.solve`` retries with "clique_graph".
     """
 
     tol: float = 1e-9
