@@ -65,7 +65,8 @@ def trapped(df: pd.DataFrame, sigmas: Sequence[float], path: Path, trap_rtol: fl
         if len(t):
             k, n = int(t.sum()), len(t)
             a, b = _wilson(k, n)
-            xs.append(s), p.append(k / n), lo.append(k / n - a), hi.append(b - k / n)
+            # max(0, ·): at k = n the interval can end a rounding error below k/n
+            xs.append(s), p.append(k / n), lo.append(max(0.0, k / n - a)), hi.append(max(0.0, b - k / n))
     ax.errorbar(xs, p, yerr=[lo, hi], fmt="o-", color="tab:red", capsize=3, lw=1.5, ms=5,
                 label="random start")
     _sigma_axis(ax, sigmas)
