@@ -13,6 +13,7 @@ the √2, so a coefficient vector p with p · m(x) = 0 reads directly as a polyn
 from __future__ import annotations
 
 from functools import lru_cache
+from typing import Sequence
 
 import numpy as np
 import scipy.sparse as sp
@@ -48,14 +49,25 @@ def svec(X: np.ndarray | sp.spmatrix) -> np.ndarray:
     return vals * _scale(n)
 
 
+def svec_columns(As: Sequence[sp.spmatrix | sp.sparray], n: int) -> sp.csc_array:
+    """[svec A₁ … svec A_m] of sparse symmetric n×n matrices as one sparse (n(n+1)/2 × m) array,
+    assembled in one pass from their upper triangles (no dense n×n)."""
+    rows, cols, vals = [], [], []
+    for k, A in enumerate(As):
+        U = sp.triu(sp.coo_array(A)).tocoo()
+        r, c = U.row.astype(np.int64), U.col.astype(np.int64)
+        rows.append(c * (c + 1) // 2 + r)
+        cols.append(np.full(r.size, k))
+        vals.append(U.data * np.where(r == c, 1.0, SQRT2))
+    if not rows:
+        return sp.csc_array((svec_dim(n), 0))
+    return sp.csc_array((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+                        shape=(svec_dim(n), len(As)))
+
+
 def svec_sparse(A: sp.spmatrix | sp.sparray) -> sp.csc_array:
-    """svec of a sparse symmetric matrix as an (n(n+1)/2, 1) sparse column, no dense n²."""
-    n = A.shape[0]
-    U = sp.triu(sp.coo_array(A)).tocoo()
-    r, c = U.row.astype(np.int64), U.col.astype(np.int64)
-    idx = c * (c + 1) // 2 + r
-    vals = U.data * np.where(r == c, 1.0, SQRT2)
-    return sp.csc_array((vals, (idx, np.zeros_like(idx))), shape=(svec_dim(n), 1))
+    """svec of one sparse symmetric matrix as an (n(n+1)/2, 1) sparse column."""
+    return svec_columns([A], A.shape[0])
 
 
 def smat(v: np.ndarray, n: int | None = None) -> np.ndarray:

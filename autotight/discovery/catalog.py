@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import time
 from ..threads import single_blas_thread
 from dataclasses import dataclass, field
 from typing import Iterable, Sequence
@@ -53,8 +54,6 @@ def _sorted_groups(model: Model, groups: Sequence[Group]) -> list[Group]:
 
 def sample_banks(problem: Problem, inst: Instance, model: Model, groups: Sequence[Group], opts: LearnOptions,
                  rng: np.random.Generator) -> tuple[SampleBank, SampleBank, float]:
-    import time
-
     t0 = time.perf_counter()
     bank = draw(problem, inst, monomials_needed(model, groups, opts), rng, opts.spread)
     heldout = draw(problem, inst, opts.heldout, rng, opts.spread)
@@ -67,8 +66,6 @@ def learn(problem: Problem, inst: Instance, model: Model, rng: np.random.Generat
           groups: str | Sequence[Sequence[str]] = "factors", opts: LearnOptions = LearnOptions(),
           types: Iterable[str] | None = None, progress=None) -> Catalog:
     """Learn every group (or only the factors of ``types``) of one instance."""
-    import time
-
     gs = groups_of(model, groups)
     if types is not None:
         wanted = set(types)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass, field
 from typing import Sequence
 
@@ -183,8 +184,6 @@ def learn_group(model: Model, group: Group, bank: SampleBank, heldout: SampleBan
     ``known``: constraints learned already on other groups; those supported inside this group
     count as spanned, like the primary constraints, so no relation is proposed twice.
     """
-    import time
-
     t0 = time.perf_counter()
     V = model.variables
     cols = V.index(group.blocks)

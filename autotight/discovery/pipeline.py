@@ -140,7 +140,6 @@ def discover(problem: Problem | str, params: dict[str, Any] | None = None, seed:
     rng = np.random.default_rng([seed, 1])
     loc = local_search(prob, inst, rng, n_random)
     times["local_s"] = time.perf_counter() - t0
-    t = time.perf_counter()
     cat = learn(prob, inst, model, rng, groups, learn_options, progress=lambda g: say("learn", g))
     times["sampling_s"] = cat.times["sampling_s"]
     times["nullspace_s"] = cat.times["nullspace_s"]

@@ -21,7 +21,7 @@ import clarabel
 import numpy as np
 import scipy.sparse as sp
 
-from ..svec import SQRT2, smat, svec_dim, svec_sparse
+from ..svec import SQRT2, smat, svec_columns, svec_dim
 from .chordal import has_running_intersection, maximal
 from .result import SDPResult, SolverOptions, finish
 
@@ -62,7 +62,7 @@ def solve_dense(Q: sp.csr_array, As: Sequence[sp.csr_array], b: np.ndarray, d: i
     N = Q.shape[0]
     c = _scale(Q)
     Acl = svec_columns(As, N)
-    bcl = (svec_sparse(Q) * c).toarray().ravel()
+    bcl = (svec_columns([Q], N) * c).toarray().ravel()
     m = Acl.shape[1]
     P = sp.csc_matrix((m, m))
     solver = clarabel.DefaultSolver(P, -np.asarray(b, float), sp.csc_matrix(Acl), bcl,
@@ -111,21 +111,6 @@ def complete_from_cliques(Xp: np.ndarray, cliques: Sequence[np.ndarray], d: int)
         Theta[:, C] = Th
         on[np.ix_(C, C)] = True
     return np.where(on, Xp, Theta.T @ Theta), svrs
-
-
-def svec_columns(As: Sequence[sp.csr_array], N: int) -> sp.csc_array:
-    """[svec A₁ … svec A_m] as one sparse (N(N+1)/2 × m) matrix, assembled in one pass."""
-    rows, cols, vals = [], [], []
-    for k, A in enumerate(As):
-        U = sp.triu(sp.coo_array(A)).tocoo()
-        r, c = U.row.astype(np.int64), U.col.astype(np.int64)
-        rows.append(c * (c + 1) // 2 + r)
-        cols.append(np.full(r.size, k))
-        vals.append(U.data * np.where(r == c, 1.0, SQRT2))
-    if not As:
-        return sp.csc_array((svec_dim(N), 0))
-    return sp.csc_array((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
-                        shape=(svec_dim(N), len(As)))
 
 
 def _pattern_index(N: int, cliques: Sequence[np.ndarray]) -> dict[tuple[int, int], int]:
