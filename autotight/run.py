@@ -52,25 +52,39 @@ def local_search(problem: Problem, inst: Instance, rng: np.random.Generator, n_r
     return LocalSearch(truth, rand)
 
 
+#: largest clique that small neighbouring cliques are merged into (see ``chordal.merge_small``)
+MERGE_MAX_SIZE = 20
+
+
 def cliques_for(model: Model, constraints: Sequence[Constraint]) -> list[np.ndarray]:
-    """Column cliques of a chordal cover of Q and the constraints (h in every clique)."""
-    from .sdp.chordal import column_cliques
+    """Column cliques for the decomposed SDP (h in every clique).
+
+    Candidates: a min-fill chordal cover of Q and the constraints with small neighbours merged
+    (``MERGE_MAX_SIZE``), and the model's own block cliques when it declares them.  The one with the
+    smaller interior-point cost estimate Σ_k svec(|C_k|)³ is used.
+    """
+    from .sdp.chordal import column_cliques, merge_small
+    from .svec import svec_dim
 
     h = model.variables.index(["h"])
-    return column_cliques(model.variables.N, [model.Q] + [c.A for c in constraints], always=h)
+    covers = [merge_small(column_cliques(model.variables.N, [model.Q] + [c.A for c in constraints], always=h),
+                          MERGE_MAX_SIZE)]
+    if model.cliques:
+        covers.append(model.clique_indices())
+    return min(covers, key=lambda cl: sum(float(svec_dim(len(c))) ** 3 for c in cl))
 
 
 def solve_sdp(model: Model, constraints: Sequence[Constraint], *, solver: str = "clarabel",
               decompose: bool | None = None, options: SolverOptions | None = None) -> SDPResult:
     """The Shor SDP of ``model`` with ``constraints``.
 
-    decompose: True → our own clique decomposition (the model's cliques when it gives them, else a
-    min-fill chordal cover of Q and the constraints, ``cliques_for``); otherwise Clarabel with
+    decompose: True → our own clique decomposition (``cliques_for``, solved by
+    ``sdp.clarabel_direct.solve_cliques``); otherwise Clarabel with
     ``options`` (by default its chordal decomposition with parent-child merging, see SolverOptions).
     """
     cliques = None
     if solver == "clarabel" and decompose:
-        cliques = model.clique_indices() or cliques_for(model, constraints)
+        cliques = cliques_for(model, constraints)
         if len(cliques) == 1:
             cliques = None
     return sdp.solve(model.Q, constraints, d=model.d, solver=solver, cliques=cliques, options=options)

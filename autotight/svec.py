@@ -49,16 +49,24 @@ def svec(X: np.ndarray | sp.spmatrix) -> np.ndarray:
     return vals * _scale(n)
 
 
+def _triu_entries(A: sp.spmatrix | sp.sparray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(rows, cols, values) of the stored upper-triangle entries (i ≤ j) of a sparse matrix."""
+    A = A if isinstance(A, (sp.csr_array, sp.csr_matrix)) else sp.csr_array(A)
+    r = np.repeat(np.arange(A.shape[0], dtype=np.int64), np.diff(A.indptr))
+    c = A.indices.astype(np.int64)
+    keep = r <= c
+    return r[keep], c[keep], A.data[keep]
+
+
 def svec_columns(As: Sequence[sp.spmatrix | sp.sparray], n: int) -> sp.csc_array:
     """[svec A₁ … svec A_m] of sparse symmetric n×n matrices as one sparse (n(n+1)/2 × m) array,
     assembled in one pass from their upper triangles (no dense n×n)."""
     rows, cols, vals = [], [], []
     for k, A in enumerate(As):
-        U = sp.triu(sp.coo_array(A)).tocoo()
-        r, c = U.row.astype(np.int64), U.col.astype(np.int64)
+        r, c, v = _triu_entries(A)
         rows.append(c * (c + 1) // 2 + r)
         cols.append(np.full(r.size, k))
-        vals.append(U.data * np.where(r == c, 1.0, SQRT2))
+        vals.append(v * np.where(r == c, 1.0, SQRT2))
     if not rows:
         return sp.csc_array((svec_dim(n), 0))
     return sp.csc_array((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),

@@ -169,3 +169,74 @@ def test_rank_d_factor_with_identity_h_block(d):
     wp, _ = rank_d_factor(Xp, d)
     lam_d = np.sort(np.linalg.eigvalsh(X))[::-1][d - 1]
     assert log_svr(wp, d) == pytest.approx(np.log10(lam_d / 1e-3), rel=1e-8)
+
+
+# ----------------------------------------------------------------------------- clique trees and merging
+
+
+def _chain_cliques(n_links: int, width: int) -> list[np.ndarray]:
+    """h = column 0 plus a chain of overlapping windows of ``width`` columns, overlap 2."""
+    step = width - 2
+    return [np.r_[0, 1 + step * k + np.arange(width)] for k in range(n_links)]
+
+
+def _subtree_property(cliques, parent) -> bool:
+    """For every column, the cliques holding it are connected in the tree (one of them has no
+    parent holding the column)."""
+    cols = np.unique(np.concatenate(cliques))
+    for v in cols:
+        holders = [k for k, C in enumerate(cliques) if v in C]
+        tops = [k for k in holders if parent[k] < 0 or v not in cliques[parent[k]]]
+        if len(tops) != 1:
+            return False
+    return True
+
+
+def test_clique_tree_has_the_subtree_property():
+    from autotight.sdp.chordal import clique_tree
+
+    cl = _chain_cliques(6, 5)
+    rng = np.random.default_rng(3)
+    cl = [cl[i] for i in rng.permutation(len(cl))]
+    parent = clique_tree(cl)
+    assert (parent < 0).sum() == 1
+    assert _subtree_property(cl, parent)
+
+
+def test_merge_small_respects_the_cap_and_keeps_a_clique_tree():
+    from autotight.sdp.chordal import clique_tree, has_running_intersection, merge_small
+
+    cl = _chain_cliques(8, 5)  # 8 cliques of 6 columns, neighbours share h and 2 columns
+    merged = merge_small(cl, 10)
+    assert all(len(c) <= 10 for c in merged)
+    assert len(merged) < len(cl)
+    assert has_running_intersection(merged)
+    assert _subtree_property(merged, clique_tree(merged))
+    # every original clique lies inside a merged one (nothing is lost)
+    assert all(any(set(c) <= set(m) for m in merged) for c in cl)
+    assert len(merge_small(cl, 6)) == len(cl)  # no union fits: unchanged
+
+
+def test_decomposed_dual_equals_dense_on_a_relaxation_that_is_not_rank_one():
+    """A MaxCut-type SDP (min ⟨Q,X⟩, X_ii = 1) on a chain of overlapping cliques with random Q: its
+    optimum is far from rank 1, so the clique blocks must agree on their overlaps through the
+    transfer variables for the decomposed dual to reach the dense optimum (to 1e-7 relative)."""
+    rng = np.random.default_rng(0)
+    cl = _chain_cliques(14, 4)
+    N = int(max(c.max() for c in cl)) + 1
+    Q = np.zeros((N, N))
+    for C in cl:
+        B = rng.standard_normal((len(C), len(C)))
+        Q[np.ix_(C, C)] += B + B.T
+    cons = [Constraint(sp.csr_array(([1.0], ([i], [i])), shape=(N, N)), 1.0, name=f"X{i}{i}=1") for i in range(N)]
+    dense = sdp.solve(sp.csr_array(Q), cons, options=SolverOptions(clarabel_chordal=False))
+    split = sdp.solve(sp.csr_array(Q), cons, cliques=cl)
+    assert dense.status == "Solved" and split.status == "Solved", (dense.status, split.status)
+    assert dense.log_svr < 1  # far from rank 1
+    f = dense.primal_cost
+    assert abs(split.primal_cost - f) <= 1e-7 * abs(f)
+    assert abs(split.dual_cost - f) <= 1e-7 * abs(f)
+    for C in cl:  # the same X on every clique block (the completion off the pattern may differ)
+        B = np.ix_(C, C)
+        assert np.abs(split.X[B] - dense.X[B]).max() <= 1e-4
+    assert np.allclose(np.diag(split.X), 1.0, atol=1e-7)

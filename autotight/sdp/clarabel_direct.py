@@ -5,24 +5,27 @@ Dense cone (one PSD block), dual form:
 i.e. Clarabel's  min −bᵀy  s.t.  [svec A₁ … svec A_m] y + s = svec Q,  s ∈ PSDTriangleConeT(N).
 The cone's dual variable z is svec(X) of the primal  min ⟨Q,X⟩ s.t. ⟨Aᵢ,X⟩ = bᵢ, X ⪰ 0.
 
-Clique form (chordal aggregate sparsity, cliques given): primal over the entries of X on the
-pattern covered by the cliques,
-    min ⟨Q,X⟩  s.t.  ⟨Aᵢ,X⟩ = bᵢ  (zero cone),  X[C_k, C_k] ∈ PSD  for every clique C_k.
-When the cliques are those of a chordal pattern that contains every Q and Aᵢ, this has the
-same optimal value as the dense SDP (Grone's completion theorem).
+Clique form (cliques C_1 … C_p of a chordal pattern that contains Q and every Aᵢ, with a clique tree):
+by Agler's theorem, S = Q − Σ yᵢ Aᵢ ⪰ 0 on that pattern iff S = Σ_k E_kᵀ S_k E_k with S_k ⪰ 0, so
+    max bᵀy  s.t.  S_k = [k owns (i,j)]·(Q − Σ yᵢAᵢ)_ij − t_{k,ij} + Σ_{children c} t_{c,ij} ∈ PSD,
+where each entry belongs to the highest clique holding it ("owns") and the free transfer t_{k,ij}
+moves the share of an entry from clique k to its tree parent.  Each transfer touches two cone rows,
+so the overlaps stay sparse.  The cones' dual variables are the clique blocks X[C_k, C_k]; their
+agreement on overlaps is the optimality condition for t.  Same optimal value as the dense SDP.
 """
 
 from __future__ import annotations
 
 import time
+from dataclasses import replace
 from typing import Sequence
 
 import clarabel
 import numpy as np
 import scipy.sparse as sp
 
-from ..svec import SQRT2, smat, svec_columns, svec_dim
-from .chordal import has_running_intersection, maximal
+from ..svec import SQRT2, smat, svec_columns, svec_dim, triu_indices
+from .chordal import clique_tree, has_running_intersection, maximal
 from .result import SDPResult, SolverOptions, finish
 
 
@@ -113,19 +116,43 @@ def complete_from_cliques(Xp: np.ndarray, cliques: Sequence[np.ndarray], d: int)
     return np.where(on, Xp, Theta.T @ Theta), svrs
 
 
-def _pattern_index(N: int, cliques: Sequence[np.ndarray]) -> dict[tuple[int, int], int]:
-    idx: dict[tuple[int, int], int] = {}
-    for C in cliques:
-        C = np.sort(C)
-        for jj in range(len(C)):
-            for ii in range(jj + 1):
-                idx.setdefault((int(C[ii]), int(C[jj])), len(idx))
-    return idx
+def _home_rows(G: sp.coo_array, cliques: Sequence[np.ndarray], pos: np.ndarray, start: list[int],
+               own: np.ndarray, N: int) -> np.ndarray:
+    """The cone row for every nonzero (svec entry e, constraint i) of G.
+
+    Constraint i is placed in its home clique, the one holding most of its columns; an entry that
+    the home clique lacks goes to the entry's top clique.  Any split of an entry among the cliques
+    holding it is exact (the transfers balance it), but placing each constraint where its other
+    entries are keeps the KKT system banded: sending every shared entry such as h² to one clique
+    would couple all constraints through that one row, and the solve would grow superlinearly.
+    """
+    gj = ((np.sqrt(8 * G.row + 1) - 1) // 2).astype(np.int64)
+    gj -= (gj * (gj + 1) // 2 > G.row)  # guard the float square root
+    gi = G.row - gj * (gj + 1) // 2
+    m = G.shape[1]
+    sizes = [len(C) for C in cliques]
+    B = sp.csr_array((np.ones(sum(sizes)), (np.repeat(np.arange(len(cliques)), sizes), np.concatenate(cliques))),
+                     shape=(len(cliques), N))
+    cols = sp.csr_array((np.ones(2 * G.nnz), (np.r_[gi, gj], np.r_[G.col, G.col])), shape=(N, m))
+    cols.data[:] = 1.0  # summed duplicates → indicator
+    home = np.asarray((B @ cols).toarray().argmax(axis=0)).ravel()[G.col] if m else np.zeros(0, np.int64)
+    rows = np.full(G.nnz, -1, dtype=np.int64)
+    for k in np.unique(home):
+        sel = np.flatnonzero(home == k)
+        pk = pos[start[k]:start[k + 1]]
+        at = np.searchsorted(pk, G.row[sel])
+        hit = (at < pk.size) & (pk[np.minimum(at, pk.size - 1)] == G.row[sel])
+        rows[sel[hit]] = start[k] + at[hit]
+    miss = rows < 0
+    order = np.argsort(pos[own])
+    rows[miss] = own[order[np.searchsorted(pos[own][order], G.row[miss])]]
+    return rows
 
 
 def solve_cliques(Q: sp.csr_array, As: Sequence[sp.csr_array], b: np.ndarray, d: int,
                   cliques: Sequence[np.ndarray], opts: SolverOptions) -> SDPResult:
-    """Clique-decomposed primal; X is assembled on the pattern and completed from clique factors."""
+    """Clique-decomposed dual (see the module docstring); X is read on the pattern from the cones'
+    dual variables and completed from the clique blocks' rank-d factors."""
     t0 = time.perf_counter()
     N = Q.shape[0]
     c = _scale(Q)
@@ -133,57 +160,61 @@ def solve_cliques(Q: sp.csr_array, As: Sequence[sp.csr_array], b: np.ndarray, d:
     if not has_running_intersection(cliques):
         raise ValueError("the cliques do not form a clique tree (running intersection fails): "
                          "the decomposed SDP would be weaker than the dense one")
-    idx = _pattern_index(N, cliques)
-    nv = len(idx)
-
-    def entry_row(A: sp.csr_array) -> tuple[np.ndarray, np.ndarray]:
-        U = sp.triu(sp.coo_array(A)).tocoo()
-        cols, vals = [], []
-        for r, cc, v in zip(U.row, U.col, U.data):
-            key = (int(r), int(cc))
-            if key not in idx:
-                raise ValueError(f"entry {key} of a constraint/cost lies outside every clique")
-            cols.append(idx[key])
-            vals.append(v if r == cc else 2.0 * v)
-        return np.asarray(cols, np.int64), np.asarray(vals)
-
-    qc, qv = entry_row(Q)
-    q = np.zeros(nv)
-    np.add.at(q, qc, qv * c)
-    rows, cols, vals = [], [], []
-    for i, A in enumerate(As):
-        ac, av = entry_row(A)
-        rows.append(np.full(ac.size, i)); cols.append(ac); vals.append(av)
+    parent = clique_tree(cliques)
     m = len(As)
-    off = m
-    cones: list = [clarabel.ZeroConeT(m)] if m else []
+    # one row per (clique k, svec entry of its block); pos = the entry's position in svec of N×N
+    pos, start = [], [0]
     for C in cliques:
-        n = len(C)
-        jj, ii = np.tril_indices(n)
-        keys = [idx[(int(C[a]), int(C[bb]))] for a, bb in zip(ii, jj)]
-        rows.append(off + np.arange(len(keys)))
-        cols.append(np.asarray(keys, np.int64))
-        vals.append(-np.where(ii == jj, 1.0, SQRT2))
-        off += len(keys)
-        cones.append(clarabel.PSDTriangleConeT(n))
-    Acl = sp.csc_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(off, nv))
-    bcl = np.zeros(off)
-    bcl[:m] = b
-    P = sp.csc_matrix((nv, nv))
-    solver = clarabel.DefaultSolver(P, q, Acl, bcl, cones, _settings(opts))
+        i, j = triu_indices(len(C))
+        pos.append(C[j] * (C[j] + 1) // 2 + C[i])  # increasing, since C is sorted
+        start.append(start[-1] + i.size)
+    nrow = start[-1]
+    # the row of the same entry in the parent's block (−1: the entry is not in the parent, k owns it)
+    par_row = np.full(nrow, -1, dtype=np.int64)
+    for k, pk in enumerate(parent):
+        if pk >= 0:
+            at = np.searchsorted(pos[pk], pos[k])
+            hit = (at < pos[pk].size) & (pos[pk][np.minimum(at, pos[pk].size - 1)] == pos[k])
+            par_row[start[k]:start[k + 1]][hit] = start[pk] + at[hit]
+    pos = np.concatenate(pos)
+    own = np.flatnonzero(par_row < 0)  # the top clique's row of each entry (one per entry)
+    moved = np.flatnonzero(par_row >= 0)
+    t = m + np.arange(moved.size)  # transfer variables, one per entry shared with the parent
+    data = svec_columns([Q, *As], N).tocsr()  # column 0: Q
+    outside = np.setdiff1d(np.unique(data.nonzero()[0]), pos)
+    if outside.size:
+        raise ValueError(f"{outside.size} entries of the cost or constraints lie outside every clique")
+    G = sp.coo_array(data[:, 1:])
+    g_row = _home_rows(G, cliques, pos, start, own, N)
+    A = sp.csc_matrix((np.concatenate([G.data, np.ones(moved.size), -np.ones(moved.size)]),
+                       (np.concatenate([g_row, moved, par_row[moved]]), np.concatenate([G.col, t, t]))),
+                      shape=(nrow, m + moved.size))
+    bcl = np.zeros(nrow)
+    bcl[own] = data[pos[own]][:, [0]].toarray().ravel() * c
+    obj = np.concatenate([-np.asarray(b, float), np.zeros(moved.size)])
+    cones = [clarabel.PSDTriangleConeT(len(C)) for C in cliques]
+    # the cones are the cliques already: Clarabel's own decomposition stays off
+    solver = clarabel.DefaultSolver(sp.csc_matrix((obj.size, obj.size)), obj, A, bcl, cones,
+                                    _settings(replace(opts, clarabel_chordal=False)))
     t1 = time.perf_counter()
     sol = solver.solve()
     t2 = time.perf_counter()
-    xv = np.asarray(sol.x, float)
-    y = -np.asarray(sol.z, float)[:m] / c
-    status = str(sol.status)
+    z = np.asarray(sol.z, float)
+    y = np.asarray(sol.x, float)[:m] / c
     X, svrs = None, []
-    if np.all(np.isfinite(xv)):
+    if z.size == nrow and np.all(np.isfinite(z)):
+        gj = ((np.sqrt(8 * pos + 1) - 1) // 2).astype(np.int64)
+        gj -= (gj * (gj + 1) // 2 > pos)  # guard the float square root
+        gi = pos - gj * (gj + 1) // 2
+        v = np.where(gi == gj, z, z / SQRT2)
         Xp = np.zeros((N, N))
-        for (i, j), k in idx.items():
-            Xp[i, j] = Xp[j, i] = xv[k]
+        Xp[gi, gj] = v
+        Xp[gj, gi] = v
         X, svrs = complete_from_cliques(Xp, cliques, d)
-    primal = float(np.dot(q, xv) / c) if np.all(np.isfinite(xv)) else float("nan")
+    primal = float(Q.multiply(X).sum()) if X is not None else float("nan")
+    status = {"PrimalInfeasible": "DualInfeasible", "DualInfeasible": "PrimalInfeasible",
+              "AlmostPrimalInfeasible": "AlmostDualInfeasible",
+              "AlmostDualInfeasible": "AlmostPrimalInfeasible"}.get(str(sol.status), str(sol.status))
     res = SDPResult(status=status, solver="clarabel-cliques", d=d, X=X, y=y, primal_cost=primal,
                     dual_cost=float(np.dot(b, y)), solve_time_s=t2 - t1, setup_time_s=t1 - t0,
                     iterations=int(sol.iterations), clique_log_svr=svrs or None)
