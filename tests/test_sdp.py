@@ -240,3 +240,28 @@ def test_decomposed_dual_equals_dense_on_a_relaxation_that_is_not_rank_one():
         B = np.ix_(C, C)
         assert np.abs(split.X[B] - dense.X[B]).max() <= 1e-4
     assert np.allclose(np.diag(split.X), 1.0, atol=1e-7)
+
+
+def test_a_stalled_solve_is_retried_with_default_regularisation(ra, monkeypatch):
+    """A solve that stalls with the small regularisation is re-solved with Clarabel's default one;
+    the result is the retry's, and the message records both statuses."""
+    import autotight.sdp as sdp_pkg
+
+    inst, model = _small_instance(ra, 4, seed=0)
+    real = sdp_pkg.solve_dense
+    calls = []
+
+    def stalling(Q, As, b, d, opts):
+        calls.append(opts.regularization)
+        res = real(Q, As, b, d, opts)
+        if opts.regularization == "small":
+            res.status, res.X = "InsufficientProgress", None
+        return res
+
+    monkeypatch.setattr(sdp_pkg, "solve_dense", stalling)
+    res = sdp.solve(model.Q, model.primary())
+    assert calls[:2] == ["small", "default"]
+    assert res.status == "Solved" and res.usable
+    assert "InsufficientProgress; retried with default regularisation: Solved" in res.message
+    local = ra.local_solve(inst, inst.truth)
+    assert abs(res.primal_cost - local.cost) <= 1e-6 * local.cost  # tight, at the default's accuracy

@@ -27,6 +27,31 @@ RETRY_STATUSES = ("NumericalError", "InsufficientProgress")
 RETRY_MAX_N = 100
 
 
+def _retry_stalled(res: SDPResult, Q: sp.csr_array, As: list[sp.csr_array], b: np.ndarray, d: int,
+                   cliques: Sequence[np.ndarray] | None, opts: SolverOptions) -> SDPResult:
+    """Re-solve a Clarabel solve that stalled (``RETRY_STATUSES``): first with Clarabel's default
+    regularisation, then (small dense liftings with parent-child merging) with clique-graph merging.
+    The retry's result replaces the first one when it is Solved or the first one is unusable; the
+    message records every attempt."""
+    retries = []
+    if opts.regularization == "small":
+        retries.append(("default regularisation", replace(opts, regularization="default")))
+    if cliques is None and opts.clarabel_chordal and opts.chordal_merge == "parent_child" \
+            and Q.shape[0] <= RETRY_MAX_N:
+        retries.append(("clique_graph merge", replace(opts, chordal_merge="clique_graph")))
+    notes = []
+    for what, o in retries:
+        if res.status not in RETRY_STATUSES:
+            break
+        retry = solve_cliques(Q, As, b, d, cliques, o) if cliques is not None else solve_dense(Q, As, b, d, o)
+        notes.append(f"{res.status}; retried with {what}: {retry.status}")
+        if retry.status == "Solved" or not res.usable:
+            res = retry
+    if notes:
+        res.message = "; ".join(notes)
+    return res
+
+
 @single_blas_thread
 def solve(Q: sp.spmatrix | sp.sparray, constraints: Sequence[Constraint], *, d: int = 1,
           solver: str = "clarabel", cliques: Sequence[np.ndarray] | None = None,
@@ -44,14 +69,8 @@ def solve(Q: sp.spmatrix | sp.sparray, constraints: Sequence[Constraint], *, d: 
             res = solve_cvxpy(Q, As, b, d, name, opts)
         else:
             res = None
-        if (res is not None and solver == "clarabel" and cliques is None and opts.clarabel_chordal
-                and opts.chordal_merge == "parent_child" and res.status in RETRY_STATUSES
-                and Q.shape[0] <= RETRY_MAX_N):
-            retry = solve_dense(Q, As, b, d, replace(opts, chordal_merge="clique_graph"))
-            first = f"parent_child merge ended {res.status}; retried with clique_graph merge"
-            if retry.status == "Solved" or not res.usable:
-                res = retry
-            res.message = (first + (f" ({retry.status})" if res is not retry else "")).strip()
+        if res is not None and solver == "clarabel":
+            res = _retry_stalled(res, Q, As, b, d, cliques, opts)
         if res is not None:
             if res.X is not None:
                 res.cost_scale = float(abs(Q.multiply(res.X)).sum())

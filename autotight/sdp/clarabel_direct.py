@@ -40,11 +40,14 @@ def _settings(opts: SolverOptions) -> "clarabel.DefaultSettings":
     s.tol_ktratio = max(opts.tol, 1e-8)
     if opts.threads:
         s.max_threads = opts.threads
-    # Tight relaxations have rank-deficient PSD blocks; the default static regularisation (1e-8)
-    # then limits accuracy (AlmostSolved, costs ~1e-5 off).  A smaller one solves them to tol.
-    s.static_regularization_constant = 1e-10
-    s.static_regularization_proportional = 1e-16
-    s.dynamic_regularization_enable = False
+    if opts.regularization == "small":
+        # Tight relaxations have rank-deficient PSD blocks; the default static regularisation (1e-8)
+        # then limits accuracy (AlmostSolved, costs ~1e-5 off).  A smaller one solves them to tol.
+        s.static_regularization_constant = 1e-10
+        s.static_regularization_proportional = 1e-16
+        s.dynamic_regularization_enable = False
+    elif opts.regularization != "default":
+        raise ValueError(f"unknown regularization {opts.regularization!r}; use 'small' or 'default'")
     # Clarabel decomposes by default; "dense" must mean dense, so it is on only when asked for
     s.chordal_decomposition_enable = opts.clarabel_chordal
     if opts.clarabel_chordal:

@@ -20,6 +20,9 @@ class SolverOptions:
     averaging than one dense cone).  "parent_child" is the default merge: Clarabel's own default
     "clique_graph" took > 120 s on the discrete trajectory at K = 10, where "parent_child" takes
     1 s; when "parent_child" fails on a small lifting, ``sdp.solve`` retries with "clique_graph".
+    regularization: "small" (static 1e-10, no dynamic regularisation) solves tight, rank-deficient
+    relaxations to full accuracy; Clarabel's "default" (static 1e-8, dynamic on) is more robust, and
+    ``sdp.solve`` retries with it when a solve stalls (InsufficientProgress, NumericalError).
     """
 
     tol: float = 1e-9
@@ -29,6 +32,7 @@ class SolverOptions:
     verbose: bool = False
     clarabel_chordal: bool = True  # Clarabel's built-in chordal decomposition of the PSD cone
     chordal_merge: str = "parent_child"  # its clique merging: parent_child, clique_graph (Clarabel's default), none
+    regularization: str = "small"  # KKT regularisation: "small" (static 1e-10, accurate) or "default" (Clarabel's)
 
 
 @dataclass
