@@ -201,6 +201,28 @@ def test_more_trials_extends_the_sweep(reference, tmp_path):
     assert len(df) == 16 and sorted(set(df["trial"])) == [0, 1, 2, 3]
 
 
+def test_redo_recomputes_only_the_trials_with_those_statuses(reference, tmp_path):
+    """A saved trial whose solve 'stalled' is dropped and computed again by ``redo``; the others are kept."""
+    out = tmp_path / "r"
+    shutil.copytree(reference, out)
+    df = load_trials(out)
+    hit = (df["sigma_index"] == 1) & (df["trial"] == 1) & (df["constraint_set"] == "paper")
+    df.loc[hit, "status"] = "InsufficientProgress"
+    df.loc[hit, "log_svr"] = -1.0
+    df.to_csv(out / CSV_NAME, index=False)
+    notes: list[str] = []
+    s = run_sweep(_spec(), out, jobs=1, redo=["InsufficientProgress", "NumericalError"], progress=False,
+                  log=notes.append)
+    assert (s.done_before, s.computed, s.complete) == (5, 1, True)
+    assert any("re-running 1 saved trial" in n for n in notes)
+    final = load_trials(out)
+    pd.testing.assert_frame_equal(_det(final), _det(load_trials(reference)))  # the redone trial is correct again
+    meta = json.loads((out / "meta.json").read_text())
+    assert meta["runs"][-1]["redone_trials"] == 1
+    s2 = run_sweep(_spec(), out, jobs=1, redo=["InsufficientProgress"], progress=False)
+    assert s2.computed == 0  # nothing stalled any more
+
+
 def test_changed_package_versions_are_noted_on_resume(reference, tmp_path, monkeypatch):
     out = tmp_path / "r"
     shutil.copytree(reference, out)

@@ -44,6 +44,9 @@ def register(sub: Any, add_problem_args: Callable[[argparse.ArgumentParser], Non
                    help="a saved discovered-set JSON for the 'discovered' set (default: run discovery)")
     p.add_argument("--limit", type=int, default=None, metavar="N",
                    help="compute at most N missing trials now (the rest on a later run)")
+    p.add_argument("--redo", metavar="STATUSES", default=None,
+                   help="re-run the saved trials where any solve ended with one of these comma-separated "
+                        "statuses (e.g. InsufficientProgress,NumericalError after a solver upgrade)")
     p.add_argument("--no-progress", action="store_true",
                    help="no progress bar (there is none either when stderr is not a terminal)")
     p.set_defaults(func=cmd_report)
@@ -60,7 +63,8 @@ def cmd_report(args: argparse.Namespace) -> int:
     out = Path(args.out) if args.out else Path("reports") / prob.name
     jobs = _cores() if args.jobs is None else args.jobs
     try:
-        summary = run_sweep(spec, out, jobs=jobs, scheduler=args.scheduler, limit=args.limit,
+        redo = [x.strip() for x in args.redo.split(",") if x.strip()] if args.redo else []
+        summary = run_sweep(spec, out, jobs=jobs, scheduler=args.scheduler, limit=args.limit, redo=redo,
                             progress=not args.no_progress, log=lambda msg: print(msg, file=sys.stderr))
     except KeyboardInterrupt:
         print(f"autotight: interrupted; finished trials are saved in {out / 'trials.csv'} — "

@@ -53,14 +53,17 @@ class Store:
         self.columns: list[str] = []
         self.sets: list[str] = []
         self.version_changes: list[str] = []
+        self.dropped = 0
 
     # -- settings ---------------------------------------------------------------------------
     def open(self, identity: dict[str, Any], columns: Sequence[str], sets: Sequence[str], trials: int,
-             info: dict[str, Any] | None = None, run_info: dict[str, Any] | None = None) -> set[tuple[int, int]]:
+             info: dict[str, Any] | None = None, run_info: dict[str, Any] | None = None,
+             redo: Sequence[str] = ()) -> set[tuple[int, int]]:
         """Create or check the folder; returns the (σ index, trial) keys already done.
 
         ``identity`` must match a previous run's; ``info`` (e.g. a description) is stored, not compared;
-        ``run_info`` is appended to the list of runs.
+        ``run_info`` is appended to the list of runs.  Trials with a row whose status is in ``redo``
+        are removed from the CSV (their count is ``self.dropped``), so they are computed again.
         """
         self.columns, self.sets = list(columns), list(sets)
         ident = _norm(dict(identity, columns=list(columns)))
@@ -78,6 +81,15 @@ class Store:
                                   f"{_short(ident[k])} here; {len(diff)} setting(s) differ: {', '.join(diff)}) — "
                                   "use another --out or remove that folder")
         rows = self._load_rows()
+        self.dropped = 0
+        if redo:
+            ist = self.columns.index("status")
+            again = self._keys(r for r in rows if r[ist] in set(redo))
+            if again:
+                rows = [r for r in rows if next(iter(self._keys([r]))) not in again]
+                self._rewrite(rows)
+                self.dropped = len(again)
+                run_info = dict(run_info or {}, redo=list(redo), redone_trials=len(again))
         meta.update(info or {})
         meta["trials"] = int(trials)
         now = versions()

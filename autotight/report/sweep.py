@@ -5,7 +5,7 @@ from __future__ import annotations
 import hashlib
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, Sequence
 
 from tqdm import tqdm
 
@@ -34,8 +34,11 @@ class SweepSummary:
 
 
 def run_sweep(spec: SweepSpec, out: str | Path, *, jobs: int = 1, scheduler: Any = None, limit: int | None = None,
-              progress: bool = True, log: Callable[[str], None] = lambda msg: None) -> SweepSummary:
-    """Compute the trials of ``spec`` missing from ``out`` (at most ``limit`` of them); ``log`` gets notes."""
+              redo: Sequence[str] = (), progress: bool = True,
+              log: Callable[[str], None] = lambda msg: None) -> SweepSummary:
+    """Compute the trials of ``spec`` missing from ``out`` (at most ``limit`` of them); ``log`` gets notes.
+
+    redo: solver statuses whose saved trials are dropped first and computed again."""
     if jobs < 1:
         raise ReportError(f"--jobs {jobs}: need at least 1 worker")
     if limit is not None and limit < 0:
@@ -47,7 +50,10 @@ def run_sweep(spec: SweepSpec, out: str | Path, *, jobs: int = 1, scheduler: Any
     backend = "dask" if scheduler is not None else ("joblib" if jobs > 1 else "serial")
     done = store.open(dict(spec.identity(), discovered=disc_id), columns(error_keys(problem, spec)), spec.sets,
                       spec.trials, info={"description": problem.description, "source": spec.source},
-                      run_info={"backend": backend, "jobs": jobs, "command": f"{spec.command()} --out {out}"})
+                      run_info={"backend": backend, "jobs": jobs, "command": f"{spec.command()} --out {out}"},
+                      redo=redo)
+    if store.dropped:
+        log(f"re-running {store.dropped} saved trial(s) with status {', '.join(redo)}")
     if store.version_changes:
         log(f"note: package versions changed since the last run ({', '.join(store.version_changes)}); "
             f"each run's versions are in {store.meta_path}")
