@@ -33,6 +33,14 @@ def triu_indices(n: int) -> tuple[np.ndarray, np.ndarray]:
     return ii.astype(np.int64), jj.astype(np.int64)
 
 
+def position_to_ij(pos: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Row and column (i ≤ j) of svec positions: the inverse of pos = j(j+1)/2 + i."""
+    pos = np.asarray(pos, dtype=np.int64)
+    j = ((np.sqrt(8 * pos + 1) - 1) // 2).astype(np.int64)
+    j -= (j * (j + 1) // 2 > pos)  # guard the float square root
+    return pos - j * (j + 1) // 2, j
+
+
 def _scale(n: int) -> np.ndarray:
     i, j = triu_indices(n)
     return np.where(i == j, 1.0, SQRT2)

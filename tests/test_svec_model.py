@@ -344,3 +344,11 @@ def test_model_homogenisation_and_primary():
     assert max(abs(h.value(T.T @ T)) for h in hom) <= 1e-15
     T[0, 1] = 0.3  # h block no longer I: an off-diagonal constraint is violated
     assert max(abs(h.value(T.T @ T)) for h in hom) >= 0.29
+
+
+def test_position_to_ij_inverts_the_svec_order():
+    from autotight.svec import position_to_ij, triu_indices
+
+    i, j = triu_indices(400)  # svec order: position p is (i[p], j[p])
+    gi, gj = position_to_ij(np.arange(i.size))
+    assert np.array_equal(gi, i) and np.array_equal(gj, j)

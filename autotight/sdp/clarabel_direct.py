@@ -24,7 +24,7 @@ import clarabel
 import numpy as np
 import scipy.sparse as sp
 
-from ..svec import SQRT2, smat, svec_columns, svec_dim, triu_indices
+from ..svec import SQRT2, position_to_ij, smat, svec_columns, svec_dim, triu_indices
 from .chordal import clique_tree, has_running_intersection, maximal
 from .result import SDPResult, SolverOptions, finish
 
@@ -56,6 +56,15 @@ def _settings(opts: SolverOptions) -> "clarabel.DefaultSettings":
     return s
 
 
+def _sdp_status(clarabel_status: object) -> str:
+    """Clarabel solved the SDP's dual: its "primal infeasible" is our dual infeasible and vice versa."""
+    s = str(clarabel_status)
+    for a, b in (("PrimalInfeasible", "DualInfeasible"), ("DualInfeasible", "PrimalInfeasible")):
+        if s.endswith(a):
+            return s[: -len(a)] + b
+    return s
+
+
 def _scale(Q: sp.csr_array) -> float:
     m = abs(Q).max() if Q.nnz else 1.0
     return 1.0 / m if m > 0 else 1.0
@@ -76,10 +85,7 @@ def solve_dense(Q: sp.csr_array, As: Sequence[sp.csr_array], b: np.ndarray, d: i
     t1 = time.perf_counter()
     sol = solver.solve()
     t2 = time.perf_counter()
-    # Clarabel solved the SDP's dual: its "primal infeasible" is our dual infeasible and vice versa
-    status = {"PrimalInfeasible": "DualInfeasible", "DualInfeasible": "PrimalInfeasible",
-              "AlmostPrimalInfeasible": "AlmostDualInfeasible",
-              "AlmostDualInfeasible": "AlmostPrimalInfeasible"}.get(str(sol.status), str(sol.status))
+    status = _sdp_status(sol.status)
     z = np.asarray(sol.z, float)
     X = smat(z, N) if z.size == svec_dim(N) and np.all(np.isfinite(z)) else None
     y = np.asarray(sol.x, float) / c
@@ -119,19 +125,23 @@ def complete_from_cliques(Xp: np.ndarray, cliques: Sequence[np.ndarray], d: int)
     return np.where(on, Xp, Theta.T @ Theta), svrs
 
 
+def _find(sorted_values: np.ndarray, queries: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(index, found) of each query in an increasing array."""
+    at = np.searchsorted(sorted_values, queries)
+    found = (at < sorted_values.size) & (sorted_values[np.minimum(at, max(sorted_values.size - 1, 0))] == queries)
+    return at, found
+
+
 def _home_rows(G: sp.coo_array, cliques: Sequence[np.ndarray], pos: np.ndarray, start: list[int],
                own: np.ndarray, N: int) -> np.ndarray:
     """The cone row for every nonzero (svec entry e, constraint i) of G.
 
     Constraint i is placed in its home clique, the one holding most of its columns; an entry that
     the home clique lacks goes to the entry's top clique.  Any split of an entry among the cliques
-    holding it is exact (the transfers balance it), but placing each constraint where its other
-    entries are keeps the KKT system banded: sending every shared entry such as h² to one clique
-    would couple all constraints through that one row, and the solve would grow superlinearly.
+    holding it is exact (the transfers balance it); this one keeps a constraint's coefficients in
+    its own part of the clique tree instead of sending every shared entry (h², h·x) to the root.
     """
-    gj = ((np.sqrt(8 * G.row + 1) - 1) // 2).astype(np.int64)
-    gj -= (gj * (gj + 1) // 2 > G.row)  # guard the float square root
-    gi = G.row - gj * (gj + 1) // 2
+    gi, gj = position_to_ij(G.row)
     m = G.shape[1]
     sizes = [len(C) for C in cliques]
     B = sp.csr_array((np.ones(sum(sizes)), (np.repeat(np.arange(len(cliques)), sizes), np.concatenate(cliques))),
@@ -142,9 +152,7 @@ def _home_rows(G: sp.coo_array, cliques: Sequence[np.ndarray], pos: np.ndarray, 
     rows = np.full(G.nnz, -1, dtype=np.int64)
     for k in np.unique(home):
         sel = np.flatnonzero(home == k)
-        pk = pos[start[k]:start[k + 1]]
-        at = np.searchsorted(pk, G.row[sel])
-        hit = (at < pk.size) & (pk[np.minimum(at, pk.size - 1)] == G.row[sel])
+        at, hit = _find(pos[start[k]:start[k + 1]], G.row[sel])
         rows[sel[hit]] = start[k] + at[hit]
     miss = rows < 0
     order = np.argsort(pos[own])
@@ -176,8 +184,7 @@ def solve_cliques(Q: sp.csr_array, As: Sequence[sp.csr_array], b: np.ndarray, d:
     par_row = np.full(nrow, -1, dtype=np.int64)
     for k, pk in enumerate(parent):
         if pk >= 0:
-            at = np.searchsorted(pos[pk], pos[k])
-            hit = (at < pos[pk].size) & (pos[pk][np.minimum(at, pos[pk].size - 1)] == pos[k])
+            at, hit = _find(pos[pk], pos[k])
             par_row[start[k]:start[k + 1]][hit] = start[pk] + at[hit]
     pos = np.concatenate(pos)
     own = np.flatnonzero(par_row < 0)  # the top clique's row of each entry (one per entry)
@@ -206,18 +213,14 @@ def solve_cliques(Q: sp.csr_array, As: Sequence[sp.csr_array], b: np.ndarray, d:
     y = np.asarray(sol.x, float)[:m] / c
     X, svrs = None, []
     if z.size == nrow and np.all(np.isfinite(z)):
-        gj = ((np.sqrt(8 * pos + 1) - 1) // 2).astype(np.int64)
-        gj -= (gj * (gj + 1) // 2 > pos)  # guard the float square root
-        gi = pos - gj * (gj + 1) // 2
+        gi, gj = position_to_ij(pos)
         v = np.where(gi == gj, z, z / SQRT2)
         Xp = np.zeros((N, N))
         Xp[gi, gj] = v
         Xp[gj, gi] = v
         X, svrs = complete_from_cliques(Xp, cliques, d)
     primal = float(Q.multiply(X).sum()) if X is not None else float("nan")
-    status = {"PrimalInfeasible": "DualInfeasible", "DualInfeasible": "PrimalInfeasible",
-              "AlmostPrimalInfeasible": "AlmostDualInfeasible",
-              "AlmostDualInfeasible": "AlmostPrimalInfeasible"}.get(str(sol.status), str(sol.status))
+    status = _sdp_status(sol.status)
     res = SDPResult(status=status, solver="clarabel-cliques", d=d, X=X, y=y, primal_cost=primal,
                     dual_cost=float(np.dot(b, y)), solve_time_s=t2 - t1, setup_time_s=t1 - t0,
                     iterations=int(sol.iterations), clique_log_svr=svrs or None)

@@ -161,8 +161,8 @@ def boundary_cell(K: int, sigma: float, motion: float, seed: int, sets: list[str
 
 
 def part_boundary(cells: list[tuple[int, float, float]], seeds: list[int], sets: list[str], pairs_max_k: int,
-                  time_limit: float, retry: bool = False) -> None:
-    path = OUT / "boundary.csv"
+                  time_limit: float, retry: bool = False, csv_name: str = "boundary.csv") -> None:
+    path = OUT / csv_name
     OUT.mkdir(parents=True, exist_ok=True)
     new = not path.exists()
     with path.open("a", newline="") as f:
@@ -209,10 +209,10 @@ def part_tables() -> None:
                   f"{', '.join(sorted(set(d['resembles'].values())))} | {d['heldout_tight_fraction']:.0%} / "
                   f"{d['paper_heldout_tight_fraction']:.0%} of {d['heldout_instances']} | {d['log_svr']:.2f} "
                   f"({d['log_svr_primary']:.2f}) | {d['wall_s']:.0f} |")
-    if (OUT / "boundary.csv").exists():
-        with (OUT / "boundary.csv").open() as f:
+    for path in sorted(OUT.glob("boundary*.csv")):
+        with path.open() as f:
             rows = list(csv.DictReader(f))
-        print()
+        print(f"\n{path.name}\n")
         print("| K | σ | motion | seed | set | #constraints | status | log SVR | rel. gap | tight | SDP s |")
         print("|---|---|---|---|---|---|---|---|---|---|---|")
         for r in rows:
@@ -245,6 +245,7 @@ def main() -> None:
     ap.add_argument("--retry", action="store_true",
                     help="boundary: re-solve a failed SDP with our own clique decomposition (decompose=True)")
     ap.add_argument("--groups", default="factors", help="reduce: learning groups")
+    ap.add_argument("--csv", default="boundary.csv", help="boundary: results file under results/")
     a = ap.parse_args()
     os.chdir(ROOT)
     t0 = time.perf_counter()
@@ -252,7 +253,7 @@ def main() -> None:
         part_discrete(a.K, a.seed, a.heldout, a.sigma)
     elif a.part == "boundary":
         cells = (GRIDS[a.grid] if a.grid else []) + _cells(a.cells)
-        part_boundary(cells, a.seeds, a.sets, a.pairs_max_k, a.time_limit, a.retry)
+        part_boundary(cells, a.seeds, a.sets, a.pairs_max_k, a.time_limit, a.retry, a.csv)
     elif a.part == "tables":
         part_tables()
     else:
