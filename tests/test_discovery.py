@@ -192,3 +192,53 @@ def test_cli_json_keys(capsys):
                 "n_minimal", "heldout_tight_fraction", "paper_in_span", "times"):
         assert key in obj
     assert obj["tight"] is True and obj["n_minimal"] <= obj["n_paper"]
+
+
+# ----------------------------------------------------------------------------- free monomials
+
+
+def test_a_noise_row_is_not_taken_as_a_free_monomial():
+    """A nullspace basis whose last row is numerical noise (1e-11): scanning from the end, that row
+    must not become a free monomial, or N_F is near-singular and the basic solutions blow up (they
+    did, to 1e16, on σ = 1 trajectory factors)."""
+    from autotight.discovery.nullspace import basic_solutions, free_monomials
+
+    rng = np.random.default_rng(4)
+    m, k = 40, 6
+    N, _ = np.linalg.qr(rng.standard_normal((m, k)))
+    N[-1] = 1e-11 * rng.standard_normal(k)  # a monomial outside every relation, up to noise
+    N, _ = np.linalg.qr(N)
+    F = free_monomials(N)
+    assert m - 1 not in F and len(F) == k
+    V = basic_solutions(N, F)
+    assert np.allclose(V[F], np.eye(k))
+    assert np.abs(V).max() < 1e4  # well conditioned
+    # V spans the same space as N
+    P = N @ N.T
+    assert np.linalg.norm(V - P @ V) <= 1e-10 * np.linalg.norm(V)
+
+
+def test_ill_conditioned_free_monomials_are_refused():
+    from autotight.discovery.nullspace import basic_solutions
+
+    N = np.array([[1.0, 0.0], [0.0, 1e-12], [0.0, 0.0]])
+    with pytest.raises(LearningError, match="ill-conditioned"):
+        basic_solutions(N, np.array([0, 1]))
+
+
+def test_every_motion_factor_learns_the_same_relations_at_high_noise():
+    """Continuous time, K = 11, σ = 0.3, seed 0: every motion factor's basic solutions have the same
+    identities and contain the paper's R3, R6 and R8 (before the fix, four factors had garbage bases)."""
+    from autotight.discovery.compare import paper_in_span
+
+    prob = load("continuous_trajectory")
+    inst = prob.generate(prob.parse_params({"K": 11, "sigma": 0.3}), 0)
+    model = prob.build(inst)
+    cat = learn(prob, inst, model, np.random.default_rng([0, 2]), "factors", types=["motion"])
+    motion = [g for g in cat.groups if g.group.type == "motion"]
+    assert len(motion) == 10
+    assert all(g.identities == motion[0].identities for g in motion)
+    assert max(np.abs(g.coeffs).max() for g in motion) < 1e3
+    span = paper_in_span(cat)
+    for fam in ("R3", "R6", "R8"):
+        assert span[fam]["max_residual"] < 1e-8, (fam, span[fam])

@@ -66,9 +66,18 @@ def nullspace(Yn: np.ndarray, rank: int) -> np.ndarray:
     return Vt[rank:].T
 
 
+#: a row of an orthonormal nullspace basis with a residual below this is noise, not a monomial of
+#: the relations: taking it as free makes N_F nearly singular and the basic solutions blow up
+FREE_ABS_TOL = 1e-6
+
+#: largest condition number of N_F accepted for the basic solutions N · N_F⁻¹
+MAX_FREE_COND = 1e8
+
+
 def free_monomials(N: np.ndarray, tol: float = 1e-7) -> np.ndarray:
-    """Indices F (ascending) of the free monomials: rows of N scanned from the last, kept when
-    independent of the kept rows (relative residual > tol).  |F| = N.shape[1]."""
+    """Indices F (ascending) of the free monomials: rows of N (orthonormal columns) scanned from the
+    last, kept when independent of the kept rows: residual > tol relative to the row's norm and
+    > FREE_ABS_TOL absolute.  |F| = N.shape[1]."""
     m, k = N.shape
     Q = np.zeros((k, k))
     r = 0
@@ -83,7 +92,7 @@ def free_monomials(N: np.ndarray, tol: float = 1e-7) -> np.ndarray:
         res = row - Q[:, :r] @ (Q[:, :r].T @ row)
         res -= Q[:, :r] @ (Q[:, :r].T @ res)  # re-orthogonalise once
         rn = np.linalg.norm(res)
-        if rn > tol * nrm:
+        if rn > tol * nrm and rn > FREE_ABS_TOL:
             Q[:, r] = res / rn
             r += 1
             free.append(i)
@@ -93,7 +102,12 @@ def free_monomials(N: np.ndarray, tol: float = 1e-7) -> np.ndarray:
 
 
 def basic_solutions(N: np.ndarray, free: np.ndarray, clean: float = 1e-10) -> np.ndarray:
-    """Basis V (m × k) of range(N) with V[free] = I; entries below clean·max|column| set to 0."""
+    """Basis V (m × k) of range(N) with V[free] = I; entries below clean·max|column| set to 0.
+    LearningError when N_F is too ill-conditioned for V to be accurate (cond > MAX_FREE_COND)."""
+    cond = np.linalg.cond(N[free]) if len(free) else 1.0
+    if not cond <= MAX_FREE_COND:
+        raise LearningError(f"the free monomials give an ill-conditioned basis (cond {cond:.1e}); "
+                            "the relations cannot be written with them accurately")
     V = np.linalg.solve(N[free].T, N.T).T  # N · N_F⁻¹
     V[free] = np.eye(len(free))
     mx = np.max(np.abs(V), axis=0, keepdims=True)
