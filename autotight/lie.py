@@ -48,11 +48,16 @@ class CayleySingularityError(AutotightError, ValueError):
 # ----------------------------------------------------------------------------- validation
 
 
+def _finite(a: np.ndarray) -> bool:
+    """All entries finite (the array method: cheaper than np.all on these tiny arrays)."""
+    return bool(np.isfinite(a).all())
+
+
 def _vec(x: np.ndarray, n: int, name: str) -> np.ndarray:
     a = np.asarray(x, dtype=float)
     if a.shape != (n,):
         raise ValueError(f"{name} must have shape ({n},), got {a.shape}")
-    if not np.all(np.isfinite(a)):
+    if not _finite(a):
         raise ValueError(f"{name} contains non-finite entries")
     return a
 
@@ -61,7 +66,7 @@ def _mat(M: np.ndarray, n: int, name: str) -> np.ndarray:
     a = np.asarray(M, dtype=float)
     if a.shape != (n, n):
         raise ValueError(f"{name} must have shape ({n}, {n}), got {a.shape}")
-    if not np.all(np.isfinite(a)):
+    if not _finite(a):
         raise ValueError(f"{name} contains non-finite entries")
     return a
 
@@ -88,7 +93,9 @@ def _check_rotation(C: np.ndarray, name: str = "C") -> np.ndarray:
 
 def _check_pose(T: np.ndarray, name: str = "T") -> np.ndarray:
     T = _mat(T, 4, name)
-    if not np.allclose(T[3], [0.0, 0.0, 0.0, 1.0], atol=ORTHO_TOL):
+    # the tolerance of np.allclose(T[3], e₄, atol=ORTHO_TOL): |a − b| ≤ ORTHO_TOL + 1e-5·|b|
+    if (abs(T[3, 0]) > ORTHO_TOL or abs(T[3, 1]) > ORTHO_TOL or abs(T[3, 2]) > ORTHO_TOL
+            or abs(T[3, 3] - 1.0) > ORTHO_TOL + 1e-5):
         raise ValueError(f"{name} last row must be [0, 0, 0, 1], got {T[3]}")
     _check_rotation(T[:3, :3], f"{name}[:3, :3]")
     return T

@@ -178,11 +178,13 @@ def _monomial_names(group: Group, sizes: dict[str, int], d: int) -> list[str]:
 
 
 def learn_group(model: Model, group: Group, bank: SampleBank, heldout: SampleBank, opts: LearnOptions,
-                known: Sequence[Constraint] = ()) -> LearnedGroup:
+                known: Sequence[Constraint] = (), spanning: Sequence[sp.coo_array] | None = None) -> LearnedGroup:
     """Nullspace of the group's monomial data → basic solutions, primary-span flags, held-out check.
 
     ``known``: constraints learned already on other groups; those supported inside this group
     count as spanned, like the primary constraints, so no relation is proposed twice.
+    ``spanning``: the same matrices (homogeneous primary constraints, then ``known``) as COO arrays,
+    when the caller has them already (``learn`` keeps one list for all groups).
     """
     t0 = time.perf_counter()
     V = model.variables
@@ -216,14 +218,14 @@ def learn_group(model: Model, group: Group, bank: SampleBank, heldout: SampleBan
     names = _monomial_names(group, V.sizes, d)
     idents = [f"{names[ii[order[f]]]}·{names[jj[order[f]]]}" for f in free]
     # which solutions the primary constraints (and earlier solutions) already span, in the normalised space
-    sub = {int(c): q for q, c in enumerate(cols)}
+    if spanning is None:
+        spanning = spanning_matrices(model, known)
+    local = np.full(V.N, -1, dtype=np.int64)
+    local[cols] = np.arange(n)
     prim = []
-    for c in list(model.primary()) + list(known):
-        if c.b != 0:
-            continue
-        U = sp.coo_array(c.A)
-        if U.nnz and all(int(r) in sub for r in U.row):
-            loc = sp.coo_array((U.data, ([sub[int(r)] for r in U.row], [sub[int(q)] for q in U.col])), shape=(n, n))
+    for U in spanning:
+        if U.nnz and (local[U.row] >= 0).all():
+            loc = sp.coo_array((U.data, (local[U.row], local[U.col])), shape=(n, n))
             prim.append(sym_to_poly(loc)[order] * D)
     basis = np.zeros((m, 0))
     if prim:
@@ -247,6 +249,11 @@ def learn_group(model: Model, group: Group, bank: SampleBank, heldout: SampleBan
     t2 = time.perf_counter()
     return LearnedGroup(group, cols, need, spec.rel, spec.rank, spec.gap_decades, idents, coeffs, in_span, viol,
                         opts.heldout_tol, {"nullspace_s": t1 - t0, "basis_s": t2 - t1})
+
+
+def spanning_matrices(model: Model, known: Sequence[Constraint] = ()) -> list[sp.coo_array]:
+    """The homogeneous (b = 0) primary constraints and ``known``, as COO arrays."""
+    return [sp.coo_array(c.A) for c in [*model.primary(), *known] if c.b == 0]
 
 
 def monomials_needed(model: Model, groups: Sequence[Group], opts: LearnOptions) -> int:
