@@ -423,7 +423,10 @@ def test_ctrl_c_keeps_finished_trials_and_the_rerun_resumes(tmp_path):
     out = tmp_path / "k"
     cmd = [sys.executable, "-m", "autotight.cli", "report", PROBLEM, "-p", "M=3", "--sigmas", "0.01,0.3",
            "--sets", "primary,paper", "--trials", "40", "--jobs", "1", "--out", str(out), "--no-progress"]
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    # a shell that runs pytest in the background passes SIGINT on as ignored; give the CLI the
+    # disposition of an interactive terminal so that the signal is Ctrl-C
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     csv, deadline = out / CSV_NAME, time.time() + 60
     while time.time() < deadline and proc.poll() is None:
         if csv.exists() and csv.read_text().count("\n") >= 1 + 2 * 3:
