@@ -83,10 +83,10 @@ class Store:
         rows = self._load_rows()
         self.dropped = 0
         if redo:
-            ist = self.columns.index("status")
+            ist, ii, it = (self.columns.index(c) for c in ("status", "sigma_index", "trial"))
             again = self._keys(r for r in rows if r[ist] in set(redo))
             if again:
-                rows = [r for r in rows if next(iter(self._keys([r]))) not in again]
+                rows = [r for r in rows if (int(r[ii]), int(r[it])) not in again]
                 self._rewrite(rows)
                 self.dropped = len(again)
                 run_info = dict(run_info or {}, redo=list(redo), redone_trials=len(again))
