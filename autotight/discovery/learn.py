@@ -178,13 +178,12 @@ def _monomial_names(group: Group, sizes: dict[str, int], d: int) -> list[str]:
 
 
 def learn_group(model: Model, group: Group, bank: SampleBank, heldout: SampleBank, opts: LearnOptions,
-                known: Sequence[Constraint] = (), spanning: Sequence[sp.coo_array] | None = None) -> LearnedGroup:
+                spanning: Sequence[sp.coo_array] | None = None) -> LearnedGroup:
     """Nullspace of the group's monomial data → basic solutions, primary-span flags, held-out check.
 
-    ``known``: constraints learned already on other groups; those supported inside this group
-    count as spanned, like the primary constraints, so no relation is proposed twice.
-    ``spanning``: the same matrices (homogeneous primary constraints, then ``known``) as COO arrays,
-    when the caller has them already (``learn`` keeps one list for all groups).
+    ``spanning``: COO matrices of the constraints that count as spanned (default: the homogeneous
+    primary constraints, ``spanning_matrices``); ``learn`` appends each group's new relations, so
+    those supported inside a later group are not proposed twice.
     """
     t0 = time.perf_counter()
     V = model.variables
@@ -219,7 +218,7 @@ def learn_group(model: Model, group: Group, bank: SampleBank, heldout: SampleBan
     idents = [f"{names[ii[order[f]]]}·{names[jj[order[f]]]}" for f in free]
     # which solutions the primary constraints (and earlier solutions) already span, in the normalised space
     if spanning is None:
-        spanning = spanning_matrices(model, known)
+        spanning = spanning_matrices(model)
     local = np.full(V.N, -1, dtype=np.int64)
     local[cols] = np.arange(n)
     prim = []
@@ -251,9 +250,9 @@ def learn_group(model: Model, group: Group, bank: SampleBank, heldout: SampleBan
                         opts.heldout_tol, {"nullspace_s": t1 - t0, "basis_s": t2 - t1})
 
 
-def spanning_matrices(model: Model, known: Sequence[Constraint] = ()) -> list[sp.coo_array]:
-    """The homogeneous (b = 0) primary constraints and ``known``, as COO arrays."""
-    return [sp.coo_array(c.A) for c in [*model.primary(), *known] if c.b == 0]
+def spanning_matrices(model: Model) -> list[sp.coo_array]:
+    """The homogeneous (b = 0) primary constraints as COO arrays."""
+    return [sp.coo_array(c.A) for c in model.primary() if c.b == 0]
 
 
 def monomials_needed(model: Model, groups: Sequence[Group], opts: LearnOptions) -> int:

@@ -16,53 +16,53 @@ import scipy.sparse as sp
 from scipy.sparse.csgraph import breadth_first_order, minimum_spanning_tree
 
 
-def _overlaps(cliques: Sequence[np.ndarray]) -> np.ndarray:
-    """(p × p) dense array of |C_i ∩ C_j| (diagonal zeroed), from the clique-column incidence matrix."""
+def incidence(cliques: Sequence[np.ndarray], N: int | None = None) -> sp.csr_array:
+    """(p × N) 0/1 clique-column incidence matrix."""
     sizes = [len(c) for c in cliques]
-    N = int(max(int(np.max(c)) for c in cliques)) + 1
-    B = sp.csr_array((np.ones(sum(sizes)), (np.repeat(np.arange(len(cliques)), sizes),
-                                              np.concatenate([np.asarray(c, np.int64) for c in cliques]))),
-                     shape=(len(cliques), N))
-    W = (B @ B.T).toarray()
-    np.fill_diagonal(W, 0)
-    return W
+    cols = np.concatenate([np.asarray(c, np.int64) for c in cliques])
+    N = int(cols.max()) + 1 if N is None else N
+    return sp.csr_array((np.ones(cols.size), (np.repeat(np.arange(len(cliques)), sizes), cols)),
+                        shape=(len(cliques), N))
 
 
-def _max_overlap_tree(cliques: Sequence[np.ndarray]) -> sp.coo_array:
-    """A maximum-weight spanning forest of the clique-intersection graph (edge weight |C_i ∩ C_j|)."""
-    W = _overlaps(cliques)
-    big = W.max() + 1
-    return minimum_spanning_tree(sp.csr_array(np.where(W > 0, big - W, 0))).tocoo()  # min of big − w = max of w
+def _tree(cliques: Sequence[np.ndarray]) -> tuple[np.ndarray, np.ndarray, bool]:
+    """(parent, order, running intersection) of a maximum-overlap spanning tree rooted at clique 0.
 
-
-def has_running_intersection(cliques: Sequence[np.ndarray]) -> bool:
-    p = len(cliques)
-    if p <= 1:
-        return True
-    T = _max_overlap_tree(cliques)
-    if T.nnz != p - 1:
-        return False  # the cliques are not connected
-    weight = int(round(_overlaps(cliques)[T.row, T.col].sum()))
-    union = np.unique(np.concatenate([np.asarray(c) for c in cliques]))
-    return weight == sum(len(c) for c in cliques) - union.size
-
-
-def clique_tree(cliques: Sequence[np.ndarray]) -> np.ndarray:
-    """parent[k] of every clique in a clique tree rooted at clique 0 (parent −1 for the root).
-
-    The tree is a maximum-overlap spanning tree, which is a clique tree whenever the cliques have
-    the running intersection property; then the cliques holding any one column form a subtree.
+    parent[k] = −1 for the root; ``order`` lists every parent before its children.  The tree is a
+    clique tree iff its weight (Σ overlaps) is Σ|C_k| − |∪C_k|, i.e. the running intersection property.
     """
     p = len(cliques)
     parent = np.full(p, -1, dtype=np.int64)
     if p <= 1:
-        return parent
-    T = _max_overlap_tree(cliques)
+        return parent, np.arange(p), True
+    B = incidence(cliques)
+    W = (B @ B.T).toarray()
+    np.fill_diagonal(W, 0)
+    T = minimum_spanning_tree(sp.csr_array(np.where(W > 0, W.max() + 1 - W, 0))).tocoo()  # max of W
     if T.nnz != p - 1:
         raise ValueError("the cliques are not connected: no clique tree")
-    _, pred = breadth_first_order(sp.csr_array((np.ones(T.nnz), (T.row, T.col)), shape=(p, p)), 0,
-                                  directed=False)
+    order, pred = breadth_first_order(sp.csr_array((np.ones(T.nnz), (T.row, T.col)), shape=(p, p)), 0,
+                                      directed=False)
     parent[1:] = pred[1:]
+    union = int((B.sum(axis=0) > 0).sum())
+    return parent, order, int(W[T.row, T.col].sum()) == B.nnz - union
+
+
+def has_running_intersection(cliques: Sequence[np.ndarray]) -> bool:
+    try:
+        return _tree(cliques)[2]
+    except ValueError:
+        return False  # not connected
+
+
+def clique_tree(cliques: Sequence[np.ndarray]) -> np.ndarray:
+    """parent[k] of every clique in a clique tree rooted at clique 0 (parent −1 for the root), so that
+    the cliques holding any one column form a subtree.  ValueError when the cliques have no clique
+    tree (not connected, or the running intersection property fails)."""
+    parent, _, ok = _tree(cliques)
+    if not ok:
+        raise ValueError("the cliques do not form a clique tree (running intersection fails): "
+                         "the decomposed SDP would be weaker than the dense one")
     return parent
 
 
@@ -74,28 +74,17 @@ def merge_small(cliques: Sequence[np.ndarray], max_size: int) -> list[np.ndarray
     on the trajectory problems about 20 columns was the best cap.
     """
     cl = [set(np.asarray(c).tolist()) for c in cliques]
-    parent = clique_tree(cliques)
-    order = _depth_order(parent)
+    parent, bfs, _ = _tree(cliques)
+    depth = np.zeros(len(cl), np.int64)
+    for k in bfs[1:]:
+        depth[k] = depth[parent[k]] + 1
     alive = np.ones(len(cl), bool)
-    for k in order[::-1]:  # leaves first
+    for k in np.argsort(depth, kind="stable")[::-1]:  # deepest first: a clique's parent is still alive
         p = int(parent[k])
-        while p >= 0 and not alive[p]:
-            p = int(parent[p])
         if p >= 0 and len(cl[k] | cl[p]) <= max_size:
             cl[p] |= cl[k]
             alive[k] = False
     return [np.array(sorted(cl[k]), dtype=np.int64) for k in range(len(cl)) if alive[k]]
-
-
-def _depth_order(parent: np.ndarray) -> np.ndarray:
-    """Clique indices ordered so that every parent comes before its children."""
-    depth = np.zeros(len(parent), np.int64)
-    for k in range(len(parent)):
-        j, d = k, 0
-        while parent[j] >= 0:
-            j, d = parent[j], d + 1
-        depth[k] = d
-    return np.argsort(depth, kind="stable")
 
 
 def maximal(cliques: Sequence[np.ndarray]) -> list[np.ndarray]:

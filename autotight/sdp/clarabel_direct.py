@@ -25,7 +25,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..svec import SQRT2, position_to_ij, smat, svec_columns, svec_dim, triu_indices
-from .chordal import clique_tree, has_running_intersection, maximal
+from .chordal import clique_tree, incidence, maximal
 from .result import SDPResult, SolverOptions, finish
 
 
@@ -143,9 +143,7 @@ def _home_rows(G: sp.coo_array, cliques: Sequence[np.ndarray], pos: np.ndarray, 
     """
     gi, gj = position_to_ij(G.row)
     m = G.shape[1]
-    sizes = [len(C) for C in cliques]
-    B = sp.csr_array((np.ones(sum(sizes)), (np.repeat(np.arange(len(cliques)), sizes), np.concatenate(cliques))),
-                     shape=(len(cliques), N))
+    B = incidence(cliques, N)
     cols = sp.csr_array((np.ones(2 * G.nnz), (np.r_[gi, gj], np.r_[G.col, G.col])), shape=(N, m))
     cols.data[:] = 1.0  # summed duplicates → indicator
     home = np.asarray((B @ cols).toarray().argmax(axis=0)).ravel()[G.col] if m else np.zeros(0, np.int64)
@@ -168,10 +166,7 @@ def solve_cliques(Q: sp.csr_array, As: Sequence[sp.csr_array], b: np.ndarray, d:
     N = Q.shape[0]
     c = _scale(Q)
     cliques = maximal(cliques)
-    if not has_running_intersection(cliques):
-        raise ValueError("the cliques do not form a clique tree (running intersection fails): "
-                         "the decomposed SDP would be weaker than the dense one")
-    parent = clique_tree(cliques)
+    parent = clique_tree(cliques)  # ValueError unless the cliques form a clique tree
     m = len(As)
     # one row per (clique k, svec entry of its block); pos = the entry's position in svec of N×N
     pos, start = [], [0]
