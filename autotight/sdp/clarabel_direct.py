@@ -146,7 +146,7 @@ def _home_rows(G: sp.coo_array, cliques: Sequence[np.ndarray], pos: np.ndarray, 
     B = incidence(cliques, N)
     cols = sp.csr_array((np.ones(2 * G.nnz), (np.r_[gi, gj], np.r_[G.col, G.col])), shape=(N, m))
     cols.data[:] = 1.0  # summed duplicates → indicator
-    home = np.asarray((B @ cols).toarray().argmax(axis=0)).ravel()[G.col] if m else np.zeros(0, np.int64)
+    home = np.asarray((B @ cols).argmax(axis=0)).ravel()[G.col] if m else np.zeros(0, np.int64)
     rows = np.full(G.nnz, -1, dtype=np.int64)
     for k in np.unique(home):
         sel = np.flatnonzero(home == k)
