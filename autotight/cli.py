@@ -82,7 +82,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_problem_args(p)
     p.add_argument("--set", choices=["primary", "paper"], default=None,
                    help="constraint set (default: paper if the problem has paper families, else primary)")
-    p.add_argument("--solver", default="clarabel", help="clarabel (default) or cvxpy:SCS, cvxpy:MOSEK, …")
+    p.add_argument("--solver", default="clarabel", help="clarabel (default), ipm (our interior-point method on clique blocks) or cvxpy:SCS, cvxpy:MOSEK, …")
     p.add_argument("--random-starts", type=int, default=1, help="random-start local solves (default 1)")
     p.set_defaults(func=cmd_solve)
     for extra in _extensions():

@@ -81,9 +81,13 @@ def solve_sdp(model: Model, constraints: Sequence[Constraint], *, solver: str = 
     decompose: True → our own clique decomposition (``cliques_for``, solved by
     ``sdp.clarabel_direct.solve_cliques``); otherwise Clarabel with
     ``options`` (by default its chordal decomposition with parent-child merging, see SolverOptions).
+    solver "ipm" (our interior-point method, ``sdp.schur_ipm``) always runs on ``cliques_for``
+    unless ``decompose`` is False.
     """
     cliques = None
-    if solver == "clarabel" and decompose:
+    if solver == "ipm" and decompose is not False:
+        cliques = cliques_for(model, constraints)
+    elif solver == "clarabel" and decompose:
         cliques = cliques_for(model, constraints)
         if len(cliques) == 1:
             cliques = None

@@ -6,6 +6,8 @@ Methods, all on the same data in the same run:
 - ``cliques``: our own clique decomposition (``run.cliques_for``: a min-fill chordal cover with small
   cliques merged, or the model's block cliques, whichever has the smaller Σ svec(|C|)³), solved as
   the clique-tree dual of ``sdp.clarabel_direct.solve_cliques``;
+- ``ipm``: our own Schur-complement interior-point method (``sdp.schur_ipm``) on the same clique
+  blocks as ``cliques`` (tolerance 1e-7 relative, see ``schur_ipm.IPM_MIN_TOL``);
 - ``chordal-default``: Clarabel's chordal decomposition with its default clique-graph merging
   (given a time limit; a solve that hits it is reported as such).
 Continuous time is solved with ϖ marginalised (the paper) and with ϖ kept in the lifting.
@@ -37,6 +39,7 @@ from autotight.threads import single_blas_thread
 METHODS = {
     "chordal-pc": dict(decompose=None, options=SolverOptions()),
     "cliques": dict(decompose=True, options=SolverOptions()),
+    "ipm": dict(solver="ipm", options=SolverOptions()),
 }
 
 
@@ -147,19 +150,19 @@ def main() -> None:
     res: dict = {"benchmark": "trajectory_sdp", "versions": versions(), "load_avg_start": os.getloadavg(),
                  "target": "median solve ≤ 1.5 s at discrete K=20 and continuous K=21 (paper: MOSEK 12.3 s, "
                            "13.6 s); growth exponent ≤ 1.2"}
-    res["discrete_K20"] = compare("discrete_trajectory", {"K": 20}, ["chordal-pc", "cliques", "chordal-default"],
+    res["discrete_K20"] = compare("discrete_trajectory", {"K": 20}, ["chordal-pc", "cliques", "ipm", "chordal-default"],
                                   a.repeats, a.time_limit)
     print("discrete_K20", json.dumps(jsonable({m: {x: v[x] for x in ("median_wall_s", "status", "log_svr")}
                                                for m, v in res["discrete_K20"].items()})), flush=True)
     for marg in (True, False):
         key = f"continuous_K21_{'marginalised' if marg else 'kept'}"
         res[key] = compare("continuous_trajectory", {"K": 21, "marginalize": marg},
-                           ["chordal-pc", "cliques", "chordal-default"], a.repeats, a.time_limit)
+                           ["chordal-pc", "cliques", "ipm", "chordal-default"], a.repeats, a.time_limit)
         print(key, json.dumps(jsonable({m: {x: v[x] for x in ("median_wall_s", "status", "log_svr")}
                                         for m, v in res[key].items()})), flush=True)
     Ks = [int(k) for k in a.scaling.split(",")]
     scale: dict = {}
-    for m in ("chordal-pc", "cliques"):
+    for m in ("chordal-pc", "cliques", "ipm"):
         times = []
         for K in Ks:
             r = compare("discrete_trajectory", {"K": K}, [m], 1 if K > 50 else a.repeats, a.scaling_limit)[m]

@@ -1,7 +1,8 @@
 """One ``solve`` for the Shor relaxation  min ⟨Q,X⟩ s.t. ⟨Aᵢ,X⟩ = bᵢ, X ⪰ 0.
 
 Backends (one module each): ``clarabel`` (direct, sparse, default), ``clarabel`` with
-``cliques`` (clique decomposition of a chordal pattern), ``cvxpy:<SOLVER>`` (SCS, MOSEK, …).
+``cliques`` (clique decomposition of a chordal pattern), ``ipm`` (our Schur-complement interior-point
+method on the clique blocks, ``schur_ipm``), ``cvxpy:<SOLVER>`` (SCS, MOSEK, …).
 A failed or inaccurate solve is returned with its status; it never raises.
 """
 
@@ -18,6 +19,7 @@ from ..model import Constraint
 from .clarabel_direct import solve_cliques, solve_dense
 from .cvxpy_path import solve_cvxpy
 from .result import SDPResult, SolverOptions, log_svr, rank_d_factor
+from .schur_ipm import solve_ipm
 
 __all__ = ["solve", "SDPResult", "SolverOptions", "log_svr", "rank_d_factor"]
 
@@ -64,6 +66,8 @@ def solve(Q: sp.spmatrix | sp.sparray, constraints: Sequence[Constraint], *, d: 
     try:
         if solver == "clarabel":
             res = solve_cliques(Q, As, b, d, cliques, opts) if cliques is not None else solve_dense(Q, As, b, d, opts)
+        elif solver == "ipm":
+            res = solve_ipm(Q, As, b, d, cliques, opts)
         elif solver.startswith("cvxpy"):
             name = solver.split(":", 1)[1] if ":" in solver else "SCS"
             res = solve_cvxpy(Q, As, b, d, name, opts)
@@ -79,4 +83,4 @@ def solve(Q: sp.spmatrix | sp.sparray, constraints: Sequence[Constraint], *, d: 
         return SDPResult(status=f"Failed: {type(e).__name__}: {e}".splitlines()[0], solver=solver, d=d, X=None,
                          y=None, primal_cost=float("nan"), dual_cost=float("nan"), solve_time_s=0.0,
                          message=str(e))
-    raise ValueError(f"unknown solver {solver!r}; use 'clarabel' or 'cvxpy:SCS', 'cvxpy:MOSEK', …")
+    raise ValueError(f"unknown solver {solver!r}; use 'clarabel', 'ipm' or 'cvxpy:SCS', 'cvxpy:MOSEK', …")

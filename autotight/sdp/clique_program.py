@@ -1,0 +1,169 @@
+"""The clique-decomposed Shor SDP as a block standard-form SDP (shared by every clique backend).
+
+For cliques C_1 … C_p of a chordal pattern that contains Q and every Aᵢ, with a clique tree, by
+Agler's theorem the dual  max bᵀy s.t. S = Q − Σ yᵢAᵢ ⪰ 0  is, on that pattern,
+
+    max bᵀy  s.t.  S_k = [k owns (i,j)]·(Q − Σ yᵢAᵢ)_ij − t_{k,ij} + Σ_{children c} t_{c,ij} ⪰ 0,
+
+where each entry belongs to the highest clique holding it ("owns") and the free transfer t_{k,ij}
+moves the share of an entry from clique k to its tree parent.  Written on the stacked svec of the
+blocks, s = c − F [y; t], this is the dual of the block primal
+
+    min cᵀz  s.t.  Fᵀz = g = [b; 0],  z = (svec X_1, …, svec X_p),  X_k ⪰ 0,
+
+whose rows for t say that neighbouring blocks agree on their overlap.  Both have the optimal value
+of the dense SDP.  svec is column-major upper triangle with off-diagonal entries scaled by √2, so
+svec(A)·svec(X) = ⟨A, X⟩.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Sequence
+
+import numpy as np
+import scipy.sparse as sp
+
+from ..svec import SQRT2, position_to_ij, svec_columns, triu_indices
+from .chordal import clique_tree, incidence, maximal
+from .result import log_svr, rank_d_factor
+
+
+@dataclass
+class CliqueProgram:
+    """Block data of the decomposed SDP (shapes: R = Σ svec(|C_k|) rows, m constraints, T transfers).
+
+    F: (R × (m + T)) sparse, the columns of the m constraints then of the T transfers.
+    c: (R,) the scaled cost (Q · scale) split among the blocks.  g: (m + T,) = [b; 0].
+    start[k]: the first row of block k.  pos: (R,) each row's position in svec of the N×N matrix.
+    """
+
+    cliques: list[np.ndarray]
+    F: sp.csc_matrix
+    c: np.ndarray
+    g: np.ndarray
+    start: list[int]
+    pos: np.ndarray
+    m: int
+    N: int
+    scale: float
+
+    @property
+    def sizes(self) -> list[int]:
+        return [len(C) for C in self.cliques]
+
+    def pattern_matrix(self, z: np.ndarray) -> np.ndarray | None:
+        """The N×N matrix with the blocks' svec entries z (R,) on the pattern, zero elsewhere
+        (None if z is not a finite vector of the blocks' size)."""
+        if z.size != self.pos.size or not np.all(np.isfinite(z)):
+            return None
+        gi, gj = position_to_ij(self.pos)
+        v = np.where(gi == gj, z, z / SQRT2)
+        Xp = np.zeros((self.N, self.N))
+        Xp[gi, gj] = v
+        Xp[gj, gi] = v
+        return Xp
+
+    def complete(self, z: np.ndarray, d: int) -> tuple[np.ndarray | None, list[float]]:
+        """The blocks' svec z (R,) → (X completed off the pattern, per-block log SVR); (None, []) when
+        z is unusable."""
+        Xp = self.pattern_matrix(z)
+        return (None, []) if Xp is None else complete_from_cliques(Xp, self.cliques, d)
+
+
+def complete_from_cliques(Xp: np.ndarray, cliques: Sequence[np.ndarray], d: int) -> tuple[np.ndarray, list[float]]:
+    """X known on the cliques' pattern → per-clique log SVR, and X with the entries off the pattern
+    filled from the rank-d factors of the clique blocks (each clique contains h, which fixes
+    their alignment; the completion is exact when every block has rank d)."""
+    N = Xp.shape[0]
+    Theta = np.zeros((d, N))
+    svrs = []
+    on = np.zeros((N, N), bool)
+    for C in cliques:
+        w, Th = rank_d_factor(Xp[np.ix_(C, C)], d)
+        svrs.append(log_svr(w, d))
+        Theta[:, C] = Th
+        on[np.ix_(C, C)] = True
+    return np.where(on, Xp, Theta.T @ Theta), svrs
+
+
+def cost_scale(Q: sp.csr_array) -> float:
+    """1 / max|Q_ij|: the solvers see a cost of magnitude 1."""
+    m = abs(Q).max() if Q.nnz else 1.0
+    return 1.0 / m if m > 0 else 1.0
+
+
+def _find(sorted_values: np.ndarray, queries: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(index, found) of each query in an increasing array."""
+    at = np.searchsorted(sorted_values, queries)
+    found = (at < sorted_values.size) & (sorted_values[np.minimum(at, max(sorted_values.size - 1, 0))] == queries)
+    return at, found
+
+
+def _home_rows(G: sp.coo_array, cliques: Sequence[np.ndarray], pos: np.ndarray, start: list[int],
+               own: np.ndarray, N: int) -> np.ndarray:
+    """The block row for every nonzero (svec entry e, constraint i) of G.
+
+    Constraint i is placed in its home clique, the one holding most of its columns; an entry that
+    the home clique lacks goes to the entry's top clique.  Any split of an entry among the cliques
+    holding it is exact (the transfers balance it); this one keeps a constraint's coefficients in
+    its own part of the clique tree instead of sending every shared entry (h², h·x) to the root.
+    """
+    gi, gj = position_to_ij(G.row)
+    m = G.shape[1]
+    B = incidence(cliques, N)
+    cols = sp.csr_array((np.ones(2 * G.nnz), (np.r_[gi, gj], np.r_[G.col, G.col])), shape=(N, m))
+    cols.data[:] = 1.0  # summed duplicates → indicator
+    home = np.asarray((B @ cols).argmax(axis=0)).ravel()[G.col] if m else np.zeros(0, np.int64)
+    rows = np.full(G.nnz, -1, dtype=np.int64)
+    for k in np.unique(home):
+        sel = np.flatnonzero(home == k)
+        at, hit = _find(pos[start[k]:start[k + 1]], G.row[sel])
+        rows[sel[hit]] = start[k] + at[hit]
+    miss = rows < 0
+    order = np.argsort(pos[own])
+    rows[miss] = own[order[np.searchsorted(pos[own][order], G.row[miss])]]
+    return rows
+
+
+def clique_program(Q: sp.csr_array, As: Sequence[sp.csr_array], b: np.ndarray,
+                   cliques: Sequence[np.ndarray]) -> CliqueProgram:
+    """Decompose  min ⟨Q,X⟩ s.t. ⟨Aᵢ,X⟩ = bᵢ, X ⪰ 0  over ``cliques`` (see the module docstring).
+
+    ValueError when the cliques have no clique tree or miss an entry of the data.
+    """
+    N = Q.shape[0]
+    scale = cost_scale(Q)
+    cliques = maximal(cliques)
+    parent = clique_tree(cliques)  # ValueError unless the cliques form a clique tree
+    m = len(As)
+    # one row per (clique k, svec entry of its block); pos = the entry's position in svec of N×N
+    pos_k, start = [], [0]
+    for C in cliques:
+        i, j = triu_indices(len(C))
+        pos_k.append(C[j] * (C[j] + 1) // 2 + C[i])  # increasing, since C is sorted
+        start.append(start[-1] + i.size)
+    nrow = start[-1]
+    # the row of the same entry in the parent's block (−1: the entry is not in the parent, k owns it)
+    par_row = np.full(nrow, -1, dtype=np.int64)
+    for k, pk in enumerate(parent):
+        if pk >= 0:
+            at, hit = _find(pos_k[pk], pos_k[k])
+            par_row[start[k]:start[k + 1]][hit] = start[pk] + at[hit]
+    pos = np.concatenate(pos_k)
+    own = np.flatnonzero(par_row < 0)  # the top clique's row of each entry (one per entry)
+    moved = np.flatnonzero(par_row >= 0)
+    t = m + np.arange(moved.size)  # transfer variables, one per entry shared with the parent
+    data = svec_columns([Q, *As], N).tocsr()  # column 0: Q
+    outside = np.setdiff1d(np.unique(data.nonzero()[0]), pos)
+    if outside.size:
+        raise ValueError(f"{outside.size} entries of the cost or constraints lie outside every clique")
+    G = sp.coo_array(data[:, 1:])
+    g_row = _home_rows(G, cliques, pos, start, own, N)
+    F = sp.csc_matrix((np.concatenate([G.data, np.ones(moved.size), -np.ones(moved.size)]),
+                       (np.concatenate([g_row, moved, par_row[moved]]), np.concatenate([G.col, t, t]))),
+                      shape=(nrow, m + moved.size))
+    c = np.zeros(nrow)
+    c[own] = data[pos[own]][:, [0]].toarray().ravel() * scale
+    g = np.concatenate([np.asarray(b, float), np.zeros(moved.size)])
+    return CliqueProgram(cliques, F, c, g, start, pos, m, N, scale)

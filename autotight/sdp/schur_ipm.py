@@ -1,0 +1,373 @@
+"""Our own primal-dual interior-point method for block SDPs with sparse constraints.
+
+Solves the block standard form of ``clique_program`` (p blocks of n_k × n_k, M constraints)
+
+    min Σ_k ⟨C_k, X_k⟩  s.t.  Σ_k ⟨A_ik, X_k⟩ = g_i,  X_k ⪰ 0;     max gᵀy  s.t.  Z_k = C_k − Σ_i y_i A_ik ⪰ 0,
+
+with the HKM search direction and Mehrotra's predictor-corrector, from SDPT3's infeasible start.
+Each iteration solves the Schur complement system  S Δy = r,  S_il = Σ_k ⟨A_ik, X_k A_lk Z_k⁻¹⟩.
+S is sparse: S_il ≠ 0 only when constraints i and l touch a common block, so on a clique chain it
+is block-banded and an iteration costs O(p).  It is assembled block by block from the dense
+n_k² × n_k² Kronecker products X_k ⊗ Z_k⁻¹ and factorised by a supernodal sparse Cholesky (CHOLMOD,
+through cvxopt) with one symbolic analysis per solve; SuperLU when cvxopt is missing or the
+Cholesky fails.  Clarabel's KKT form instead puts a dense svec(n_k)² Hessian block per cone into one
+non-supernodal LDLᵀ, which grows faster than linearly along a chain.
+
+Tight relaxations with many redundant constraints are primal degenerate (rank-1 blocks, far more
+constraints than the n_k directions tangent to them), so S has condition ~1/μ² near the optimum.
+S is therefore equilibrated (unit diagonal) and regularised by ``SCHUR_REG`` (relative to that unit
+diagonal), which damps only the degenerate directions, and one refinement step is taken; when the
+Cholesky factorisation breaks down anyway, SuperLU with partial pivoting takes over.  Measured on
+the discrete trajectory (K = 20 … 100, 4 seeds): retrying CHOLMOD with 10–100× the regularisation
+saves ~30 % of the time but stops at relative gaps of ~5e-7 instead of ~1e-7; more refinement
+steps, a Gram-form S, a smaller SuperLU pivot threshold, or projecting ΔX back onto A(ΔX) = r_p
+each stalled earlier or at a worse gap.
+The tolerance therefore stops at IPM_MIN_TOL (relative); there is no infeasibility detection:
+an infeasible or unbounded problem ends as InsufficientProgress, MaxIterations or NumericalError.
+
+Everything here works on full row-major vec(·) (n_k² entries per block); the svec data of
+``clique_program`` (off-diagonals scaled by √2) is mapped once by the sparse svec → vec operator.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from typing import Callable, Sequence
+
+import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+
+from ..svec import SQRT2, triu_indices
+from .clique_program import clique_program
+from .result import SDPResult, SolverOptions, finish
+
+#: a solve that stops early (iteration or time limit, stalled steps) with every relative residual
+#: below this is AlmostSolved
+ALMOST_TOL = 1e-6
+#: regularisation of the equilibrated Schur complement (unit diagonal)
+SCHUR_REG = 1e-12
+#: the corrector is replaced by the centred first-order direction when its shortest step is below
+#: this fraction of the predictor's
+CORRECTOR_FALLBACK = 0.5
+#: the cost is scaled to max|C_ij| = 1; below this magnitude the gap is measured absolutely
+GAP_FLOOR = 1e-6
+#: stop when the best residual has not improved in this many iterations
+STALL_ITERATIONS = 5
+#: … or in this many once the best iterate is AlmostSolved
+STALL_ITERATIONS_ALMOST = 2
+
+
+@dataclass
+class IPMSolution:
+    """z: (Σ svec(n_k),) the primal blocks in svec; y: (M,) the multipliers.  The residuals are
+    relative: gap = |pobj − dobj| / max(|pobj|, |dobj|, GAP_FLOOR), pinf = ‖g − A(X)‖ / (1 + ‖g‖),
+    dinf = ‖C − A*(y) − Z‖_F / (1 + ‖C‖_F).  The best iterate (smallest max residual) is returned."""
+
+    status: str
+    z: np.ndarray
+    y: np.ndarray
+    pobj: float
+    dobj: float
+    gap: float
+    pinf: float
+    dinf: float
+    iterations: int
+    time_s: float
+    message: str = ""
+
+
+def svec_to_vec(sizes: list[int]) -> sp.csr_array:
+    """Block-diagonal operator P with P svec(S) = vec(S) (row-major) for symmetric blocks S;
+    Pᵀ vec(S) = svec(S)."""
+    rows, cols, vals = [], [], []
+    voff, soff = 0, 0
+    for n in sizes:
+        i, j = triu_indices(n)
+        e = soff + np.arange(i.size)
+        off = i != j
+        w = np.where(off, 1 / SQRT2, 1.0)
+        rows += [voff + i * n + j, voff + (j * n + i)[off]]
+        cols += [e, e[off]]
+        vals += [w, w[off]]
+        voff += n * n
+        soff += i.size
+    return sp.csr_array((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(voff, soff))
+
+
+class _Blocks:
+    """The p blocks grouped by size, so that per-block dense algebra runs batched on (B, n, n)."""
+
+    def __init__(self, sizes: list[int]):
+        self.sizes = sizes
+        self.voff = np.concatenate([[0], np.cumsum([n * n for n in sizes])])
+        self.groups: list[tuple[int, np.ndarray, np.ndarray]] = []  # (n, block ids, vec index (B, n²))
+        for n in sorted(set(sizes)):
+            ids = np.flatnonzero(np.asarray(sizes) == n)
+            self.groups.append((n, ids, self.voff[ids][:, None] + np.arange(n * n)[None, :]))
+        self.order = int(sum(sizes))  # Σ n_k: μ = ⟨X, Z⟩ / order
+
+    def split(self, v: np.ndarray) -> list[np.ndarray]:
+        """vec (Σn²,) → per size group (B, n, n)."""
+        return [v[idx].reshape(-1, n, n) for n, _, idx in self.groups]
+
+    def join(self, mats: list[np.ndarray]) -> np.ndarray:
+        out = np.empty(self.voff[-1])
+        for (n, _, idx), X in zip(self.groups, mats):
+            out[idx] = X.reshape(-1, n * n)
+        return out
+
+    def identity(self, scale: float) -> list[np.ndarray]:
+        return [np.broadcast_to(scale * np.eye(n), (ids.size, n, n)).copy() for n, ids, _ in self.groups]
+
+
+def _sym(X: np.ndarray) -> np.ndarray:
+    return 0.5 * (X + np.swapaxes(X, -1, -2))
+
+
+def _inner(X: list[np.ndarray], Z: list[np.ndarray]) -> float:
+    return sum(float(np.einsum("bij,bij->", a, b)) for a, b in zip(X, Z))
+
+
+def _max_step(X: list[np.ndarray], dX: list[np.ndarray]) -> float:
+    """The largest α with X + α dX ⪰ 0 in every block (∞ when no block ever leaves the cone)."""
+    lam = np.inf
+    for Xg, dXg in zip(X, dX):
+        Li = np.linalg.inv(np.linalg.cholesky(Xg))
+        ev = np.linalg.eigvalsh(_sym(Li @ dXg @ np.swapaxes(Li, -1, -2)))
+        lam = min(lam, float(ev[:, 0].min()))
+    return np.inf if lam >= 0 else -1.0 / lam
+
+
+class _Schur:
+    """S's sparsity pattern, the per-block constraint data that fill it, and its factorisation."""
+
+    def __init__(self, Gv: sp.csr_array, blocks: _Blocks):
+        M = Gv.shape[1]
+        self.per_block: list[sp.csr_array] = []  # G_kᵀ restricted to the constraints touching block k
+        inc = []  # constraint-block incidence
+        keys = []
+        for k in range(len(blocks.sizes)):
+            Gk = Gv[blocks.voff[k]:blocks.voff[k + 1]]
+            ids = np.unique(Gk.indices)
+            self.per_block.append(sp.csr_array(Gk[:, ids].T))
+            inc.append(ids)
+            keys.append((ids[:, None] * M + ids[None, :]).ravel())
+        B = sp.csr_array((np.ones(sum(i.size for i in inc)), (np.repeat(np.arange(len(inc)), [i.size for i in inc]),
+                                                               np.concatenate(inc))), shape=(len(inc), M))
+        pattern = sp.csr_array(B.T @ B)  # S_il ≠ 0 iff constraints i and l share a block
+        pattern.sort_indices()
+        self.rows = np.repeat(np.arange(M), np.diff(pattern.indptr))
+        self.cols = pattern.indices.astype(np.int64)
+        self.indptr = pattern.indptr
+        self.inverse = np.searchsorted(self.rows * M + self.cols, np.concatenate(keys))
+        self.M = M
+        self.blocks = blocks
+        # the upper triangle in CSR order is the lower triangle in CCS order (CHOLMOD's input)
+        self.upper = np.flatnonzero(self.cols >= self.rows)
+        self.diag = np.flatnonzero(self.cols == self.rows)
+        self._rows_upper, self._cols_upper = self.rows[self.upper], self.cols[self.upper]
+        self._diag_upper = np.flatnonzero(self._cols_upper == self._rows_upper)
+        self._cholmod = _CholmodPattern(self.cols[self.upper], self.rows[self.upper], M)
+
+    def assemble(self, X: list[np.ndarray], Zinv: list[np.ndarray]) -> np.ndarray:
+        """The values of S = Σ_k G_kᵀ (X_k ⊗ Z_k⁻¹) G_k on the pattern (CSR order).  (The Gram form
+        B_kᵀB_k, b_i = vec(L_Xᵀ A_i L_Z⁻ᵀ), is PSD to rounding but was less accurate near the optimum.)"""
+        parts: list[np.ndarray] = [np.zeros(0)] * len(self.per_block)
+        for (n, ids, _), Xg, Zg in zip(self.blocks.groups, X, Zinv):
+            K = (Xg[:, :, None, :, None] * Zg[:, None, :, None, :]).reshape(-1, n * n, n * n)  # X_k ⊗ Z_k⁻¹
+            for b, k in enumerate(ids):
+                GkT = self.per_block[k]
+                T = GkT @ K[b]  # (m_k × n²): rows vec(X A_i Z⁻¹)ᵀ
+                parts[k] = (GkT @ T.T).ravel()
+        return np.bincount(self.inverse, weights=np.concatenate(parts), minlength=self.rows.size)
+
+    def factor(self, vals: np.ndarray, reg: float) -> Callable[[np.ndarray], np.ndarray]:
+        """A solver for S Δy = r: D(DSD + reg·I)⁻¹D with D = diag(S)^(−1/2), by CHOLMOD, or by SuperLU
+        (partial pivoting) when CHOLMOD is missing or finds DSD + reg·I not positive definite; then
+        one refinement step against S.  Raises np.linalg.LinAlgError when diag(S) is not positive,
+        RuntimeError when S is singular."""
+        d = vals[self.diag]
+        if not np.all(d > 0):
+            raise np.linalg.LinAlgError("Schur complement has a non-positive diagonal entry")
+        dsc = 1 / np.sqrt(d)
+        S = sp.csr_matrix((vals, self.cols, self.indptr), shape=(self.M, self.M))
+        inner = None
+        if self._cholmod.available:
+            lower = vals[self.upper] * dsc[self._rows_upper] * dsc[self._cols_upper]
+            lower[self._diag_upper] += reg
+            inner = self._cholmod.factor(lower)  # None: not positive definite
+        if inner is None:
+            scaled = vals * dsc[self.rows] * dsc[self.cols]
+            scaled[self.diag] += reg
+            inner = spla.splu(sp.csc_matrix((scaled, self.cols, self.indptr), shape=(self.M, self.M)),
+                              permc_spec="MMD_AT_PLUS_A").solve  # S symmetric: its CSR arrays are CSC
+
+        def solve(r: np.ndarray) -> np.ndarray:
+            dy = dsc * inner(dsc * r)
+            return dy + dsc * inner(dsc * (r - S @ dy))
+
+        return solve
+
+
+class _CholmodPattern:
+    """CHOLMOD (supernodal, via cvxopt) on a fixed lower-triangular pattern: one symbolic analysis,
+    then a numeric factorisation per call.  ``available`` is False without cvxopt."""
+
+    def __init__(self, rows: np.ndarray, cols: np.ndarray, M: int):
+        try:
+            from cvxopt import cholmod, matrix, spmatrix
+        except ImportError:
+            self.available = False
+            return
+        self.available = True
+        self._cholmod, self._matrix = cholmod, matrix
+        self.A = spmatrix(matrix(np.ones(rows.size)), matrix(rows.astype(np.int64)), matrix(cols.astype(np.int64)), (M, M))
+        self.F = None
+
+    def factor(self, lower_vals: np.ndarray) -> Callable[[np.ndarray], np.ndarray] | None:
+        """lower_vals in CCS order of the pattern; None when the matrix is not positive definite."""
+        cholmod, matrix = self._cholmod, self._matrix
+        self.A.V = matrix(lower_vals)
+        if self.F is None:
+            self.F = cholmod.symbolic(self.A)
+        try:
+            cholmod.numeric(self.A, self.F)
+        except ArithmeticError:
+            return None
+        F = self.F
+
+        def solve(r: np.ndarray) -> np.ndarray:
+            B = matrix(r)
+            cholmod.solve(F, B)
+            return np.asarray(B).ravel()
+
+        return solve
+
+
+def solve_blocks(F: sp.csc_matrix, c: np.ndarray, g: np.ndarray, sizes: list[int], *, tol: float = 1e-7,
+                 max_iter: int = 100, time_limit: float = np.inf, verbose: bool = False) -> IPMSolution:
+    """Solve the block SDP with svec data: cost c (R,), constraint columns F (R × M), right side g (M,),
+    block sizes n_k (R = Σ svec(n_k)).  Solved: gap, pinf and dinf (see IPMSolution) all ≤ tol.
+    Never raises on a numerical failure: the status says what happened."""
+    t0 = time.perf_counter()
+    P = svec_to_vec(sizes)
+    Gv = sp.csr_array(P @ F)
+    GvT = sp.csr_array(Gv.T)
+    cv = P @ c
+    blocks = _Blocks(sizes)
+    schur = _Schur(Gv, blocks)
+    nrm_g, nrm_c = 1 + np.linalg.norm(g), 1 + np.linalg.norm(cv)
+
+    def A(mats: list[np.ndarray]) -> np.ndarray:
+        return GvT @ blocks.join(mats)
+
+    def At(y: np.ndarray) -> list[np.ndarray]:
+        return blocks.split(Gv @ y)
+
+    # SDPT3's infeasible start X = ξI, Z = ηI, y = 0
+    col_norm = np.sqrt(np.asarray(Gv.multiply(Gv).sum(axis=0))).ravel()
+    nmax = max(sizes)
+    xi = max(10.0, np.sqrt(nmax), float(np.max(nmax * (1 + np.abs(g)) / (1 + col_norm))))
+    eta = max(10.0, np.sqrt(nmax), float(np.linalg.norm(cv)), float(col_norm.max()))
+    X, Z, y = blocks.identity(xi), blocks.identity(eta), np.zeros(g.size)
+    C = blocks.split(cv)
+    gamma = 0.9
+    status, message, it = "MaxIterations", "", 0
+    best: tuple | None = None
+    for it in range(max_iter + 1):
+        rp = g - A(X)
+        Rd = [Cg - Ag - Zg for Cg, Ag, Zg in zip(C, At(y), Z)]
+        pobj, dobj = float(cv @ blocks.join(X)), float(g @ y)
+        mu = _inner(X, Z) / blocks.order
+        gap = abs(pobj - dobj) / max(abs(pobj), abs(dobj), GAP_FLOOR)
+        pinf = float(np.linalg.norm(rp)) / nrm_g
+        dinf = float(np.sqrt(sum(float(np.sum(R * R)) for R in Rd))) / nrm_c
+        err = max(gap, pinf, dinf)
+        if verbose:
+            print(f"{it:3d} pobj {pobj:+.10e} dobj {dobj:+.10e} gap {gap:.1e} pinf {pinf:.1e} dinf {dinf:.1e}")
+        if best is None or err < best[0]:
+            best = (err, [x.copy() for x in X], y.copy(), pobj, dobj, gap, pinf, dinf, it)
+        if err <= tol:
+            status = "Solved"
+            break
+        if it == max_iter:
+            break
+        if time.perf_counter() - t0 > time_limit:
+            status = "MaxTime"
+            break
+        stall = STALL_ITERATIONS_ALMOST if best[0] <= ALMOST_TOL else STALL_ITERATIONS
+        if it - best[8] >= stall:
+            status, message = "InsufficientProgress", f"no progress in {stall} iterations"
+            break
+        try:
+            Zinv = [np.linalg.inv(Zg) for Zg in Z]
+            solve = schur.factor(schur.assemble(X, Zinv), SCHUR_REG)
+            XRdZi = [Xg @ Rg @ Zi for Xg, Rg, Zi in zip(X, Rd, Zinv)]
+
+            def direction(H: list[np.ndarray]) -> tuple[list[np.ndarray], np.ndarray, list[np.ndarray]]:
+                """(ΔX, Δy, ΔZ) with ΔX = sym(H − X ΔZ Z⁻¹), ΔZ = Rd − A*(Δy), A(ΔX) = rp."""
+                dy = solve(rp - A([Hg - Wg for Hg, Wg in zip(H, XRdZi)]))
+                dZ = [Rg - Ag for Rg, Ag in zip(Rd, At(dy))]
+                dX = [_sym(Hg - Xg @ dZg @ Zi) for Hg, Xg, dZg, Zi in zip(H, X, dZ, Zinv)]
+                return dX, dy, dZ
+
+            dX, dy, dZ = direction([-Xg for Xg in X])  # predictor: σ = 0
+            ap = min(1.0, gamma * _max_step(X, dX))
+            ad = min(1.0, gamma * _max_step(Z, dZ))
+            mu_aff = _inner([Xg + ap * a for Xg, a in zip(X, dX)], [Zg + ad * b for Zg, b in zip(Z, dZ)])
+            sigma = min(1.0, (mu_aff / blocks.order / mu) ** max(1.0, 3 * min(ap, ad) ** 2))
+            pred = min(ap, ad)
+            H = [sigma * mu * Zi - Xg - a @ b @ Zi for Zi, Xg, a, b in zip(Zinv, X, dX, dZ)]
+            dX, dy, dZ = direction(H)  # corrector
+            ap = min(1.0, gamma * _max_step(X, dX))
+            ad = min(1.0, gamma * _max_step(Z, dZ))
+            if min(ap, ad) < CORRECTOR_FALLBACK * pred:
+                # the second-order term hurts (seen near degenerate optima): centre without it
+                dX1, dy1, dZ1 = direction([sigma * mu * Zi - Xg for Zi, Xg in zip(Zinv, X)])
+                ap1, ad1 = min(1.0, gamma * _max_step(X, dX1)), min(1.0, gamma * _max_step(Z, dZ1))
+                if min(ap1, ad1) > min(ap, ad):
+                    dX, dy, dZ, ap, ad = dX1, dy1, dZ1, ap1, ad1
+        except (np.linalg.LinAlgError, RuntimeError) as e:
+            status, message = "NumericalError", str(e)
+            break
+        if verbose:
+            print(f"    σ {sigma:.1e}  steps {ap:.2e} {ad:.2e}")
+        X = [Xg + ap * a for Xg, a in zip(X, dX)]
+        y = y + ad * dy
+        Z = [Zg + ad * b for Zg, b in zip(Z, dZ)]
+        gamma = 0.9 + 0.09 * min(ap, ad)
+    err, Xb, yb, pobj, dobj, gap, pinf, dinf, _ = best
+    if status != "Solved" and err <= ALMOST_TOL:
+        message = f"{status}: {message}" if message else status
+        status = "AlmostSolved"
+    z = P.T @ blocks.join(Xb)
+    return IPMSolution(status, z, yb, pobj, dobj, gap, pinf, dinf, it, time.perf_counter() - t0, message)
+
+
+#: the IPM's tolerance is max(SolverOptions.tol, IPM_MIN_TOL): on tight, primal-degenerate SDPs the
+#: Schur complement's conditioning (~1/μ²) limits its attainable relative residuals to about 1e-8
+IPM_MIN_TOL = 1e-7
+
+
+def solve_ipm(Q: sp.csr_array, As: Sequence[sp.csr_array], b: np.ndarray, d: int,
+              cliques: Sequence[np.ndarray] | None, opts: SolverOptions) -> SDPResult:
+    """The Shor SDP by our IPM on the clique blocks of ``clique_program`` (one block of all N
+    columns when ``cliques`` is None).  X is completed from the blocks' rank-d factors."""
+    t0 = time.perf_counter()
+    prog = clique_program(Q, As, b, cliques if cliques is not None else [np.arange(Q.shape[0])])
+    t1 = time.perf_counter()
+    sol = solve_blocks(prog.F, prog.c, prog.g, prog.sizes, tol=max(opts.tol, IPM_MIN_TOL),
+                       max_iter=opts.max_iter, time_limit=opts.time_limit, verbose=opts.verbose)
+    X, svrs = prog.complete(sol.z, d)
+    y = sol.y[:prog.m] / prog.scale
+    res = SDPResult(status=sol.status, solver="autotight-ipm", d=d, X=X, y=y,
+                    primal_cost=float(Q.multiply(X).sum()) if X is not None else float("nan"),
+                    dual_cost=float(np.dot(b, y)), solve_time_s=sol.time_s, setup_time_s=t1 - t0,
+                    iterations=sol.iterations, clique_log_svr=svrs or None,
+                    message=sol.message + f" (relative gap {sol.gap:.1e}, pinf {sol.pinf:.1e}, dinf {sol.dinf:.1e})")
+    res = finish(res)
+    if svrs:
+        res.log_svr = float(np.min(svrs))
+    return res

@@ -1,0 +1,162 @@
+"""Our Schur-complement interior-point method (``sdp.schur_ipm``) on clique blocks.
+
+Tolerances: the IPM stops at relative gap and infeasibilities ≤ 1e-7 (``IPM_MIN_TOL``), so its
+costs are compared with Clarabel's (tol 1e-9) to 1e-6 relative; exact identities (svec ↔ vec, the
+Schur complement's definition) to 1e-12.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+
+from autotight import sdp
+from autotight.model import Constraint
+from autotight.problem import load
+from autotight.run import solve_sdp
+from autotight.sdp import SolverOptions, schur_ipm
+from autotight.sdp.clique_program import clique_program
+from autotight.svec import svec
+from autotight.tightness import judge, relative_gap
+
+
+def _random_symmetric(rng: np.random.Generator, n: int) -> np.ndarray:
+    B = rng.standard_normal((n, n))
+    return B + B.T
+
+
+def test_svec_to_vec_maps_svec_to_row_major_vec_and_back():
+    rng = np.random.default_rng(0)
+    mats = [_random_symmetric(rng, n) for n in (1, 3, 5)]
+    P = schur_ipm.svec_to_vec([1, 3, 5])
+    s = np.concatenate([svec(M) for M in mats])
+    v = np.concatenate([M.ravel() for M in mats])
+    assert np.abs(P @ s - v).max() <= 1e-12
+    assert np.abs(P.T @ v - s).max() <= 1e-12
+
+
+def test_schur_complement_equals_its_definition():
+    """S_il = Σ_k ⟨A_ik, X_k A_lk Z_k⁻¹⟩ on random blocks and random sparse constraints."""
+    rng = np.random.default_rng(1)
+    sizes = [3, 4, 3]
+    R = sum(n * (n + 1) // 2 for n in sizes)
+    F = sp.random_array((R, 7), density=0.3, rng=rng, format="csc")
+    P = schur_ipm.svec_to_vec(sizes)
+    Gv = sp.csr_array(P @ F)
+    blocks = schur_ipm._Blocks(sizes)
+    schur = schur_ipm._Schur(Gv, blocks)
+
+    def spd(n: int) -> np.ndarray:
+        B = rng.standard_normal((n, n))
+        return B @ B.T + n * np.eye(n)
+
+    Xk = [spd(n) for n in sizes]
+    Zk = [spd(n) for n in sizes]
+    by_group = lambda mats: [np.stack([mats[k] for k in ids]) for _, ids, _ in blocks.groups]  # noqa: E731
+    vals = schur.assemble(by_group(Xk), by_group([np.linalg.inv(Z) for Z in Zk]))
+    S = sp.csr_array((vals, schur.cols, schur.indptr), shape=(7, 7)).toarray()
+    expect = np.zeros((7, 7))
+    for k, n in enumerate(sizes):
+        A = [Gv[blocks.voff[k]:blocks.voff[k + 1]][:, [i]].toarray().reshape(n, n) for i in range(7)]
+        Zi = np.linalg.inv(Zk[k])
+        expect += np.array([[np.sum(A[i] * (Xk[k] @ A[j] @ Zi)) for j in range(7)] for i in range(7)])
+    assert np.abs(S - expect).max() <= 1e-12 * np.abs(expect).max()
+
+
+def _chain_maxcut(rng: np.random.Generator, cliques: int, width: int):
+    cl = [np.r_[0, 1 + (width // 2) * k + np.arange(width)] for k in range(cliques)]
+    N = int(max(c.max() for c in cl)) + 1
+    Q = np.zeros((N, N))
+    for C in cl:
+        Q[np.ix_(C, C)] += _random_symmetric(rng, len(C))
+    cons = [Constraint(sp.csr_array(([1.0], ([i], [i])), shape=(N, N)), 1.0, name=f"X{i}{i}=1") for i in range(N)]
+    return sp.csr_array(Q), cons, cl
+
+
+@pytest.mark.parametrize("cholmod", [True, False])
+def test_ipm_equals_clarabel_on_a_chain_sdp_far_from_rank_one(cholmod, monkeypatch):
+    """MaxCut-type chain SDP: the optimum is far from rank 1, so the blocks must agree on their
+    overlaps.  The same optimum with CHOLMOD and with the SuperLU fallback (cvxopt absent)."""
+    if not cholmod:
+        monkeypatch.setattr(schur_ipm._CholmodPattern, "__init__", lambda self, *a: setattr(self, "available", False))
+    Q, cons, cl = _chain_maxcut(np.random.default_rng(0), 12, 6)
+    ref = sdp.solve(Q, cons, options=SolverOptions(clarabel_chordal=False))
+    res = sdp.solve(Q, cons, solver="ipm", cliques=cl)
+    assert ref.status == "Solved" and res.status == "Solved", (ref.summary(), res.summary(), res.message)
+    assert res.solver == "autotight-ipm"
+    assert ref.log_svr < 1
+    f = ref.primal_cost
+    assert abs(res.primal_cost - f) <= 1e-6 * abs(f)
+    assert abs(res.dual_cost - f) <= 1e-6 * abs(f)
+    assert np.abs(np.diag(res.X) - 1.0).max() <= 1e-6
+    for C in cl:  # the same X on every clique block
+        B = np.ix_(C, C)
+        assert np.abs(res.X[B] - ref.X[B]).max() <= 1e-3
+
+
+def test_ipm_on_one_dense_block_equals_clarabel(ra):
+    """cliques=None: one block of all N columns (rotation averaging, M = 4, rank-1 optimum).  This
+    small degenerate SDP is one where the IPM stops AlmostSolved (relative gap ~1e-6)."""
+    inst = ra.generate({"M": 4, "sigma": 0.1}, 3)
+    model = ra.build(inst)
+    cons = model.primary()
+    ref = sdp.solve(model.Q, cons)
+    res = sdp.solve(model.Q, cons, solver="ipm")
+    assert res.usable, (res.status, res.message)
+    f = ref.primal_cost
+    assert abs(res.primal_cost - f) <= 1e-6 * f
+    assert res.log_svr > 5
+    local = ra.local_solve(inst, inst.truth)
+    assert judge(res, local.cost).tight
+
+
+def test_contradictory_constraints_are_a_status_not_an_exception(ra):
+    """h² = 1 and h² = 2: the IPM has no infeasibility certificate, but it must not report a solution."""
+    inst = ra.generate({"M": 2, "sigma": 0.1}, 0)
+    model = ra.build(inst)
+    N = model.variables.N
+    cons = model.primary() + [Constraint(sp.csr_array(([1.0], ([0], [0])), shape=(N, N)), 2.0, name="h2=2")]
+    res = sdp.solve(model.Q, cons, solver="ipm")
+    assert res.status in ("NumericalError", "InsufficientProgress", "MaxIterations"), res.status
+    assert not res.usable
+    v = judge(res, 1.0)
+    assert not v.tight and res.status in v.reason
+
+
+def test_iteration_limit_is_reported(ra):
+    inst = ra.generate({"M": 6, "sigma": 0.1}, 0)
+    model = ra.build(inst)
+    res = sdp.solve(model.Q, model.primary(), solver="ipm", options=SolverOptions(max_iter=2))
+    assert res.status == "MaxIterations" and not res.usable
+    assert res.iterations == 2
+    assert "gap" in res.message  # the residuals reached are in the message
+
+
+def test_block_program_has_the_dense_optimum_with_clarabel_too(ra, factor_cliques):
+    """clique_program is shared: the Clarabel clique path and the IPM solve the same block program."""
+    inst = ra.generate({"M": 5, "sigma": 0.1}, 2)
+    model = ra.build(inst)
+    Q = sp.csr_array(model.Q)
+    cons = model.primary()
+    prog = clique_program(Q, [sp.csr_array(c.A) for c in cons], np.array([c.b for c in cons]), factor_cliques(model))
+    assert prog.F.shape[1] > len(cons)  # transfers were added for the overlaps
+    a = sdp.solve(model.Q, cons, cliques=factor_cliques(model))
+    b = sdp.solve(model.Q, cons, solver="ipm", cliques=factor_cliques(model))
+    assert a.usable and b.usable, (a.status, b.status)
+    assert abs(a.primal_cost - b.primal_cost) <= 1e-6 * a.primal_cost
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_ipm_regression_discrete_trajectory_k20_is_tight(seed):
+    """The paper's constraints at K = 20, σ = 0.1 with our IPM on the clique cover: rank 1 and the
+    cost of the local solver started at the ground truth to 1e-6 relative."""
+    prob = load("discrete_trajectory")
+    inst = prob.generate({"K": 20}, seed)
+    model = prob.build(inst)
+    res = solve_sdp(model, model.primary() + model.paper_constraints(), solver="ipm")
+    assert res.solver == "autotight-ipm"
+    assert res.usable, (res.summary(), res.message)
+    assert res.log_svr > 5
+    local = prob.local_solve(inst, inst.truth)
+    assert abs(relative_gap(res.primal_cost, local.cost)) < 1e-6
