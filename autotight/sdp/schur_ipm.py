@@ -4,11 +4,13 @@ Solves the block standard form of ``clique_program`` (p blocks of n_k × n_k, M 
 
     min Σ_k ⟨C_k, X_k⟩  s.t.  Σ_k ⟨A_ik, X_k⟩ = g_i,  X_k ⪰ 0;     max gᵀy  s.t.  Z_k = C_k − Σ_i y_i A_ik ⪰ 0,
 
-with the HKM search direction and Mehrotra's predictor-corrector, from SDPT3's infeasible start.
-Each iteration solves the Schur complement system  S Δy = r,  S_il = Σ_k ⟨A_ik, X_k A_lk Z_k⁻¹⟩.
+with the Nesterov–Todd (default) or HKM search direction and Mehrotra's predictor-corrector, from
+SDPT3's infeasible start.
+Each iteration solves the Schur complement system  S Δy = r,  S_il = Σ_k ⟨A_ik, P_k A_lk Q_k⟩  with
+(P, Q) = (W, W) for NT (W Z W = X) and (X, Z⁻¹) for HKM.
 S is sparse: S_il ≠ 0 only when constraints i and l touch a common block, so on a clique chain it
 is block-banded and an iteration costs O(p).  It is assembled block by block from the dense
-n_k² × n_k² Kronecker products X_k ⊗ Z_k⁻¹ and factorised by a supernodal sparse Cholesky (CHOLMOD,
+n_k² × n_k² Kronecker products P_k ⊗ Q_k and factorised by a supernodal sparse Cholesky (CHOLMOD,
 through cvxopt) with one symbolic analysis per solve; SuperLU when cvxopt is missing or the
 Cholesky fails.  Clarabel's KKT form instead puts a dense svec(n_k)² Hessian block per cone into one
 non-supernodal LDLᵀ, which grows faster than linearly along a chain.
@@ -18,7 +20,8 @@ constraints than the n_k directions tangent to them), so S has condition ~1/μ²
 S is therefore equilibrated (unit diagonal) and regularised by ``SCHUR_REG`` (relative to that unit
 diagonal), which damps only the degenerate directions, and one refinement step is taken; when the
 Cholesky factorisation breaks down anyway, SuperLU with partial pivoting takes over.  Measured on
-the discrete trajectory (K = 20 … 100, 4 seeds): retrying CHOLMOD with 10–100× the regularisation
+the discrete trajectory (K = 20 … 100, 4 seeds): NT ends usable (gap ≤ 9e-7) where HKM sometimes
+stalls (K = 100: gap 3e-6; rotation averaging M = 4 in one block: 9e-7 against NT's 1e-8); retrying CHOLMOD with 10–100× the regularisation
 saves ~30 % of the time but stops at relative gaps of ~5e-7 instead of ~1e-7; more refinement
 steps, a Gram-form S, a smaller SuperLU pivot threshold, or projecting ΔX back onto A(ΔX) = r_p
 each stalled earlier or at a worse gap.
@@ -53,10 +56,12 @@ SCHUR_REG = 1e-12
 CORRECTOR_FALLBACK = 0.5
 #: the cost is scaled to max|C_ij| = 1; below this magnitude the gap is measured absolutely
 GAP_FLOOR = 1e-6
-#: stop when the best residual has not improved in this many iterations
+#: stop when neither the best residual nor the progress measure (the gap relative to 1 + |costs|,
+#: which keeps falling while the costs pass through zero) has improved by PROGRESS in this many iterations
 STALL_ITERATIONS = 5
+PROGRESS = 0.9
 #: … or in this many once the best iterate is AlmostSolved
-STALL_ITERATIONS_ALMOST = 2
+STALL_ITERATIONS_ALMOST = 3
 
 
 @dataclass
@@ -171,15 +176,17 @@ class _Schur:
         self._diag_upper = np.flatnonzero(self._cols_upper == self._rows_upper)
         self._cholmod = _CholmodPattern(self.cols[self.upper], self.rows[self.upper], M)
 
-    def assemble(self, X: list[np.ndarray], Zinv: list[np.ndarray]) -> np.ndarray:
-        """The values of S = Σ_k G_kᵀ (X_k ⊗ Z_k⁻¹) G_k on the pattern (CSR order).  (The Gram form
-        B_kᵀB_k, b_i = vec(L_Xᵀ A_i L_Z⁻ᵀ), is PSD to rounding but was less accurate near the optimum.)"""
+    def assemble(self, P: list[np.ndarray], Q: list[np.ndarray]) -> np.ndarray:
+        """The values of S = Σ_k G_kᵀ (P_k ⊗ Q_k) G_k on the pattern (CSR order); P_k, Q_k symmetric.
+        (The Gram form B_kᵀB_k, b_i = vec(L_Pᵀ A_i L_Q), is PSD to rounding but was less accurate.)"""
         parts: list[np.ndarray] = [np.zeros(0)] * len(self.per_block)
-        for (n, ids, _), Xg, Zg in zip(self.blocks.groups, X, Zinv):
-            K = (Xg[:, :, None, :, None] * Zg[:, None, :, None, :]).reshape(-1, n * n, n * n)  # X_k ⊗ Z_k⁻¹
+        for (n, ids, _), Pg, Qg in zip(self.blocks.groups, P, Q):
+            K = np.empty((n, n, n, n))  # P_k ⊗ Q_k, one cache-sized buffer per block size
+            K2 = K.reshape(n * n, n * n)
             for b, k in enumerate(ids):
+                np.multiply(Pg[b][:, None, :, None], Qg[b][None, :, None, :], out=K)
                 GkT = self.per_block[k]
-                T = GkT @ K[b]  # (m_k × n²): rows vec(X A_i Z⁻¹)ᵀ
+                T = GkT @ K2  # (m_k × n²): rows vec(P A_i Q)ᵀ
                 parts[k] = (GkT @ T.T).ravel()
         return np.bincount(self.inverse, weights=np.concatenate(parts), minlength=self.rows.size)
 
@@ -247,10 +254,14 @@ class _CholmodPattern:
 
 
 def solve_blocks(F: sp.csc_matrix, c: np.ndarray, g: np.ndarray, sizes: list[int], *, tol: float = 1e-7,
-                 max_iter: int = 100, time_limit: float = np.inf, verbose: bool = False) -> IPMSolution:
+                 max_iter: int = 100, time_limit: float = np.inf, verbose: bool = False,
+                 search: str = "nt") -> IPMSolution:
     """Solve the block SDP with svec data: cost c (R,), constraint columns F (R × M), right side g (M,),
     block sizes n_k (R = Σ svec(n_k)).  Solved: gap, pinf and dinf (see IPMSolution) all ≤ tol.
+    search: "nt" (Nesterov–Todd, default) or "hkm" (HKM) direction.
     Never raises on a numerical failure: the status says what happened."""
+    if search not in ("nt", "hkm"):
+        raise ValueError(f"unknown search direction {search!r}; use 'nt' or 'hkm'")
     t0 = time.perf_counter()
     P = svec_to_vec(sizes)
     Gv = sp.csr_array(P @ F)
@@ -276,6 +287,7 @@ def solve_blocks(F: sp.csc_matrix, c: np.ndarray, g: np.ndarray, sizes: list[int
     gamma = 0.9
     status, message, it = "MaxIterations", "", 0
     best: tuple | None = None
+    merit_best, merit_it = np.inf, 0  # progress: max(|pobj − dobj| / (1 + |pobj| + |dobj|), pinf, dinf)
     for it in range(max_iter + 1):
         rp = g - A(X)
         Rd = [Cg - Ag - Zg for Cg, Ag, Zg in zip(C, At(y), Z)]
@@ -289,6 +301,9 @@ def solve_blocks(F: sp.csc_matrix, c: np.ndarray, g: np.ndarray, sizes: list[int
             print(f"{it:3d} pobj {pobj:+.10e} dobj {dobj:+.10e} gap {gap:.1e} pinf {pinf:.1e} dinf {dinf:.1e}")
         if best is None or err < best[0]:
             best = (err, [x.copy() for x in X], y.copy(), pobj, dobj, gap, pinf, dinf, it)
+        merit = max(abs(pobj - dobj) / (1 + abs(pobj) + abs(dobj)), pinf, dinf)
+        if merit < PROGRESS * merit_best:
+            merit_best, merit_it = merit, it
         if err <= tol:
             status = "Solved"
             break
@@ -298,19 +313,33 @@ def solve_blocks(F: sp.csc_matrix, c: np.ndarray, g: np.ndarray, sizes: list[int
             status = "MaxTime"
             break
         stall = STALL_ITERATIONS_ALMOST if best[0] <= ALMOST_TOL else STALL_ITERATIONS
-        if it - best[8] >= stall:
+        if it - max(best[8], merit_it) >= stall:
             status, message = "InsufficientProgress", f"no progress in {stall} iterations"
             break
         try:
             Zinv = [np.linalg.inv(Zg) for Zg in Z]
-            solve = schur.factor(schur.assemble(X, Zinv), SCHUR_REG)
-            XRdZi = [Xg @ Rg @ Zi for Xg, Rg, Zi in zip(X, Rd, Zinv)]
+            if search == "nt":
+                # NT scaling: X = L Lᵀ, Lᵀ Z L = U Λ² Uᵀ, G = L U Λ^(−1/2), W = G Gᵀ (W Z W = X);
+                # in the scaled space G⁻¹ X G⁻ᵀ = Gᵀ Z G = Λ
+                L = [np.linalg.cholesky(Xg) for Xg in X]
+                lam2, U = zip(*[np.linalg.eigh(np.swapaxes(Lg, -1, -2) @ Zg @ Lg) for Lg, Zg in zip(L, Z)])
+                lam = [np.sqrt(np.maximum(l2, 0.0)) for l2 in lam2]
+                G = [Lg @ Ug / np.sqrt(lg)[:, None, :] for Lg, Ug, lg in zip(L, U, lam)]
+                Ginv = [np.sqrt(lg)[:, :, None] * np.swapaxes(Ug, -1, -2) @ np.linalg.inv(Lg)
+                        for Lg, Ug, lg in zip(L, U, lam)]
+                W = [Gg @ np.swapaxes(Gg, -1, -2) for Gg in G]
+                left, right = W, W
+            else:  # HKM: ΔX = H − X ΔZ Z⁻¹
+                left, right = X, Zinv
+            solve = schur.factor(schur.assemble(left, right), SCHUR_REG)
+            KRd = [a @ Rg @ b for a, Rg, b in zip(left, Rd, right)]
 
             def direction(H: list[np.ndarray]) -> tuple[list[np.ndarray], np.ndarray, list[np.ndarray]]:
-                """(ΔX, Δy, ΔZ) with ΔX = sym(H − X ΔZ Z⁻¹), ΔZ = Rd − A*(Δy), A(ΔX) = rp."""
-                dy = solve(rp - A([Hg - Wg for Hg, Wg in zip(H, XRdZi)]))
+                """(ΔX, Δy, ΔZ) with ΔX = sym(H − 𝒦(ΔZ)), ΔZ = Rd − A*(Δy), A(ΔX) = rp;
+                𝒦(R) = X R Z⁻¹ (HKM) or W R W (NT)."""
+                dy = solve(rp - A([Hg - Kg for Hg, Kg in zip(H, KRd)]))
                 dZ = [Rg - Ag for Rg, Ag in zip(Rd, At(dy))]
-                dX = [_sym(Hg - Xg @ dZg @ Zi) for Hg, Xg, dZg, Zi in zip(H, X, dZ, Zinv)]
+                dX = [_sym(Hg - a @ dZg @ b) for Hg, a, dZg, b in zip(H, left, dZ, right)]
                 return dX, dy, dZ
 
             dX, dy, dZ = direction([-Xg for Xg in X])  # predictor: σ = 0
@@ -319,7 +348,18 @@ def solve_blocks(F: sp.csc_matrix, c: np.ndarray, g: np.ndarray, sizes: list[int
             mu_aff = _inner([Xg + ap * a for Xg, a in zip(X, dX)], [Zg + ad * b for Zg, b in zip(Z, dZ)])
             sigma = min(1.0, (mu_aff / blocks.order / mu) ** max(1.0, 3 * min(ap, ad) ** 2))
             pred = min(ap, ad)
-            H = [sigma * mu * Zi - Xg - a @ b @ Zi for Zi, Xg, a, b in zip(Zinv, X, dX, dZ)]
+            if search == "nt":  # Mehrotra's term in the scaled space, Λ∘V = σμI − Λ² − sym(ΔX̃ ΔZ̃)
+                H = []
+                for Gg, Gi, lg, a, b in zip(G, Ginv, lam, dX, dZ):
+                    dXs = Gi @ a @ np.swapaxes(Gi, -1, -2)
+                    dZs = np.swapaxes(Gg, -1, -2) @ b @ Gg
+                    R = -_sym(dXs @ dZs)
+                    n = lg.shape[-1]
+                    R[:, np.arange(n), np.arange(n)] += sigma * mu - lg ** 2
+                    V = 2 * R / (lg[:, :, None] + lg[:, None, :])
+                    H.append(Gg @ V @ np.swapaxes(Gg, -1, -2))
+            else:
+                H = [sigma * mu * Zi - Xg - a @ b @ Zi for Zi, Xg, a, b in zip(Zinv, X, dX, dZ)]
             dX, dy, dZ = direction(H)  # corrector
             ap = min(1.0, gamma * _max_step(X, dX))
             ad = min(1.0, gamma * _max_step(Z, dZ))
