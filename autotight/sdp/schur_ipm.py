@@ -153,10 +153,14 @@ class _Schur:
         self.per_block: list[sp.csr_array] = []  # G_kᵀ restricted to the constraints touching block k
         inc = []  # constraint-block incidence
         keys = []
-        for k in range(len(blocks.sizes)):
-            Gk = Gv[blocks.voff[k]:blocks.voff[k + 1]]
-            ids = np.unique(Gk.indices)
-            self.per_block.append(sp.csr_array(Gk[:, ids].T))
+        Gv = sp.csr_array(Gv)
+        Gv.sort_indices()
+        for k, n in enumerate(blocks.sizes):
+            lo, hi = Gv.indptr[blocks.voff[k]], Gv.indptr[blocks.voff[k + 1]]
+            cols, vals = Gv.indices[lo:hi], Gv.data[lo:hi]
+            local = np.repeat(np.arange(n * n), np.diff(Gv.indptr[blocks.voff[k]:blocks.voff[k + 1] + 1]))
+            ids, rank = np.unique(cols, return_inverse=True)
+            self.per_block.append(sp.csr_array((vals, (rank, local)), shape=(ids.size, n * n)))
             inc.append(ids)
             keys.append((ids[:, None] * M + ids[None, :]).ravel())
         B = sp.csr_array((np.ones(sum(i.size for i in inc)), (np.repeat(np.arange(len(inc)), [i.size for i in inc]),
