@@ -246,7 +246,8 @@ def test_dask_local_cluster_gives_the_same_results_as_joblib(reference, tmp_path
 
 
 @pytest.mark.parametrize("change, setting", [({"params": {"M": 4}}, "params"), ({"sigmas": "0.01,0.1"}, "sigmas"),
-                                             ({"sets": "primary"}, "sets"), ({"seed": 1}, "seed")])
+                                             ({"sets": "primary"}, "sets"), ({"seed": 1}, "seed"),
+                                             ({"solver": "ipm"}, "solver")])
 def test_a_different_sweep_in_the_same_folder_is_refused(reference, change, setting):
     before = (reference / CSV_NAME).read_bytes()
     with pytest.raises(ReportError, match=f"holds a different sweep \\({setting}:"):
@@ -282,6 +283,21 @@ def test_cli_runs_a_sweep_and_prints_json(tmp_path, capsys):
     assert len(load_trials(out)) == 2
 
 
+def test_a_sweep_with_our_ipm_records_it_and_agrees_with_clarabel(reference, tmp_path, capsys):
+    """--solver ipm: recorded in the settings and the command; the same verdicts and costs to the
+    IPM's accuracy (1e-7 relative) as the Clarabel reference sweep."""
+    out = tmp_path / "ipm"
+    rc = main(["report", PROBLEM, "-p", "M=3", "--sigmas", "0.01,0.3", "--trials", "3", "--sets", "primary,paper",
+               "--jobs", "1", "--out", str(out), "--no-progress", "--solver", "ipm"])
+    assert rc == 0, capsys.readouterr().err
+    meta = Store(out).meta()
+    assert meta["solver"] == "ipm" and meta["runs"][0]["command"].endswith(f"--solver ipm --out {out}")
+    a, b = _det(load_trials(reference)), _det(load_trials(out))
+    assert list(a["tight"]) == list(b["tight"])
+    assert np.allclose(a["sdp_cost"], b["sdp_cost"], rtol=1e-6)
+    assert set(b["status"]) <= {"Solved", "AlmostSolved"}
+
+
 @pytest.mark.parametrize("args, words", [
     (["--param", "sigma=0.1"], "sigma is swept"),
     (["--sigmas", "0,0.1"], "must be finite and > 0"),
@@ -292,6 +308,7 @@ def test_cli_runs_a_sweep_and_prints_json(tmp_path, capsys):
     (["--jobs", "0"], "at least 1 worker"),
     (["--param", "M=0"], "M=0"),
     (["--sets", "primary,discovered", "--discovered", "missing.json"], "no discovered-set file"),
+    (["--solver", "gurobi"], "unknown solver 'gurobi'"),
 ])
 def test_bad_input_gives_one_line_errors(tmp_path, capsys, args, words):
     rc = main(["report", PROBLEM, "--out", str(tmp_path / "x"), "--no-progress", *args])

@@ -47,6 +47,9 @@ def register(sub: Any, add_problem_args: Callable[[argparse.ArgumentParser], Non
     p.add_argument("--redo", metavar="STATUSES", default=None,
                    help="re-run the saved trials where any solve ended with one of these comma-separated "
                         "statuses (e.g. InsufficientProgress,NumericalError after a solver upgrade)")
+    p.add_argument("--solver", default="clarabel",
+                   help="SDP backend: clarabel (default), ipm (our interior-point method on clique blocks) "
+                        "or cvxpy:SCS, cvxpy:MOSEK, …; part of the sweep's settings (a resume must match)")
     p.add_argument("--no-progress", action="store_true",
                    help="no progress bar (there is none either when stderr is not a terminal)")
     p.set_defaults(func=cmd_report)
@@ -59,7 +62,7 @@ def cmd_report(args: argparse.Namespace) -> int:
 
     prob = load(args.problem)
     spec = make_spec(prob, args.problem, parse_assignments(args.param), sigmas=args.sigmas, trials=args.trials,
-                     sets=args.sets, seed=args.seed, discovered=args.discovered)
+                     sets=args.sets, seed=args.seed, discovered=args.discovered, solver=args.solver)
     out = Path(args.out) if args.out else Path("reports") / prob.name
     jobs = _cores() if args.jobs is None else args.jobs
     try:

@@ -67,6 +67,8 @@ class SweepSpec:
         parts += [f"--trials {self.trials}", f"--sets {','.join(self.sets)}", f"--seed {self.seed}"]
         if self.discovered:
             parts.append(f"--discovered {self.discovered}")
+        if self.solver != "clarabel":
+            parts.append(f"--solver {self.solver}")
         return " ".join(parts)
 
 
@@ -138,6 +140,13 @@ def make_spec(problem: Problem, source: str, params: dict[str, Any] | None = Non
         raise ReportError(f"--trials {trials}: need at least 1 trial per noise level")
     if seed < 0:
         raise ReportError(f"--seed {seed}: must be ≥ 0")
+    if "solver" in kw:
+        from ..sdp import check_solver
+
+        try:
+            check_solver(kw["solver"])
+        except ValueError as e:
+            raise ReportError(str(e)) from None
     full = problem.parse_params(params)
     full.pop("sigma")
     if sets is None:

@@ -3,6 +3,9 @@
 Backends (one module each): ``clarabel`` (direct, sparse, default), ``clarabel`` with
 ``cliques`` (clique decomposition of a chordal pattern), ``ipm`` (our Schur-complement interior-point
 method on the clique blocks, ``schur_ipm``), ``cvxpy:<SOLVER>`` (SCS, MOSEK, …).
+An ``ipm`` solve that ends unusable (its normal equations limit it to about 1e-8 of the data's
+scale, too little when the optimal cost is far smaller than the cost matrix's entries) is solved
+again by Clarabel on the same data; ``res.solver`` and ``res.message`` say so.
 A failed or inaccurate solve is returned with its status; it never raises.
 """
 
@@ -21,7 +24,17 @@ from .cvxpy_path import solve_cvxpy
 from .result import SDPResult, SolverOptions, log_svr, rank_d_factor
 from .schur_ipm import solve_ipm
 
-__all__ = ["solve", "SDPResult", "SolverOptions", "log_svr", "rank_d_factor"]
+__all__ = ["solve", "check_solver", "SOLVERS", "SDPResult", "SolverOptions", "log_svr", "rank_d_factor"]
+
+#: the backends ``solve`` knows, besides ``cvxpy:<SOLVER>``
+SOLVERS = ("clarabel", "ipm")
+
+
+def check_solver(name: str) -> str:
+    """``name`` if ``solve`` knows it, else ValueError with the choices."""
+    if name in SOLVERS or name == "cvxpy" or name.startswith("cvxpy:"):
+        return name
+    raise ValueError(f"unknown solver {name!r}; use 'clarabel', 'ipm' or 'cvxpy:SCS', 'cvxpy:MOSEK', …")
 
 #: A parent-child-merged solve that fails this way is retried with clique-graph merging, on liftings
 #: of at most RETRY_MAX_N columns only: clique-graph merging can take many minutes on larger chains.
@@ -58,7 +71,9 @@ def _retry_stalled(res: SDPResult, Q: sp.csr_array, As: list[sp.csr_array], b: n
 def solve(Q: sp.spmatrix | sp.sparray, constraints: Sequence[Constraint], *, d: int = 1,
           solver: str = "clarabel", cliques: Sequence[np.ndarray] | None = None,
           options: SolverOptions | None = None) -> SDPResult:
-    """Solve the SDP; ``constraints`` are ``Constraint`` objects (A sparse symmetric, b)."""
+    """Solve the SDP; ``constraints`` are ``Constraint`` objects (A sparse symmetric, b).
+    ValueError for an unknown ``solver``; every failure of a known one is a status."""
+    check_solver(solver)
     opts = options or SolverOptions()
     Q = sp.csr_array(Q)
     As = [sp.csr_array(c.A) for c in constraints]
@@ -68,19 +83,22 @@ def solve(Q: sp.spmatrix | sp.sparray, constraints: Sequence[Constraint], *, d: 
             res = solve_cliques(Q, As, b, d, cliques, opts) if cliques is not None else solve_dense(Q, As, b, d, opts)
         elif solver == "ipm":
             res = solve_ipm(Q, As, b, d, cliques, opts)
-        elif solver.startswith("cvxpy"):
+            if not res.usable:  # its attainable accuracy was not enough: Clarabel on the same data
+                first = f"ipm: {res.status} ({res.message.strip()}, {res.solve_time_s:.2f} s, counted in solve_time_s)"
+                spent = res.solve_time_s + res.setup_time_s
+                res = solve_cliques(Q, As, b, d, cliques, opts) if cliques is not None else solve_dense(Q, As, b, d, opts)
+                res = _retry_stalled(res, Q, As, b, d, cliques, opts)
+                res.message = f"{first}; solved again by {res.solver}: {res.status}" + (f"; {res.message}" if res.message else "")
+                res.solve_time_s += spent
+        else:
             name = solver.split(":", 1)[1] if ":" in solver else "SCS"
             res = solve_cvxpy(Q, As, b, d, name, opts)
-        else:
-            res = None
-        if res is not None and solver == "clarabel":
+        if solver == "clarabel":
             res = _retry_stalled(res, Q, As, b, d, cliques, opts)
-        if res is not None:
-            if res.X is not None:
-                res.cost_scale = float(abs(Q.multiply(res.X)).sum())
-            return res
+        if res.X is not None:
+            res.cost_scale = float(abs(Q.multiply(res.X)).sum())
+        return res
     except (ValueError, RuntimeError, np.linalg.LinAlgError) as e:
         return SDPResult(status=f"Failed: {type(e).__name__}: {e}".splitlines()[0], solver=solver, d=d, X=None,
                          y=None, primal_cost=float("nan"), dual_cost=float("nan"), solve_time_s=0.0,
                          message=str(e))
-    raise ValueError(f"unknown solver {solver!r}; use 'clarabel', 'ipm' or 'cvxpy:SCS', 'cvxpy:MOSEK', …")

@@ -88,12 +88,23 @@ def merge_small(cliques: Sequence[np.ndarray], max_size: int) -> list[np.ndarray
 
 
 def maximal(cliques: Sequence[np.ndarray]) -> list[np.ndarray]:
-    """Drop cliques contained in another clique (keeps the first of equal ones)."""
+    """Drop cliques contained in another clique (keeps the first of equal ones).
+
+    Only the cliques holding a clique's rarest column can contain it, so each clique is compared
+    with those alone (an inverted index; near-linear on chains, where the pairwise test was O(p²))."""
     sets = [frozenset(np.asarray(c).tolist()) for c in cliques]
+    holders: dict[int, list[int]] = {}
+    for i, s in enumerate(sets):
+        for e in s:
+            holders.setdefault(e, []).append(i)
     out = []
     for i, s in enumerate(sets):
-        if any((s < t) or (s == t and j < i) for j, t in enumerate(sets) if j != i):
-            continue
+        if s:
+            rare = min(s, key=lambda e: len(holders[e]))
+            if any((s < sets[j]) or (s == sets[j] and j < i) for j in holders[rare] if j != i):
+                continue
+        elif len(sets) > 1:
+            continue  # an empty clique is contained in any other
         out.append(np.array(sorted(s), dtype=np.int64))
     return out
 
