@@ -23,8 +23,8 @@ Cholesky factorisation breaks down anyway, SuperLU with partial pivoting takes o
 the discrete trajectory (K = 20 … 100, 4 seeds): NT ends usable (gap ≤ 9e-7) where HKM sometimes
 stalls (K = 100: gap 3e-6; rotation averaging M = 4 in one block: 9e-7 against NT's 1e-8); retrying CHOLMOD with 10–100× the regularisation
 saves ~30 % of the time but stops at relative gaps of ~5e-7 instead of ~1e-7; more refinement
-steps, a Gram-form S, a smaller SuperLU pivot threshold, or projecting ΔX back onto A(ΔX) = r_p
-each stalled earlier or at a worse gap.
+steps (against S or against the operator A(𝒦(A*(·)))), a Gram-form S, a smaller SuperLU pivot
+threshold, or projecting ΔX back onto A(ΔX) = r_p each stalled earlier or at a worse gap.
 The tolerance therefore stops at IPM_MIN_TOL (relative); there is no infeasibility detection:
 an infeasible or unbounded problem ends as InsufficientProgress, MaxIterations or NumericalError.
 
@@ -327,7 +327,7 @@ def solve_blocks(F: sp.csc_matrix, c: np.ndarray, g: np.ndarray, sizes: list[int
                 # in the scaled space G⁻¹ X G⁻ᵀ = Gᵀ Z G = Λ
                 L = [np.linalg.cholesky(Xg) for Xg in X]
                 lam2, U = zip(*[np.linalg.eigh(np.swapaxes(Lg, -1, -2) @ Zg @ Lg) for Lg, Zg in zip(L, Z)])
-                lam = [np.sqrt(np.maximum(l2, 0.0)) for l2 in lam2]
+                lam = [np.sqrt(np.maximum(l2, 1e-300)) for l2 in lam2]  # Lᵀ Z L ≻ 0 in exact arithmetic
                 G = [Lg @ Ug / np.sqrt(lg)[:, None, :] for Lg, Ug, lg in zip(L, U, lam)]
                 Ginv = [np.sqrt(lg)[:, :, None] * np.swapaxes(Ug, -1, -2) @ np.linalg.inv(Lg)
                         for Lg, Ug, lg in zip(L, U, lam)]
