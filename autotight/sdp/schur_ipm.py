@@ -56,8 +56,9 @@ SCHUR_REG = 1e-12
 CORRECTOR_FALLBACK = 0.5
 #: the cost is scaled to max|C_ij| = 1; below this magnitude the gap is measured absolutely
 GAP_FLOOR = 1e-6
-#: stop when neither the best residual nor the progress measure (the gap relative to 1 + |costs|,
-#: which keeps falling while the costs pass through zero) has improved by PROGRESS in this many iterations
+#: stop (InsufficientProgress) after this many iterations in which the best max residual did not
+#: improve and the progress measure (the gap relative to 1 + |costs|, which keeps falling while the
+#: costs pass through zero) did not fall below PROGRESS × its best
 STALL_ITERATIONS = 5
 PROGRESS = 0.9
 #: … or in this many once the best iterate is AlmostSolved
