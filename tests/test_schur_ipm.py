@@ -185,3 +185,17 @@ def test_ipm_regression_discrete_trajectory_k20_is_tight(seed):
     assert res.log_svr > 5
     local = prob.local_solve(inst, inst.truth)
     assert abs(relative_gap(res.primal_cost, local.cost)) < 1e-6
+
+
+def test_schur_complement_stays_sparse_along_a_chain():
+    """S couples only constraints that share a block: doubling the chain doubles nnz(S) (a dense
+    or fill-heavy S would quadruple it), and S is never stored densely."""
+    nnz, size = [], []
+    for cliques in (12, 24):
+        Q, cons, cl = _chain_maxcut(np.random.default_rng(0), cliques, 6)
+        prog = clique_program(Q, [sp.csr_array(c.A) for c in cons], np.array([c.b for c in cons]), cl)
+        Gv = sp.csr_array(schur_ipm.svec_to_vec(prog.sizes) @ prog.F)
+        schur = schur_ipm._Schur(Gv, schur_ipm._Blocks(prog.sizes))
+        nnz.append(schur.rows.size)
+        size.append(schur.M)
+    assert 1.8 <= size[1] / size[0] <= 2.2 and 1.8 <= nnz[1] / nnz[0] <= 2.2, (size, nnz)
