@@ -85,12 +85,10 @@ def solve_sdp(model: Model, constraints: Sequence[Constraint], *, solver: str = 
     unless ``decompose`` is False.
     """
     cliques = None
-    if solver == "ipm" and decompose is not False:
+    if (solver == "ipm" and decompose is not False) or (solver == "clarabel" and decompose):
         cliques = cliques_for(model, constraints)
-    elif solver == "clarabel" and decompose:
-        cliques = cliques_for(model, constraints)
-        if len(cliques) == 1:
-            cliques = None
+        if solver == "clarabel" and len(cliques) == 1:
+            cliques = None  # one cone: Clarabel's dense path
     return sdp.solve(model.Q, constraints, d=model.d, solver=solver, cliques=cliques, options=options)
 
 

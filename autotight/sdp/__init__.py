@@ -36,6 +36,7 @@ def check_solver(name: str) -> str:
         return name
     raise ValueError(f"unknown solver {name!r}; use 'clarabel', 'ipm' or 'cvxpy:SCS', 'cvxpy:MOSEK', …")
 
+
 #: A parent-child-merged solve that fails this way is retried with clique-graph merging, on liftings
 #: of at most RETRY_MAX_N columns only: clique-graph merging can take many minutes on larger chains.
 RETRY_STATUSES = ("NumericalError", "InsufficientProgress")
@@ -58,13 +59,24 @@ def _retry_stalled(res: SDPResult, Q: sp.csr_array, As: list[sp.csr_array], b: n
     for what, o in retries:
         if res.status not in RETRY_STATUSES:
             break
-        retry = solve_cliques(Q, As, b, d, cliques, o) if cliques is not None else solve_dense(Q, As, b, d, o)
+        retry = _clarabel_once(Q, As, b, d, cliques, o)
         notes.append(f"{res.status}; retried with {what}: {retry.status}")
         if retry.status == "Solved" or not res.usable:
             res = retry
     if notes:
         res.message = "; ".join(notes)
     return res
+
+
+def _clarabel_once(Q: sp.csr_array, As: list[sp.csr_array], b: np.ndarray, d: int,
+                   cliques: Sequence[np.ndarray] | None, opts: SolverOptions) -> SDPResult:
+    return solve_cliques(Q, As, b, d, cliques, opts) if cliques is not None else solve_dense(Q, As, b, d, opts)
+
+
+def _clarabel(Q: sp.csr_array, As: list[sp.csr_array], b: np.ndarray, d: int,
+              cliques: Sequence[np.ndarray] | None, opts: SolverOptions) -> SDPResult:
+    """Clarabel on the clique blocks (or one cone), retried when it stalls (``_retry_stalled``)."""
+    return _retry_stalled(_clarabel_once(Q, As, b, d, cliques, opts), Q, As, b, d, cliques, opts)
 
 
 @single_blas_thread
@@ -80,21 +92,18 @@ def solve(Q: sp.spmatrix | sp.sparray, constraints: Sequence[Constraint], *, d: 
     b = np.array([c.b for c in constraints], dtype=float)
     try:
         if solver == "clarabel":
-            res = solve_cliques(Q, As, b, d, cliques, opts) if cliques is not None else solve_dense(Q, As, b, d, opts)
+            res = _clarabel(Q, As, b, d, cliques, opts)
         elif solver == "ipm":
             res = solve_ipm(Q, As, b, d, cliques, opts)
             if not res.usable:  # its attainable accuracy was not enough: Clarabel on the same data
                 first = f"ipm: {res.status} ({res.message.strip()}, {res.solve_time_s:.2f} s, counted in solve_time_s)"
                 spent = res.solve_time_s + res.setup_time_s
-                res = solve_cliques(Q, As, b, d, cliques, opts) if cliques is not None else solve_dense(Q, As, b, d, opts)
-                res = _retry_stalled(res, Q, As, b, d, cliques, opts)
+                res = _clarabel(Q, As, b, d, cliques, opts)
                 res.message = f"{first}; solved again by {res.solver}: {res.status}" + (f"; {res.message}" if res.message else "")
                 res.solve_time_s += spent
         else:
             name = solver.split(":", 1)[1] if ":" in solver else "SCS"
             res = solve_cvxpy(Q, As, b, d, name, opts)
-        if solver == "clarabel":
-            res = _retry_stalled(res, Q, As, b, d, cliques, opts)
         if res.X is not None:
             res.cost_scale = float(abs(Q.multiply(res.X)).sum())
         return res

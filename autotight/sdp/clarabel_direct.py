@@ -89,12 +89,9 @@ def solve_dense(Q: sp.csr_array, As: Sequence[sp.csr_array], b: np.ndarray, d: i
 
         X, svrs = complete_from_cliques(X, column_cliques(N, [Q, *As], always=range(d)), d)
     res = SDPResult(status=status, solver="clarabel-chordal" if opts.clarabel_chordal else "clarabel", d=d, X=X, y=y, primal_cost=primal, dual_cost=dual,
-                    solve_time_s=t2 - t1, setup_time_s=t1 - t0, iterations=int(sol.iterations))
-    res.clique_log_svr = svrs
-    res = finish(res)
-    if svrs:
-        res.log_svr = float(np.min(svrs))
-    return res
+                    solve_time_s=t2 - t1, setup_time_s=t1 - t0, iterations=int(sol.iterations),
+                    clique_log_svr=svrs)
+    return finish(res)
 
 
 def solve_cliques(Q: sp.csr_array, As: Sequence[sp.csr_array], b: np.ndarray, d: int,
@@ -118,7 +115,4 @@ def solve_cliques(Q: sp.csr_array, As: Sequence[sp.csr_array], b: np.ndarray, d:
     res = SDPResult(status=status, solver="clarabel-cliques", d=d, X=X, y=y, primal_cost=primal,
                     dual_cost=float(np.dot(b, y)), solve_time_s=t2 - t1, setup_time_s=t1 - t0,
                     iterations=int(sol.iterations), clique_log_svr=svrs or None)
-    res = finish(res)
-    if svrs:
-        res.log_svr = float(np.min(svrs))
-    return res
+    return finish(res)

@@ -113,11 +113,11 @@ def rank_d_factor(X: np.ndarray, d: int, h: slice = slice(0, None)) -> tuple[np.
 
 
 def finish(res: SDPResult, h_cols: int | None = None) -> SDPResult:
-    """Fill eigvals, log SVR and Θ from res.X (when X is available)."""
+    """Fill eigvals, log SVR and Θ from res.X (when X is available); with per-clique log SVRs
+    (a decomposed solve), log SVR is their minimum."""
     if res.X is None or not np.all(np.isfinite(res.X)):
         return res
     w, Theta = rank_d_factor(res.X, res.d)
     res.eigvals, res.Theta = w, Theta
-    if res.clique_log_svr is None:
-        res.log_svr = log_svr(w, res.d)
+    res.log_svr = float(np.min(res.clique_log_svr)) if res.clique_log_svr else log_svr(w, res.d)
     return res

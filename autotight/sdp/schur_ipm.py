@@ -180,7 +180,7 @@ class _Schur:
         self.diag = np.flatnonzero(self.cols == self.rows)
         self._rows_upper, self._cols_upper = self.rows[self.upper], self.cols[self.upper]
         self._diag_upper = np.flatnonzero(self._cols_upper == self._rows_upper)
-        self._cholmod = _CholmodPattern(self.cols[self.upper], self.rows[self.upper], M)
+        self._cholmod = _CholmodPattern(self._cols_upper, self._rows_upper, M)
 
     def assemble(self, P: list[np.ndarray], Q: list[np.ndarray]) -> np.ndarray:
         """The values of S = Σ_k G_kᵀ (P_k ⊗ Q_k) G_k on the pattern (CSR order); P_k, Q_k symmetric.
@@ -413,7 +413,4 @@ def solve_ipm(Q: sp.csr_array, As: Sequence[sp.csr_array], b: np.ndarray, d: int
                     dual_cost=float(np.dot(b, y)), solve_time_s=sol.time_s, setup_time_s=t1 - t0,
                     iterations=sol.iterations, clique_log_svr=svrs or None,
                     message=sol.message + f" (relative gap {sol.gap:.1e}, pinf {sol.pinf:.1e}, dinf {sol.dinf:.1e})")
-    res = finish(res)
-    if svrs:
-        res.log_svr = float(np.min(svrs))
-    return res
+    return finish(res)
