@@ -52,26 +52,37 @@ def local_search(problem: Problem, inst: Instance, rng: np.random.Generator, n_r
     return LocalSearch(truth, rand)
 
 
-#: largest clique that small neighbouring cliques are merged into (see ``chordal.merge_small``)
+#: largest clique that small neighbouring cliques are merged into for Clarabel (see ``chordal.merge_small``)
 MERGE_MAX_SIZE = 20
+#: merging caps tried for our IPM, whose cost per block grows more slowly with the block size
+IPM_MERGE_CAPS = (16, 20, 24, 28, 32, 40, 48)
 
 
-def cliques_for(model: Model, constraints: Sequence[Constraint]) -> list[np.ndarray]:
+def cliques_for(model: Model, constraints: Sequence[Constraint], solver: str = "clarabel") -> list[np.ndarray]:
     """Column cliques for the decomposed SDP (h in every clique).
 
-    Candidates: a min-fill chordal cover of Q and the constraints with small neighbours merged
-    (``MERGE_MAX_SIZE``), and the model's own block cliques when it declares them.  The one with the
-    smaller interior-point cost estimate Σ_k svec(|C_k|)³ is used.
+    Candidates: a min-fill chordal cover of Q and the constraints with small neighbours merged, and
+    the model's own block cliques when it declares them.  For Clarabel the cover merged up to
+    ``MERGE_MAX_SIZE`` columns is compared with the model's by the interior-point cost estimate
+    Σ_k svec(|C_k|)³ (Clarabel's dense KKT blocks); for ``solver="ipm"`` every cap in
+    ``IPM_MERGE_CAPS`` is a candidate, compared by ``schur_ipm.iteration_cost``.
     """
-    from .sdp.chordal import column_cliques, merge_small
+    from .sdp.chordal import _tree, block_loads, column_cliques, column_support, merge_small
+    from .sdp.schur_ipm import iteration_cost
     from .svec import svec_dim
 
     h = model.variables.index(["h"])
-    covers = [merge_small(column_cliques(model.variables.N, [model.Q] + [c.A for c in constraints], always=h),
-                          MERGE_MAX_SIZE)]
-    if model.cliques:
-        covers.append(model.clique_indices())
-    return min(covers, key=lambda cl: sum(float(svec_dim(len(c))) ** 3 for c in cl))
+    matrices = [c.A for c in constraints]
+    base = column_cliques(model.variables.N, [model.Q] + matrices, always=h)
+    own = [model.clique_indices()] if model.cliques else []
+    if solver != "ipm":
+        covers = [merge_small(base, MERGE_MAX_SIZE)] + own
+        return min(covers, key=lambda cl: sum(float(svec_dim(len(c))) ** 3 for c in cl))
+    tree = _tree(base)
+    covers = {tuple(map(len, cl)): cl for cl in (merge_small(base, cap, tree) for cap in IPM_MERGE_CAPS)}
+    support = column_support(matrices, model.variables.N)
+    return min(list(covers.values()) + own,
+               key=lambda cl: iteration_cost([len(c) for c in cl], block_loads(cl, support)))
 
 
 def solve_sdp(model: Model, constraints: Sequence[Constraint], *, solver: str = "clarabel",
@@ -86,7 +97,7 @@ def solve_sdp(model: Model, constraints: Sequence[Constraint], *, solver: str = 
     """
     cliques = None
     if (solver == "ipm" and decompose is not False) or (solver == "clarabel" and decompose):
-        cliques = cliques_for(model, constraints)
+        cliques = cliques_for(model, constraints, solver)
         if solver == "clarabel" and len(cliques) == 1:
             cliques = None  # one cone: Clarabel's dense path
     return sdp.solve(model.Q, constraints, d=model.d, solver=solver, cliques=cliques, options=options)

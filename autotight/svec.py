@@ -57,7 +57,7 @@ def svec(X: np.ndarray | sp.spmatrix) -> np.ndarray:
     return vals * _scale(n)
 
 
-def _triu_entries(A: sp.spmatrix | sp.sparray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def triu_entries(A: sp.spmatrix | sp.sparray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(rows, cols, values) of the stored upper-triangle entries (i ≤ j) of a sparse matrix."""
     A = A if isinstance(A, (sp.csr_array, sp.csr_matrix)) else sp.csr_array(A)
     r = np.repeat(np.arange(A.shape[0], dtype=np.int64), np.diff(A.indptr))
@@ -71,7 +71,7 @@ def svec_columns(As: Sequence[sp.spmatrix | sp.sparray], n: int) -> sp.csc_array
     assembled in one pass from their upper triangles (no dense n×n)."""
     rows, cols, vals = [], [], []
     for k, A in enumerate(As):
-        r, c, v = _triu_entries(A)
+        r, c, v = triu_entries(A)
         rows.append(c * (c + 1) // 2 + r)
         cols.append(np.full(r.size, k))
         vals.append(v * np.where(r == c, 1.0, SQRT2))

@@ -134,9 +134,9 @@ def test_contradictory_constraints_are_a_status_not_an_exception(ra):
 
 
 def test_an_ipm_solve_short_of_accuracy_is_solved_again_by_clarabel(ra):
-    """Rotation averaging at σ = 0.01: the optimal cost is ~1e-3 of max|Q|, below what the IPM's
-    normal equations resolve (it stalls at a relative gap ~5e-5); Clarabel's answer is returned."""
-    inst = ra.generate({"M": 3, "sigma": 0.01}, 0)
+    """Rotation averaging at σ = 0.001: the optimal cost is ~1e-5 of max|Q|, below what the IPM's
+    normal equations resolve (it stalls at a relative gap ~1e-5 … 1e-4); Clarabel's answer is returned."""
+    inst = ra.generate({"M": 3, "sigma": 0.001}, 0)
     model = ra.build(inst)
     res = sdp.solve(model.Q, model.primary(), solver="ipm", cliques=None)
     ref = sdp.solve(model.Q, model.primary())
@@ -199,3 +199,63 @@ def test_schur_complement_stays_sparse_along_a_chain():
         nnz.append(schur.rows.size)
         size.append(schur.M)
     assert 1.8 <= size[1] / size[0] <= 2.2 and 1.8 <= nnz[1] / nnz[0] <= 2.2, (size, nnz)
+
+
+def test_block_loads_count_the_constraints_each_block_receives():
+    """On a chain whose constraints each fit in one clique, the estimate of ``chordal.block_loads``
+    is exactly the number of rows of each block's part of the Schur complement (home constraints
+    plus the transfers to the parent and from the children)."""
+    from autotight.sdp.chordal import block_loads, column_support
+
+    Q, cons, cl = _chain_maxcut(np.random.default_rng(0), 7, 6)
+    mats = [sp.csr_array(c.A) for c in cons]
+    prog = clique_program(Q, mats, np.array([c.b for c in cons]), cl)
+    schur = schur_ipm._Schur(sp.csr_array(schur_ipm.svec_to_vec(prog.sizes) @ prog.F), schur_ipm._Blocks(prog.sizes))
+    actual = np.array([G.shape[0] for G in schur.per_block], float)
+    est = block_loads(prog.cliques, column_support(mats, Q.shape[0]))
+    # a diagonal constraint X_ii = 1 on a shared column may be placed in either clique holding it
+    assert est.sum() == actual.sum(), (est, actual)
+    assert np.abs(est - actual).max() <= 3, (est, actual)
+
+
+def test_ipm_cover_minimises_the_estimated_iteration_cost():
+    """cliques_for(…, "ipm") on the discrete trajectory: a clique tree that holds every nonzero (i, j)
+    of Q and of the constraints in some clique, whose estimated cost is no larger than that of Clarabel's cover or of the
+    model's own cliques (the candidates it was chosen from include both kinds)."""
+    from autotight.run import cliques_for
+    from autotight.sdp.chordal import block_loads, column_support, has_running_intersection
+
+    prob = load("discrete_trajectory")
+    model = prob.build(prob.generate({"K": 12}, 0))
+    cons = model.primary() + model.paper_constraints()
+    support = column_support([c.A for c in cons], model.variables.N)
+
+    def cost(cl):
+        return schur_ipm.iteration_cost([len(c) for c in cl], block_loads(cl, support))
+
+    chosen = cliques_for(model, cons, "ipm")
+    assert has_running_intersection(chosen)
+    inc = np.zeros((len(chosen), model.variables.N), bool)
+    for k, c in enumerate(chosen):
+        inc[k, c] = True
+    for A in [model.Q] + [c.A for c in cons]:
+        E = sp.coo_array(A)
+        assert np.all((inc[:, E.row] & inc[:, E.col]).any(axis=0))
+    assert cost(chosen) <= cost(cliques_for(model, cons)) and cost(chosen) <= cost(model.clique_indices())
+
+
+def test_refinement_is_kept_only_when_it_lowers_the_residual(monkeypatch):
+    """A factorisation that returns three times the solution: one refinement step would give
+    −3× (residual 4‖r‖); the solve keeps the unrefined 3× (residual 2‖r‖)."""
+    Q, cons, cl = _chain_maxcut(np.random.default_rng(1), 4, 4)
+    prog = clique_program(Q, [sp.csr_array(c.A) for c in cons], np.array([c.b for c in cons]), cl)
+    blocks = schur_ipm._Blocks(prog.sizes)
+    schur = schur_ipm._Schur(sp.csr_array(schur_ipm.svec_to_vec(prog.sizes) @ prog.F), blocks)
+    vals = schur.assemble(blocks.identity(1.0), blocks.identity(1.0))
+    S = sp.csr_array((vals, schur.cols, schur.indptr), shape=(schur.M, schur.M))
+    d = vals[schur.diag]
+    exact = np.linalg.inv(S.toarray() / np.sqrt(np.outer(d, d)))  # D S D with unit diagonal
+    monkeypatch.setattr(schur._cholmod, "factor", lambda lower: (lambda r: 3 * exact @ r))
+    r = np.random.default_rng(2).standard_normal(schur.M)
+    dy = schur.factor(vals, 0.0)(r)
+    assert np.linalg.norm(S @ dy - r) == pytest.approx(2 * np.linalg.norm(r), rel=1e-8)

@@ -265,3 +265,17 @@ def test_a_stalled_solve_is_retried_with_default_regularisation(ra, monkeypatch)
     assert "InsufficientProgress; retried with default regularisation: Solved" in res.message
     local = ra.local_solve(inst, inst.truth)
     assert abs(res.primal_cost - local.cost) <= 1e-6 * local.cost  # tight, at the default's accuracy
+
+
+def test_top_only_factor_matches_the_full_eigendecomposition():
+    """rank_d_factor(top_only=True) (Lanczos, used for large decomposed solves) returns the d + 1
+    largest eigenvalues and the same rank-d factor as the full eigendecomposition."""
+    rng = np.random.default_rng(7)
+    N, d = 300, 2
+    B = rng.standard_normal((N, 6))
+    X = B @ np.diag([50.0, 20.0, 1.0, 0.5, 0.1, 0.01]) @ B.T
+    w, T = rank_d_factor(X, d)
+    wt, Tt = rank_d_factor(X, d, top_only=True)
+    assert wt.size == d + 1
+    np.testing.assert_allclose(wt, w[:d + 1], rtol=1e-9)
+    np.testing.assert_allclose(Tt, T, rtol=0, atol=1e-8 * np.abs(T).max())

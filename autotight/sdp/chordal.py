@@ -15,6 +15,8 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import breadth_first_order, minimum_spanning_tree
 
+from ..svec import triu_entries
+
 
 def incidence(cliques: Sequence[np.ndarray], N: int | None = None) -> sp.csr_array:
     """(p × N) 0/1 clique-column incidence matrix."""
@@ -66,15 +68,16 @@ def clique_tree(cliques: Sequence[np.ndarray]) -> np.ndarray:
     return parent
 
 
-def merge_small(cliques: Sequence[np.ndarray], max_size: int) -> list[np.ndarray]:
+def merge_small(cliques: Sequence[np.ndarray], max_size: int,
+                tree: tuple[np.ndarray, np.ndarray, bool] | None = None) -> list[np.ndarray]:
     """Merge every clique into its clique-tree parent while their union has at most ``max_size`` columns.
 
     Merging a clique into its tree neighbour keeps a clique tree.  Fewer, larger blocks trade the
-    interior-point cost of the blocks (∝ Σ svec(|C|)³) against that of the overlaps between them;
-    on the trajectory problems about 20 columns was the best cap.
+    interior-point cost of the blocks against that of the overlaps between them (see
+    ``run.cliques_for`` for how the cap is chosen).  ``tree``: ``_tree(cliques)`` when already known.
     """
     cl = [set(np.asarray(c).tolist()) for c in cliques]
-    parent, bfs, _ = _tree(cliques)
+    parent, bfs, _ = tree if tree is not None else _tree(cliques)
     depth = np.zeros(len(cl), np.int64)
     for k in bfs[1:]:
         depth[k] = depth[parent[k]] + 1
@@ -120,9 +123,7 @@ def column_cliques(N: int, matrices: Sequence[sp.sparray], always: Sequence[int]
     import heapq
 
     fixed = set(int(a) for a in always)
-    entries = [sp.coo_array(A) for A in matrices]
-    rows = np.concatenate([E.row for E in entries]).astype(np.int64)
-    cols = np.concatenate([E.col for E in entries]).astype(np.int64)
+    _, rows, cols = nonzeros(matrices)
     free = np.ones(N, bool)
     free[list(fixed)] = False
     keep = (rows != cols) & free[rows] & free[cols]
@@ -166,3 +167,40 @@ def column_cliques(N: int, matrices: Sequence[sp.sparray], always: Sequence[int]
     uniq = [frozenset(c.tolist()) for c in maximal(uniq)]
     head = sorted(fixed)
     return [np.array(head + sorted(c), dtype=np.int64) for c in uniq]
+
+
+def nonzeros(matrices: Sequence[sp.sparray]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(matrix index, row, column) of the stored upper-triangle entries (row ≤ column) of a list of
+    symmetric sparse matrices."""
+    if not matrices:
+        return (np.zeros(0, np.int64),) * 3
+    entries = [triu_entries(A)[:2] for A in matrices]
+    owner = np.repeat(np.arange(len(entries)), [r.size for r, _ in entries])
+    return owner, np.concatenate([r for r, _ in entries]), np.concatenate([c for _, c in entries])
+
+
+def column_support(matrices: Sequence[sp.sparray], N: int) -> sp.csr_array:
+    """(N × m) 0/1: column j appears in matrix i (a nonzero in row or column j)."""
+    owner, rows, cols = nonzeros(matrices)
+    S = sp.csr_array((np.ones(2 * owner.size), (np.concatenate([rows, cols]), np.concatenate([owner, owner]))),
+                     shape=(N, len(matrices)))
+    S.data[:] = 1.0  # duplicates summed: back to 0/1
+    return S
+
+
+def block_loads(cliques: Sequence[np.ndarray], support: sp.csr_array) -> np.ndarray:
+    """(p,) the number of constraints that touch each clique block of the decomposed SDP, estimated:
+    each constraint (a column of ``support``, see ``column_support``) in the clique holding most of
+    its columns, plus svec(|C_k ∩ C_parent|) transfer constraints on each clique-tree edge, counted
+    at both ends."""
+    p = len(cliques)
+    B = incidence(cliques, support.shape[0])
+    home = np.asarray((B @ support).toarray().argmax(axis=0)).ravel()
+    load = np.bincount(home, minlength=p).astype(float)
+    parent = clique_tree(cliques)
+    child = np.flatnonzero(parent >= 0)
+    overlap = np.asarray(B[child].multiply(B[parent[child]]).sum(axis=1)).ravel()
+    transfers = overlap * (overlap + 1) / 2
+    np.add.at(load, child, transfers)
+    np.add.at(load, parent[child], transfers)
+    return load

@@ -42,7 +42,8 @@ class SDPResult:
     status: the solver's own status string ("Solved", "AlmostSolved", "NumericalError", …).
     X: the N×N solution (assembled from clique blocks when the solve was decomposed).
     y: the multipliers of the constraints, in the order given.
-    eigvals: eigenvalues of X, descending.  log_svr = log10(λ_d / λ_{d+1}) (for cliques: the
+    eigvals: eigenvalues of X, descending (a decomposed solve of more than FULL_EIG_MAX columns: the
+    top d + 1 only).  log_svr = log10(λ_d / λ_{d+1}) (for cliques: the
     minimum over the clique blocks).  Theta: the rank-d factor (d×N) with its h block = I_d.
     """
 
@@ -92,15 +93,28 @@ def log_svr(eigvals: np.ndarray, d: int = 1) -> float:
     return float("inf") if nxt <= 0 else float(np.log10(top / nxt))
 
 
-def rank_d_factor(X: np.ndarray, d: int, h: slice = slice(0, None)) -> tuple[np.ndarray, np.ndarray]:
+#: above this many columns, a decomposed solve's X (whose log SVR comes from its clique blocks) gets
+#: only its top d + 1 eigenpairs (Lanczos) instead of a full O(N³) eigendecomposition
+FULL_EIG_MAX = 600
+
+
+def rank_d_factor(X: np.ndarray, d: int, h: slice = slice(0, None), top_only: bool = False
+                  ) -> tuple[np.ndarray, np.ndarray]:
     """Eigenvalues (descending) and the best rank-d factor Θ (d×N) of X ≈ ΘᵀΘ.
 
     Θ is fixed up to the left orthogonal ambiguity by making its h block (columns
     ``0:d``) the identity where possible (Θ ← Θ_h⁻¹ Θ for invertible Θ_h; for d = 1 h > 0).
+    top_only: only the d + 1 largest eigenvalues are computed (Lanczos, started from a fixed vector).
     """
     Xs = (X + X.T) / 2
-    w, V = np.linalg.eigh(Xs)
-    w, V = w[::-1], V[:, ::-1]
+    if top_only and Xs.shape[0] > d + 2:
+        from scipy.sparse.linalg import eigsh
+        w, V = eigsh(Xs, k=d + 1, which="LA", v0=np.ones(Xs.shape[0]))
+        order = np.argsort(w)[::-1]
+        w, V = w[order], V[:, order]
+    else:
+        w, V = np.linalg.eigh(Xs)
+        w, V = w[::-1], V[:, ::-1]
     Theta = (V[:, :d] * np.sqrt(np.maximum(w[:d], 0.0))).T
     Th = Theta[:, :d]
     if d == 1:
@@ -117,7 +131,7 @@ def finish(res: SDPResult, h_cols: int | None = None) -> SDPResult:
     (a decomposed solve), log SVR is their minimum."""
     if res.X is None or not np.all(np.isfinite(res.X)):
         return res
-    w, Theta = rank_d_factor(res.X, res.d)
+    w, Theta = rank_d_factor(res.X, res.d, top_only=bool(res.clique_log_svr) and res.X.shape[0] > FULL_EIG_MAX)
     res.eigvals, res.Theta = w, Theta
     res.log_svr = float(np.min(res.clique_log_svr)) if res.clique_log_svr else log_svr(w, res.d)
     return res

@@ -12,20 +12,28 @@ S is sparse: S_il ≠ 0 only when constraints i and l touch a common block, so o
 is block-banded and an iteration costs O(p).  It is assembled block by block from the dense
 n_k² × n_k² Kronecker products P_k ⊗ Q_k and factorised by a supernodal sparse Cholesky (CHOLMOD,
 through cvxopt) with one symbolic analysis per solve; SuperLU when cvxopt is missing or the
-Cholesky fails.  Per iteration and block this costs O(n_k⁴ + nnz(G_k)·n_k²), so it pays on long
-chains of small blocks (discrete trajectory, n_k ≤ 20: 0.67× Clarabel's time at K = 20) and not on
-large ones (continuous time, cliques of 40–60 columns: several times slower than Clarabel).
+Cholesky fails.  Per iteration this costs about ``iteration_cost``: Σ_k n_k⁴ + m_k² n_k² + m_k³
+for blocks of n_k columns touched by m_k constraints.  Unlike Clarabel (Σ_k svec(n_k)³), fewer and
+larger blocks with fewer overlap constraints pay, so ``run.cliques_for(…, "ipm")`` picks its own
+cover by that estimate (discrete trajectory: one block of 25–31 columns per pose, S of 1258 rows at
+K = 20, against 4582 on Clarabel's 20-column cover).  Blocks of 40–70 columns (continuous time)
+remain slower than Clarabel.
 
 Tight relaxations with many redundant constraints are primal degenerate (rank-1 blocks, far more
 constraints than the n_k directions tangent to them), so S has condition ~1/μ² near the optimum.
 S is therefore equilibrated (unit diagonal) and regularised by ``SCHUR_REG`` (relative to that unit
-diagonal), which damps only the degenerate directions, and one refinement step is taken; when the
-Cholesky factorisation breaks down anyway, SuperLU with partial pivoting takes over.  Measured on
-the discrete trajectory (K = 20 … 100, 4 seeds): NT ends usable (gap ≤ 9e-7) where HKM sometimes
-stalls (K = 100: gap 3e-6; rotation averaging M = 4 in one block: 9e-7 against NT's 1e-8); retrying CHOLMOD with 10–100× the regularisation
-saves ~30 % of the time but stops at relative gaps of ~5e-7 instead of ~1e-7; more refinement
-steps (against S or against the operator A(𝒦(A*(·)))), a Gram-form S, a smaller SuperLU pivot
-threshold, or projecting ΔX back onto A(ΔX) = r_p each stalled earlier or at a worse gap.
+diagonal), which damps only the degenerate directions, and one refinement step is tried and kept
+only when it lowers the residual ‖r − S Δy‖ (near the optimum it often raised it 10–50×, which
+showed as primal infeasibility jumping from 1e-8 to 1e-6 and a stalled solve); when the Cholesky
+factorisation breaks down anyway, SuperLU with partial pivoting takes over.  Measured on the
+discrete trajectory (K = 10 … 100, 3 seeds each): every solve ends usable, 10 of 12 Solved.
+Tried and dropped: HKM (stalls more often: K = 100 gap 3e-6, rotation averaging M = 4 in one block
+9e-7 against NT's 1e-8); retrying CHOLMOD with 10–100× the regularisation (~30 % faster, stops at
+gaps of ~5e-7 instead of ~1e-7); simplicial LDLᵀ instead of SuperLU after a breakdown (cheaper,
+but HKM stalled with it on the chain test); up to 10 refinement steps (the residual stagnates at
+1e-7 … 1e-6: the factor of S + reg·I cannot resolve S's degenerate directions); a Gram-form S; a
+smaller SuperLU pivot threshold; projecting ΔX back onto A(ΔX) = r_p; stopping on slow progress of
+the residuals alone (saves 1–4 iterations in a few solves, which then end AlmostSolved).
 The tolerance therefore stops at IPM_MIN_TOL (relative); there is no infeasibility detection:
 an infeasible or unbounded problem ends as InsufficientProgress, MaxIterations or NumericalError.
 
@@ -219,7 +227,10 @@ class _Schur:
 
         def solve(r: np.ndarray) -> np.ndarray:
             dy = dsc * inner(dsc * r)
-            return dy + dsc * inner(dsc * (r - S @ dy))
+            res = r - S @ dy
+            refined = dy + dsc * inner(dsc * res)
+            # near the optimum the step can make the residual worse: keep it only when it helps
+            return refined if np.linalg.norm(r - S @ refined) < np.linalg.norm(res) else dy
 
         return solve
 
@@ -390,6 +401,15 @@ def solve_blocks(F: sp.csc_matrix, c: np.ndarray, g: np.ndarray, sizes: list[int
         status = "AlmostSolved"
     z = P.T @ blocks.join(Xb)
     return IPMSolution(status, z, yb, pobj, dobj, gap, pinf, dinf, it, time.perf_counter() - t0, message)
+
+
+def iteration_cost(sizes: Sequence[int], loads: Sequence[float]) -> float:
+    """Estimated flops of one iteration on blocks of n_k columns touched by m_k constraints
+    (``chordal.block_loads``): Σ_k n_k⁴ (P_k ⊗ Q_k) + m_k² n_k² (the block's part of S) + m_k³ (its
+    share of the Cholesky factorisation).  On the discrete trajectory it ranks clique covers as their
+    measured time per iteration does (K = 20: merging caps 0 … 36 and the model's cliques, 30–230 ms)."""
+    n, m = np.asarray(sizes, float), np.asarray(loads, float)
+    return float(np.sum(n ** 4 + m ** 2 * n ** 2 + m ** 3))
 
 
 #: the IPM's tolerance is max(SolverOptions.tol, IPM_MIN_TOL): on tight, primal-degenerate SDPs the
