@@ -6,18 +6,20 @@ Methods, all on the same data in the same run:
 - ``cliques``: our own clique decomposition (``run.cliques_for``: a min-fill chordal cover with small
   cliques merged, or the model's block cliques, whichever has the smaller Σ svec(|C|)³), solved as
   the clique-tree dual of ``sdp.clarabel_direct.solve_cliques``;
-- ``ipm``: our own Schur-complement interior-point method (``sdp.schur_ipm``) on the same clique
-  blocks as ``cliques`` (tolerance 1e-7 relative, see ``schur_ipm.IPM_MIN_TOL``);
+- ``ipm``: our own Schur-complement interior-point method (``sdp.schur_ipm``) on its own clique
+  cover (``run.cliques_for(…, "ipm")``, chosen by ``schur_ipm.iteration_cost``; tolerance 1e-7
+  relative, see ``schur_ipm.IPM_MIN_TOL``);
 - ``chordal-default``: Clarabel's chordal decomposition with its default clique-graph merging
   (given a time limit; a solve that hits it is reported as such).
 Continuous time is solved with ϖ marginalised (the paper) and with ϖ kept in the lifting.
-A scaling run on the discrete trajectory fits the growth exponent of the solve time in K, and a
+A scaling run on the discrete trajectory (seeds 0, 1, 2 per K) fits the growth exponent of the
+median solve time in K, and a
 synthetic chain SDP (``chain_baseline``) measures how Clarabel's own time per iteration grows with
 the chain length, the floor under that exponent.
 Prints and writes benchmarks/results/trajectory_sdp.json.
 
     python benchmarks/trajectory_sdp.py [--repeats 3] [--time-limit 60] [--scaling 10,20,50,100] [--chain 40,80,160]
-                                        [--skip-continuous]
+                                        [--scaling-seeds 0,1,2] [--skip-continuous]
 """
 
 from __future__ import annotations
@@ -54,9 +56,9 @@ def _method(name: str, time_limit: float) -> dict:
 
 
 @single_blas_thread
-def solve_once(problem: str, params: dict, method: str, time_limit: float) -> dict:
+def solve_once(problem: str, params: dict, method: str, time_limit: float, seed: int = 0) -> dict:
     prob = load(problem)
-    inst = prob.generate(params, 0)
+    inst = prob.generate(params, seed)
     model = prob.build(inst)
     cons = model.primary() + model.paper_constraints()
     t = time.perf_counter()
@@ -66,16 +68,16 @@ def solve_once(problem: str, params: dict, method: str, time_limit: float) -> di
             "cost": res.primal_cost, "iterations": res.iterations, "N": model.variables.N}
 
 
-def _child(q, problem: str, params: dict, method: str, time_limit: float) -> None:
-    q.put(solve_once(problem, params, method, time_limit))
+def _child(q, problem: str, params: dict, method: str, time_limit: float, seed: int) -> None:
+    q.put(solve_once(problem, params, method, time_limit, seed))
 
 
-def solve_bounded(problem: str, params: dict, method: str, time_limit: float) -> dict:
+def solve_bounded(problem: str, params: dict, method: str, time_limit: float, seed: int = 0) -> dict:
     """solve_once in a child process, killed after time_limit wall seconds (Clarabel's own time
     limit does not cover its chordal set-up, which can run for minutes)."""
     ctx = mp.get_context("fork")
     q = ctx.Queue()
-    proc = ctx.Process(target=_child, args=(q, problem, params, method, time_limit))
+    proc = ctx.Process(target=_child, args=(q, problem, params, method, time_limit, seed))
     t = time.perf_counter()
     proc.start()
     proc.join(time_limit)
@@ -92,11 +94,14 @@ def solve_bounded(problem: str, params: dict, method: str, time_limit: float) ->
                 "iterations": 0, "N": -1}
 
 
-def compare(problem: str, params: dict, methods: list[str], repeats: int, time_limit: float) -> dict:
+def compare(problem: str, params: dict, methods: list[str], repeats: int, time_limit: float,
+            seeds: tuple[int, ...] = (0,)) -> dict:
+    """Every method on every seed, ``repeats`` times, interleaved; medians over all runs."""
     runs: dict[str, list[dict]] = {m: [] for m in methods}
     for _ in range(repeats):  # interleaved, so load changes hit every method alike
-        for m in methods:
-            runs[m].append(solve_bounded(problem, params, m, time_limit))
+        for seed in seeds:
+            for m in methods:
+                runs[m].append(dict(solve_bounded(problem, params, m, time_limit, seed), seed=seed))
     out = {}
     for m, rs in runs.items():
         out[m] = {"median_wall_s": float(np.median([r["wall_s"] for r in rs])),
@@ -146,6 +151,8 @@ def main() -> None:
     ap.add_argument("--scaling", default="10,20,50,100")
     ap.add_argument("--chain", default="40,80,160", help="synthetic chain lengths for the solver baseline ('' to skip)")
     ap.add_argument("--scaling-limit", type=float, default=300.0, help="wall-clock limit per scaling solve")
+    ap.add_argument("--scaling-seeds", default="0,1,2",
+                    help="instances per K in the scaling run (the IPM's iteration count varies by instance)")
     ap.add_argument("--skip-continuous", action="store_true",
                     help="do not re-measure continuous time (minutes of solves that hit the limit); its entries "
                          "are carried over from the existing output file, marked with the run they came from")
@@ -171,15 +178,21 @@ def main() -> None:
         print(key, json.dumps(jsonable({m: {x: v[x] for x in ("median_wall_s", "status", "log_svr")}
                                         for m, v in res[key].items()})), flush=True)
     Ks = [int(k) for k in a.scaling.split(",")]
-    scale: dict = {}
-    for m in ("chordal-pc", "cliques", "ipm"):
-        times = []
-        for K in Ks:
-            r = compare("discrete_trajectory", {"K": K}, [m], 1 if K > 50 else a.repeats, a.scaling_limit)[m]
-            times.append(r["median_wall_s"])
-            print(m, K, round(r["median_wall_s"], 2), r["status"], flush=True)
-        slope = float(np.polyfit(np.log(Ks), np.log(times), 1)[0])
-        scale[m] = {"K": Ks, "wall_s": times, "growth_exponent": slope}
+    seeds = tuple(int(x) for x in a.scaling_seeds.split(","))
+    methods = ["chordal-pc", "cliques", "ipm"]
+    per_K = {K: compare("discrete_trajectory", {"K": K}, methods, 1, a.scaling_limit, seeds) for K in Ks}
+    scale: dict = {"seeds": list(seeds), "note": "median over the seeds (one run each, methods interleaved); "
+                   "the exponent is the least-squares slope of log median wall time against log K"}
+    for m in methods:
+        times = [per_K[K][m]["median_wall_s"] for K in Ks]
+        per_it = [float(np.median([r["solve_s"] / max(r["iterations"], 1) for r in per_K[K][m]["runs"]])) for K in Ks]
+        scale[m] = {"K": Ks, "wall_s": times, "growth_exponent": float(np.polyfit(np.log(Ks), np.log(times), 1)[0]),
+                    "iterations": [[r["iterations"] for r in per_K[K][m]["runs"]] for K in Ks],
+                    "status": [per_K[K][m]["status"] for K in Ks], "solve_s_per_iteration": per_it,
+                    "per_iteration_growth_exponent": float(np.polyfit(np.log(Ks), np.log(per_it), 1)[0])}
+        if m != methods[0]:
+            scale[m]["wall_ratio_to_" + methods[0]] = [t / b for t, b in zip(times, scale[methods[0]]["wall_s"])]
+        print(m, [round(t, 2) for t in times], "exponent", round(scale[m]["growth_exponent"], 3), flush=True)
     res["scaling_discrete"] = scale
     if a.chain:
         res["clarabel_chain_baseline"] = chain_baseline([int(x) for x in a.chain.split(",")])

@@ -148,17 +148,21 @@ def column_cliques(N: int, matrices: Sequence[sp.sparray], always: Sequence[int]
         if not alive[v] or key[v] != k:
             continue  # stale entry
         nb = list(adj[v])
+        added = []
         for i, a in enumerate(nb):
             adj[a].discard(v)
             for b in nb[i + 1:]:
                 if b not in adj[a]:
                     adj[a].add(b)
                     adj[b].add(a)
+                    added.append((a, b))
         alive[v] = False
         cliques.append(frozenset([v, *nb]))
+        # fill changes for v's neighbours (they lost v) and for the common neighbours of the
+        # endpoints of each added edge (that pair is no longer missing); nobody else's
         touched = set(nb)
-        for a in nb:
-            touched |= adj[a]
+        for a, b in added:
+            touched |= adj[a] & adj[b]
         for u in touched:
             if alive[u]:
                 key[u] = (fill(u), len(adj[u]))

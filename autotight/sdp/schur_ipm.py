@@ -223,7 +223,7 @@ class _Schur:
             scaled = vals * dsc[self.rows] * dsc[self.cols]
             scaled[self.diag] += reg
             inner = spla.splu(sp.csc_matrix((scaled, self.cols, self.indptr), shape=(self.M, self.M)),
-                              permc_spec="MMD_AT_PLUS_A").solve  # S symmetric: its CSR arrays are CSC
+                              permc_spec="COLAMD").solve  # S symmetric: its CSR arrays are CSC
 
         def solve(r: np.ndarray) -> np.ndarray:
             dy = dsc * inner(dsc * r)
