@@ -67,7 +67,7 @@ def cliques_for(model: Model, constraints: Sequence[Constraint], solver: str = "
     Σ_k svec(|C_k|)³ (Clarabel's dense KKT blocks); for ``solver="ipm"`` every cap in
     ``IPM_MERGE_CAPS`` is a candidate, compared by ``schur_ipm.iteration_cost``.
     """
-    from .sdp.chordal import _tree, block_loads, column_cliques, column_support, merge_small
+    from .sdp.chordal import block_loads, column_cliques, column_support, merge_small, merged_covers
     from .sdp.schur_ipm import iteration_cost
     from .svec import svec_dim
 
@@ -78,10 +78,8 @@ def cliques_for(model: Model, constraints: Sequence[Constraint], solver: str = "
     if solver != "ipm":
         covers = [merge_small(base, MERGE_MAX_SIZE)] + own
         return min(covers, key=lambda cl: sum(float(svec_dim(len(c))) ** 3 for c in cl))
-    tree = _tree(base)
-    covers = {tuple(map(len, cl)): cl for cl in (merge_small(base, cap, tree) for cap in IPM_MERGE_CAPS)}
     support = column_support(matrices, model.variables.N)
-    return min(list(covers.values()) + own,
+    return min(merged_covers(base, IPM_MERGE_CAPS) + own,
                key=lambda cl: iteration_cost([len(c) for c in cl], block_loads(cl, support)))
 
 

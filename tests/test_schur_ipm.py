@@ -203,9 +203,9 @@ def test_schur_complement_stays_sparse_along_a_chain():
 
 
 def test_block_loads_count_the_constraints_each_block_receives():
-    """On a chain whose constraints each fit in one clique, the estimate of ``chordal.block_loads``
-    is exactly the number of rows of each block's part of the Schur complement (home constraints
-    plus the transfers to the parent and from the children)."""
+    """On a chain whose constraints each fit in one clique, ``chordal.block_loads`` (home
+    constraints plus the transfers to the parent and from the children) sums to exactly the rows of
+    the blocks' parts of the Schur complement, and each block is within 3 of its own part."""
     from autotight.sdp.chordal import block_loads, column_support
 
     Q, cons, cl = _chain_maxcut(np.random.default_rng(0), 7, 6)
@@ -220,9 +220,9 @@ def test_block_loads_count_the_constraints_each_block_receives():
 
 
 def test_ipm_cover_minimises_the_estimated_iteration_cost():
-    """cliques_for(…, "ipm") on the discrete trajectory: a clique tree that holds every nonzero (i, j)
-    of Q and of the constraints in some clique, whose estimated cost is no larger than that of Clarabel's cover or of the
-    model's own cliques (the candidates it was chosen from include both kinds)."""
+    """cliques_for(…, "ipm") on the discrete trajectory: a clique tree that holds every nonzero
+    (i, j) of Q and of the constraints in some clique, whose estimated cost is no larger than that of
+    Clarabel's cover or of the model's own cliques (both are among its candidates)."""
     from autotight.run import cliques_for
     from autotight.sdp.chordal import block_loads, column_support, has_running_intersection
 

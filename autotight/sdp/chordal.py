@@ -74,7 +74,7 @@ def merge_small(cliques: Sequence[np.ndarray], max_size: int,
 
     Merging a clique into its tree neighbour keeps a clique tree.  Fewer, larger blocks trade the
     interior-point cost of the blocks against that of the overlaps between them (see
-    ``run.cliques_for`` for how the cap is chosen).  ``tree``: ``_tree(cliques)`` when already known.
+    ``run.cliques_for`` for how the cap is chosen).  ``tree``: ``_tree(cliques)`` when known.
     """
     cl = [set(np.asarray(c).tolist()) for c in cliques]
     parent, bfs, _ = tree if tree is not None else _tree(cliques)
@@ -88,6 +88,16 @@ def merge_small(cliques: Sequence[np.ndarray], max_size: int,
             cl[p] |= cl[k]
             alive[k] = False
     return [np.array(sorted(cl[k]), dtype=np.int64) for k in range(len(cl)) if alive[k]]
+
+
+def merged_covers(cliques: Sequence[np.ndarray], caps: Sequence[int]) -> list[list[np.ndarray]]:
+    """``merge_small(cliques, cap)`` for every cap, without repeats (one clique tree for all)."""
+    tree = _tree(cliques)
+    covers = {}
+    for cap in caps:
+        cl = merge_small(cliques, cap, tree)
+        covers.setdefault(tuple(tuple(c.tolist()) for c in cl), cl)
+    return list(covers.values())
 
 
 def maximal(cliques: Sequence[np.ndarray]) -> list[np.ndarray]:
