@@ -279,3 +279,18 @@ def test_top_only_factor_matches_the_full_eigendecomposition():
     assert wt.size == d + 1
     np.testing.assert_allclose(wt, w[:d + 1], rtol=1e-9)
     np.testing.assert_allclose(Tt, T, rtol=0, atol=1e-8 * np.abs(T).max())
+
+
+def test_top_only_factor_falls_back_when_lanczos_does_not_converge(monkeypatch):
+    """If ARPACK does not converge, the factor comes from the full eigendecomposition."""
+    import scipy.sparse.linalg as spla
+
+    def no_convergence(*a, **k):
+        raise spla.ArpackNoConvergence("no convergence", np.zeros(0), np.zeros((0, 0)))
+
+    monkeypatch.setattr(spla, "eigsh", no_convergence)
+    rng = np.random.default_rng(8)
+    B = rng.standard_normal((40, 3))
+    X = B @ B.T
+    w, T = rank_d_factor(X, 1, top_only=True)
+    np.testing.assert_allclose(w, np.sort(np.linalg.eigvalsh(X))[::-1], rtol=1e-9, atol=1e-9 * w[0])

@@ -104,15 +104,20 @@ def rank_d_factor(X: np.ndarray, d: int, h: slice = slice(0, None), top_only: bo
 
     Θ is fixed up to the left orthogonal ambiguity by making its h block (columns
     ``0:d``) the identity where possible (Θ ← Θ_h⁻¹ Θ for invertible Θ_h; for d = 1 h > 0).
-    top_only: only the d + 1 largest eigenvalues are computed (Lanczos, started from a fixed vector).
+    top_only: only the d + 1 largest eigenvalues are computed (Lanczos, started from a fixed vector;
+    the full eigendecomposition when Lanczos does not converge).
     """
     Xs = (X + X.T) / 2
+    w = None
     if top_only and Xs.shape[0] > d + 2:
-        from scipy.sparse.linalg import eigsh
-        w, V = eigsh(Xs, k=d + 1, which="LA", v0=np.ones(Xs.shape[0]))
-        order = np.argsort(w)[::-1]
-        w, V = w[order], V[:, order]
-    else:
+        from scipy.sparse.linalg import ArpackNoConvergence, eigsh
+        try:
+            w, V = eigsh(Xs, k=d + 1, which="LA", v0=np.ones(Xs.shape[0]))
+            order = np.argsort(w)[::-1]
+            w, V = w[order], V[:, order]
+        except ArpackNoConvergence:
+            w = None  # the full eigendecomposition below
+    if w is None:
         w, V = np.linalg.eigh(Xs)
         w, V = w[::-1], V[:, ::-1]
     Theta = (V[:, :d] * np.sqrt(np.maximum(w[:d], 0.0))).T
