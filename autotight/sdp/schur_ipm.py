@@ -407,8 +407,8 @@ def iteration_cost(sizes: Sequence[int], loads: Sequence[float]) -> float:
     """Estimated flops of one iteration on blocks of n_k columns touched by m_k constraints
     (``chordal.block_loads``): Σ_k n_k⁴ (P_k ⊗ Q_k) + m_k² n_k² (the block's part of S, a bound that
     is reached for dense constraints) + m_k³ (its share of the Cholesky factorisation).  A ranking,
-    not a prediction: on the discrete trajectory it orders clique covers as their measured time per
-    iteration does (K = 20: merging caps 0 … 36 and the model's cliques, 30–230 ms)."""
+    not a prediction: on the discrete trajectory (K = 20: merging caps 0 … 36 and the model's
+    cliques, 30–230 ms per iteration) it orders the covers as measured up to two near-ties."""
     n, m = np.asarray(sizes, float), np.asarray(loads, float)
     return float(np.sum(n ** 4 + m ** 2 * n ** 2 + m ** 3))
 
