@@ -74,6 +74,14 @@ def _chain_maxcut(rng: np.random.Generator, cliques: int, width: int):
     return sp.csr_array(Q), cons, cl
 
 
+def _chain_schur(rng: np.random.Generator, cliques: int, width: int):
+    """The MaxCut chain's block program and its Schur-complement structure."""
+    Q, cons, cl = _chain_maxcut(rng, cliques, width)
+    prog = clique_program(Q, [sp.csr_array(c.A) for c in cons], np.array([c.b for c in cons]), cl)
+    blocks = schur_ipm._Blocks(prog.sizes)
+    return Q, cons, prog, blocks, schur_ipm._Schur(sp.csr_array(schur_ipm.svec_to_vec(prog.sizes) @ prog.F), blocks)
+
+
 @pytest.mark.parametrize("cholmod,search", [(True, "nt"), (False, "nt"), (True, "hkm")])
 def test_ipm_equals_clarabel_on_a_chain_sdp_far_from_rank_one(cholmod, search, monkeypatch):
     """MaxCut-type chain SDP: the optimum is far from rank 1, so the blocks must agree on their
@@ -193,10 +201,7 @@ def test_schur_complement_stays_sparse_along_a_chain():
     or fill-heavy S would quadruple it), and S is never stored densely."""
     nnz, size = [], []
     for cliques in (12, 24):
-        Q, cons, cl = _chain_maxcut(np.random.default_rng(0), cliques, 6)
-        prog = clique_program(Q, [sp.csr_array(c.A) for c in cons], np.array([c.b for c in cons]), cl)
-        Gv = sp.csr_array(schur_ipm.svec_to_vec(prog.sizes) @ prog.F)
-        schur = schur_ipm._Schur(Gv, schur_ipm._Blocks(prog.sizes))
+        schur = _chain_schur(np.random.default_rng(0), cliques, 6)[-1]
         nnz.append(schur.rows.size)
         size.append(schur.M)
     assert 1.8 <= size[1] / size[0] <= 2.2 and 1.8 <= nnz[1] / nnz[0] <= 2.2, (size, nnz)
@@ -208,12 +213,9 @@ def test_block_loads_count_the_constraints_each_block_receives():
     the blocks' parts of the Schur complement, and each block is within 3 of its own part."""
     from autotight.sdp.chordal import block_loads, column_support
 
-    Q, cons, cl = _chain_maxcut(np.random.default_rng(0), 7, 6)
-    mats = [sp.csr_array(c.A) for c in cons]
-    prog = clique_program(Q, mats, np.array([c.b for c in cons]), cl)
-    schur = schur_ipm._Schur(sp.csr_array(schur_ipm.svec_to_vec(prog.sizes) @ prog.F), schur_ipm._Blocks(prog.sizes))
+    Q, cons, prog, _, schur = _chain_schur(np.random.default_rng(0), 7, 6)
     actual = np.array([G.shape[0] for G in schur.per_block], float)
-    est = block_loads(prog.cliques, column_support(mats, Q.shape[0]))
+    est = block_loads(prog.cliques, column_support([c.A for c in cons], Q.shape[0]))
     # a diagonal constraint X_ii = 1 on a shared column may be placed in either clique holding it
     assert est.sum() == actual.sum(), (est, actual)
     assert np.abs(est - actual).max() <= 3, (est, actual)
@@ -248,10 +250,7 @@ def test_ipm_cover_minimises_the_estimated_iteration_cost():
 def test_refinement_is_kept_only_when_it_lowers_the_residual(monkeypatch):
     """A factorisation that returns three times the solution: one refinement step would give
     −3× (residual 4‖r‖); the solve keeps the unrefined 3× (residual 2‖r‖)."""
-    Q, cons, cl = _chain_maxcut(np.random.default_rng(1), 4, 4)
-    prog = clique_program(Q, [sp.csr_array(c.A) for c in cons], np.array([c.b for c in cons]), cl)
-    blocks = schur_ipm._Blocks(prog.sizes)
-    schur = schur_ipm._Schur(sp.csr_array(schur_ipm.svec_to_vec(prog.sizes) @ prog.F), blocks)
+    _, _, _, blocks, schur = _chain_schur(np.random.default_rng(1), 4, 4)
     vals = schur.assemble(blocks.identity(1.0), blocks.identity(1.0))
     S = sp.csr_array((vals, schur.cols, schur.indptr), shape=(schur.M, schur.M))
     d = vals[schur.diag]

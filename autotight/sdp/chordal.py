@@ -193,24 +193,35 @@ def nonzeros(matrices: Sequence[sp.sparray]) -> tuple[np.ndarray, np.ndarray, np
     return owner, np.concatenate([r for r, _ in entries]), np.concatenate([c for _, c in entries])
 
 
-def column_support(matrices: Sequence[sp.sparray], N: int) -> sp.csr_array:
-    """(N × m) 0/1: column j appears in matrix i (a nonzero in row or column j)."""
-    owner, rows, cols = nonzeros(matrices)
+def support_matrix(rows: np.ndarray, cols: np.ndarray, owner: np.ndarray, N: int, m: int) -> sp.csr_array:
+    """(N × m) 0/1: column j appears in constraint i, from the entries (rows, cols) of constraint ``owner``."""
     S = sp.csr_array((np.ones(2 * owner.size), (np.concatenate([rows, cols]), np.concatenate([owner, owner]))),
-                     shape=(N, len(matrices)))
+                     shape=(N, m))
     S.data[:] = 1.0  # duplicates summed: back to 0/1
     return S
 
 
+def column_support(matrices: Sequence[sp.sparray], N: int) -> sp.csr_array:
+    """``support_matrix`` of a list of symmetric sparse matrices."""
+    owner, rows, cols = nonzeros(matrices)
+    return support_matrix(rows, cols, owner, N, len(matrices))
+
+
+def home_cliques(cliques: Sequence[np.ndarray], support: sp.csr_array) -> np.ndarray:
+    """(m,) each constraint's home clique: the one holding most of its columns (the first on ties),
+    from ``support`` (see ``support_matrix``); the product stays sparse."""
+    if support.shape[1] == 0:
+        return np.zeros(0, np.int64)
+    return np.asarray((incidence(cliques, support.shape[0]) @ support).argmax(axis=0)).ravel()
+
+
 def block_loads(cliques: Sequence[np.ndarray], support: sp.csr_array) -> np.ndarray:
     """(p,) the number of constraints that touch each clique block of the decomposed SDP, estimated:
-    each constraint (a column of ``support``, see ``column_support``) in the clique holding most of
-    its columns, plus svec(|C_k ∩ C_parent|) transfer constraints on each clique-tree edge, counted
+    each constraint (a column of ``support``) in its ``home_cliques`` block, plus svec(|C_k ∩ C_parent|) transfer constraints on each clique-tree edge, counted
     at both ends."""
     p = len(cliques)
     B = incidence(cliques, support.shape[0])
-    home = np.asarray((B @ support).toarray().argmax(axis=0)).ravel()
-    load = np.bincount(home, minlength=p).astype(float)
+    load = np.bincount(home_cliques(cliques, support), minlength=p).astype(float)
     parent = clique_tree(cliques)
     child = np.flatnonzero(parent >= 0)
     overlap = np.asarray(B[child].multiply(B[parent[child]]).sum(axis=1)).ravel()

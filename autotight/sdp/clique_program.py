@@ -25,7 +25,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..svec import SQRT2, position_to_ij, svec_columns, triu_indices
-from .chordal import clique_tree, incidence, maximal
+from .chordal import clique_tree, home_cliques, maximal, support_matrix
 from .result import log_svr, rank_d_factor
 
 
@@ -110,11 +110,7 @@ def _home_rows(G: sp.coo_array, cliques: Sequence[np.ndarray], pos: np.ndarray, 
     its own part of the clique tree instead of sending every shared entry (h², h·x) to the root.
     """
     gi, gj = position_to_ij(G.row)
-    m = G.shape[1]
-    B = incidence(cliques, N)
-    cols = sp.csr_array((np.ones(2 * G.nnz), (np.r_[gi, gj], np.r_[G.col, G.col])), shape=(N, m))
-    cols.data[:] = 1.0  # summed duplicates → indicator
-    home = np.asarray((B @ cols).argmax(axis=0)).ravel()[G.col] if m else np.zeros(0, np.int64)
+    home = home_cliques(cliques, support_matrix(gi, gj, G.col, N, G.shape[1]))[G.col]
     rows = np.full(G.nnz, -1, dtype=np.int64)
     for k in np.unique(home):
         sel = np.flatnonzero(home == k)

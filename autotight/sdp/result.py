@@ -98,8 +98,7 @@ def log_svr(eigvals: np.ndarray, d: int = 1) -> float:
 FULL_EIG_MAX = 600
 
 
-def rank_d_factor(X: np.ndarray, d: int, h: slice = slice(0, None), top_only: bool = False
-                  ) -> tuple[np.ndarray, np.ndarray]:
+def rank_d_factor(X: np.ndarray, d: int, top_only: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """Eigenvalues (descending) and the best rank-d factor Θ (d×N) of X ≈ ΘᵀΘ.
 
     Θ is fixed up to the left orthogonal ambiguity by making its h block (columns
@@ -131,7 +130,7 @@ def rank_d_factor(X: np.ndarray, d: int, h: slice = slice(0, None), top_only: bo
     return w, Theta
 
 
-def finish(res: SDPResult, h_cols: int | None = None) -> SDPResult:
+def finish(res: SDPResult) -> SDPResult:
     """Fill eigvals, log SVR and Θ from res.X (when X is available); with per-clique log SVRs
     (a decomposed solve), log SVR is their minimum."""
     if res.X is None or not np.all(np.isfinite(res.X)):
