@@ -58,29 +58,45 @@ MERGE_MAX_SIZE = 20
 IPM_MERGE_CAPS = (16, 20, 24, 28, 32, 40, 48)
 
 
-def cliques_for(model: Model, constraints: Sequence[Constraint], solver: str = "clarabel") -> list[np.ndarray]:
-    """Column cliques for the decomposed SDP (h in every clique).
+class CliqueCovers:
+    """Candidate clique covers of a model's SDP (h in every clique) and the choice per solver.
 
-    Candidates: a min-fill chordal cover of Q and the constraints with small neighbours merged, and
-    the model's own block cliques when it declares them.  For Clarabel the cover merged up to
-    ``MERGE_MAX_SIZE`` columns is compared with the model's by the interior-point cost estimate
-    Σ_k svec(|C_k|)³ (Clarabel's dense KKT blocks); for ``solver="ipm"`` every cap in
-    ``IPM_MERGE_CAPS`` is a candidate, compared by ``schur_ipm.iteration_cost``.
+    Candidates: the min-fill chordal cover of Q and the constraints (``chordal.column_cliques``),
+    the min-fill cover of the graph of variable blocks (``chordal.block_cliques``), each with small
+    neighbours merged, and the model's own block cliques when it declares them.  For Clarabel both
+    covers merged up to ``MERGE_MAX_SIZE`` columns and the model's are compared by the
+    interior-point cost estimate Σ_k svec(|C_k|)³ (Clarabel's dense KKT blocks); for the IPM every
+    cap in ``IPM_MERGE_CAPS`` (and the unmerged block cover) is a candidate, compared by
+    ``schur_ipm.iteration_cost``.  The block cover keeps blocks whole, so its separators are unions
+    of blocks: on continuous time (ϖ kept) {h, ξ_{k+1,k}, ϖ_{k+1}} rather than a whole pose.
     """
-    from .sdp.chordal import block_loads, column_cliques, column_support, merge_small, merged_covers
-    from .sdp.schur_ipm import iteration_cost
-    from .svec import svec_dim
 
-    h = model.variables.index(["h"])
-    matrices = [c.A for c in constraints]
-    base = column_cliques(model.variables.N, [model.Q] + matrices, always=h)
-    own = [model.clique_indices()] if model.cliques else []
-    if solver != "ipm":
-        covers = [merge_small(base, MERGE_MAX_SIZE)] + own
-        return min(covers, key=lambda cl: sum(float(svec_dim(len(c))) ** 3 for c in cl))
-    support = column_support(matrices, model.variables.N)
-    return min(merged_covers(base, IPM_MERGE_CAPS) + own,
-               key=lambda cl: iteration_cost([len(c) for c in cl], block_loads(cl, support)))
+    def __init__(self, model: Model, constraints: Sequence[Constraint]):
+        from .sdp.chordal import block_cliques, column_cliques, column_support
+
+        V = model.variables
+        self.matrices = [c.A for c in constraints]
+        self.columns = column_cliques(V.N, [model.Q] + self.matrices, always=V.index(["h"]))
+        self.blocks = block_cliques([V.sizes[n] for n in V.names], [model.Q] + self.matrices)
+        self.own = [model.clique_indices()] if model.cliques else []
+        self.support = column_support(self.matrices, V.N)
+
+    def choose(self, solver: str = "clarabel") -> list[np.ndarray]:
+        from .sdp.chordal import block_loads, merge_small, merged_covers
+        from .sdp.schur_ipm import iteration_cost
+        from .svec import svec_dim
+
+        if solver != "ipm":
+            covers = [merge_small(self.columns, MERGE_MAX_SIZE), merge_small(self.blocks, MERGE_MAX_SIZE)] + self.own
+            return min(covers, key=lambda cl: sum(float(svec_dim(len(c))) ** 3 for c in cl))
+        covers = merged_covers(self.columns, IPM_MERGE_CAPS) + merged_covers(self.blocks, (0,) + IPM_MERGE_CAPS)
+        return min(covers + self.own,
+                   key=lambda cl: iteration_cost([len(c) for c in cl], block_loads(cl, self.support)))
+
+
+def cliques_for(model: Model, constraints: Sequence[Constraint], solver: str = "clarabel") -> list[np.ndarray]:
+    """Column cliques for the decomposed SDP solved by ``solver`` (see ``CliqueCovers``)."""
+    return CliqueCovers(model, constraints).choose(solver)
 
 
 def solve_sdp(model: Model, constraints: Sequence[Constraint], *, solver: str = "clarabel",
@@ -91,14 +107,19 @@ def solve_sdp(model: Model, constraints: Sequence[Constraint], *, solver: str = 
     ``sdp.clarabel_direct.solve_cliques``); otherwise Clarabel with
     ``options`` (by default its chordal decomposition with parent-child merging, see SolverOptions).
     solver "ipm" (our interior-point method, ``sdp.schur_ipm``) always runs on ``cliques_for``
-    unless ``decompose`` is False.
+    unless ``decompose`` is False; when its result is unusable, Clarabel solves again on the
+    cover chosen for Clarabel.
     """
-    cliques = None
+    cliques = fallback = None
     if (solver == "ipm" and decompose is not False) or (solver == "clarabel" and decompose):
-        cliques = cliques_for(model, constraints, solver)
+        covers = CliqueCovers(model, constraints)
+        cliques = covers.choose(solver)
+        if solver == "ipm":
+            fallback = covers.choose("clarabel")
         if solver == "clarabel" and len(cliques) == 1:
             cliques = None  # one cone: Clarabel's dense path
-    return sdp.solve(model.Q, constraints, d=model.d, solver=solver, cliques=cliques, options=options)
+    return sdp.solve(model.Q, constraints, d=model.d, solver=solver, cliques=cliques, options=options,
+                     fallback_cliques=fallback)
 
 
 @dataclass

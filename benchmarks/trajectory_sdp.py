@@ -3,12 +3,14 @@
 Methods, all on the same data in the same run:
 - ``chordal-pc``: our default for large liftings, Clarabel's chordal decomposition with
   parent-child clique merging;
-- ``cliques``: our own clique decomposition (``run.cliques_for``: a min-fill chordal cover with small
-  cliques merged, or the model's block cliques, whichever has the smaller Σ svec(|C|)³), solved as
-  the clique-tree dual of ``sdp.clarabel_direct.solve_cliques``;
+- ``cliques``: our own clique decomposition (``run.cliques_for``: the min-fill chordal covers of the
+  columns and of the variable blocks with small cliques merged, or the model's block cliques,
+  whichever has the smallest Σ svec(|C|)³), solved as the clique-tree dual of
+  ``sdp.clarabel_direct.solve_cliques``;
 - ``ipm``: our own Schur-complement interior-point method (``sdp.schur_ipm``) on its own clique
   cover (``run.cliques_for(…, "ipm")``, chosen by ``schur_ipm.iteration_cost``; tolerance 1e-7
-  relative, see ``schur_ipm.IPM_MIN_TOL``);
+  relative, see ``schur_ipm.IPM_MIN_TOL``); when it ends unusable, Clarabel solves again on the
+  ``cliques`` cover and the IPM's time is counted;
 - ``chordal-default``: Clarabel's chordal decomposition with its default clique-graph merging
   (given a time limit; a solve that hits it is reported as such).
 Continuous time is solved with ϖ marginalised (the paper) and with ϖ kept in the lifting.

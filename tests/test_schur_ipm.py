@@ -36,8 +36,10 @@ def test_svec_to_vec_maps_svec_to_row_major_vec_and_back():
     assert np.abs(P.T @ v - s).max() <= 1e-12
 
 
-def test_schur_complement_equals_its_definition():
-    """S_il = Σ_k ⟨A_ik, X_k A_lk Z_k⁻¹⟩ on random blocks and random sparse constraints."""
+@pytest.mark.parametrize("search", ["hkm", "nt"])
+def test_schur_complement_equals_its_definition(search):
+    """S_il = Σ_k ⟨A_ik, P_k A_lk Q_k⟩ on random blocks and random sparse constraints, for HKM
+    (P, Q) = (X, Z⁻¹) and for NT P = Q = W (the same list, which ``assemble`` folds as one kernel)."""
     rng = np.random.default_rng(1)
     sizes = [3, 4, 3]
     R = sum(n * (n + 1) // 2 for n in sizes)
@@ -54,12 +56,14 @@ def test_schur_complement_equals_its_definition():
     Xk = [spd(n) for n in sizes]
     Zk = [spd(n) for n in sizes]
     by_group = lambda mats: [np.stack([mats[k] for k in ids]) for _, ids, _ in blocks.groups]  # noqa: E731
-    vals = schur.assemble(by_group(Xk), by_group([np.linalg.inv(Z) for Z in Zk]))
+    left = by_group(Xk)
+    right = by_group([np.linalg.inv(Z) for Z in Zk]) if search == "hkm" else left
+    vals = schur.assemble(left, right)
     S = sp.csr_array((vals, schur.cols, schur.indptr), shape=(7, 7)).toarray()
     expect = np.zeros((7, 7))
     for k, n in enumerate(sizes):
         A = [Gv[blocks.voff[k]:blocks.voff[k + 1]][:, [i]].toarray().reshape(n, n) for i in range(7)]
-        Zi = np.linalg.inv(Zk[k])
+        Zi = np.linalg.inv(Zk[k]) if search == "hkm" else Xk[k]
         expect += np.array([[np.sum(A[i] * (Xk[k] @ A[j] @ Zi)) for j in range(7)] for i in range(7)])
     assert np.abs(S - expect).max() <= 1e-12 * np.abs(expect).max()
 
@@ -259,3 +263,76 @@ def test_refinement_is_kept_only_when_it_lowers_the_residual(monkeypatch):
     r = np.random.default_rng(2).standard_normal(schur.M)
     dy = schur.factor(vals, 0.0)(r)
     assert np.linalg.norm(S @ dy - r) == pytest.approx(2 * np.linalg.norm(r), rel=1e-8)
+
+
+def _continuous_kept(K: int, seed: int):
+    prob = load("continuous_trajectory")
+    model = prob.build(prob.generate({"K": K, "marginalize": False}, seed))
+    return model, model.primary() + model.paper_constraints()
+
+
+def test_block_cover_keeps_blocks_whole_and_finds_the_small_separators():
+    """chordal.block_cliques on continuous time with ϖ kept (K = 7): a clique tree holding every
+    nonzero of Q and the constraints, each clique a union of whole variable blocks with h, and
+    the IPM's chosen cover (that cover merged) has separators of at most 13 columns
+    ({h, ξ_{k+1,k}, ϖ_{k+1}}) where the model's chain has 19 ({h, pose k+1, ϖ_{k+1}}), and is
+    estimated cheaper than the model's."""
+    from autotight.run import CliqueCovers
+    from autotight.sdp.chordal import block_loads, clique_tree, has_running_intersection
+
+    model, cons = _continuous_kept(7, 0)
+    V = model.variables
+    covers = CliqueCovers(model, cons)
+    cl = covers.blocks
+    assert has_running_intersection(cl) and all(c[0] == 0 for c in cl)
+    starts = {V.offsets[n]: V.sizes[n] for n in V.names}
+    for c in cl:  # whole blocks: the columns split into runs that start a block and span it
+        cols = set(c.tolist())
+        assert all(set(range(o, o + size)) <= cols or not (set(range(o, o + size)) & cols) for o, size in starts.items())
+    inc = np.zeros((len(cl), V.N), bool)
+    for k, c in enumerate(cl):
+        inc[k, c] = True
+    for A in [model.Q] + [c.A for c in cons]:
+        E = sp.coo_array(A)
+        assert np.all((inc[:, E.row] & inc[:, E.col]).any(axis=0))
+
+    def separators(cover):
+        parent = clique_tree(cover)
+        return [np.intersect1d(cover[k], cover[parent[k]]).size for k in range(len(cover)) if parent[k] >= 0]
+
+    chosen = covers.choose("ipm")  # the block cover with small neighbours merged
+    assert max(separators(chosen)) <= 13 < max(separators(model.clique_indices())) == 19
+    def cost(cover):
+        return schur_ipm.iteration_cost([len(c) for c in cover], block_loads(cover, covers.support))
+
+    assert cost(chosen) < cost(model.clique_indices())
+
+
+def test_ipm_keeps_going_while_the_costs_fall_by_orders_of_magnitude():
+    """Continuous time with ϖ kept (K = 9): the optimum is ~3e-4 of max|Q|, so the relative gap
+    stays above 1 for the first ~15 iterations while both costs fall by 1e5.  The stall rule counts
+    the absolute gap as progress (a rule on the relative gap stopped this solve at iteration 7 with
+    gap 1.4): the IPM alone ends usable, at Clarabel's cost to 1e-5."""
+    model, cons = _continuous_kept(9, 0)
+    res = solve_sdp(model, cons, solver="ipm")
+    assert res.solver == "autotight-ipm" and res.usable, res.message
+    assert res.iterations > 15
+    ref = solve_sdp(model, cons)
+    assert abs(res.primal_cost - ref.primal_cost) <= 1e-5 * abs(ref.primal_cost), (res.primal_cost, ref.primal_cost)
+
+
+def test_clarabel_resolves_on_its_own_cover(monkeypatch):
+    """When the IPM ends unusable, Clarabel re-solves on the cover chosen for Clarabel (smaller
+    cliques), not on the IPM's: continuous time with ϖ kept, K = 7, seed 1 (the IPM stalls at a
+    relative gap of ~1e-6)."""
+    from autotight.run import cliques_for
+
+    model, cons = _continuous_kept(7, 1)
+    seen = []
+    real = sdp._clarabel
+    monkeypatch.setattr(sdp, "_clarabel", lambda Q, As, b, d, cliques, opts: seen.append(cliques) or real(Q, As, b, d, cliques, opts))
+    res = solve_sdp(model, cons, solver="ipm")
+    assert res.message.startswith("ipm: InsufficientProgress") and res.usable, res.message
+    want = cliques_for(model, cons, "clarabel")
+    assert len(seen) == 1 and [c.tolist() for c in seen[0]] == [c.tolist() for c in want]
+    assert [c.tolist() for c in want] != [c.tolist() for c in cliques_for(model, cons, "ipm")]

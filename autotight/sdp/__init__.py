@@ -82,8 +82,11 @@ def _clarabel(Q: sp.csr_array, As: list[sp.csr_array], b: np.ndarray, d: int,
 @single_blas_thread
 def solve(Q: sp.spmatrix | sp.sparray, constraints: Sequence[Constraint], *, d: int = 1,
           solver: str = "clarabel", cliques: Sequence[np.ndarray] | None = None,
-          options: SolverOptions | None = None) -> SDPResult:
+          options: SolverOptions | None = None,
+          fallback_cliques: Sequence[np.ndarray] | None = None) -> SDPResult:
     """Solve the SDP; ``constraints`` are ``Constraint`` objects (A sparse symmetric, b).
+    ``fallback_cliques``: the cover for Clarabel's re-solve when an IPM result is unusable
+    (default: ``cliques``; the IPM prefers fewer, larger cliques than Clarabel does).
     ValueError for an unknown ``solver``; every failure of a known one is a status."""
     check_solver(solver)
     opts = options or SolverOptions()
@@ -98,7 +101,7 @@ def solve(Q: sp.spmatrix | sp.sparray, constraints: Sequence[Constraint], *, d: 
             if not res.usable:  # its attainable accuracy was not enough: Clarabel on the same data
                 first = f"ipm: {res.status} ({res.message.strip()}, {res.solve_time_s:.2f} s, counted in solve_time_s)"
                 spent = res.solve_time_s + res.setup_time_s
-                res = _clarabel(Q, As, b, d, cliques, opts)
+                res = _clarabel(Q, As, b, d, cliques if fallback_cliques is None else fallback_cliques, opts)
                 res.message = f"{first}; solved again by {res.solver}: {res.status}" + (f"; {res.message}" if res.message else "")
                 res.solve_time_s += spent
         else:

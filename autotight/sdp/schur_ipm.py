@@ -9,15 +9,18 @@ SDPT3's infeasible start.
 Each iteration solves the Schur complement system  S Δy = r,  S_il = Σ_k ⟨A_ik, P_k A_lk Q_k⟩  with
 (P, Q) = (W, W) for NT (W Z W = X) and (X, Z⁻¹) for HKM.
 S is sparse: S_il ≠ 0 only when constraints i and l touch a common block, so on a clique chain it
-is block-banded and an iteration costs O(p).  It is assembled block by block from the dense
-n_k² × n_k² Kronecker products P_k ⊗ Q_k and factorised by a supernodal sparse Cholesky (CHOLMOD,
-through cvxopt) with one symbolic analysis per solve; SuperLU when cvxopt is missing or the
-Cholesky fails.  Per iteration this costs about ``iteration_cost``: Σ_k n_k⁴ + m_k² n_k² + m_k³
-for blocks of n_k columns touched by m_k constraints.  Unlike Clarabel (Σ_k svec(n_k)³), fewer and
-larger blocks with fewer overlap constraints pay, so ``run.cliques_for(…, "ipm")`` picks its own
-cover by that estimate (discrete trajectory: one block of 25–31 columns per pose, S of 1258 rows at
-K = 20, against 4582 on Clarabel's 20-column cover).  Blocks of 40–70 columns (continuous time)
-remain slower than Clarabel.
+is block-banded and an iteration costs O(p).  Block k's part G_kᵀ (P_k ⊗ Q_k) G_k is assembled
+from the kernel P_k ⊗ Q_k restricted to the entries that block k's constraints touch, folded over
+the symmetric pairs (a, b) ~ (b, a) (``_Schur.assemble``): |support|² per block instead of the n_k⁴
+of the full Kronecker product (continuous time, ϖ kept, K = 21: 89 → 18 ms per assembly).  S is
+factorised by a supernodal sparse Cholesky (CHOLMOD, through cvxopt) with one symbolic analysis per
+solve; SuperLU when cvxopt is missing or the Cholesky fails.  Per iteration this costs about
+``iteration_cost``: Σ_k n_k⁴ + m_k² n_k² + m_k³ for blocks of n_k columns touched by m_k
+constraints (a ranking, not a prediction).  Unlike Clarabel (Σ_k svec(n_k)³), fewer and larger
+blocks with fewer overlap constraints pay, so ``run.cliques_for(…, "ipm")`` picks its own cover by
+that estimate (discrete trajectory: one block of 25–31 columns per pose, S of 1258 rows at K = 20,
+against 4582 on Clarabel's 20-column cover; continuous time with ϖ kept: blocks of 37–43 columns
+cut at {h, ξ_{k+1,k}, ϖ_{k+1}}, about 55 ms per iteration at K = 21).
 
 Tight relaxations with many redundant constraints are primal degenerate (rank-1 blocks, far more
 constraints than the n_k directions tangent to them), so S has condition ~1/μ² near the optimum.
@@ -26,7 +29,14 @@ diagonal), which damps only the degenerate directions, and one refinement step i
 only when it lowers the residual ‖r − S Δy‖ (near the optimum it often raised it 10–50×, which
 showed as primal infeasibility jumping from 1e-8 to 1e-6 and a stalled solve); when the Cholesky
 factorisation breaks down anyway, SuperLU with partial pivoting takes over.  Measured on the
-discrete trajectory (K = 10 … 100, 3 seeds each): every solve ends usable, 10 of 12 Solved.
+discrete trajectory (K = 10, 20, 30, 50; 36 instances): every solve ends usable, 29 Solved and 7
+AlmostSolved (relative residuals ≤ 4.5e-7); the full-Kronecker assembly gave 33 and 3 but took 1.5× as
+long (its S is no more accurate in general: against a long-double reference on ill-conditioned
+scalings the largest errors were 8e-14 and 2e-13 of the diagonal scale, the typical ones equal).
+Continuous time is out of reach: its optimum is ~3e-4 of max|Q|, so μ must fall ~1e4 further
+than usual; the Schur solves lose accuracy from a relative gap of ~1e-1 on, the IPM stalls at
+gaps of 1e-5 … 1e-2 with pinf up to 1e-5, and Clarabel solves again.  Removing the paper set's 9
+linearly dependent constraints (K = 21) keeps Δy bounded but does not move the stall.
 Tried and dropped: HKM (stalls more often: K = 100 gap 3e-6, rotation averaging M = 4 in one block
 9e-7 against NT's 1e-8); retrying CHOLMOD with 10–100× the regularisation (~30 % faster, stops at
 gaps of ~5e-7 instead of ~1e-7); simplicial LDLᵀ instead of SuperLU after a breakdown (cheaper,
@@ -38,7 +48,8 @@ The tolerance therefore stops at IPM_MIN_TOL (relative); there is no infeasibili
 an infeasible or unbounded problem ends as InsufficientProgress, MaxIterations or NumericalError.
 
 Everything here works on full row-major vec(·) (n_k² entries per block); the svec data of
-``clique_program`` (off-diagonals scaled by √2) is mapped once by the sparse svec → vec operator.
+``clique_program`` (off-diagonals scaled by √2) is mapped once by the sparse svec → vec operator,
+and the Schur assembly keeps only the upper-triangle entries (a ≤ b) its constraints touch.
 """
 
 from __future__ import annotations
@@ -66,8 +77,9 @@ CORRECTOR_FALLBACK = 0.5
 #: the cost is scaled to max|C_ij| = 1; below this magnitude the gap is measured absolutely
 GAP_FLOOR = 1e-6
 #: stop (InsufficientProgress) after this many iterations in which the best max residual did not
-#: improve and the progress measure (the gap relative to 1 + |costs|, which keeps falling while the
-#: costs pass through zero) did not fall below PROGRESS × its best
+#: improve and none of the absolute gap |pobj − dobj|, pinf and dinf fell below PROGRESS × its best
+#: (the absolute gap keeps falling while the costs shrink by orders of magnitude towards a small
+#: optimum, where any relative gap stays near 1)
 STALL_ITERATIONS = 5
 PROGRESS = 0.9
 #: … or in this many once the best iterate is AlmostSolved
@@ -160,7 +172,10 @@ class _Schur:
 
     def __init__(self, Gv: sp.csr_array, blocks: _Blocks):
         M = Gv.shape[1]
-        self.per_block: list[sp.csr_array] = []  # G_kᵀ restricted to the constraints touching block k
+        # per block k: the constraints touching it (ids), and their data on the block's support in
+        # half form: G_k[i, u] = vec(A_ik)[a_u n + b_u] for the entries (a_u ≤ b_u) that any of them touches
+        self.per_block: list[sp.csr_array] = []
+        self.support: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []  # (a_u, b_u, 1/orbit size)
         inc = []  # constraint-block incidence
         keys = []
         Gv = sp.csr_array(Gv)
@@ -169,8 +184,13 @@ class _Schur:
             lo, hi = Gv.indptr[blocks.voff[k]], Gv.indptr[blocks.voff[k + 1]]
             cols, vals = Gv.indices[lo:hi], Gv.data[lo:hi]
             local = np.repeat(np.arange(n * n), np.diff(Gv.indptr[blocks.voff[k]:blocks.voff[k + 1] + 1]))
+            a, b = np.divmod(local, n)
+            upper = a <= b  # A_i symmetric: the entry (b, a) repeats (a, b)
             ids, rank = np.unique(cols, return_inverse=True)
-            self.per_block.append(sp.csr_array((vals, (rank, local)), shape=(ids.size, n * n)))
+            entries, ent = np.unique(local[upper], return_inverse=True)
+            au, bu = np.divmod(entries, n)
+            self.per_block.append(sp.csr_array((vals[upper], (rank[upper], ent)), shape=(ids.size, entries.size)))
+            self.support.append((au, bu, np.where(au == bu, 0.5, 1.0)))
             inc.append(ids)
             keys.append((ids[:, None] * M + ids[None, :]).ravel())
         B = sp.csr_array((np.ones(sum(i.size for i in inc)), (np.repeat(np.arange(len(inc)), [i.size for i in inc]),
@@ -192,16 +212,29 @@ class _Schur:
 
     def assemble(self, P: list[np.ndarray], Q: list[np.ndarray]) -> np.ndarray:
         """The values of S = Σ_k G_kᵀ (P_k ⊗ Q_k) G_k on the pattern (CSR order); P_k, Q_k symmetric.
-        (The Gram form B_kᵀB_k, b_i = vec(L_Pᵀ A_i L_Q), is PSD to rounding but was less accurate.)"""
+
+        Only the entries that block k's constraints touch enter, in half form: for support entries
+        u = (a, b), w = (c, d) (a ≤ b, c ≤ d) the kernel sums P ⊗ Q over the symmetric orbits,
+        K_uw = (P_ac Q_bd + P_ad Q_bc + P_bc Q_ad + P_bd Q_ac) / (o_u o_w), o = 2 on the diagonal,
+        = 2 (W_ac W_bd + W_ad W_bc) / (o_u o_w) when P is Q (NT).  This costs |support|² per block
+        instead of n⁴.  (The Gram form B_kᵀB_k, b_i = vec(L_Pᵀ A_i L_Q), was less accurate.)"""
         parts: list[np.ndarray] = [np.zeros(0)] * len(self.per_block)
+        same = P is Q
         for (n, ids, _), Pg, Qg in zip(self.blocks.groups, P, Q):
-            K = np.empty((n, n, n, n))  # P_k ⊗ Q_k, one cache-sized buffer per block size
-            K2 = K.reshape(n * n, n * n)
-            for b, k in enumerate(ids):
-                np.multiply(Pg[b][:, None, :, None], Qg[b][None, :, None, :], out=K)
-                GkT = self.per_block[k]
-                T = GkT @ K2  # (m_k × n²): rows vec(P A_i Q)ᵀ
-                parts[k] = (GkT @ T.T).ravel()
+            for j, k in enumerate(ids):
+                a, b, o = self.support[k]
+                Pa, Pb = Pg[j][a], Pg[j][b]
+                if same:
+                    Kk = Pa[:, a] * Pb[:, b]
+                    Kk += Pa[:, b] * Pb[:, a]
+                    Kk *= 2
+                else:
+                    Qa, Qb = Qg[j][a], Qg[j][b]
+                    Kk = Pa[:, a] * Qb[:, b] + Pa[:, b] * Qb[:, a] + Pb[:, a] * Qa[:, b] + Pb[:, b] * Qa[:, a]
+                Kk *= o[:, None]
+                Kk *= o[None, :]
+                Gk = self.per_block[k]
+                parts[k] = (Gk @ (Gk @ Kk).T).ravel()
         return np.bincount(self.inverse, weights=np.concatenate(parts), minlength=self.rows.size)
 
     def factor(self, vals: np.ndarray, reg: float) -> Callable[[np.ndarray], np.ndarray]:
@@ -304,7 +337,7 @@ def solve_blocks(F: sp.csc_matrix, c: np.ndarray, g: np.ndarray, sizes: list[int
     gamma = 0.9
     status, message, it = "MaxIterations", "", 0
     best: tuple | None = None
-    merit_best, merit_it = np.inf, 0  # progress: max(|pobj − dobj| / (1 + |pobj| + |dobj|), pinf, dinf)
+    progress_best, progress_it = np.full(3, np.inf), 0  # best |pobj − dobj|, pinf, dinf so far
     for it in range(max_iter + 1):
         rp = g - A(X)
         Rd = [Cg - Ag - Zg for Cg, Ag, Zg in zip(C, At(y), Z)]
@@ -318,9 +351,10 @@ def solve_blocks(F: sp.csc_matrix, c: np.ndarray, g: np.ndarray, sizes: list[int
             print(f"{it:3d} pobj {pobj:+.10e} dobj {dobj:+.10e} gap {gap:.1e} pinf {pinf:.1e} dinf {dinf:.1e}")
         if best is None or err < best[0]:
             best = (err, [x.copy() for x in X], y.copy(), pobj, dobj, gap, pinf, dinf, it)
-        merit = max(abs(pobj - dobj) / (1 + abs(pobj) + abs(dobj)), pinf, dinf)
-        if merit < PROGRESS * merit_best:
-            merit_best, merit_it = merit, it
+        measures = np.array([abs(pobj - dobj), pinf, dinf])
+        if np.any(measures < PROGRESS * progress_best):
+            progress_it = it
+        progress_best = np.minimum(progress_best, measures)
         if err <= tol:
             status = "Solved"
             break
@@ -330,7 +364,7 @@ def solve_blocks(F: sp.csc_matrix, c: np.ndarray, g: np.ndarray, sizes: list[int
             status = "MaxTime"
             break
         stall = STALL_ITERATIONS_ALMOST if best[0] <= ALMOST_TOL else STALL_ITERATIONS
-        if it - max(best[8], merit_it) >= stall:
+        if it - max(best[8], progress_it) >= stall:
             status, message = "InsufficientProgress", f"no progress in {stall} iterations"
             break
         try:
