@@ -226,10 +226,22 @@ def column_support(matrices: Sequence[sp.sparray], N: int) -> sp.csr_array:
 
 def home_cliques(cliques: Sequence[np.ndarray], support: sp.csr_array) -> np.ndarray:
     """(m,) each constraint's home clique: the one holding most of its columns (the first on ties),
-    from ``support`` (see ``support_matrix``); the product stays sparse."""
-    if support.shape[1] == 0:
+    from ``support`` (see ``support_matrix``).  Columns in every clique (h) are left out, which
+    changes no argmax and keeps the p × m product sparse; its column-wise argmax is one sort of its
+    entries."""
+    m = support.shape[1]
+    if m == 0:
         return np.zeros(0, np.int64)
-    return np.asarray((incidence(cliques, support.shape[0]) @ support).argmax(axis=0)).ravel()
+    B = incidence(cliques, support.shape[0])
+    shared = np.asarray(B.sum(axis=0)).ravel() == len(cliques)  # h: adds the same count everywhere
+    P = sp.csc_array(B[:, ~shared] @ support[~shared])
+    P.sum_duplicates()
+    counts = np.diff(P.indptr)
+    order = np.lexsort((P.indices, -P.data, np.repeat(np.arange(m), counts)))
+    home = np.zeros(m, np.int64)
+    filled = counts > 0
+    home[filled] = P.indices[order[P.indptr[:-1][filled]]]
+    return home
 
 
 def block_loads(cliques: Sequence[np.ndarray], support: sp.csr_array) -> np.ndarray:

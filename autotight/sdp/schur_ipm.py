@@ -29,10 +29,11 @@ diagonal), which damps only the degenerate directions, and one refinement step i
 only when it lowers the residual ‖r − S Δy‖ (near the optimum it often raised it 10–50×, which
 showed as primal infeasibility jumping from 1e-8 to 1e-6 and a stalled solve); when the Cholesky
 factorisation breaks down anyway, SuperLU with partial pivoting takes over.  Measured on the
-discrete trajectory (K = 10, 20, 30, 50; 36 instances): every solve ends usable, 29 Solved and 7
-AlmostSolved (relative residuals ≤ 4.5e-7); the full-Kronecker assembly gave 33 and 3 but took 1.5× as
-long (its S is no more accurate in general: against a long-double reference on ill-conditioned
-scalings the largest errors were 8e-14 and 2e-13 of the diagonal scale, the typical ones equal).
+discrete trajectory (K = 10, 20, 30, 50; 36 instances): every solve ends usable, 34 Solved and 2
+AlmostSolved; the full-Kronecker assembly (with 3 iterations for STALL_ITERATIONS_ALMOST) gave 33
+and 3 and took 1.6× as long (against a long-double reference on ill-conditioned scalings both
+S have the same typical error; the largest was 8e-14 of the diagonal scale for the full product
+and 2e-13 for the folded one).
 Continuous time is out of reach: its optimum is ~3e-4 of max|Q|, so μ must fall ~1e4 further
 than usual; the Schur solves lose accuracy from a relative gap of ~1e-1 on, the IPM stalls at
 gaps of 1e-5 … 1e-2 with pinf up to 1e-5, and Clarabel solves again.  Removing the paper set's 9
@@ -82,8 +83,10 @@ GAP_FLOOR = 1e-6
 #: optimum, where any relative gap stays near 1)
 STALL_ITERATIONS = 5
 PROGRESS = 0.9
-#: … or in this many once the best iterate is AlmostSolved
-STALL_ITERATIONS_ALMOST = 3
+#: … or in this many once the best iterate is AlmostSolved: near the end the residuals bounce for a
+#: few iterations before they reach the tolerance (discrete trajectory, 36 instances: 34 Solved with
+#: 6, 29 with 3, at 5 % more iterations)
+STALL_ITERATIONS_ALMOST = 6
 
 
 @dataclass
