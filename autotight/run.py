@@ -75,11 +75,11 @@ class CliqueCovers:
         from .sdp.chordal import block_cliques, column_cliques, column_support
 
         V = model.variables
-        self.matrices = [c.A for c in constraints]
-        self.columns = column_cliques(V.N, [model.Q] + self.matrices, always=V.index(["h"]))
-        self.blocks = block_cliques([V.sizes[n] for n in V.names], [model.Q] + self.matrices)
+        matrices = [c.A for c in constraints]
+        self.columns = column_cliques(V.N, [model.Q] + matrices, always=V.index(["h"]))
+        self.blocks = block_cliques([V.sizes[n] for n in V.names], [model.Q] + matrices)
         self.own = [model.clique_indices()] if model.cliques else []
-        self.support = column_support(self.matrices, V.N)
+        self.support = column_support(matrices, V.N)  # (N × m) columns per constraint
 
     def choose(self, solver: str = "clarabel") -> list[np.ndarray]:
         from .sdp.chordal import block_loads, merge_small, merged_covers

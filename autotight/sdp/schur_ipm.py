@@ -178,7 +178,7 @@ class _Schur:
         # per block k: the constraints touching it (ids), and their data on the block's support in
         # half form: G_k[i, u] = vec(A_ik)[a_u n + b_u] for the entries (a_u ≤ b_u) that any of them touches
         self.per_block: list[sp.csr_array] = []
-        self.support: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []  # (a_u, b_u, 1/orbit size)
+        self.support: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []  # (a_u, b_u, 1/o_u), see assemble
         inc = []  # constraint-block incidence
         keys = []
         Gv = sp.csr_array(Gv)
@@ -218,7 +218,8 @@ class _Schur:
 
         Only the entries that block k's constraints touch enter, in half form: for support entries
         u = (a, b), w = (c, d) (a ≤ b, c ≤ d) the kernel sums P ⊗ Q over the symmetric orbits,
-        K_uw = (P_ac Q_bd + P_ad Q_bc + P_bc Q_ad + P_bd Q_ac) / (o_u o_w), o = 2 on the diagonal,
+        K_uw = (P_ac Q_bd + P_ad Q_bc + P_bc Q_ad + P_bd Q_ac) / (o_u o_w), o_u = 2 when a = b (the
+        four terms then count that entry's one orbit member twice) and 1 otherwise;
         = 2 (W_ac W_bd + W_ad W_bc) / (o_u o_w) when P is Q (NT).  This costs |support|² per block
         instead of n⁴.  (The Gram form B_kᵀB_k, b_i = vec(L_Pᵀ A_i L_Q), was less accurate.)"""
         parts: list[np.ndarray] = [np.zeros(0)] * len(self.per_block)
