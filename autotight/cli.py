@@ -46,10 +46,13 @@ def cmd_solve(args: argparse.Namespace) -> int:
     from .run import solve_instance
     from .sdp.result import SolverOptions
 
+    if args.decompose and args.solver.startswith("cvxpy"):
+        raise ValueError(f"--decompose needs --solver clarabel or ipm, not {args.solver!r}")
     prob = load(args.problem)
     inst = prob.generate(parse_assignments(args.param), args.seed)
     out = solve_instance(prob, inst, set_name=args.set, solver=args.solver, options=SolverOptions(),
-                         rng=np.random.default_rng(args.seed + 1_000_003), n_random=args.random_starts)
+                         rng=np.random.default_rng(args.seed + 1_000_003), n_random=args.random_starts,
+                         decompose=True if args.decompose else None)
     rec = out.record(prob)
     if args.json:
         rec |= {"measurements": inst.measurements, "truth": inst.truth, "estimate": out.estimate,
@@ -83,6 +86,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--set", choices=["primary", "paper"], default=None,
                    help="constraint set (default: paper if the problem has paper families, else primary)")
     p.add_argument("--solver", default="clarabel", help="clarabel (default), ipm (our interior-point method on clique blocks) or cvxpy:SCS, cvxpy:MOSEK, …")
+    p.add_argument("--decompose", action="store_true",
+                   help="Clarabel on our own clique cover (min-fill covers of the columns and of the variable "
+                        "blocks, autotight/run.py: CliqueCovers) instead of its built-in chordal decomposition; "
+                        "faster on continuous time with marginalize=false (K = 21: 9 s against 30 s). "
+                        "The IPM always uses our cover")
     p.add_argument("--random-starts", type=int, default=1, help="random-start local solves (default 1)")
     p.set_defaults(func=cmd_solve)
     for extra in _extensions():

@@ -142,7 +142,7 @@ class SolveOutcome:
         return {
             "problem": problem.name, "params": self.instance.params, "seed": self.instance.seed,
             "constraint_set": self.set_name, "n_constraints": self.n_constraints,
-            "status": self.sdp.status, "tight": self.verdict.tight, "rank_tight": self.verdict.rank_tight,
+            "solver": self.sdp.solver, "status": self.sdp.status, "tight": self.verdict.tight, "rank_tight": self.verdict.rank_tight,
             "cost_tight": self.verdict.cost_tight, "verdict": self.verdict.reason,
             "log_svr": self.sdp.log_svr, "sdp_cost": self.sdp.primal_cost, "sdp_dual_cost": self.sdp.dual_cost,
             "local_cost": lt.cost, "local_cost_random": [r.cost for r in self.local.from_random],

@@ -21,7 +21,11 @@ which Clarabel's own (entry-level) chordal decomposition finds; any block-level 
 with h and every motion block (``marginalized_cliques``, largest bag 25 + 6(K−1)), which makes the
 clique-decomposed SDP far slower than Clarabel's own (K = 11: 49 s against 4.7 s; at K = 21 its
 dense cone blocks alone need 1.5 GB).  So ``Model.cliques`` is None when marginalising, and the
-chain {h, pose k, pose k+1, ξ_{k+1,k}, ϖ_k, ϖ_{k+1}} when ϖ is kept.
+chain {h, pose k, pose k+1, ξ_{k+1,k}, ϖ_k, ϖ_{k+1}} when ϖ is kept.  Both SDPs have the same
+optimum: with Q_ww ≻ 0, ⟨Q_full, X⟩ minimised over the ϖ rows and columns of X ⪰ 0 is ⟨S, X_xx⟩.
+So keeping ϖ and solving on a clique cover (``autotight solve … -p marginalize=false
+--decompose``) is the fast way to the marginalised SDP's answer: K = 21 in 9 s, where every method
+on the marginalised SDP takes over 40 s (``benchmarks/trajectory_sdp.py``).
 
 Factors: "so3" per pose (orthonormality), "pose_meas" {h, C_k, r_k, ξ_k} per measured k (the 12
 Cayley rows of (I − ½ξ_k^∧) T_k = (I + ½ξ_k^∧) T̃_k), "motion" {h, pose k, pose k+1, ξ_{k+1,k}}

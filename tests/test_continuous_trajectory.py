@@ -335,3 +335,21 @@ def test_custom_timestamps_are_used():
     x = PROB.lift(inst, s)
     full = _paper_cost(inst, s["T"], w)
     assert abs(x @ (model.Q @ x) - full) <= COST_RTOL * full
+
+
+def test_keeping_the_twists_gives_the_marginalised_sdp_optimum():
+    """With Q_ww ≻ 0, ⟨Q_full, X⟩ minimised over the ϖ rows and columns of X ⪰ 0 is ⟨S, X_xx⟩: the
+    SDP with ϖ kept (solved on our clique cover) and the marginalised SDP have the same optimal cost
+    (to 1e-6 relative, Clarabel's tolerance being 1e-8), and its x-block matches the marginalised
+    rank-1 solution (entries to 1e-4 of max|X|)."""
+    out = {}
+    for marginalize in (True, False):
+        inst = _instance(4, K=6, marginalize=marginalize)
+        model = PROB.build(inst)
+        res = solve_sdp(model, model.primary() + model.paper_constraints(), decompose=not marginalize)
+        assert res.status == "Solved" and res.log_svr > 5, res.summary()
+        out[marginalize] = (res, model)
+    (m_res, m_model), (k_res, k_model) = out[True], out[False]
+    assert abs(k_res.primal_cost - m_res.primal_cost) <= 1e-6 * m_res.primal_cost
+    ix = k_model.variables.index(m_model.variables.names)
+    assert np.abs(k_res.X[np.ix_(ix, ix)] - m_res.X).max() <= 1e-4 * np.abs(m_res.X).max()
