@@ -61,7 +61,7 @@ IPM_MERGE_CAPS = (16, 20, 24, 28, 32, 40, 48)
 class CliqueCovers:
     """Candidate clique covers of a model's SDP (h in every clique) and the choice per solver.
 
-    Candidates: the min-fill chordal cover of Q and the constraints (``chordal.column_cliques``),
+    Candidates: the min-fill chordal cover of Q and the constraints (``chordal.entry_cliques``),
     the min-fill cover of the graph of variable blocks (``chordal.block_cliques``), each with small
     neighbours merged, and the model's own block cliques when it declares them.  For Clarabel both
     covers merged up to ``MERGE_MAX_SIZE`` columns and the model's are compared by the
@@ -72,25 +72,31 @@ class CliqueCovers:
     """
 
     def __init__(self, model: Model, constraints: Sequence[Constraint]):
-        from .sdp.chordal import block_cliques, column_cliques, column_support
+        from .sdp.chordal import block_cliques, entry_cliques, merged_covers, nonzeros, support_matrix
 
         V = model.variables
-        matrices = [c.A for c in constraints]
-        self.columns = column_cliques(V.N, [model.Q] + matrices, always=V.index(["h"]))
-        self.blocks = block_cliques([V.sizes[n] for n in V.names], [model.Q] + matrices)
+        owner, rows, cols = nonzeros([model.Q] + [c.A for c in constraints])  # one pass over the data
+        caps = tuple(sorted({MERGE_MAX_SIZE, *IPM_MERGE_CAPS}))
+        #: {cap: cover} for each base cover (cap 0: unmerged), on one clique tree per base
+        self.columns = merged_covers(entry_cliques(V.N, rows, cols, always=V.index(["h"])), caps)
+        self.blocks = merged_covers(block_cliques([V.sizes[n] for n in V.names], rows, cols), (0,) + caps)
         self.own = [model.clique_indices()] if model.cliques else []
-        self.support = column_support(matrices, V.N)  # (N × m) columns per constraint
+        con = owner > 0  # (N × m) the columns of each constraint (owner 0 is Q)
+        self.support = support_matrix(rows[con], cols[con], owner[con] - 1, V.N, len(constraints))
 
     def choose(self, solver: str = "clarabel") -> list[np.ndarray]:
-        from .sdp.chordal import block_loads, merge_small, merged_covers
+        from .sdp.chordal import block_loads
         from .sdp.schur_ipm import iteration_cost
         from .svec import svec_dim
 
         if solver != "ipm":
-            covers = [merge_small(self.columns, MERGE_MAX_SIZE), merge_small(self.blocks, MERGE_MAX_SIZE)] + self.own
+            covers = [self.columns[MERGE_MAX_SIZE], self.blocks[MERGE_MAX_SIZE]] + self.own
             return min(covers, key=lambda cl: sum(float(svec_dim(len(c))) ** 3 for c in cl))
-        covers = merged_covers(self.columns, IPM_MERGE_CAPS) + merged_covers(self.blocks, (0,) + IPM_MERGE_CAPS)
-        return min(covers + self.own,
+        candidates = [self.columns[c] for c in IPM_MERGE_CAPS] + [self.blocks[c] for c in (0,) + IPM_MERGE_CAPS]
+        unique: dict[tuple, list[np.ndarray]] = {}  # equal covers (caps that merge nothing more) once
+        for cl in candidates:
+            unique.setdefault(tuple(tuple(c.tolist()) for c in cl), cl)
+        return min(list(unique.values()) + self.own,
                    key=lambda cl: iteration_cost([len(c) for c in cl], block_loads(cl, self.support)))
 
 
@@ -142,8 +148,8 @@ class SolveOutcome:
         return {
             "problem": problem.name, "params": self.instance.params, "seed": self.instance.seed,
             "constraint_set": self.set_name, "n_constraints": self.n_constraints,
-            "solver": self.sdp.solver, "status": self.sdp.status, "tight": self.verdict.tight, "rank_tight": self.verdict.rank_tight,
-            "cost_tight": self.verdict.cost_tight, "verdict": self.verdict.reason,
+            "solver": self.sdp.solver, "status": self.sdp.status, "tight": self.verdict.tight,
+            "rank_tight": self.verdict.rank_tight, "cost_tight": self.verdict.cost_tight, "verdict": self.verdict.reason,
             "log_svr": self.sdp.log_svr, "sdp_cost": self.sdp.primal_cost, "sdp_dual_cost": self.sdp.dual_cost,
             "local_cost": lt.cost, "local_cost_random": [r.cost for r in self.local.from_random],
             "best_local_cost": self.local.best.cost, "rel_gap": self.verdict.rel_gap,

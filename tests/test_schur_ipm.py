@@ -225,6 +225,14 @@ def test_block_loads_count_the_constraints_each_block_receives():
     assert np.abs(est - actual).max() <= 3, (est, actual)
 
 
+def _holds_every_nonzero(cover: list[np.ndarray], matrices: list) -> bool:
+    """Every nonzero (i, j) of every matrix lies in some clique of ``cover``."""
+    inc = np.zeros((len(cover), matrices[0].shape[0]), bool)
+    for k, c in enumerate(cover):
+        inc[k, c] = True
+    return all(np.all((inc[:, E.row] & inc[:, E.col]).any(axis=0)) for E in map(sp.coo_array, matrices))
+
+
 def test_ipm_cover_minimises_the_estimated_iteration_cost():
     """cliques_for(…, "ipm") on the discrete trajectory: a clique tree that holds every nonzero
     (i, j) of Q and of the constraints in some clique, whose estimated cost is no larger than that of
@@ -242,12 +250,7 @@ def test_ipm_cover_minimises_the_estimated_iteration_cost():
 
     chosen = cliques_for(model, cons, "ipm")
     assert has_running_intersection(chosen)
-    inc = np.zeros((len(chosen), model.variables.N), bool)
-    for k, c in enumerate(chosen):
-        inc[k, c] = True
-    for A in [model.Q] + [c.A for c in cons]:
-        E = sp.coo_array(A)
-        assert np.all((inc[:, E.row] & inc[:, E.col]).any(axis=0))
+    assert _holds_every_nonzero(chosen, [model.Q] + [c.A for c in cons])
     assert cost(chosen) <= cost(cliques_for(model, cons)) and cost(chosen) <= cost(model.clique_indices())
 
 
@@ -283,18 +286,13 @@ def test_block_cover_keeps_blocks_whole_and_finds_the_small_separators():
     model, cons = _continuous_kept(7, 0)
     V = model.variables
     covers = CliqueCovers(model, cons)
-    cl = covers.blocks
+    cl = covers.blocks[0]  # unmerged
     assert has_running_intersection(cl) and all(c[0] == 0 for c in cl)
     starts = {V.offsets[n]: V.sizes[n] for n in V.names}
     for c in cl:  # whole blocks: the columns split into runs that start a block and span it
         cols = set(c.tolist())
         assert all(set(range(o, o + size)) <= cols or not (set(range(o, o + size)) & cols) for o, size in starts.items())
-    inc = np.zeros((len(cl), V.N), bool)
-    for k, c in enumerate(cl):
-        inc[k, c] = True
-    for A in [model.Q] + [c.A for c in cons]:
-        E = sp.coo_array(A)
-        assert np.all((inc[:, E.row] & inc[:, E.col]).any(axis=0))
+    assert _holds_every_nonzero(cl, [model.Q] + [c.A for c in cons])
 
     def separators(cover):
         parent = clique_tree(cover)
@@ -302,6 +300,7 @@ def test_block_cover_keeps_blocks_whole_and_finds_the_small_separators():
 
     chosen = covers.choose("ipm")  # the block cover with small neighbours merged
     assert max(separators(chosen)) <= 13 < max(separators(model.clique_indices())) == 19
+
     def cost(cover):
         return schur_ipm.iteration_cost([len(c) for c in cover], block_loads(cover, covers.support))
 

@@ -299,10 +299,10 @@ def test_top_only_factor_falls_back_when_lanczos_does_not_converge(monkeypatch):
 def test_block_cliques_expand_block_cliques_to_columns():
     """Blocks h (1), a (2), b (3), c (2); the matrices couple a–b and b–c only: the block graph is a
     path, its cliques {h, a, b} and {h, b, c}, expanded to their columns."""
-    from autotight.sdp.chordal import block_cliques
+    from autotight.sdp.chordal import block_cliques, nonzeros
 
     N = 8  # h: 0, a: 1–2, b: 3–5, c: 6–7
     A = sp.csr_array(([1.0, 1.0], ([2, 4], [4, 2])), shape=(N, N))
     B = sp.csr_array(([1.0, 1.0], ([5, 7], [7, 5])), shape=(N, N))
-    got = sorted(c.tolist() for c in block_cliques([1, 2, 3, 2], [A, B]))
+    got = sorted(c.tolist() for c in block_cliques([1, 2, 3, 2], *nonzeros([A, B])[1:]))
     assert got == [[0, 1, 2, 3, 4, 5], [0, 3, 4, 5, 6, 7]]

@@ -5,7 +5,8 @@ Backends (one module each): ``clarabel`` (direct, sparse, default), ``clarabel``
 method on the clique blocks, ``schur_ipm``), ``cvxpy:<SOLVER>`` (SCS, MOSEK, …).
 An ``ipm`` solve that ends unusable (its normal equations limit it to about 1e-8 of the data's
 scale, too little when the optimal cost is far smaller than the cost matrix's entries) is solved
-again by Clarabel on the same data; ``res.solver`` and ``res.message`` say so.
+again by Clarabel on the same data (on ``fallback_cliques``, Clarabel's own cover, when given);
+``res.solver`` and ``res.message`` say so.
 A failed or inaccurate solve is returned with its status; it never raises.
 """
 

@@ -74,7 +74,7 @@ def merge_small(cliques: Sequence[np.ndarray], max_size: int,
 
     Merging a clique into its tree neighbour keeps a clique tree.  Fewer, larger blocks trade the
     interior-point cost of the blocks against that of the overlaps between them (see
-    ``run.cliques_for`` for how the cap is chosen).  ``tree``: ``_tree(cliques)`` when known.
+    ``run.CliqueCovers`` for how the cap is chosen).  ``tree``: ``_tree(cliques)`` when known.
     """
     cl = [set(np.asarray(c).tolist()) for c in cliques]
     parent, bfs, _ = tree if tree is not None else _tree(cliques)
@@ -90,14 +90,10 @@ def merge_small(cliques: Sequence[np.ndarray], max_size: int,
     return [np.array(sorted(cl[k]), dtype=np.int64) for k in range(len(cl)) if alive[k]]
 
 
-def merged_covers(cliques: Sequence[np.ndarray], caps: Sequence[int]) -> list[list[np.ndarray]]:
-    """``merge_small(cliques, cap)`` for every cap, without repeats (one clique tree for all)."""
+def merged_covers(cliques: Sequence[np.ndarray], caps: Sequence[int]) -> dict[int, list[np.ndarray]]:
+    """{cap: ``merge_small(cliques, cap)``} for every cap, on one clique tree (cap 0: unmerged)."""
     tree = _tree(cliques)
-    covers = {}
-    for cap in caps:
-        cl = merge_small(cliques, cap, tree)
-        covers.setdefault(tuple(tuple(c.tolist()) for c in cl), cl)
-    return list(covers.values())
+    return {cap: merge_small(cliques, cap, tree) for cap in caps}
 
 
 def maximal(cliques: Sequence[np.ndarray]) -> list[np.ndarray]:
@@ -123,17 +119,24 @@ def maximal(cliques: Sequence[np.ndarray]) -> list[np.ndarray]:
 
 
 def column_cliques(N: int, matrices: Sequence[sp.sparray], always: Sequence[int] = (0,)) -> list[np.ndarray]:
-    """Cliques (column indices) of a chordal extension of the aggregate sparsity of ``matrices``.
+    """Cliques (column indices) of a chordal extension of the aggregate sparsity of ``matrices``
+    (``entry_cliques`` of their ``nonzeros``)."""
+    _, rows, cols = nonzeros(matrices)
+    return entry_cliques(N, rows, cols, always)
 
-    Columns i ≠ j are adjacent when some matrix has a nonzero at (i, j).  The ``always``
-    columns (h) touch everything; they are left out of the graph and added to every clique.
-    Greedy minimum-fill elimination gives the chordal extension; its elimination cliques, kept
-    maximal, form a clique tree.
+
+def entry_cliques(N: int, rows: np.ndarray, cols: np.ndarray, always: Sequence[int] = (0,)) -> list[np.ndarray]:
+    """Cliques (column indices) of a chordal extension of the pattern with entries (rows, cols).
+
+    Columns i ≠ j are adjacent when some entry is at (i, j) or (j, i).  The ``always`` columns (h)
+    touch everything; they are left out of the graph and added to every clique.  Greedy
+    minimum-fill elimination gives the chordal extension; its elimination cliques, kept maximal,
+    form a clique tree.
     """
     import heapq
 
     fixed = set(int(a) for a in always)
-    _, rows, cols = nonzeros(matrices)
+    rows, cols = np.asarray(rows, np.int64), np.asarray(cols, np.int64)
     free = np.ones(N, bool)
     free[list(fixed)] = False
     keep = (rows != cols) & free[rows] & free[cols]
@@ -183,21 +186,19 @@ def column_cliques(N: int, matrices: Sequence[sp.sparray], always: Sequence[int]
     return [np.array(head + sorted(c), dtype=np.int64) for c in uniq]
 
 
-def block_cliques(sizes: Sequence[int], matrices: Sequence[sp.sparray]) -> list[np.ndarray]:
-    """``column_cliques`` on the graph of variable blocks, expanded to columns.
+def block_cliques(sizes: Sequence[int], rows: np.ndarray, cols: np.ndarray) -> list[np.ndarray]:
+    """``entry_cliques`` on the graph of variable blocks, expanded to columns.
 
     ``sizes`` (nb,): the block sizes in column order; block 0 (h) is in every clique.  Two blocks
-    are adjacent when some matrix couples a column of one with a column of the other.  Eliminating
-    whole blocks keeps a block's columns together, so separators are unions of blocks (continuous
-    time: {h, ξ_{k+1,k}, ϖ_{k+1}}), and the graph is about 30× smaller than the columns' graph."""
+    are adjacent when an entry (rows, cols) couples a column of one with a column of the other.
+    Eliminating whole blocks keeps a block's columns together, so separators are unions of blocks
+    (continuous time: {h, ξ_{k+1,k}, ϖ_{k+1}}), and the graph is about 30× smaller than the
+    columns' graph."""
     edges = np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64)
-    _, rows, cols = nonzeros(matrices)
-    nb = len(sizes)
     br = np.searchsorted(edges, rows, side="right") - 1
     bc = np.searchsorted(edges, cols, side="right") - 1
-    pattern = sp.csr_array((np.ones(br.size), (br, bc)), shape=(nb, nb))
     return [np.concatenate([np.arange(edges[b], edges[b + 1]) for b in cl])
-            for cl in column_cliques(nb, [pattern + pattern.T], always=(0,))]
+            for cl in entry_cliques(len(sizes), br, bc, always=(0,))]
 
 
 def nonzeros(matrices: Sequence[sp.sparray]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -246,8 +247,8 @@ def home_cliques(cliques: Sequence[np.ndarray], support: sp.csr_array) -> np.nda
 
 def block_loads(cliques: Sequence[np.ndarray], support: sp.csr_array) -> np.ndarray:
     """(p,) the number of constraints that touch each clique block of the decomposed SDP, estimated:
-    each constraint (a column of ``support``) in its ``home_cliques`` block, plus svec(|C_k ∩ C_parent|) transfer constraints on each clique-tree edge, counted
-    at both ends."""
+    each constraint (a column of ``support``) in its ``home_cliques`` block, plus the
+    svec(|C_k ∩ C_parent|) transfer constraints of each clique-tree edge, counted at both ends."""
     p = len(cliques)
     B = incidence(cliques, support.shape[0])
     load = np.bincount(home_cliques(cliques, support), minlength=p).astype(float)

@@ -443,7 +443,8 @@ def solve_blocks(F: sp.csc_matrix, c: np.ndarray, g: np.ndarray, sizes: list[int
 
 def iteration_cost(sizes: Sequence[int], loads: Sequence[float]) -> float:
     """Estimated flops of one iteration on blocks of n_k columns touched by m_k constraints
-    (``chordal.block_loads``): Σ_k n_k⁴ (P_k ⊗ Q_k) + m_k² n_k² (the block's part of S, a bound that
+    (``chordal.block_loads``): Σ_k n_k⁴ (the kernel P_k ⊗ Q_k, a bound: ``_Schur.assemble`` builds
+    it on the entries the constraints touch only) + m_k² n_k² (the block's part of S, a bound that
     is reached for dense constraints) + m_k³ (its share of the Cholesky factorisation).  A ranking,
     not a prediction: on the discrete trajectory (K = 20: merging caps 0 … 36 and the model's
     cliques, 30–230 ms per iteration) it orders the covers as measured up to two near-ties."""
