@@ -88,7 +88,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--solver", default="clarabel", help="clarabel (default), ipm (our interior-point method on clique blocks) or cvxpy:SCS, cvxpy:MOSEK, …")
     p.add_argument("--decompose", action="store_true",
                    help="Clarabel on our own clique cover (min-fill covers of the columns and of the variable "
-                        "blocks, autotight/run.py: CliqueCovers) instead of its built-in chordal decomposition; "
+                        "blocks, autotight/sdp/covers.py) instead of its built-in chordal decomposition; "
                         "faster on continuous time with marginalize=false (K = 21: 9 s against 30 s). "
                         "The IPM always uses our cover")
     p.add_argument("--random-starts", type=int, default=1, help="random-start local solves (default 1)")

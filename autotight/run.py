@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from .threads import single_blas_thread
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, Sequence
 
 import numpy as np
@@ -13,7 +13,8 @@ from . import sdp
 from .errors import AutotightError
 from .model import Constraint, Model
 from .problem import Instance, LocalResult, Problem
-from .sdp.result import SDPResult, SolverOptions
+from .sdp.config import SolverConfig
+from .sdp.result import SDPResult
 from .tightness import Criteria, Verdict, judge
 
 
@@ -52,80 +53,10 @@ def local_search(problem: Problem, inst: Instance, rng: np.random.Generator, n_r
     return LocalSearch(truth, rand)
 
 
-#: largest clique that small neighbouring cliques are merged into for Clarabel (see ``chordal.merge_small``)
-MERGE_MAX_SIZE = 20
-#: merging caps tried for our IPM, whose cost per block grows more slowly with the block size
-IPM_MERGE_CAPS = (16, 20, 24, 28, 32, 40, 48)
-
-
-class CliqueCovers:
-    """Candidate clique covers of a model's SDP (h in every clique) and the choice per solver.
-
-    Candidates: the min-fill chordal cover of Q and the constraints (``chordal.entry_cliques``),
-    the min-fill cover of the graph of variable blocks (``chordal.block_cliques``), each with small
-    neighbours merged, and the model's own block cliques when it declares them.  For Clarabel both
-    covers merged up to ``MERGE_MAX_SIZE`` columns and the model's are compared by the
-    interior-point cost estimate Σ_k svec(|C_k|)³ (Clarabel's dense KKT blocks); for the IPM every
-    cap in ``IPM_MERGE_CAPS`` (and the unmerged block cover) is a candidate, compared by
-    ``schur_ipm.iteration_cost``.  The block cover keeps blocks whole, so its separators are unions
-    of blocks: on continuous time (ϖ kept) {h, ξ_{k+1,k}, ϖ_{k+1}} rather than a whole pose.
-    """
-
-    def __init__(self, model: Model, constraints: Sequence[Constraint]):
-        from .sdp.chordal import block_cliques, entry_cliques, merged_covers, nonzeros, support_matrix
-
-        V = model.variables
-        owner, rows, cols = nonzeros([model.Q] + [c.A for c in constraints])  # one pass over the data
-        caps = tuple(sorted({MERGE_MAX_SIZE, *IPM_MERGE_CAPS}))
-        #: {cap: cover} for each base cover (cap 0: unmerged), on one clique tree per base
-        self.columns = merged_covers(entry_cliques(V.N, rows, cols, always=V.index(["h"])), caps)
-        self.blocks = merged_covers(block_cliques([V.sizes[n] for n in V.names], rows, cols), (0,) + caps)
-        self.own = [model.clique_indices()] if model.cliques else []
-        con = owner > 0  # (N × m) the columns of each constraint (owner 0 is Q)
-        self.support = support_matrix(rows[con], cols[con], owner[con] - 1, V.N, len(constraints))
-
-    def choose(self, solver: str = "clarabel") -> list[np.ndarray]:
-        from .sdp.chordal import block_loads
-        from .sdp.schur_ipm import iteration_cost
-        from .svec import svec_dim
-
-        if solver != "ipm":
-            covers = [self.columns[MERGE_MAX_SIZE], self.blocks[MERGE_MAX_SIZE]] + self.own
-            return min(covers, key=lambda cl: sum(float(svec_dim(len(c))) ** 3 for c in cl))
-        candidates = [self.columns[c] for c in IPM_MERGE_CAPS] + [self.blocks[c] for c in (0,) + IPM_MERGE_CAPS]
-        unique: dict[tuple, list[np.ndarray]] = {}  # equal covers (caps that merge nothing more) once
-        for cl in candidates:
-            unique.setdefault(tuple(tuple(c.tolist()) for c in cl), cl)
-        return min(list(unique.values()) + self.own,
-                   key=lambda cl: iteration_cost([len(c) for c in cl], block_loads(cl, self.support)))
-
-
-def cliques_for(model: Model, constraints: Sequence[Constraint], solver: str = "clarabel") -> list[np.ndarray]:
-    """Column cliques for the decomposed SDP solved by ``solver`` (see ``CliqueCovers``)."""
-    return CliqueCovers(model, constraints).choose(solver)
-
-
-def solve_sdp(model: Model, constraints: Sequence[Constraint], *, solver: str = "clarabel",
-              decompose: bool | None = None, options: SolverOptions | None = None) -> SDPResult:
-    """The Shor SDP of ``model`` with ``constraints``.
-
-    decompose: True → our own clique decomposition (``cliques_for``, solved by
-    ``sdp.clarabel_direct.solve_cliques``); otherwise Clarabel with
-    ``options`` (by default its chordal decomposition with parent-child merging, see SolverOptions).
-    solver "ipm" (our interior-point method, ``sdp.schur_ipm``) always runs on ``cliques_for``
-    unless ``decompose`` is False; when its result is unusable, Clarabel solves again on the
-    cover chosen for Clarabel.
-    """
-    cliques = fallback = None
-    if (solver == "ipm" and decompose is not False) or (solver == "clarabel" and decompose):
-        covers = CliqueCovers(model, constraints)
-        cliques = covers.choose(solver)
-        if solver == "ipm":
-            fallback = covers.choose("clarabel")
-        if solver == "clarabel" and len(cliques) == 1:
-            cliques = None  # one cone: Clarabel's dense path
-    return sdp.solve(model.Q, constraints, d=model.d, solver=solver, cliques=cliques, options=options,
-                     fallback_cliques=fallback)
+def solve_sdp(model: Model, constraints: Sequence[Constraint], config: SolverConfig = SolverConfig(),
+              scale: np.ndarray | None = None) -> SDPResult:
+    """Deprecated: ``sdp.solve_model``."""
+    return sdp.solve_model(model, constraints, config, scale)
 
 
 @dataclass
@@ -161,7 +92,7 @@ class SolveOutcome:
 @single_blas_thread
 def solve_instance(problem: Problem, inst: Instance, *, set_name: str | None = None,
                    extra: Sequence[Constraint] | None = None, solver: str = "clarabel",
-                   options: SolverOptions | None = None, criteria: Criteria = Criteria(),
+                   options: SolverConfig | None = None, criteria: Criteria = Criteria(),
                    rng: np.random.Generator | None = None, n_random: int = 1,
                    decompose: bool | None = None) -> SolveOutcome:
     t0 = time.perf_counter()
@@ -169,7 +100,8 @@ def solve_instance(problem: Problem, inst: Instance, *, set_name: str | None = N
     name = set_name or default_set(model)
     cons = constraint_set(model, name, extra)
     t1 = time.perf_counter()
-    res = solve_sdp(model, cons, solver=solver, decompose=decompose, options=options)
+    config = replace(options or SolverConfig(), backend=solver, decompose=decompose)
+    res = sdp.solve_model(model, cons, config)
     t2 = time.perf_counter()
     rng = rng or np.random.default_rng(0 if inst.seed is None else inst.seed + 1)
     loc = local_search(problem, inst, rng, n_random)

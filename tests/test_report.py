@@ -28,7 +28,7 @@ from autotight.report.store import CSV_NAME, Store, load_trials
 from autotight.report.sweep import run_sweep
 from autotight.report.trial import TIME_COLUMNS, columns, is_trapped, run_trial
 from autotight.run import solve_instance
-from autotight.sdp.result import SolverOptions
+from autotight.sdp import SolverConfig
 
 PROBLEM = "rotation_averaging"
 SIGMAS = (0.01, 0.3)
@@ -101,7 +101,7 @@ def test_a_row_equals_a_direct_solve_of_its_instance(reference):
     prob = load(PROBLEM)
     inst = prob.generate({"M": 3, "sigma": 0.3}, int(r["seed"]))
     _, rng_local, _ = trial_seeds(0, 1, 2)
-    out = solve_instance(prob, inst, set_name="primary", options=SolverOptions(threads=1), rng=rng_local)
+    out = solve_instance(prob, inst, set_name="primary", options=SolverConfig(threads=1), rng=rng_local)
     assert r["log_svr"] == pytest.approx(out.sdp.log_svr, rel=1e-9)
     assert r["sdp_cost"] == pytest.approx(out.sdp.primal_cost, rel=1e-9)
     assert r["local_cost_truth"] == pytest.approx(out.local.from_truth.cost, rel=1e-12)

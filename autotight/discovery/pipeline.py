@@ -11,8 +11,9 @@ import numpy as np
 
 from ..model import Constraint, Model
 from ..problem import Instance, Problem, load
-from ..run import local_search, solve_sdp
-from ..sdp.result import SolverOptions
+from .. import sdp
+from ..run import local_search
+from ..sdp.config import SolverConfig
 from ..tightness import Criteria, judge
 from .catalog import Catalog, instantiate, learn
 from .compare import paper_in_span, resemblance
@@ -99,7 +100,7 @@ Maker = Callable[[Instance, Model, np.random.Generator], tuple[list[Constraint],
 
 
 def heldout_check(problem: Problem, params: dict[str, Any], seeds: Sequence[int], sets: dict[str, Maker],
-                  criteria: Criteria, options: SolverOptions, n_random: int = 1) -> dict[str, HeldOut]:
+                  criteria: Criteria, options: SolverConfig, n_random: int = 1) -> dict[str, HeldOut]:
     """For each fresh instance (one local search each), solve primary + make(...) for every set
     and judge it against the instance's best local solution."""
     out = {name: HeldOut([], [], [], [], []) for name in sets}
@@ -112,7 +113,7 @@ def heldout_check(problem: Problem, params: dict[str, Any], seeds: Sequence[int]
             extra, issues = make(inst, model, rng)
             h = out[name]
             h.issues += [f"seed {s}: {i}" for i in issues]
-            res = solve_sdp(model, model.primary() + extra, options=options)
+            res = sdp.solve_model(model, model.primary() + extra, options)
             v = judge(res, loc.best.cost, criteria)
             h.seeds.append(int(s)); h.tight.append(v.tight); h.log_svr.append(res.log_svr)
             h.rel_gap.append(v.rel_gap); h.status.append(res.status)
@@ -122,7 +123,7 @@ def heldout_check(problem: Problem, params: dict[str, Any], seeds: Sequence[int]
 @single_blas_thread
 def discover(problem: Problem | str, params: dict[str, Any] | None = None, seed: int = 0, *,
              groups: str | Sequence[Sequence[str]] = "factors", learn_options: LearnOptions = LearnOptions(),
-             criteria: Criteria = Criteria(), options: SolverOptions = SolverOptions(), n_heldout: int = 10,
+             criteria: Criteria = Criteria(), options: SolverConfig = SolverConfig(), n_heldout: int = 10,
              n_random: int = 2, verify: bool = True, compare: bool = True,
              progress: Callable[[str, str], None] | None = None) -> DiscoveryResult:
     """Discover an irreducible set of redundant constraints for ``problem`` at ``params``.

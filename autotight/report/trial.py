@@ -14,8 +14,9 @@ from threadpoolctl import threadpool_limits
 
 from ..errors import AutotightError
 from ..problem import Instance, Problem
-from ..run import constraint_set, local_search, solve_sdp
-from ..sdp.result import SolverOptions
+from .. import sdp
+from ..run import constraint_set, local_search
+from ..sdp.config import SolverConfig
 from ..tightness import judge
 from .spec import SweepSpec, trial_seeds
 
@@ -96,12 +97,12 @@ def _solve(problem: Problem, spec: SweepSpec, i: int, t: int, discovered: Any) -
               "local_converged_truth": truth.converged, "local_converged_random": rand.converged,
               "local_truth_time_s": truth.time_s, "local_random_time_s": rand.time_s, "build_time_s": build_s,
               **_errors(problem, inst, truth.state, "err_truth_"), **_errors(problem, inst, rand.state, "err_random_")}
-    options = SolverOptions(threads=1)
+    config = SolverConfig(backend=spec.solver, threads=1)
     rows, tight_costs = [], []
     for name in spec.sets:
         extra = discovered.instantiate(problem, inst, rng_disc, model=model) if name == "discovered" else None
         cons = constraint_set(model, name, extra)
-        res = solve_sdp(model, cons, solver=spec.solver, options=options)
+        res = sdp.solve_model(model, cons, config)
         verdict = judge(res, loc.best.cost, spec.criteria)
         errs: dict[str, float] = {}
         if res.Theta is not None and res.usable:
