@@ -152,7 +152,7 @@ def test_config_validation_errors():
         with pytest.raises(SolverConfigError) as e:
             SolverConfig(**kw)
         assert isinstance(e.value, AutotightError) and "\n" not in str(e.value), kw
-    with pytest.raises(SolverConfigError, match="unknown solver backend 'gurobi-direct'"):
+    with pytest.raises(SolverConfigError, match="unknown solver 'gurobi-direct'"):
         SolverConfig(backend="gurobi-direct")
     with pytest.raises(SolverConfigError, match="'NOPE' is not installed"):
         SolverConfig(backend="cvxpy:NOPE")

@@ -99,7 +99,7 @@ class SolverConfig:
 
         backend = BACKENDS.get(self.backend_name)
         if backend is None:
-            raise SolverConfigError(f"unknown solver backend {self.backend!r}; use "
+            raise SolverConfigError(f"unknown solver {self.backend!r}; use "
                                     + ", ".join(repr(n) for n in BACKENDS if n != "cvxpy")
                                     + " or 'cvxpy:<NAME>' ('cvxpy:SCS', 'cvxpy:MOSEK', …)")
         backend.check(self.backend_arg)
