@@ -11,7 +11,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-from typing import Sequence
+from typing import Any, Sequence
 
 from .errors import AutotightError
 from .io import jsonable, versions
@@ -51,18 +51,37 @@ def constraints_arg(value: str | None):
     return ConstraintSet.load(value)
 
 
-def cmd_solve(args: argparse.Namespace) -> int:
-    from .api import solve
+def add_solver_args(p: argparse.ArgumentParser) -> None:
+    """``--solver`` and ``--decompose``: the SDP backend of every solve of the command."""
+    p.add_argument("--solver", default="clarabel",
+                   help="SDP backend: clarabel (default), ipm (our interior-point method on clique blocks) or "
+                        "cvxpy:SCS, cvxpy:MOSEK, … (see autotight/sdp/registry.py)")
+    p.add_argument("--decompose", action="store_true",
+                   help="Clarabel on our own clique cover (min-fill covers of the columns and of the variable "
+                        "blocks, autotight/sdp/covers.py) instead of its built-in chordal decomposition; "
+                        "faster on continuous time with marginalize=false. The IPM always uses our cover")
+
+
+def solver_config(args: argparse.Namespace, **fields: Any):
+    """The ``SolverConfig`` of ``--solver``/``--decompose`` (validated before any work)."""
     from .errors import ParameterError
-    from .sdp.result import SolverOptions
+    from .sdp.config import SolverConfig
 
     if args.decompose and args.solver.startswith("cvxpy"):
         raise ParameterError(f"--decompose needs --solver clarabel or ipm, not {args.solver!r}")
+    return SolverConfig(backend=args.solver, decompose=True if args.decompose else None, **fields)
+
+
+def cmd_solve(args: argparse.Namespace) -> int:
+    from .api import solve
+    from .errors import ParameterError
+
+    config = solver_config(args)
     if args.random_starts < 0:
         raise ParameterError(f"--random-starts {args.random_starts}: must be ≥ 0")
     prob = load(args.problem)
     out = solve(prob, parse_assignments(args.param), args.seed, constraints=constraints_arg(args.set),
-                solver=SolverOptions(), n_random=args.random_starts)
+                solver=config, n_random=args.random_starts)
     inst = out.instance
     rec = out.record()
     if args.json:
@@ -103,12 +122,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="constraint set: primary, paper, or a saved set's JSON (from `discover --out`), applied "
                         "to this instance whatever its size (default: paper if the problem has paper families, "
                         "else primary)")
-    p.add_argument("--solver", default="clarabel", help="clarabel (default), ipm (our interior-point method on clique blocks) or cvxpy:SCS, cvxpy:MOSEK, …")
-    p.add_argument("--decompose", action="store_true",
-                   help="Clarabel on our own clique cover (min-fill covers of the columns and of the variable "
-                        "blocks, autotight/run.py: CliqueCovers) instead of its built-in chordal decomposition; "
-                        "faster on continuous time with marginalize=false (K = 21: 9 s against 30 s). "
-                        "The IPM always uses our cover")
+    add_solver_args(p)
     p.add_argument("--random-starts", type=int, default=1, help="random-start local solves (default 1)")
     p.set_defaults(func=cmd_solve)
     from .discovery.cli import register as register_discover

@@ -29,7 +29,8 @@ from autotight.discovery import discover
 from autotight.discovery.discovered import constraint_record
 from autotight.io import jsonable
 from autotight.problem import load
-from autotight.run import local_search, solve_sdp
+from autotight.run import local_search
+from autotight.sdp import solve_model
 from autotight.tightness import judge, relative_gap
 
 CASES = [(p, d, lift, s) for p, s in (("pose_graph", 1.0), ("landmark_slam", 1.0))
@@ -42,7 +43,7 @@ def scan(prob, params: dict, seeds: range) -> list[dict]:
     for s in seeds:
         inst = prob.generate(params, s)
         model = prob.build(inst)
-        res = solve_sdp(model, model.primary())
+        res = solve_model(model, model.primary())
         loc = local_search(prob, inst, np.random.default_rng([s, 1]), 2)
         v = judge(res, loc.best.cost)
         kind = "tight" if v.tight else "not tight"

@@ -60,9 +60,9 @@ def _instance(M: int, sigma: float, seed: int):
 
 def _clarabel_settings() -> dict[str, Any]:
     """The settings the direct path uses (autotight.sdp.clarabel_direct._settings, default options)."""
-    from autotight.sdp import SolverOptions
+    from autotight.sdp import SolverConfig
 
-    o = SolverOptions()
+    o = SolverConfig()
     return {"tol_gap_abs": o.tol, "tol_gap_rel": o.tol, "tol_feas": o.tol, "tol_ktratio": max(o.tol, 1e-8),
             "max_iter": o.max_iter, "max_threads": o.threads}
 

@@ -3,12 +3,12 @@
 Methods, all on the same data in the same run:
 - ``chordal-pc``: our default for large liftings, Clarabel's chordal decomposition with
   parent-child clique merging;
-- ``cliques``: our own clique decomposition (``run.cliques_for``: the min-fill chordal covers of the
+- ``cliques``: our own clique decomposition (``sdp.covers.CliqueCovers``: the min-fill chordal covers of the
   columns and of the variable blocks with small cliques merged, or the model's block cliques,
   whichever has the smallest Σ svec(|C|)³), solved as the clique-tree dual of
   ``sdp.clarabel_direct.solve_cliques``;
 - ``ipm``: our own Schur-complement interior-point method (``sdp.schur_ipm``) on its own clique
-  cover (``run.cliques_for(…, "ipm")``, chosen by ``schur_ipm.iteration_cost``; tolerance 1e-7
+  cover (``CliqueCovers.choose("ipm")``, chosen by ``schur_ipm.iteration_cost``; tolerance 1e-7
   relative, see ``schur_ipm.IPM_MIN_TOL``); when it ends unusable, Clarabel solves again on the
   ``cliques`` cover and the IPM's time is counted;
 - ``chordal-default``: Clarabel's chordal decomposition with its default clique-graph merging
@@ -37,24 +37,20 @@ import numpy as np
 
 from autotight.io import jsonable, versions
 from autotight.problem import load
-from autotight.run import solve_sdp
-from autotight.sdp import SolverOptions
+from autotight.sdp import SolverConfig, solve_model
 from autotight.threads import single_blas_thread
 
+#: method → SolverConfig fields (the time limit is added per run)
 METHODS = {
-    "chordal-pc": dict(decompose=None, options=SolverOptions()),
-    "cliques": dict(decompose=True, options=SolverOptions()),
-    "ipm": dict(solver="ipm", options=SolverOptions()),
+    "chordal-pc": dict(),
+    "cliques": dict(decompose=True),
+    "ipm": dict(backend="ipm"),
+    "chordal-default": dict(decompose=False, clarabel_chordal=True, chordal_merge="clique_graph"),
 }
 
 
-def _method(name: str, time_limit: float) -> dict:
-    if name == "chordal-default":
-        return dict(decompose=False, options=SolverOptions(clarabel_chordal=True, chordal_merge="clique_graph",
-                                                           time_limit=time_limit))
-    m = dict(METHODS[name])
-    m["options"] = SolverOptions(time_limit=time_limit)
-    return m
+def _method(name: str, time_limit: float) -> SolverConfig:
+    return SolverConfig(**METHODS[name], time_limit=time_limit)
 
 
 @single_blas_thread
@@ -64,7 +60,7 @@ def solve_once(problem: str, params: dict, method: str, time_limit: float, seed:
     model = prob.build(inst)
     cons = model.primary() + model.paper_constraints()
     t = time.perf_counter()
-    res = solve_sdp(model, cons, **_method(method, time_limit))
+    res = solve_model(model, cons, _method(method, time_limit))
     wall = time.perf_counter() - t
     return {"status": res.status, "solve_s": res.solve_time_s, "wall_s": wall, "log_svr": res.log_svr,
             "cost": res.primal_cost, "iterations": res.iterations, "N": model.variables.N}
@@ -107,7 +103,7 @@ def compare(problem: str, params: dict, methods: list[str], repeats: int, time_l
     out = {}
     for m, rs in runs.items():
         out[m] = {"median_wall_s": float(np.median([r["wall_s"] for r in rs])),
-                  "note": "wall_s is the solve_sdp call (set-up + solve); killed runs count as the limit",
+                  "note": "wall_s is the solve_model call (set-up + solve); killed runs count as the limit",
                   "median_solve_s": float(np.median([r["solve_s"] for r in rs])),
                   "status": sorted({r["status"] for r in rs}), "log_svr": float(np.median([r["log_svr"] for r in rs])),
                   "cost": float(np.median([r["cost"] for r in rs])), "N": rs[0]["N"], "runs": rs}
@@ -125,8 +121,8 @@ def chain_baseline(lengths: list[int], width: int = 20, seed: int = 0) -> dict:
     this way: it shows how much of the growth exponent comes from the solver itself."""
     import scipy.sparse as sp
 
-    from autotight import sdp
     from autotight.model import Constraint
+    from autotight.sdp.clarabel_direct import solve_cliques
 
     rng = np.random.default_rng(seed)
     rows = []
@@ -138,7 +134,7 @@ def chain_baseline(lengths: list[int], width: int = 20, seed: int = 0) -> dict:
             B = rng.standard_normal((len(C), len(C)))
             Q[np.ix_(C, C)] += B + B.T
         cons = [Constraint(sp.csr_array(([1.0], ([i], [i])), shape=(N, N)), 1.0) for i in range(N)]
-        r = sdp.solve(sp.csr_array(Q), cons, cliques=cl)
+        r = solve_cliques(sp.csr_array(Q), [c.A for c in cons], np.ones(N), 1, cl, SolverConfig())
         rows.append({"cliques": L, "N": N, "status": r.status, "iterations": r.iterations,
                      "solve_s": r.solve_time_s, "per_iteration_s": r.solve_time_s / max(r.iterations, 1)})
         print("chain", rows[-1], flush=True)

@@ -10,9 +10,8 @@ import scipy.sparse as sp
 from autotight import lie
 from autotight.errors import ParameterError
 from autotight.problem import load
-from autotight.run import solve_sdp
+from autotight.sdp import SolverConfig, solve_model
 from autotight.sdp.chordal import has_running_intersection
-from autotight.sdp.result import SolverOptions
 from autotight.tightness import relative_gap
 from problems import continuous_trajectory as ct
 
@@ -230,8 +229,8 @@ def _solve(inst, with_paper: bool = True):
     cons = model.primary() + (model.paper_constraints() if with_paper else [])
     # Clarabel's chordal decomposition with its clique-graph merging: on this problem (a Schur
     # complement that couples the whole chain) it is faster than parent-child merging
-    return solve_sdp(model, cons, decompose=False, options=SolverOptions(clarabel_chordal=True,
-                                                                         chordal_merge="clique_graph"))
+    return solve_model(model, cons, SolverConfig(decompose=False, clarabel_chordal=True,
+                                                        chordal_merge="clique_graph"))
 
 
 def _assert_tight(inst) -> None:
@@ -346,7 +345,7 @@ def test_keeping_the_twists_gives_the_marginalised_sdp_optimum():
     for marginalize in (True, False):
         inst = _instance(4, K=6, marginalize=marginalize)
         model = PROB.build(inst)
-        res = solve_sdp(model, model.primary() + model.paper_constraints(), decompose=not marginalize)
+        res = solve_model(model, model.primary() + model.paper_constraints(), SolverConfig(decompose=not marginalize))
         assert res.status == "Solved" and res.log_svr > 5, res.summary()
         out[marginalize] = (res, model)
     (m_res, m_model), (k_res, k_model) = out[True], out[False]

@@ -15,7 +15,7 @@ from autotight.discovery.compare import span_residual
 from autotight.discovery.samples import draw, relative_violation
 from autotight.errors import LearningError, ProblemDefinitionError
 from autotight.problem import load
-from autotight.run import solve_sdp
+from autotight.sdp import solve_model
 from autotight.tightness import judge
 
 SIGMA = 0.1
@@ -72,7 +72,7 @@ def test_reinstantiated_set_holds_on_that_instance(pose10, tmp_path):
     assert len(cons) == len(pose10.constraints)
     fresh = draw(prob, inst, 100, np.random.default_rng(6), spread=0.5)
     assert relative_violation(cons, fresh.thetas).max() < 1e-9
-    res = solve_sdp(model, model.primary() + cons)
+    res = solve_model(model, model.primary() + cons)
     local = prob.local_solve(inst, inst.truth)
     v = judge(res, local.cost)
     assert v.tight, v.reason
@@ -88,10 +88,10 @@ def test_reduced_set_is_irreducible(pose3):
     best = pose3.best_local_cost
     for p in chosen:
         rest = [c for q in chosen if q != p for c in pairs[q]]
-        v = judge(solve_sdp(model, model.primary() + rest), best)
+        v = judge(solve_model(model, model.primary() + rest), best)
         assert not v.tight, f"dropping {p} keeps the SDP tight"
     full = [c for q in chosen for c in pairs[q]]
-    assert judge(solve_sdp(model, model.primary() + full), best).tight
+    assert judge(solve_model(model, model.primary() + full), best).tight
     assert prob.name == pose3.problem
 
 

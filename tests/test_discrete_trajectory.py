@@ -9,7 +9,7 @@ from autotight import lie
 from autotight.errors import ParameterError
 from autotight.model import Variables
 from autotight.problem import load
-from autotight.run import solve_sdp
+from autotight.sdp import SolverConfig, solve_model
 from autotight.sdp.chordal import has_running_intersection
 from autotight.tightness import relative_gap
 from problems import _pose
@@ -124,8 +124,8 @@ def test_clique_solve_equals_dense_solve(seed):
     inst = _instance(seed, K=3)
     model = PROB.build(inst)
     cons = model.primary() + model.paper_constraints()
-    dense = solve_sdp(model, cons, decompose=False)
-    split = solve_sdp(model, cons, decompose=True)
+    dense = solve_model(model, cons, SolverConfig(decompose=False))
+    split = solve_model(model, cons, SolverConfig(decompose=True))
     assert dense.status == "Solved" and split.status == "Solved", (dense.summary(), split.summary())
     assert split.solver == "clarabel-cliques"
     assert abs(dense.primal_cost - split.primal_cost) <= 1e-6 * dense.primal_cost
@@ -136,7 +136,7 @@ def test_clique_solve_equals_dense_solve(seed):
 def test_primary_alone_is_not_tight():
     inst = _instance(7, K=5)
     model = PROB.build(inst)
-    res = solve_sdp(model, model.primary())
+    res = solve_model(model, model.primary())
     local = PROB.local_solve(inst, inst.truth)
     assert np.isfinite(res.primal_cost), res.summary()
     assert relative_gap(res.primal_cost, local.cost) > 0.05
@@ -149,7 +149,7 @@ def test_paper_constraints_make_it_tight(seed):
     model = PROB.build(inst)
     local = PROB.local_solve(inst, inst.truth)
     assert local.converged
-    res = solve_sdp(model, model.primary() + model.paper_constraints())
+    res = solve_model(model, model.primary() + model.paper_constraints())
     assert res.solver in ("clarabel-chordal", "clarabel-cliques")  # never one dense 475×475 cone
     assert res.status == "Solved", res.summary()
     assert res.log_svr > 5

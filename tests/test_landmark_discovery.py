@@ -32,7 +32,8 @@ import pytest
 from autotight.discovery import discover, learn
 from autotight.discovery.samples import draw, relative_violation
 from autotight.problem import load
-from autotight.run import local_search, solve_sdp
+from autotight.run import local_search
+from autotight.sdp import solve_model
 from autotight.tightness import judge
 
 PROBLEM = "landmark_slam"
@@ -69,15 +70,15 @@ def heldout_fractions(prob, res) -> tuple[float, float]:
         extra = res.discovered.instantiate(prob, inst, np.random.default_rng([s, 7]), model)
         assert len(extra) > 0
         best = local_search(prob, inst, np.random.default_rng([s, 1]), 2).best.cost
-        tight_disc.append(judge(solve_sdp(model, model.primary() + extra), best).tight)
-        tight_prim.append(judge(solve_sdp(model, model.primary()), best).tight)
+        tight_disc.append(judge(solve_model(model, model.primary() + extra), best).tight)
+        tight_prim.append(judge(solve_model(model, model.primary()), best).tight)
     return float(np.mean(tight_disc)), float(np.mean(tight_prim))
 
 
 def assert_tight_with_discovered(prob, res) -> None:
     """Rank d (log SVR > 5) and the cost of the local solver started at the ground truth (rel. 1e-5)."""
     assert res.tight and res.constraints
-    out = solve_sdp(res.model, res.model.primary() + res.constraints)
+    out = solve_model(res.model, res.model.primary() + res.constraints)
     assert out.log_svr > 5
     f_truth = prob.local_solve(res.instance, res.instance.truth).cost
     assert abs(out.primal_cost - f_truth) <= 1e-5 * abs(f_truth)
@@ -96,7 +97,7 @@ def test_d2_matrix_primary_is_a_reflection(slam, slam2_matrix):
     res = slam2_matrix
     v = res.tightened.primary_verdict
     assert not v.tight and v.rank_tight
-    Theta = solve_sdp(res.model, res.model.primary()).Theta
+    Theta = solve_model(res.model, res.model.primary()).Theta
     assert slam.recover(res.instance, Theta)["det_raw"].min() < -0.99
 
 

@@ -13,7 +13,7 @@ import pytest
 
 from autotight.errors import ParameterError, ProblemDefinitionError
 from autotight.problem import load
-from autotight.run import solve_sdp
+from autotight.sdp import solve_model
 from problems import _landmark_terms as lt
 
 PROBLEMS = ("landmark_localization", "landmark_slam", "pose_graph")
@@ -192,7 +192,7 @@ def test_shor_with_primary_constraints_is_tight_at_low_noise(name, d, lifting):
         for seed in range(3):
             inst = P.generate({"dim": d, "lifting": lifting, "sigma": sigma, "prior_sigma": sigma}, seed)
             model = P.build(inst)
-            res = solve_sdp(model, model.primary())
+            res = solve_model(model, model.primary())
             loc = P.local_solve(inst, inst.truth)
             assert res.status == "Solved", res.status
             assert res.log_svr > 5.0

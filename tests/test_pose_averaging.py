@@ -8,7 +8,7 @@ import pytest
 from autotight import lie
 from autotight.errors import ParameterError
 from autotight.problem import load
-from autotight.run import solve_sdp
+from autotight.sdp import SolverConfig, solve_model
 from autotight.tightness import relative_gap
 from problems import pose_averaging as pa
 
@@ -103,13 +103,13 @@ def test_primary_not_tight_paper_tight(seed):
     local = PROB.local_solve(inst, inst.truth)
     assert local.converged
 
-    prim = solve_sdp(model, model.primary())
+    prim = solve_model(model, model.primary())
     # without the redundant constraints the relaxation is loose: a clear cost gap and no rank-1 solution
     assert np.isfinite(prim.primal_cost)
     assert relative_gap(prim.primal_cost, local.cost) > 0.05
     assert prim.log_svr < 2
 
-    res = solve_sdp(model, model.primary() + model.paper_constraints())
+    res = solve_model(model, model.primary() + model.paper_constraints())
     assert res.status == "Solved", res.summary()
     assert res.log_svr > 5
     assert abs(relative_gap(res.primal_cost, local.cost)) < 1e-6
@@ -125,8 +125,8 @@ def test_clique_solve_equals_dense_solve():
     inst = _instance(6)
     model = PROB.build(inst)
     cons = model.primary() + model.paper_constraints()
-    dense = solve_sdp(model, cons, decompose=False)
-    split = solve_sdp(model, cons, decompose=True)
+    dense = solve_model(model, cons, SolverConfig(decompose=False))
+    split = solve_model(model, cons, SolverConfig(decompose=True))
     assert dense.status == "Solved" and split.status == "Solved", (dense.summary(), split.summary())
     assert split.solver == "clarabel-cliques" and len(split.clique_log_svr) > 1
     assert abs(dense.primal_cost - split.primal_cost) <= 1e-6 * dense.primal_cost

@@ -28,7 +28,7 @@ from autotight.report.store import CSV_NAME, Store, load_trials
 from autotight.report.sweep import run_sweep
 from autotight.report.trial import TIME_COLUMNS, columns, is_trapped, run_trial
 from autotight.api import solve
-from autotight.sdp.result import SolverOptions
+from autotight.sdp import SolverConfig
 
 PROBLEM = "rotation_averaging"
 SIGMAS = (0.01, 0.3)
@@ -98,7 +98,7 @@ def test_a_row_equals_a_direct_solve_of_its_instance(reference):
     prob = load(PROBLEM)
     inst = prob.generate({"M": 3, "sigma": 0.3}, int(r["seed"]))
     assert trial_seeds(0, 1, 2)[0] == int(r["seed"])  # the trial's generators are those of its instance seed
-    out = solve(prob, {"M": 3, "sigma": 0.3}, int(r["seed"]), constraints="primary", solver=SolverOptions(threads=1))
+    out = solve(prob, {"M": 3, "sigma": 0.3}, int(r["seed"]), constraints="primary", solver=SolverConfig(threads=1))
     assert r["log_svr"] == pytest.approx(out.sdp.log_svr, rel=1e-9)
     assert r["sdp_cost"] == pytest.approx(out.sdp.primal_cost, rel=1e-9)
     assert r["local_cost_truth"] == pytest.approx(out.local.from_truth.cost, rel=1e-12)

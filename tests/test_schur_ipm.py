@@ -2,7 +2,8 @@
 
 Tolerances: the IPM stops at relative gap and infeasibilities ≤ 1e-7 (``IPM_MIN_TOL``), so its
 costs are compared with Clarabel's (tol 1e-9) to 1e-6 relative; exact identities (svec ↔ vec, the
-Schur complement's definition) to 1e-12.
+Schur complement's definition) to 1e-12.  The IPM → Clarabel fallback is forced explicitly (a
+stubbed IPM result, or an iteration limit), never left to a numerical accident.
 """
 
 from __future__ import annotations
@@ -14,11 +15,26 @@ import scipy.sparse as sp
 from autotight import sdp
 from autotight.model import Constraint
 from autotight.problem import load
-from autotight.run import solve_sdp
-from autotight.sdp import SolverOptions, schur_ipm
+from autotight.sdp import SolverConfig, clarabel_direct, schur_ipm, solve_model
 from autotight.sdp.clique_program import clique_program
+from autotight.sdp.covers import CliqueCovers
+from autotight.sdp.registry import BACKENDS
+from autotight.sdp.result import SDPResult
 from autotight.svec import svec
 from autotight.tightness import judge, relative_gap
+
+
+IPM = SolverConfig(backend="ipm")
+
+
+def _data(Q, cons):
+    return sp.csr_array(Q), [sp.csr_array(c.A) for c in cons], np.array([c.b for c in cons])
+
+
+def _covers(model, cons) -> CliqueCovers:
+    V = model.variables
+    return CliqueCovers(sp.csr_array(model.Q), [c.A for c in cons], model.d, [V.sizes[n] for n in V.names],
+                        model.clique_indices() if model.cliques else None)
 
 
 def _random_symmetric(rng: np.random.Generator, n: int) -> np.ndarray:
@@ -86,19 +102,19 @@ def _chain_schur(rng: np.random.Generator, cliques: int, width: int):
     return Q, cons, prog, blocks, schur_ipm._Schur(sp.csr_array(schur_ipm.svec_to_vec(prog.sizes) @ prog.F), blocks)
 
 
-@pytest.mark.parametrize("cholmod,search", [(True, "nt"), (False, "nt"), (True, "hkm")])
-def test_ipm_equals_clarabel_on_a_chain_sdp_far_from_rank_one(cholmod, search, monkeypatch):
+@pytest.mark.parametrize("ldl,search", [(True, "nt"), (False, "nt"), (True, "hkm")])
+def test_ipm_equals_clarabel_on_a_chain_sdp_far_from_rank_one(ldl, search, monkeypatch):
     """MaxCut-type chain SDP: the optimum is far from rank 1, so the blocks must agree on their
-    overlaps.  The same optimum with CHOLMOD and with the SuperLU fallback (cvxopt absent), and
-    with either search direction."""
-    if not cholmod:
-        monkeypatch.setattr(schur_ipm._CholmodPattern, "__init__", lambda self, *a: setattr(self, "available", False))
+    overlaps.  The same optimum with sparse LDLᵀ (qdldl) and with the SuperLU fallback (every LDLᵀ
+    reported as not positive definite), and with either search direction."""
+    if not ldl:
+        monkeypatch.setattr(schur_ipm._LDLPattern, "factor", lambda self, vals: None)
     if search != "nt":
         solve_blocks = schur_ipm.solve_blocks
         monkeypatch.setattr(schur_ipm, "solve_blocks", lambda *a, **k: solve_blocks(*a, **k, search=search))
     Q, cons, cl = _chain_maxcut(np.random.default_rng(0), 12, 6)
-    ref = sdp.solve(Q, cons, options=SolverOptions(clarabel_chordal=False))
-    res = sdp.solve(Q, cons, solver="ipm", cliques=cl)
+    ref = sdp.solve(Q, cons, config=SolverConfig(clarabel_chordal=False))
+    res = schur_ipm.solve_ipm(*_data(Q, cons), 1, cl, IPM)
     assert ref.status == "Solved" and res.status == "Solved", (ref.summary(), res.summary(), res.message)
     assert res.solver == "autotight-ipm"
     assert ref.log_svr < 1
@@ -112,14 +128,15 @@ def test_ipm_equals_clarabel_on_a_chain_sdp_far_from_rank_one(cholmod, search, m
 
 
 def test_ipm_on_one_dense_block_equals_clarabel(ra):
-    """cliques=None: one block of all N columns (rotation averaging, M = 4, rank-1 optimum).  With
+    """decompose=False: one block of all N columns (rotation averaging, M = 4, rank-1 optimum).  With
     HKM this small degenerate SDP stops AlmostSolved (relative gap 9e-7); NT solves it."""
     inst = ra.generate({"M": 4, "sigma": 0.1}, 3)
     model = ra.build(inst)
     cons = model.primary()
     ref = sdp.solve(model.Q, cons)
-    res = sdp.solve(model.Q, cons, solver="ipm")
-    assert res.status == "Solved", (res.status, res.message)
+    res = sdp.solve(model.Q, cons, config=SolverConfig(backend="ipm", decompose=False))
+    assert res.status == "Solved" and res.n_calls == 1, (res.status, res.message)
+    assert res.cliques is not None and len(res.cliques) == 1 and len(res.cliques[0]) == model.variables.N
     f = ref.primal_cost
     assert abs(res.primal_cost - f) <= 1e-6 * f
     assert res.log_svr > 5
@@ -138,24 +155,35 @@ def test_contradictory_constraints_are_a_status_not_an_exception(ra):
     prog = clique_program(Q, [sp.csr_array(c.A) for c in cons], np.array([c.b for c in cons]), [np.arange(N)])
     own = schur_ipm.solve_blocks(prog.F, prog.c, prog.g, prog.sizes)
     assert own.status in ("NumericalError", "InsufficientProgress", "MaxIterations"), own.status
-    res = sdp.solve(model.Q, cons, solver="ipm")
+    res = sdp.solve(model.Q, cons, config=SolverConfig(backend="ipm", decompose=False))
     assert not res.usable and "infeasible" in res.status.lower(), res.status
-    assert res.message.startswith(f"ipm: {own.status}") and "solved again by clarabel" in res.message
+    assert res.n_calls == 2, res.message
+    assert res.message.startswith(f"1. autotight-ipm {own.status}") and "2. solved again by clarabel" in res.message
     v = judge(res, 1.0)
     assert not v.tight and res.status in v.reason
 
 
-def test_an_ipm_solve_short_of_accuracy_is_solved_again_by_clarabel(ra):
-    """Rotation averaging at σ = 1e-4: the optimal cost is ~1e-7 of max|Q|, below what the IPM's
-    normal equations resolve (it stalls at relative gaps of 4e-5 … 9e-4 on seeds 0–2); Clarabel's
-    answer is returned."""
-    inst = ra.generate({"M": 3, "sigma": 1e-4}, 0)
+def test_an_unusable_ipm_result_is_solved_again_by_clarabel_and_both_calls_count(ra, monkeypatch):
+    """The IPM backend is stubbed to stop short (InsufficientProgress, no X, 1.5 s): Clarabel's answer
+    is returned, n_calls is 2, both calls' times are summed and the message lists both."""
+    inst = ra.generate({"M": 3, "sigma": 0.1}, 0)
     model = ra.build(inst)
-    res = sdp.solve(model.Q, model.primary(), solver="ipm", cliques=None)
+
+    def short(Q, As, b, d, cliques, config):
+        return SDPResult(status="InsufficientProgress", solver="autotight-ipm", d=d, X=None, y=None,
+                         primal_cost=float("nan"), dual_cost=float("nan"), solve_time_s=1.5, setup_time_s=0.25,
+                         message="no progress in 5 iterations")
+
+    monkeypatch.setattr(BACKENDS["ipm"], "solve", short)
+    res = sdp.solve(model.Q, model.primary(), config=IPM)
     ref = sdp.solve(model.Q, model.primary())
-    assert res.message.startswith("ipm: InsufficientProgress"), res.message
     assert res.solver.startswith("clarabel") and res.status == "Solved"
-    assert abs(res.primal_cost - ref.primal_cost) <= 1e-6 * ref.primal_cost
+    assert res.n_calls == 2
+    assert res.solve_time_s == pytest.approx(1.5 + ref.solve_time_s, abs=0.5 * ref.solve_time_s + 0.05)
+    assert res.solve_time_s > 1.5 and res.setup_time_s > 0.25
+    assert res.message.startswith("1. autotight-ipm InsufficientProgress (1.50 s; no progress in 5 iterations)")
+    assert "; 2. solved again by clarabel: clarabel" in res.message
+    assert abs(res.primal_cost - ref.primal_cost) <= 1e-9 * ref.primal_cost
 
 
 def test_unknown_search_direction_is_an_error():
@@ -166,9 +194,11 @@ def test_unknown_search_direction_is_an_error():
 def test_iteration_limit_is_reported(ra):
     inst = ra.generate({"M": 6, "sigma": 0.1}, 0)
     model = ra.build(inst)
-    res = sdp.solve(model.Q, model.primary(), solver="ipm", options=SolverOptions(max_iter=2))
+    res = sdp.solve(model.Q, model.primary(), config=SolverConfig(backend="ipm", max_iter=2))
     assert res.status == "MaxIterations" and not res.usable  # the IPM's, then Clarabel's, at 2 iterations
-    assert res.message.startswith("ipm: MaxIterations") and "gap" in res.message  # its residuals are kept
+    assert res.n_calls == 2  # MaxIterations is not retried
+    assert res.message.startswith("1. autotight-ipm MaxIterations") and "gap" in res.message  # its residuals are kept
+    assert "2. solved again by clarabel: clarabel-cliques MaxIterations" in res.message
 
 
 def test_block_program_has_the_dense_optimum_with_clarabel_too(ra, factor_cliques):
@@ -179,8 +209,8 @@ def test_block_program_has_the_dense_optimum_with_clarabel_too(ra, factor_clique
     cons = model.primary()
     prog = clique_program(Q, [sp.csr_array(c.A) for c in cons], np.array([c.b for c in cons]), factor_cliques(model))
     assert prog.F.shape[1] > len(cons)  # transfers were added for the overlaps
-    a = sdp.solve(model.Q, cons, cliques=factor_cliques(model))
-    b = sdp.solve(model.Q, cons, solver="ipm", cliques=factor_cliques(model))
+    a = clarabel_direct.solve_cliques(*_data(model.Q, cons), 1, factor_cliques(model), SolverConfig())
+    b = schur_ipm.solve_ipm(*_data(model.Q, cons), 1, factor_cliques(model), IPM)
     assert a.usable and b.usable, (a.status, b.status)
     assert abs(a.primal_cost - b.primal_cost) <= 1e-6 * a.primal_cost
 
@@ -192,8 +222,8 @@ def test_ipm_regression_discrete_trajectory_k20_is_tight(seed):
     prob = load("discrete_trajectory")
     inst = prob.generate({"K": 20}, seed)
     model = prob.build(inst)
-    res = solve_sdp(model, model.primary() + model.paper_constraints(), solver="ipm")
-    assert res.solver == "autotight-ipm"
+    res = solve_model(model, model.primary() + model.paper_constraints(), IPM)
+    assert res.solver == "autotight-ipm" and res.n_calls == 1
     assert res.usable, (res.summary(), res.message)
     assert res.log_svr > 5
     local = prob.local_solve(inst, inst.truth)
@@ -234,10 +264,9 @@ def _holds_every_nonzero(cover: list[np.ndarray], matrices: list) -> bool:
 
 
 def test_ipm_cover_minimises_the_estimated_iteration_cost():
-    """cliques_for(…, "ipm") on the discrete trajectory: a clique tree that holds every nonzero
+    """CliqueCovers.choose("ipm") on the discrete trajectory: a clique tree that holds every nonzero
     (i, j) of Q and of the constraints in some clique, whose estimated cost is no larger than that of
     Clarabel's cover or of the model's own cliques (both are among its candidates)."""
-    from autotight.run import cliques_for
     from autotight.sdp.chordal import block_loads, column_support, has_running_intersection
 
     prob = load("discrete_trajectory")
@@ -248,10 +277,11 @@ def test_ipm_cover_minimises_the_estimated_iteration_cost():
     def cost(cl):
         return schur_ipm.iteration_cost([len(c) for c in cl], block_loads(cl, support))
 
-    chosen = cliques_for(model, cons, "ipm")
+    covers = _covers(model, cons)
+    chosen = covers.choose("ipm")
     assert has_running_intersection(chosen)
     assert _holds_every_nonzero(chosen, [model.Q] + [c.A for c in cons])
-    assert cost(chosen) <= cost(cliques_for(model, cons)) and cost(chosen) <= cost(model.clique_indices())
+    assert cost(chosen) <= cost(covers.choose("clarabel")) and cost(chosen) <= cost(model.clique_indices())
 
 
 def test_refinement_is_kept_only_when_it_lowers_the_residual(monkeypatch):
@@ -262,7 +292,7 @@ def test_refinement_is_kept_only_when_it_lowers_the_residual(monkeypatch):
     S = sp.csr_array((vals, schur.cols, schur.indptr), shape=(schur.M, schur.M))
     d = vals[schur.diag]
     exact = np.linalg.inv(S.toarray() / np.sqrt(np.outer(d, d)))  # D S D with unit diagonal
-    monkeypatch.setattr(schur._cholmod, "factor", lambda lower: (lambda r: 3 * exact @ r))
+    monkeypatch.setattr(schur._ldl, "factor", lambda upper: (lambda r: 3 * exact @ r))
     r = np.random.default_rng(2).standard_normal(schur.M)
     dy = schur.factor(vals, 0.0)(r)
     assert np.linalg.norm(S @ dy - r) == pytest.approx(2 * np.linalg.norm(r), rel=1e-8)
@@ -280,12 +310,11 @@ def test_block_cover_keeps_blocks_whole_and_finds_the_small_separators():
     the IPM's chosen cover (that cover merged) has separators of at most 13 columns
     ({h, ξ_{k+1,k}, ϖ_{k+1}}) where the model's chain has 19 ({h, pose k+1, ϖ_{k+1}}), and is
     estimated cheaper than the model's."""
-    from autotight.run import CliqueCovers
     from autotight.sdp.chordal import block_loads, clique_tree, has_running_intersection
 
     model, cons = _continuous_kept(7, 0)
     V = model.variables
-    covers = CliqueCovers(model, cons)
+    covers = _covers(model, cons)
     cl = covers.blocks[0]  # unmerged
     assert has_running_intersection(cl) and all(c[0] == 0 for c in cl)
     starts = {V.offsets[n]: V.sizes[n] for n in V.names}
@@ -313,25 +342,34 @@ def test_ipm_keeps_going_while_the_costs_fall_by_orders_of_magnitude():
     the absolute gap as progress (a rule on the relative gap stopped this solve at iteration 7 with
     gap 1.4): the IPM alone ends usable, at Clarabel's cost to 1e-5."""
     model, cons = _continuous_kept(9, 0)
-    res = solve_sdp(model, cons, solver="ipm")
+    res = solve_model(model, cons, IPM)
     assert res.solver == "autotight-ipm" and res.usable, res.message
     assert res.iterations > 15
-    ref = solve_sdp(model, cons)
+    ref = solve_model(model, cons)
     assert abs(res.primal_cost - ref.primal_cost) <= 1e-5 * abs(ref.primal_cost), (res.primal_cost, ref.primal_cost)
 
 
 def test_clarabel_resolves_on_its_own_cover(monkeypatch):
-    """When the IPM ends unusable, Clarabel re-solves on the cover chosen for Clarabel (smaller
-    cliques), not on the IPM's: continuous time with ϖ kept, K = 7, seed 1 (the IPM stalls at a
-    relative gap of ~1e-6)."""
-    from autotight.run import cliques_for
+    """When the IPM ends unusable (forced: the IPM backend is stubbed to stall), Clarabel re-solves on
+    the cover chosen for Clarabel (smaller cliques), not on the IPM's: discrete trajectory, K = 12."""
+    prob = load("discrete_trajectory")
+    model = prob.build(prob.generate({"K": 12}, 0))
+    cons = model.primary() + model.paper_constraints()
+    seen: dict[str, list] = {"ipm": [], "clarabel": []}
 
-    model, cons = _continuous_kept(7, 1)
-    seen = []
-    real = sdp._clarabel
-    monkeypatch.setattr(sdp, "_clarabel", lambda Q, As, b, d, cliques, opts: seen.append(cliques) or real(Q, As, b, d, cliques, opts))
-    res = solve_sdp(model, cons, solver="ipm")
-    assert res.message.startswith("ipm: InsufficientProgress") and res.usable, res.message
-    want = cliques_for(model, cons, "clarabel")
-    assert len(seen) == 1 and [c.tolist() for c in seen[0]] == [c.tolist() for c in want]
-    assert [c.tolist() for c in want] != [c.tolist() for c in cliques_for(model, cons, "ipm")]
+    def stalled(Q, As, b, d, cliques, config):
+        seen["ipm"].append(cliques)
+        return SDPResult(status="InsufficientProgress", solver="autotight-ipm", d=d, X=None, y=None,
+                         primal_cost=float("nan"), dual_cost=float("nan"), solve_time_s=0.0)
+
+    real = BACKENDS["clarabel"].solve
+    monkeypatch.setattr(BACKENDS["ipm"], "solve", stalled)
+    monkeypatch.setattr(BACKENDS["clarabel"], "solve",
+                        lambda Q, As, b, d, cliques, config: seen["clarabel"].append(cliques) or real(Q, As, b, d, cliques, config))
+    res = solve_model(model, cons, IPM)
+    assert res.usable and res.solver == "clarabel-cliques" and res.n_calls == 2, res.message
+    covers = _covers(model, cons)
+    want, ipm = covers.choose("clarabel"), covers.choose("ipm")
+    assert [c.tolist() for c in want] != [c.tolist() for c in ipm]
+    assert len(seen["ipm"]) == 1 and [c.tolist() for c in seen["ipm"][0]] == [c.tolist() for c in ipm]
+    assert len(seen["clarabel"]) == 1 and [c.tolist() for c in seen["clarabel"][0]] == [c.tolist() for c in want]

@@ -13,7 +13,10 @@ import scipy.sparse as sp
 
 from autotight import sdp
 from autotight.model import Constraint
-from autotight.sdp import SolverOptions, log_svr, rank_d_factor
+from autotight.errors import AutotightError
+from autotight.sdp import SolverConfig, SolverConfigError, SolverOptions, clarabel_direct, log_svr, rank_d_factor
+from autotight.sdp.registry import BACKENDS
+from autotight.sdp.result import SDPResult
 from autotight.tightness import judge
 
 
@@ -22,13 +25,20 @@ def _small_instance(ra, M: int, seed: int, sigma: float = 0.1):
     return inst, ra.build(inst)
 
 
+def _on_cover(Q, cons, cliques, d: int = 1) -> SDPResult:
+    """Clarabel's clique path on exactly this cover (the SDP layer would choose its own)."""
+    As = [sp.csr_array(c.A) for c in cons]
+    return clarabel_direct.solve_cliques(sp.csr_array(Q), As, np.array([c.b for c in cons]), d, cliques, SolverConfig())
+
+
 def test_dense_cvxpy_and_clique_paths_agree(ra, factor_cliques):
     """Rotation averaging, M = 3 (N = 19): the three backends reach the same optimal cost."""
     inst, model = _small_instance(ra, 3, seed=5)
     cons = model.primary()
     dense = sdp.solve(model.Q, cons)
-    clique = sdp.solve(model.Q, cons, cliques=factor_cliques(model))
-    scs = sdp.solve(model.Q, cons, solver="cvxpy:SCS")
+    clique = sdp.solve(model.Q, cons, cliques=factor_cliques(model), config=SolverConfig(decompose=True))
+    scs = sdp.solve(model.Q, cons, config=SolverConfig(backend="cvxpy:SCS"))
+    assert clique.solver == "clarabel-cliques" and clique.cliques is not None
     assert dense.status == "Solved"
     assert clique.usable and scs.usable, (clique.status, scs.status)
     f = dense.primal_cost
@@ -52,7 +62,7 @@ def test_clique_path_equals_dense_on_rotation_averaging(ra, factor_cliques):
     assert all(np.array_equal(c[:10], np.arange(10)) for c in cl)  # h, c1, c2, c3 in every clique
     cons = model.primary()
     dense = sdp.solve(model.Q, cons)
-    clique = sdp.solve(model.Q, cons, cliques=cl)
+    clique = _on_cover(model.Q, cons, cl)
     assert dense.status == "Solved"
     assert clique.usable, clique.status
     f = dense.primal_cost
@@ -78,14 +88,28 @@ def test_clique_path_equals_dense_on_rotation_averaging(ra, factor_cliques):
     assert np.linalg.norm(C_d - C_loc) <= 1e-5
 
 
-def test_clique_outside_pattern_is_a_status_not_an_exception(ra):
-    """Cliques that miss a cost entry: the solve returns a 'Failed' status."""
+def test_a_cover_hint_outside_the_pattern_raises(ra):
+    """A cover hint that misses cost entries is a programming error: ValueError, not a status."""
     inst, model = _small_instance(ra, 2, seed=0)
     bad = [model.variables.index(("h", "c1", "c2", "c3"))]
-    res = sdp.solve(model.Q, model.primary(), cliques=bad)
-    assert res.status.startswith("Failed")
-    assert not res.usable
-    assert np.isnan(res.primal_cost)
+    with pytest.raises(ValueError, match="misses .* nonzero entries"):
+        sdp.solve(model.Q, model.primary(), cliques=bad, config=SolverConfig(decompose=True))
+    with pytest.raises(ValueError, match="outside every clique"):
+        _on_cover(model.Q, model.primary(), bad)
+
+
+def test_bad_shapes_raise_value_error(ra):
+    """Shape errors are bugs: they raise, they never become a "Failed" status."""
+    inst, model = _small_instance(ra, 2, seed=0)
+    N = model.variables.N
+    wrong = Constraint(sp.csr_array(([1.0], ([0], [0])), shape=(N + 1, N + 1)), 1.0, name="wrong")
+    for backend in ("clarabel", "ipm"):
+        with pytest.raises(ValueError, match="wrong"):
+            sdp.solve(model.Q, model.primary() + [wrong], config=SolverConfig(backend=backend))
+    with pytest.raises(ValueError, match="square"):
+        sdp.solve(sp.csr_array(np.ones((3, 4))), [])
+    with pytest.raises(ValueError, match="scale"):
+        sdp.solve(model.Q, model.primary(), scale=-np.ones(N))
 
 
 @pytest.mark.parametrize("solver,use_cliques", [("clarabel", False), ("clarabel", True), ("cvxpy:SCS", False)])
@@ -95,7 +119,9 @@ def test_contradictory_constraints_return_infeasible_status(ra, factor_cliques, 
     N = model.variables.N
     E = sp.csr_array(([1.0], ([0], [0])), shape=(N, N))
     cons = model.primary() + [Constraint(E, 2.0, name="h2=2")]
-    res = sdp.solve(model.Q, cons, solver=solver, cliques=factor_cliques(model) if use_cliques else None)
+    res = sdp.solve(model.Q, cons, cliques=factor_cliques(model),
+                    config=SolverConfig(backend=solver, decompose=use_cliques if solver == "clarabel" else None))
+    assert res.solver == ("clarabel-cliques" if use_cliques else "clarabel-chordal" if solver == "clarabel" else "cvxpy-scs")
     assert not res.usable
     assert not res.solved
     assert "infeasible" in res.status.lower(), res.status
@@ -105,17 +131,85 @@ def test_contradictory_constraints_return_infeasible_status(ra, factor_cliques, 
 
 def test_max_iter_one_returns_status(ra):
     inst, model = _small_instance(ra, 10, seed=0)
-    res = sdp.solve(model.Q, model.primary(), options=SolverOptions(max_iter=1))
-    assert res.status == "MaxIterations"
+    res = sdp.solve(model.Q, model.primary(), config=SolverConfig(max_iter=1))
+    assert res.status == "MaxIterations" and res.n_calls == 1  # not a status that is retried
     assert not res.usable
     assert res.iterations == 1
     v = judge(res, 20.0)
     assert not v.tight and "MaxIterations" in v.reason
 
 
-def test_unknown_solver_is_an_error():
-    with pytest.raises(ValueError, match="unknown solver"):
-        sdp.solve(sp.eye_array(2, format="csr"), [], solver="gurobi-direct")
+def test_config_validation_errors():
+    """A bad config is an input error (AutotightError), raised when it is built, before any work."""
+    import cvxpy as cp
+
+    bad = [dict(backend="gurobi-direct"), dict(backend="cvxpy:NOPE"), dict(backend="ipm:fast"), dict(tol=0.0),
+           dict(tol=2.0), dict(max_iter=0), dict(time_limit=-1.0), dict(threads=-1), dict(scale="always"),
+           dict(regularization="tiny"), dict(chordal_merge="greedy"), dict(decompose="yes")]
+    if "MOSEK" not in cp.installed_solvers():
+        bad.append(dict(backend="cvxpy:MOSEK"))
+    for kw in bad:
+        with pytest.raises(SolverConfigError) as e:
+            SolverConfig(**kw)
+        assert isinstance(e.value, AutotightError) and "\n" not in str(e.value), kw
+    with pytest.raises(SolverConfigError, match="unknown solver 'gurobi-direct'"):
+        SolverConfig(backend="gurobi-direct")
+    with pytest.raises(SolverConfigError, match="'NOPE' is not installed"):
+        SolverConfig(backend="cvxpy:NOPE")
+    with pytest.raises(SolverConfigError, match="tol"):
+        SolverConfig(tol=0.0)
+    assert SolverOptions is SolverConfig  # the old name keeps working
+    assert SolverOptions(tol=1e-8, regularization="default").backend == "clarabel"
+    assert SolverConfig(backend="cvxpy:scs").backend_arg == "scs"
+
+
+class _Dummy:
+    """A backend registered by a test: returns a fixed X = e₀e₀ᵀ, or raises what it is told to."""
+
+    name, decompose_default, cover, fallback = "dummy", False, None, None
+    errors: tuple = (ZeroDivisionError,)
+
+    def __init__(self, raise_: BaseException | None = None):
+        self.raise_, self.calls = raise_, 0
+
+    def check(self, arg):
+        pass
+
+    def solve(self, Q, As, b, d, cliques, config):
+        self.calls += 1
+        if self.raise_ is not None:
+            raise self.raise_
+        X = np.zeros(Q.shape)
+        X[0, 0] = 1.0
+        return SDPResult(status="Solved", solver="dummy", d=d, X=X, y=np.zeros(len(As)),
+                         primal_cost=float(Q[0, 0]), dual_cost=float(Q[0, 0]), solve_time_s=0.25, setup_time_s=0.5)
+
+    def retries(self, config, decomposed, N):
+        return []
+
+
+def test_a_registered_backend_is_reachable_by_name(monkeypatch):
+    dummy = _Dummy()
+    monkeypatch.setitem(BACKENDS, "dummy", dummy)
+    Q = sp.csr_array(np.diag([3.0, 1.0]))
+    h2 = Constraint(sp.csr_array(([1.0], ([0], [0])), shape=(2, 2)), 1.0, name="h2")
+    res = sdp.solve(Q, [h2], config=SolverConfig(backend="dummy"))
+    assert dummy.calls == 1 and res.solver == "dummy" and res.status == "Solved"
+    assert res.primal_cost == 3.0 and res.n_calls == 1 and res.solve_time_s == 0.25 and res.setup_time_s == 0.5
+    assert res.log_svr == np.inf and res.cost_scale == 3.0  # the layer's finishing reads X
+    assert sdp.check_solver("dummy") == "dummy"
+
+
+def test_only_declared_solver_errors_become_statuses(monkeypatch):
+    """An exception the backend declares (here ZeroDivisionError) is a "Failed" status; a ValueError
+    (a bug) propagates."""
+    Q = sp.csr_array(np.eye(2))
+    monkeypatch.setitem(BACKENDS, "dummy", _Dummy(ZeroDivisionError("pivot")))
+    res = sdp.solve(Q, [], config=SolverConfig(backend="dummy"))
+    assert res.status == "Failed: ZeroDivisionError: pivot" and not res.usable and res.n_calls == 1
+    monkeypatch.setitem(BACKENDS, "dummy", _Dummy(ValueError("bad shape")))
+    with pytest.raises(ValueError, match="bad shape"):
+        sdp.solve(Q, [], config=SolverConfig(backend="dummy"))
 
 
 # ----------------------------------------------------------------------------- log SVR, rank-d factor
@@ -229,8 +323,8 @@ def test_decomposed_dual_equals_dense_on_a_relaxation_that_is_not_rank_one():
         B = rng.standard_normal((len(C), len(C)))
         Q[np.ix_(C, C)] += B + B.T
     cons = [Constraint(sp.csr_array(([1.0], ([i], [i])), shape=(N, N)), 1.0, name=f"X{i}{i}=1") for i in range(N)]
-    dense = sdp.solve(sp.csr_array(Q), cons, options=SolverOptions(clarabel_chordal=False))
-    split = sdp.solve(sp.csr_array(Q), cons, cliques=cl)
+    dense = sdp.solve(sp.csr_array(Q), cons, config=SolverConfig(clarabel_chordal=False))
+    split = _on_cover(Q, cons, cl)
     assert dense.status == "Solved" and split.status == "Solved", (dense.status, split.status)
     assert dense.log_svr < 1  # far from rank 1
     f = dense.primal_cost
@@ -242,29 +336,36 @@ def test_decomposed_dual_equals_dense_on_a_relaxation_that_is_not_rank_one():
     assert np.allclose(np.diag(split.X), 1.0, atol=1e-7)
 
 
-def test_a_stalled_solve_is_retried_with_default_regularisation(ra, monkeypatch):
-    """A solve that stalls with the small regularisation is re-solved with Clarabel's default one;
-    the result is the retry's, and the message records both statuses."""
-    import autotight.sdp as sdp_pkg
-
+def test_a_stalled_solve_is_retried_and_every_call_is_counted(ra, monkeypatch):
+    """A solve that stalls with the small regularisation is solved again with Clarabel's default
+    one, then (still stalled, ≤ 100 columns) with clique-graph merging; the first Solved result is
+    kept.  n_calls counts the three calls, solve_time_s and setup_time_s sum all three, and the
+    message lists each attempt."""
     inst, model = _small_instance(ra, 4, seed=0)
-    real = sdp_pkg.solve_dense
-    calls = []
+    real = clarabel_direct.solve_dense
+    calls, times = [], []
 
     def stalling(Q, As, b, d, opts):
-        calls.append(opts.regularization)
+        calls.append((opts.regularization, opts.chordal_merge))
         res = real(Q, As, b, d, opts)
-        if opts.regularization == "small":
+        if len(calls) < 3:
             res.status, res.X = "InsufficientProgress", None
+        times.append((res.solve_time_s, res.setup_time_s))
         return res
 
-    monkeypatch.setattr(sdp_pkg, "solve_dense", stalling)
+    monkeypatch.setattr(clarabel_direct, "solve_dense", stalling)
     res = sdp.solve(model.Q, model.primary())
-    assert calls[:2] == ["small", "default"]
+    assert calls == [("small", "parent_child"), ("default", "parent_child"), ("small", "clique_graph")]
     assert res.status == "Solved" and res.usable
-    assert "InsufficientProgress; retried with default regularisation: Solved" in res.message
+    assert res.n_calls == 3
+    assert res.solve_time_s == pytest.approx(sum(t for t, _ in times), rel=1e-12)
+    assert res.setup_time_s == pytest.approx(sum(t for _, t in times), rel=1e-12)
+    parts = res.message.split("; ")
+    assert parts[0].startswith("1. clarabel-chordal InsufficientProgress"), res.message
+    assert parts[1].startswith("2. retried with default regularisation: clarabel-chordal InsufficientProgress")
+    assert parts[2].startswith("3. retried with clique_graph merge: clarabel-chordal Solved")
     local = ra.local_solve(inst, inst.truth)
-    assert abs(res.primal_cost - local.cost) <= 1e-6 * local.cost  # tight, at the default's accuracy
+    assert abs(res.primal_cost - local.cost) <= 1e-6 * local.cost
 
 
 def test_top_only_factor_matches_the_full_eigendecomposition():
@@ -306,3 +407,73 @@ def test_block_cliques_expand_block_cliques_to_columns():
     B = sp.csr_array(([1.0, 1.0], ([5, 7], [7, 5])), shape=(N, N))
     got = sorted(c.tolist() for c in block_cliques([1, 2, 3, 2], *nonzeros([A, B])[1:]))
     assert got == [[0, 1, 2, 3, 4, 5], [0, 3, 4, 5, 6, 7]]
+
+
+# ----------------------------------------------------------------------------- scaling X = D X' D
+
+
+def test_block_scale_is_the_rms_per_block_with_a_floor():
+    from autotight.model import Variables
+    from autotight.sdp.scaling import block_scale
+
+    V = Variables([("a", 2), ("b", 3), ("z", 1)])  # h: 0, a: 1–2, b: 3–5, z: 6
+    t1 = np.array([1.0, 3.0, -4.0, 1e-3, -1e-3, 1e-3, 0.0])
+    t2 = np.array([1.0, 0.0, 5.0, 2e-3, 2e-3, -2e-3, 0.0])
+    D = block_scale(V, [t1, t2[None, :]], floor_rel=1e-4)
+    rms_a = np.sqrt((9 + 16 + 0 + 25) / 4)
+    rms_b = np.sqrt((3 * 1e-6 + 3 * 4e-6) / 6)
+    np.testing.assert_allclose(D, [1.0, rms_a, rms_a, rms_b, rms_b, rms_b, 1e-4 * rms_a], rtol=1e-12)
+    with pytest.raises(ValueError, match="shape"):
+        block_scale(V, [np.ones(5)])
+    with pytest.raises(ValueError, match="at least one"):
+        block_scale(V, [])
+
+
+def test_scaling_reaches_the_local_optimum_at_low_noise():
+    """Pose averaging, M = 10, σ = 0.001, seed 2, paper set: the residual blocks are ~1e-3 of the
+    rotation blocks.  With D from the lifted local solution the SDP's primal cost comes within 1e-6
+    (relative) of the local optimum U (measured: 4e-10 after the default-regularisation retry;
+    unscaled, Clarabel stops 2.5e-5 above U)."""
+    from autotight.problem import load
+    from autotight.sdp.scaling import block_scale
+
+    prob = load("pose_averaging")
+    inst = prob.generate({"M": 10, "sigma": 0.001}, 2)
+    model = prob.build(inst)
+    cons = model.primary() + model.paper_constraints()
+    loc = prob.local_solve(inst, inst.truth)
+    D = block_scale(model.variables, [prob.lift(inst, loc.state)])
+    assert D.min() < 1e-3 < 0.5 < D.max()  # the scaling is far from the identity here
+    res = sdp.solve_model(model, cons, scale=D)
+    assert res.usable, res.message
+    assert abs(res.primal_cost - loc.cost) <= 1e-6 * abs(loc.cost), (res.primal_cost, loc.cost, res.message)
+    assert abs(res.dual_cost - loc.cost) <= 1e-6 * abs(loc.cost)
+    assert res.log_svr > 5  # read from the unscaled X
+    est = prob.recover(inst, res.Theta)
+    assert abs(prob.cost(inst, est) - loc.cost) <= 1e-6 * loc.cost
+
+
+def test_scaled_and_unscaled_solves_agree_on_a_well_conditioned_instance():
+    """A MaxCut SDP (min ⟨Q,X⟩, X_ii = 1, N = 6) whose optimum is rank 1 with a strictly
+    complementary dual, so an interior-point X converges at the rate of the gap (on the degenerate
+    optima of tight relaxations X is only accurate to ~√tol, 1e-6 here, scaled or not).  With a
+    random D in [0.5, 2]: the same cost and X to 1e-7, the same y (to 1e-5); with scale="none" the vector is
+    ignored (bit-identical result)."""
+    N = 6
+    B = np.random.default_rng(1).standard_normal((N, N))
+    Q = sp.csr_array(B + B.T)
+    cons = [Constraint(sp.csr_array(([1.0], ([i], [i])), shape=(N, N)), 1.0, name=f"X{i}{i}=1") for i in range(N)]
+    D = np.random.default_rng(9).uniform(0.5, 2.0, N)
+    plain = sdp.solve(Q, cons)
+    scaled = sdp.solve(Q, cons, scale=D)
+    assert plain.status == "Solved" and scaled.status == "Solved", (plain.message, scaled.message)
+    assert plain.log_svr > 5 and scaled.log_svr > 5  # rank 1, read from the unscaled X
+    f = abs(plain.primal_cost)
+    assert abs(scaled.primal_cost - plain.primal_cost) <= 1e-7 * f
+    assert abs(scaled.dual_cost - plain.dual_cost) <= 1e-7 * f
+    assert np.abs(scaled.X - plain.X).max() <= 1e-7 * np.abs(plain.X).max()
+    # y is not rescaled (a rescaled y would differ by factors D_i² in [0.25, 4]); the multipliers
+    # are fixed less sharply than X here, to ~1e-6 relative
+    assert np.abs(scaled.y - plain.y).max() <= 1e-5 * np.abs(plain.y).max()
+    ignored = sdp.solve(Q, cons, scale=D, config=SolverConfig(scale="none"))
+    assert np.array_equal(ignored.X, plain.X)

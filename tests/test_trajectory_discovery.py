@@ -11,7 +11,8 @@ import pytest
 from autotight.discovery import discover, instantiate, learn
 from autotight.discovery.samples import draw, relative_violation
 from autotight.problem import load
-from autotight.run import local_search, solve_sdp
+from autotight.run import local_search
+from autotight.sdp import solve_model
 from autotight.tightness import judge
 
 #: a learned relation evaluated on exact feasible samples: rounding only (the learning tolerance is 1e-8)
@@ -60,12 +61,12 @@ def test_discrete_discovered_set_carries_over_to_a_heldout_instance(discrete_res
     assert len(cons) == len(res.constraints)
     bank = draw(DISCRETE, inst, 40, np.random.default_rng([seed, 4]), FRESH_SPREAD)
     assert relative_violation(cons, bank.thetas).max() < FRESH_TOL
-    sdp = solve_sdp(model, model.primary() + cons)
+    sdp = solve_model(model, model.primary() + cons)
     loc = local_search(DISCRETE, inst, rng, 1)
     verdict = judge(sdp, loc.best.cost)
     assert verdict.tight, verdict.reason
     # and the primary constraints alone are not: the discovered set is doing the work
-    assert not judge(solve_sdp(model, model.primary()), loc.best.cost).tight
+    assert not judge(solve_model(model, model.primary()), loc.best.cost).tight
 
 
 def test_continuous_per_factor_candidates_hold_on_fresh_samples():

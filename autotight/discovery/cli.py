@@ -6,6 +6,7 @@ import argparse
 import json
 from typing import Callable
 
+from ..cli import add_solver_args, solver_config
 from ..io import jsonable
 from ..pretty import polynomial
 from ..problem import load, parse_assignments
@@ -23,6 +24,7 @@ def register(sub: argparse._SubParsersAction, add_problem_args: Callable) -> Non
     p.add_argument("--min-gap", type=float, default=6.0, help="spectral gap in decades that decides the rank (default 6)")
     p.add_argument("--gap-tol", type=float, default=1e-5, help="relative cost gap counted as tight (default 1e-5)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    add_solver_args(p)
     p.set_defaults(func=cmd_discover)
 
 
@@ -36,6 +38,7 @@ def _groups(spec: str):
 def cmd_discover(args: argparse.Namespace) -> int:
     from ..tightness import Criteria
 
+    config = solver_config(args)
     prob = load(args.problem)
     params = prob.parse_params(parse_assignments(args.param))
     bar = None
@@ -52,7 +55,8 @@ def cmd_discover(args: argparse.Namespace) -> int:
     try:
         res = discover(prob, params, args.seed, groups=_groups(args.groups),
                        learn_options=LearnOptions(min_gap_decades=args.min_gap),
-                       criteria=Criteria(gap_tol=args.gap_tol), n_heldout=args.heldout, progress=progress)
+                       criteria=Criteria(gap_tol=args.gap_tol), n_heldout=args.heldout, progress=progress,
+                       solver=config)
     finally:
         if bar is not None:
             bar.close()

@@ -11,9 +11,10 @@ from typing import Iterable
 
 import numpy as np
 
+from .. import sdp
 from ..model import Constraint, Model
-from ..run import solve_sdp
-from ..sdp.result import SDPResult, SolverOptions
+from ..sdp.config import SolverConfig
+from ..sdp.result import SDPResult
 from ..tightness import Criteria, Verdict, judge
 from .catalog import Pair
 
@@ -24,8 +25,7 @@ class Oracle:
     pairs: dict[Pair, list[Constraint]]
     best_local: float
     criteria: Criteria = Criteria()
-    options: SolverOptions = SolverOptions()
-    solver: str = "clarabel"
+    options: SolverConfig = SolverConfig()
     n_solves: int = 0
     solve_time_s: float = 0.0
     log: list[dict] = field(default_factory=list)
@@ -43,7 +43,7 @@ class Oracle:
         return self._solve(self.model.primary() + list(extra), stage, 0)
 
     def _solve(self, cons: list[Constraint], stage: str, n_pairs: int) -> tuple[Verdict, SDPResult]:
-        res = solve_sdp(self.model, cons, solver=self.solver, options=self.options)
+        res = sdp.solve_model(self.model, cons, self.options)
         self.n_solves += 1
         self.solve_time_s += res.solve_time_s + res.setup_time_s
         v = judge(res, self.best_local, self.criteria)

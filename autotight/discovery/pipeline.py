@@ -13,7 +13,7 @@ from ..constraint_set import ConstraintSet, ConstraintsLike
 from ..model import Constraint, Model
 from ..pipeline import local_search, seeds, solve_instance
 from ..problem import Instance, Problem, load
-from ..sdp.result import SolverOptions
+from ..sdp.config import SolverConfig
 from ..tightness import Criteria
 from .catalog import Catalog, instantiate, learn
 from .compare import paper_in_span, resemblance
@@ -109,7 +109,7 @@ Maker = Callable[[Instance, Model, np.random.Generator], tuple[ConstraintsLike, 
 
 
 def heldout_check(problem: Problem, params: dict[str, Any], seeds_: Sequence[int], sets: dict[str, Maker],
-                  criteria: Criteria, config: Any, n_random: int = 1) -> dict[str, HeldOut]:
+                  criteria: Criteria, config: SolverConfig, n_random: int = 1) -> dict[str, HeldOut]:
     """For each fresh instance (one local search each, shared by the sets), solve it with every set's
     constraints through the per-instance pipeline (``autotight.pipeline.solve_instance``)."""
     out = {name: HeldOut([], [], [], [], []) for name in sets}
@@ -130,7 +130,7 @@ def heldout_check(problem: Problem, params: dict[str, Any], seeds_: Sequence[int
 @single_blas_thread
 def discover(problem: Problem | str, params: dict[str, Any] | None = None, seed: int = 0, *,
              groups: str | Sequence[Sequence[str]] = "factors", learn_options: LearnOptions = LearnOptions(),
-             criteria: Criteria = Criteria(), solver: Any = None, n_heldout: int = 10,
+             criteria: Criteria = Criteria(), solver: SolverConfig | None = None, n_heldout: int = 10,
              n_random: int = 2, verify: bool = True, compare: bool = True,
              progress: Callable[[str, str], None] | None = None) -> DiscoveryResult:
     """Discover an irreducible set of redundant constraints for ``problem`` at ``params``.
@@ -141,7 +141,7 @@ def discover(problem: Problem | str, params: dict[str, Any] | None = None, seed:
     progress(stage, text) is called as work proceeds.
     """
     prob = load(problem) if isinstance(problem, str) else problem
-    config = SolverOptions() if solver is None else solver
+    config = SolverConfig() if solver is None else solver
     say = progress or (lambda stage, text: None)
     full = prob.parse_params(params)
     times: dict[str, float] = {}
@@ -155,7 +155,7 @@ def discover(problem: Problem | str, params: dict[str, Any] | None = None, seed:
     times["sampling_s"] = cat.times["sampling_s"]
     times["nullspace_s"] = cat.times["nullspace_s"]
     pairs = cat.by_pair()
-    oracle = Oracle(model, pairs, loc.best.cost, criteria, config, solver=getattr(config, "backend", "clarabel"))
+    oracle = Oracle(model, pairs, loc.best.cost, criteria, config)
     t = time.perf_counter()
     tr = tighten(oracle, progress=lambda s: say("tighten", s))
     times["tighten_s"] = time.perf_counter() - t

@@ -146,11 +146,11 @@ def make_spec(problem: Problem, source: str, params: dict[str, Any] | None = Non
     if seed < 0:
         raise ReportError(f"--seed {seed}: must be ≥ 0")
     if "solver" in kw:
-        from ..sdp import check_solver
+        from ..sdp import SolverConfigError, check_solver
 
         try:
             check_solver(kw["solver"])
-        except ValueError as e:
+        except SolverConfigError as e:
             raise ReportError(str(e)) from None
     full = problem.parse_params(params)
     full.pop("sigma")

@@ -11,6 +11,7 @@ from tqdm import tqdm
 
 from ..constraint_set import ConstraintSet
 from ..problem import Problem
+from ..sdp.config import SolverConfig
 from .backends import execute
 from .spec import ReportError, SweepSpec
 from .store import Store
@@ -99,7 +100,8 @@ def prepare_discovered(spec: SweepSpec, problem: Problem, out: Path,
     if not saved.is_file():
         params = problem.parse_params(spec.params)  # σ at the problem's default
         log(f"running discovery for {problem.name} at {params} (seed {spec.seed}); saving it to {saved}")
-        res = discover(problem, params, seed=spec.seed, criteria=spec.criteria)
+        res = discover(problem, params, seed=spec.seed, criteria=spec.criteria,
+                       solver=SolverConfig(backend=spec.solver, threads=1))
         out.mkdir(parents=True, exist_ok=True)
         res.discovered.save(saved, res.model, res.constraints, {"summary": res.summary()})
     return ConstraintSet(DiscoveredSet.load(saved)), {"source": "discover", "seed": spec.seed, "sha256": _sha256(saved)}

@@ -15,7 +15,7 @@ from threadpoolctl import threadpool_limits
 from ..errors import AutotightError
 from ..pipeline import is_trapped, local_search, solve_instance
 from ..problem import Instance, Problem
-from ..sdp.result import SolverOptions
+from ..sdp.config import SolverConfig
 from .spec import SweepSpec, trial_seeds
 
 KEY = ("sigma_index", "trial")
@@ -91,7 +91,7 @@ def _solve(problem: Problem, spec: SweepSpec, i: int, t: int, discovered: Any) -
               "local_converged_truth": truth.converged, "local_converged_random": rand.converged,
               "local_truth_time_s": truth.time_s, "local_random_time_s": rand.time_s, "build_time_s": build_s,
               **_errors(problem, inst, truth.state, "err_truth_"), **_errors(problem, inst, rand.state, "err_random_")}
-    config = spec.solver_config() if hasattr(spec, "solver_config") else SolverOptions(threads=1)
+    config = SolverConfig(backend=spec.solver, threads=1)
     rows, uppers = [], []
     for name in spec.sets:
         constraints = discovered if name == "discovered" else name

@@ -1,117 +1,195 @@
-"""One ``solve`` for the Shor relaxation  min ⟨Q,X⟩ s.t. ⟨Aᵢ,X⟩ = bᵢ, X ⪰ 0.
+"""The SDP layer: one ``solve`` for the Shor relaxation  min ⟨Q,X⟩ s.t. ⟨Aᵢ,X⟩ = bᵢ, X ⪰ 0.
 
-Backends (one module each): ``clarabel`` (direct, sparse, default), ``clarabel`` with
-``cliques`` (clique decomposition of a chordal pattern), ``ipm`` (our Schur-complement interior-point
-method on the clique blocks, ``schur_ipm``), ``cvxpy:<SOLVER>`` (SCS, MOSEK, …).
-An ``ipm`` solve that ends unusable (its normal equations limit it to about 1e-8 of the data's
-scale, too little when the optimal cost is far smaller than the cost matrix's entries) is solved
-again by Clarabel on the same data (on ``fallback_cliques``, Clarabel's own cover, when given);
-``res.solver`` and ``res.message`` say so.
-A failed or inaccurate solve is returned with its status; it never raises.
+The layer owns the solve policy; callers give the data, a ``SolverConfig`` and optionally the
+model's own clique cover (a hint) and a scaling vector:
+
+- backend: ``config.backend`` names an entry of ``registry.BACKENDS`` ("clarabel", "ipm",
+  "cvxpy:<NAME>");
+- cover: when the solve is decomposed (``config.decompose``, or the backend's default), the cover
+  is chosen here (``covers.CliqueCovers``: min-fill covers of the columns and of the variable
+  blocks, small cliques merged, and the hint, ranked by the backend's cost model);
+- retries: a result is solved again with each of the backend's ``retries`` configs in turn whose
+  statuses include its status (Clarabel: default regularisation on a stalled or AlmostSolved
+  solve, then clique-graph merging on a stalled one); the retry replaces the result when it is
+  Solved or the result is unusable;
+- fallback: an unusable result of a backend with a ``fallback`` (the IPM) is solved again by that
+  backend on its own cover (Clarabel's), with its retries;
+- scaling: ``scale`` = D (see ``solve``);
+- counting: every solver call is counted in ``SDPResult.n_calls``, its solve and set-up times are
+  summed into ``solve_time_s`` and ``setup_time_s``, and ``message`` lists every attempt.
+
+A solver's failure is a status, never an exception: an ``SDPResult`` is returned whatever the
+solver reports.  Only what a backend declares in ``errors`` (exceptions the solver legitimately
+signals) becomes a "Failed: …" status; bad input (shapes, a cover hint that misses entries) raises
+ValueError, and a bad config raises ``SolverConfigError`` when it is built.
+
+Adding a backend is one module plus one registry line.  The module defines a small class with
+the attributes of ``registry.Backend``::
+
+    # autotight/sdp/mysolver.py
+    class MySolverBackend:
+        name, decompose_default, cover, fallback = "mysolver", False, None, None
+        errors = ()
+        def check(self, arg): ...                    # SolverConfigError if not installed
+        def solve(self, Q, As, b, d, cliques, config): ...   # -> SDPResult
+        def retries(self, config, decomposed, N): return []
+
+    # autotight/sdp/registry.py, in BACKENDS:
+        "mysolver": MySolverBackend(),
+
+and ``SolverConfig(backend="mysolver")`` selects it everywhere (API, CLI ``--solver``, reports).
 """
 
 from __future__ import annotations
 
-from ..threads import single_blas_thread
-from dataclasses import replace
+from dataclasses import dataclass
 from typing import Sequence
 
 import numpy as np
 import scipy.sparse as sp
 
-from ..model import Constraint
-from .clarabel_direct import solve_cliques, solve_dense
-from .cvxpy_path import solve_cvxpy
-from .result import SDPResult, SolverOptions, log_svr, rank_d_factor
-from .schur_ipm import solve_ipm
+from ..model import Constraint, Model
+from ..threads import single_blas_thread
+from .config import SolverConfig, SolverConfigError, SolverOptions
+from .covers import IPM_MERGE_CAPS, MERGE_MAX_SIZE, CliqueCovers
+from .registry import BACKENDS, Backend
+from .result import SDPResult, finish, log_svr, rank_d_factor
 
-__all__ = ["solve", "check_solver", "SOLVERS", "SDPResult", "SolverOptions", "log_svr", "rank_d_factor"]
-
-#: the backends ``solve`` knows, besides ``cvxpy:<SOLVER>``
-SOLVERS = ("clarabel", "ipm")
+__all__ = ["solve", "solve_model", "check_solver", "SolverConfig", "SolverConfigError", "SolverOptions",
+           "SDPResult", "BACKENDS", "CliqueCovers", "MERGE_MAX_SIZE", "IPM_MERGE_CAPS", "log_svr",
+           "rank_d_factor"]
 
 
 def check_solver(name: str) -> str:
-    """``name`` if ``solve`` knows it, else ValueError with the choices."""
-    if name in SOLVERS or name == "cvxpy" or name.startswith("cvxpy:"):
-        return name
-    raise ValueError(f"unknown solver {name!r}; use 'clarabel', 'ipm' or 'cvxpy:SCS', 'cvxpy:MOSEK', …")
+    """``name`` if it is a usable backend, else SolverConfigError with the choices."""
+    SolverConfig(backend=name)
+    return name
 
 
-#: A parent-child-merged solve that fails this way is retried with clique-graph merging, on liftings
-#: of at most RETRY_MAX_N columns only: clique-graph merging can take many minutes on larger chains.
-RETRY_STATUSES = ("NumericalError", "InsufficientProgress")
-RETRY_MAX_N = 100
+@dataclass
+class _Attempt:
+    why: str  # "" for the first call, else the retry or fallback
+    res: SDPResult
+
+    def describe(self, k: int) -> str:
+        r = self.res
+        head = f"{k}. {self.why + ': ' if self.why else ''}{r.solver} {r.status} ({r.solve_time_s:.2f} s"
+        return head + (f"; {r.message.strip()})" if r.message.strip() else ")")
 
 
-def _retry_stalled(res: SDPResult, Q: sp.csr_array, As: list[sp.csr_array], b: np.ndarray, d: int,
-                   cliques: Sequence[np.ndarray] | None, opts: SolverOptions) -> SDPResult:
-    """Re-solve a Clarabel solve that stalled (``RETRY_STATUSES``): first with Clarabel's default
-    regularisation, then (small dense liftings with parent-child merging) with clique-graph merging.
-    The retry's result replaces the first one when it is Solved or the first one is unusable; the
-    message records every attempt."""
-    retries = []
-    if opts.regularization == "small":
-        retries.append(("default regularisation", replace(opts, regularization="default")))
-    if cliques is None and opts.clarabel_chordal and opts.chordal_merge == "parent_child" \
-            and Q.shape[0] <= RETRY_MAX_N:
-        retries.append(("clique_graph merge", replace(opts, chordal_merge="clique_graph")))
-    notes = []
-    for what, o in retries:
-        if res.status not in RETRY_STATUSES:
-            break
-        retry = _clarabel_once(Q, As, b, d, cliques, o)
-        notes.append(f"{res.status}; retried with {what}: {retry.status}")
-        if retry.status == "Solved" or not res.usable:
-            res = retry
-    if notes:
-        res.message = "; ".join(notes)
+def _call(backend: Backend, why: str, Q: sp.csr_array, As: list[sp.csr_array], b: np.ndarray, d: int,
+          cliques: list[np.ndarray] | None, config: SolverConfig, log: list[_Attempt]) -> SDPResult:
+    """One solver call, logged; an exception the backend declares becomes a "Failed" status."""
+    try:
+        res = backend.solve(Q, As, b, d, cliques, config)
+    except backend.errors as e:
+        res = SDPResult(status=f"Failed: {type(e).__name__}: {e}".splitlines()[0], solver=backend.name, d=d,
+                        X=None, y=None, primal_cost=float("nan"), dual_cost=float("nan"), solve_time_s=0.0,
+                        message=str(e))
+    log.append(_Attempt(why, res))
     return res
 
 
-def _clarabel_once(Q: sp.csr_array, As: list[sp.csr_array], b: np.ndarray, d: int,
-                   cliques: Sequence[np.ndarray] | None, opts: SolverOptions) -> SDPResult:
-    return solve_cliques(Q, As, b, d, cliques, opts) if cliques is not None else solve_dense(Q, As, b, d, opts)
+def _with_retries(backend: Backend, why: str, Q: sp.csr_array, As: list[sp.csr_array], b: np.ndarray, d: int,
+                  cliques: list[np.ndarray] | None, config: SolverConfig, log: list[_Attempt]) -> SDPResult:
+    res = _call(backend, why, Q, As, b, d, cliques, config, log)
+    for what, cfg, statuses in backend.retries(config, cliques is not None, Q.shape[0]):
+        if res.status not in statuses:
+            continue
+        retry = _call(backend, f"retried with {what}", Q, As, b, d, cliques, cfg, log)
+        if retry.status == "Solved" or not res.usable:
+            res = retry
+    return res
 
 
-def _clarabel(Q: sp.csr_array, As: list[sp.csr_array], b: np.ndarray, d: int,
-              cliques: Sequence[np.ndarray] | None, opts: SolverOptions) -> SDPResult:
-    """Clarabel on the clique blocks (or one cone), retried when it stalls (``_retry_stalled``)."""
-    return _retry_stalled(_clarabel_once(Q, As, b, d, cliques, opts), Q, As, b, d, cliques, opts)
+def _cover(backend: Backend, decompose: bool, covers: CliqueCovers | None) -> list[np.ndarray] | None:
+    if not decompose or backend.cover is None or covers is None:
+        return None
+    cl = covers.choose(backend.cover)
+    return None if len(cl) == 1 and backend.cover == "clarabel" else cl  # one cone: the dense path
+
+
+def _unscale(res: SDPResult, D: np.ndarray) -> SDPResult:
+    """X' → X = D X' D; per-clique log SVRs, eigenvalues and Θ recomputed on X.  y and the costs are
+    unchanged (⟨DQD, X'⟩ = ⟨Q, X⟩, and the constraints' right-hand sides are the same)."""
+    if res.X is None:
+        return res
+    res.X = res.X * D[:, None] * D[None, :]
+    if res.cliques:
+        res.clique_log_svr = [log_svr(np.linalg.eigvalsh(res.X[np.ix_(C, C)])[::-1], res.d) for C in res.cliques]
+    res.eigvals, res.Theta, res.log_svr = np.zeros(0), None, float("nan")
+    return finish(res)
+
+
+def _solve(Q: sp.spmatrix | sp.sparray, constraints: Sequence[Constraint], d: int, config: SolverConfig,
+           cliques: Sequence[np.ndarray] | None, scale: np.ndarray | None,
+           block_sizes: Sequence[int] | None) -> SDPResult:
+    Q = sp.csr_array(Q)
+    N = Q.shape[0]
+    if Q.ndim != 2 or Q.shape != (N, N):
+        raise ValueError(f"Q must be square, got shape {Q.shape}")
+    As = [sp.csr_array(c.A) for c in constraints]
+    bad = [c.name or str(i) for i, (c, A) in enumerate(zip(constraints, As)) if A.shape != (N, N)]
+    if bad:
+        raise ValueError(f"constraint matrices must be {N}×{N} like Q; wrong shape: {bad[:5]}")
+    if d < 1 or d > N:
+        raise ValueError(f"d = {d} must be in [1, N = {N}]")
+    b = np.array([c.b for c in constraints], dtype=float)
+    D = None
+    if scale is not None and config.scale != "none":
+        D = np.asarray(scale, float)
+        if D.shape != (N,) or not np.all(np.isfinite(D)) or not np.all(D > 0):
+            raise ValueError(f"scale must be a positive finite vector of length N = {N}")
+        Dm = sp.diags_array(D)
+        Qs, As_s = sp.csr_array(Dm @ Q @ Dm), [sp.csr_array(Dm @ A @ Dm) for A in As]
+    else:
+        Qs, As_s = Q, As
+    backend = BACKENDS[config.backend_name]
+    decompose = backend.decompose_default if config.decompose is None else config.decompose
+    fb = BACKENDS[backend.fallback] if backend.fallback else None
+    needs_cover = decompose and (backend.cover is not None or (fb is not None and fb.cover is not None))
+    covers = CliqueCovers(Qs, As_s, d, block_sizes, cliques) if needs_cover else None
+    log: list[_Attempt] = []
+    res = _with_retries(backend, "", Qs, As_s, b, d, _cover(backend, decompose, covers), config, log)
+    if not res.usable and fb is not None:
+        # the backend's attainable accuracy was not enough: the fallback on its own cover
+        res = _with_retries(fb, f"solved again by {fb.name}", Qs, As_s, b, d, _cover(fb, decompose, covers), config, log)
+    res.n_calls = len(log)
+    res.solve_time_s = sum(a.res.solve_time_s for a in log)
+    res.setup_time_s = sum(a.res.setup_time_s for a in log)
+    res.message = "; ".join(a.describe(k + 1) for k, a in enumerate(log))
+    if D is not None:
+        res = _unscale(res, D)
+    elif res.Theta is None:
+        res = finish(res)  # a backend that left eigenvalues, log SVR and Θ to the layer
+    if res.X is not None:
+        res.cost_scale = float(abs(Q.multiply(res.X)).sum())
+    return res
 
 
 @single_blas_thread
 def solve(Q: sp.spmatrix | sp.sparray, constraints: Sequence[Constraint], *, d: int = 1,
-          solver: str = "clarabel", cliques: Sequence[np.ndarray] | None = None,
-          options: SolverOptions | None = None,
-          fallback_cliques: Sequence[np.ndarray] | None = None) -> SDPResult:
-    """Solve the SDP; ``constraints`` are ``Constraint`` objects (A sparse symmetric, b).
-    ``fallback_cliques``: the cover for Clarabel's re-solve when an IPM result is unusable
-    (default: ``cliques``; the IPM prefers fewer, larger cliques than Clarabel does).
-    ValueError for an unknown ``solver``; every failure of a known one is a status."""
-    check_solver(solver)
-    opts = options or SolverOptions()
-    Q = sp.csr_array(Q)
-    As = [sp.csr_array(c.A) for c in constraints]
-    b = np.array([c.b for c in constraints], dtype=float)
-    try:
-        if solver == "clarabel":
-            res = _clarabel(Q, As, b, d, cliques, opts)
-        elif solver == "ipm":
-            res = solve_ipm(Q, As, b, d, cliques, opts)
-            if not res.usable:  # its attainable accuracy was not enough: Clarabel on the same data
-                first = f"ipm: {res.status} ({res.message.strip()}, {res.solve_time_s:.2f} s, counted in solve_time_s)"
-                spent = res.solve_time_s + res.setup_time_s
-                res = _clarabel(Q, As, b, d, cliques if fallback_cliques is None else fallback_cliques, opts)
-                res.message = f"{first}; solved again by {res.solver}: {res.status}" + (f"; {res.message}" if res.message else "")
-                res.solve_time_s += spent
-        else:
-            name = solver.split(":", 1)[1] if ":" in solver else "SCS"
-            res = solve_cvxpy(Q, As, b, d, name, opts)
-        if res.X is not None:
-            res.cost_scale = float(abs(Q.multiply(res.X)).sum())
-        return res
-    except (ValueError, RuntimeError, np.linalg.LinAlgError) as e:
-        return SDPResult(status=f"Failed: {type(e).__name__}: {e}".splitlines()[0], solver=solver, d=d, X=None,
-                         y=None, primal_cost=float("nan"), dual_cost=float("nan"), solve_time_s=0.0,
-                         message=str(e))
+          config: SolverConfig = SolverConfig(), cliques: Sequence[np.ndarray] | None = None,
+          scale: np.ndarray | None = None) -> SDPResult:
+    """Solve the SDP; ``constraints`` are ``Constraint`` objects (A sparse symmetric N×N, b).
+
+    d: the lifting width (h is the first d columns).  cliques: the model's own clique cover (column
+    index arrays, each with h), a candidate when the solve is decomposed; None: none.
+    scale: None, or a positive vector D (N,) (``scaling.block_scale``): the layer solves
+    min ⟨DQD, X'⟩ s.t. ⟨DAᵢD, X'⟩ = bᵢ, X' ⪰ 0 and returns X = D X' D, with the costs and y unchanged;
+    eigenvalues, log SVR (also per clique), and Θ are read from the unscaled X.  Ignored when
+    ``config.scale == "none"``.
+    Returns the last attempt's result (see the module docstring for retries and fallback) with
+    ``n_calls``, the summed times and every attempt in ``message``.  ValueError on bad input.
+    """
+    return _solve(Q, constraints, d, config, cliques, scale, None)
+
+
+@single_blas_thread
+def solve_model(model: Model, constraints: Sequence[Constraint], config: SolverConfig = SolverConfig(),
+                scale: np.ndarray | None = None) -> SDPResult:
+    """``solve`` for a model: its Q and d, its own clique cover as the hint, and its variable blocks
+    for the block cover (``covers.CliqueCovers``)."""
+    V = model.variables
+    hint = model.clique_indices() if model.cliques else None
+    return _solve(model.Q, constraints, model.d, config, hint, scale, [V.sizes[n] for n in V.names])

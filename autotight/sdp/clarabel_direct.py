@@ -21,10 +21,11 @@ import scipy.sparse as sp
 
 from ..svec import smat, svec_columns, svec_dim
 from .clique_program import clique_program, complete_from_cliques, cost_scale
-from .result import SDPResult, SolverOptions, finish
+from .config import SolverConfig, SolverConfigError
+from .result import SDPResult, finish
 
 
-def _settings(opts: SolverOptions) -> "clarabel.DefaultSettings":
+def _settings(opts: SolverConfig) -> "clarabel.DefaultSettings":
     s = clarabel.DefaultSettings()
     s.verbose = opts.verbose
     s.max_iter = opts.max_iter
@@ -41,8 +42,6 @@ def _settings(opts: SolverOptions) -> "clarabel.DefaultSettings":
         s.static_regularization_constant = 1e-10
         s.static_regularization_proportional = 1e-16
         s.dynamic_regularization_enable = False
-    elif opts.regularization != "default":
-        raise ValueError(f"unknown regularization {opts.regularization!r}; use 'small' or 'default'")
     # Clarabel decomposes by default; "dense" must mean dense, so it is on only when asked for
     s.chordal_decomposition_enable = opts.clarabel_chordal
     if opts.clarabel_chordal:
@@ -61,7 +60,7 @@ def _sdp_status(clarabel_status: object) -> str:
 
 
 def solve_dense(Q: sp.csr_array, As: Sequence[sp.csr_array], b: np.ndarray, d: int,
-                opts: SolverOptions) -> SDPResult:
+                opts: SolverConfig) -> SDPResult:
     """One PSD cone of size N, dual form."""
     t0 = time.perf_counter()
     N = Q.shape[0]
@@ -81,21 +80,22 @@ def solve_dense(Q: sp.csr_array, As: Sequence[sp.csr_array], b: np.ndarray, d: i
     y = np.asarray(sol.x, float) / c
     primal = float((Q.multiply(X)).sum()) if X is not None else float("nan")
     dual = float(np.dot(b, y))
-    svrs = None
+    svrs = cliques = None
     if opts.clarabel_chordal and X is not None:
         # Clarabel completes X off the pattern with some PSD completion, not the rank-d one:
         # judge rank on the clique blocks of the pattern and complete X from their factors.
         from .chordal import column_cliques
 
-        X, svrs = complete_from_cliques(X, column_cliques(N, [Q, *As], always=range(d)), d)
+        cliques = column_cliques(N, [Q, *As], always=range(d))
+        X, svrs = complete_from_cliques(X, cliques, d)
     res = SDPResult(status=status, solver="clarabel-chordal" if opts.clarabel_chordal else "clarabel", d=d, X=X, y=y, primal_cost=primal, dual_cost=dual,
                     solve_time_s=t2 - t1, setup_time_s=t1 - t0, iterations=int(sol.iterations),
-                    clique_log_svr=svrs)
+                    clique_log_svr=svrs, cliques=cliques)
     return finish(res)
 
 
 def solve_cliques(Q: sp.csr_array, As: Sequence[sp.csr_array], b: np.ndarray, d: int,
-                  cliques: Sequence[np.ndarray], opts: SolverOptions) -> SDPResult:
+                  cliques: Sequence[np.ndarray], opts: SolverConfig) -> SDPResult:
     """Clique-decomposed dual (see the module docstring); X is read on the pattern from the cones'
     dual variables and completed from the clique blocks' rank-d factors."""
     t0 = time.perf_counter()
@@ -114,5 +114,49 @@ def solve_cliques(Q: sp.csr_array, As: Sequence[sp.csr_array], b: np.ndarray, d:
     status = _sdp_status(sol.status)
     res = SDPResult(status=status, solver="clarabel-cliques", d=d, X=X, y=y, primal_cost=primal,
                     dual_cost=float(np.dot(b, y)), solve_time_s=t2 - t1, setup_time_s=t1 - t0,
-                    iterations=int(sol.iterations), clique_log_svr=svrs or None)
+                    iterations=int(sol.iterations), clique_log_svr=svrs or None,
+                    cliques=prog.cliques if svrs else None)
     return finish(res)
+
+
+#: a solve that ends with one of these statuses is retried with Clarabel's default regularisation
+#: (AlmostSolved too: on scaled data, pose averaging M = 10 at σ = 1e-3, "small" stops AlmostSolved
+#: 7e-7 from the optimum where "default" solves it to 1e-9)
+RETRY_STATUSES = ("NumericalError", "InsufficientProgress", "AlmostSolved")
+#: … and with clique-graph merging on one of these, on liftings of at most RETRY_MAX_N columns
+#: (clique-graph merging can take many minutes on larger chains)
+MERGE_RETRY_STATUSES = ("NumericalError", "InsufficientProgress")
+RETRY_MAX_N = 100
+
+
+class ClarabelBackend:
+    """Clarabel, direct: one PSD cone (with Clarabel's own chordal decomposition when
+    ``clarabel_chordal``), or one cone per clique of the cover the SDP layer chose.
+
+    Retries (``retries``): a solve that stalls or stops short (``RETRY_STATUSES``) is solved again
+    with Clarabel's default regularisation, then one that stalls (``MERGE_RETRY_STATUSES``; one
+    cone, parent-child merging, at most ``RETRY_MAX_N`` columns) with clique-graph merging."""
+
+    name = "clarabel"
+    decompose_default = False  # Clarabel's own chordal decomposition is the default path
+    cover = "clarabel"
+    fallback = None
+    errors: tuple[type[BaseException], ...] = ()  # Clarabel reports its failures as statuses
+
+    def check(self, arg: str | None) -> None:
+        if arg is not None:
+            raise SolverConfigError(f"backend 'clarabel' takes no argument, got 'clarabel:{arg}'")
+
+    def solve(self, Q: sp.csr_array, As: Sequence[sp.csr_array], b: np.ndarray, d: int,
+              cliques: Sequence[np.ndarray] | None, config: SolverConfig) -> SDPResult:
+        if cliques is not None and len(cliques) > 1:
+            return solve_cliques(Q, As, b, d, cliques, config)
+        return solve_dense(Q, As, b, d, config)  # one clique: the dense path
+
+    def retries(self, config: SolverConfig, decomposed: bool, N: int) -> list[tuple[str, SolverConfig, tuple[str, ...]]]:
+        out = []
+        if config.regularization == "small":
+            out.append(("default regularisation", replace(config, regularization="default"), RETRY_STATUSES))
+        if not decomposed and config.clarabel_chordal and config.chordal_merge == "parent_child" and N <= RETRY_MAX_N:
+            out.append(("clique_graph merge", replace(config, chordal_merge="clique_graph"), MERGE_RETRY_STATUSES))
+        return out

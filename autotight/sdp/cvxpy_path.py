@@ -8,11 +8,12 @@ from typing import Sequence
 import numpy as np
 import scipy.sparse as sp
 
-from .result import SDPResult, SolverOptions, finish
+from .config import SolverConfig, SolverConfigError
+from .result import SDPResult, finish
 
 
 def solve_cvxpy(Q: sp.csr_array, As: Sequence[sp.csr_array], b: np.ndarray, d: int, solver: str,
-                opts: SolverOptions) -> SDPResult:
+                opts: SolverConfig) -> SDPResult:
     """min ⟨Q,X⟩ s.t. ⟨Aᵢ,X⟩ = bᵢ, X ⪰ 0 with all constraints as one sparse linear map on vec(X)."""
     import cvxpy as cp
 
@@ -34,10 +35,8 @@ def solve_cvxpy(Q: sp.csr_array, As: Sequence[sp.csr_array], b: np.ndarray, d: i
     try:
         prob.solve(solver=name, **kwargs)
         status = str(prob.status)
-    except cp.error.SolverError as e:
+    except cp.error.SolverError as e:  # the solver's own failure is a status, not a crash
         status = f"SolverError: {e}".splitlines()[0]
-    except Exception as e:  # the solver's own failure is a status, not a crash
-        status = f"{type(e).__name__}: {e}".splitlines()[0]
     t2 = time.perf_counter()
     Xv = X.value
     y = -np.asarray(cons[0].dual_value, float) if cons and cons[0].dual_value is not None else None
@@ -47,3 +46,33 @@ def solve_cvxpy(Q: sp.csr_array, As: Sequence[sp.csr_array], b: np.ndarray, d: i
                     dual_cost=float(np.dot(b, y)) if y is not None else float("nan"),
                     solve_time_s=t2 - t1, setup_time_s=t1 - t0, message=status)
     return finish(res)
+
+
+#: the cvxpy solver used for a bare "cvxpy" backend
+DEFAULT_SOLVER = "SCS"
+
+
+class CvxpyBackend:
+    """Any solver cvxpy has installed, named after the colon ("cvxpy:SCS", "cvxpy:MOSEK"); one PSD
+    variable, no decomposition.  A solver's ``SolverError`` becomes a status."""
+
+    name = "cvxpy"
+    decompose_default = False
+    cover = None  # takes no clique cover
+    fallback = None
+    errors: tuple[type[BaseException], ...] = ()  # SolverError is caught in solve_cvxpy
+
+    def check(self, arg: str | None) -> None:
+        import cvxpy as cp
+
+        name = (arg or DEFAULT_SOLVER).upper()
+        installed = cp.installed_solvers()
+        if name not in installed:
+            raise SolverConfigError(f"cvxpy solver {name!r} is not installed; installed: {', '.join(installed)}")
+
+    def solve(self, Q: sp.csr_array, As: Sequence[sp.csr_array], b: np.ndarray, d: int,
+              cliques: Sequence[np.ndarray] | None, config: SolverConfig) -> SDPResult:
+        return solve_cvxpy(Q, As, b, d, config.backend_arg or DEFAULT_SOLVER, config)
+
+    def retries(self, config: SolverConfig, decomposed: bool, N: int) -> list[tuple[str, SolverConfig, tuple[str, ...]]]:
+        return []

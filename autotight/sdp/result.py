@@ -6,33 +6,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .config import SolverConfig, SolverOptions  # noqa: F401  (SolverOptions: the deprecated name)
+
 SOLVED = "Solved"
-
-
-@dataclass(frozen=True)
-class SolverOptions:
-    """Options for one solve; passed explicitly, never stored module-wide.
-
-    tol: the solver's relative gap and feasibility tolerance.
-    max_iter, time_limit: stopping limits.  threads: solver threads (0 = solver default).
-    clarabel_chordal: let Clarabel decompose the PSD cone along the chordal sparsity of the data,
-    merging cliques by ``chordal_merge`` (default on: 4× faster on rotation averaging, 30× on pose
-    averaging than one dense cone).  "parent_child" is the default merge: Clarabel's own default
-    "clique_graph" took > 120 s on the discrete trajectory at K = 10, where "parent_child" takes
-    1 s; when "parent_child" fails on a small lifting, ``sdp.solve`` retries with "clique_graph".
-    regularization: "small" (static 1e-10, no dynamic regularisation) solves tight, rank-deficient
-    relaxations to full accuracy; Clarabel's "default" (static 1e-8, dynamic on) is more robust, and
-    ``sdp.solve`` retries with it when a solve stalls (InsufficientProgress, NumericalError).
-    """
-
-    tol: float = 1e-9
-    max_iter: int = 500
-    time_limit: float = float("inf")
-    threads: int = 1
-    verbose: bool = False
-    clarabel_chordal: bool = True  # Clarabel's built-in chordal decomposition of the PSD cone
-    chordal_merge: str = "parent_child"  # its clique merging: parent_child, clique_graph (Clarabel's default), none
-    regularization: str = "small"  # KKT regularisation: "small" (static 1e-10, accurate) or "default" (Clarabel's)
 
 
 @dataclass
@@ -45,6 +21,9 @@ class SDPResult:
     eigvals: eigenvalues of X, descending (a decomposed solve of more than FULL_EIG_MAX columns: the
     top d + 1 only).  log_svr = log10(λ_d / λ_{d+1}) (for cliques: the
     minimum over the clique blocks).  Theta: the rank-d factor (d×N) with its h block = I_d.
+    cliques: the blocks ``clique_log_svr`` is read from (a decomposed solve), else None.
+    solve_time_s, setup_time_s: summed over every solver call; n_calls: the number of solver calls
+    (first attempt, retries, fallback); message: every attempt, in order.
     """
 
     status: str
@@ -63,6 +42,8 @@ class SDPResult:
     clique_log_svr: list[float] | None = None
     message: str = ""
     cost_scale: float = 0.0  # Σ|Q_ij X_ij|: the magnitude of the terms that the cost sums
+    n_calls: int = 1
+    cliques: list[np.ndarray] | None = None
 
     @property
     def solved(self) -> bool:

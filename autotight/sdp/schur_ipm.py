@@ -1,56 +1,40 @@
-"""Our own primal-dual interior-point method for block SDPs with sparse constraints.
+"""Our own primal-dual interior-point method for block SDPs with sparse constraints (backend "ipm").
 
-Solves the block standard form of ``clique_program`` (p blocks of n_k × n_k, M constraints)
+Contract.
+- Input: the Shor SDP (Q, Aᵢ, bᵢ) and a clique cover (from ``covers.CliqueCovers``, policy "ipm";
+  one block of all N columns when there is none), turned into the block standard form of
+  ``clique_program`` (p blocks of n_k × n_k, M = m constraints + the overlap transfers):
 
-    min Σ_k ⟨C_k, X_k⟩  s.t.  Σ_k ⟨A_ik, X_k⟩ = g_i,  X_k ⪰ 0;     max gᵀy  s.t.  Z_k = C_k − Σ_i y_i A_ik ⪰ 0,
+      min Σ_k ⟨C_k, X_k⟩  s.t.  Σ_k ⟨A_ik, X_k⟩ = g_i,  X_k ⪰ 0;   max gᵀy  s.t.  Z_k = C_k − Σ_i y_i A_ik ⪰ 0.
 
-with the Nesterov–Todd (default) or HKM search direction and Mehrotra's predictor-corrector, from
-SDPT3's infeasible start.
-Each iteration solves the Schur complement system  S Δy = r,  S_il = Σ_k ⟨A_ik, P_k A_lk Q_k⟩  with
-(P, Q) = (W, W) for NT (W Z W = X) and (X, Z⁻¹) for HKM.
-S is sparse: S_il ≠ 0 only when constraints i and l touch a common block, so on a clique chain it
-is block-banded and an iteration costs O(p).  Block k's part G_kᵀ (P_k ⊗ Q_k) G_k is assembled
-from the kernel P_k ⊗ Q_k restricted to the entries that block k's constraints touch, folded over
-the symmetric pairs (a, b) ~ (b, a) (``_Schur.assemble``): |support|² per block instead of the n_k⁴
-of the full Kronecker product (continuous time, ϖ kept, K = 21: 89 → 18 ms per assembly).  S is
-factorised by a supernodal sparse Cholesky (CHOLMOD, through cvxopt) with one symbolic analysis per
-solve; SuperLU when cvxopt is missing or the Cholesky fails.  Per iteration this costs about
-``iteration_cost``: Σ_k n_k⁴ + m_k² n_k² + m_k³ for blocks of n_k columns touched by m_k
-constraints (a ranking, not a prediction).  Unlike Clarabel (Σ_k svec(n_k)³), fewer and larger
-blocks with fewer overlap constraints pay, so ``run.cliques_for(…, "ipm")`` picks its own cover by
-that estimate (discrete trajectory: one block of 25–31 columns per pose, S of 1258 rows at K = 20,
-against 4582 on Clarabel's 20-column cover; continuous time with ϖ kept: blocks of 37–43 columns
-cut at {h, ξ_{k+1,k}, ϖ_{k+1}}, about 55 ms per iteration at K = 21).
+- Output (``solve_ipm``): an ``SDPResult`` with X completed from the blocks' rank-d factors, the
+  multipliers y of the m constraints, both costs, the per-block log SVRs, and the relative residuals
+  of the best iterate in ``message``.
+- Accuracy: it stops Solved when the relative gap and the primal and dual infeasibilities
+  (``IPMSolution``) are all ≤ max(tol, ``IPM_MIN_TOL`` = 1e-7).  On tight relaxations with many
+  redundant constraints the Schur complement has condition ~1/μ², which limits the attainable
+  residuals to about 1e-8 of the data's scale; problems whose optimal cost is far below the cost
+  matrix's entries (rotation averaging at σ = 1e-4, continuous time) need more than that.
+- Giving up: after ``max_iter`` iterations (MaxIterations), ``time_limit`` seconds (MaxTime),
+  ``STALL_ITERATIONS`` iterations without progress (InsufficientProgress; ``STALL_ITERATIONS_ALMOST``
+  once the best iterate is within ``ALMOST_TOL``), or a factorisation that breaks down
+  (NumericalError).  A run that stops with every residual ≤ ``ALMOST_TOL`` is AlmostSolved.  There
+  is no infeasibility detection: an infeasible or unbounded SDP ends with one of those statuses.
+  It never raises on a numerical failure.  A result that is not usable is solved again by Clarabel
+  (``IPMBackend.fallback``; the SDP layer does it and counts both calls).
 
-Tight relaxations with many redundant constraints are primal degenerate (rank-1 blocks, far more
-constraints than the n_k directions tangent to them), so S has condition ~1/μ² near the optimum.
-S is therefore equilibrated (unit diagonal) and regularised by ``SCHUR_REG`` (relative to that unit
-diagonal), which damps only the degenerate directions, and one refinement step is tried and kept
-only when it lowers the residual ‖r − S Δy‖ (near the optimum it often raised it 10–50×, which
-showed as primal infeasibility jumping from 1e-8 to 1e-6 and a stalled solve); when the Cholesky
-factorisation breaks down anyway, SuperLU with partial pivoting takes over.  Measured on the
-discrete trajectory (K = 10, 20, 30, 50; 36 instances): every solve ends usable, 34 Solved and 2
-AlmostSolved; the full-Kronecker assembly (with 3 iterations for STALL_ITERATIONS_ALMOST) gave 33
-and 3 and took 1.6× as long (against a long-double reference on ill-conditioned scalings both
-S have the same typical error; the largest was 8e-14 of the diagonal scale for the full product
-and 2e-13 for the folded one).
-Continuous time is out of reach: its optimum is ~3e-4 of max|Q|, so μ must fall ~1e4 further
-than usual; the Schur solves lose accuracy from a relative gap of ~1e-1 on, the IPM stalls at
-gaps of 1e-5 … 1e-2 with pinf up to 1e-5, and Clarabel solves again.  Removing the paper set's 9
-linearly dependent constraints (K = 21) keeps Δy bounded but does not move the stall.
-Tried and dropped: HKM (stalls more often: K = 100 gap 3e-6, rotation averaging M = 4 in one block
-9e-7 against NT's 1e-8); retrying CHOLMOD with 10–100× the regularisation (~30 % faster, stops at
-gaps of ~5e-7 instead of ~1e-7); simplicial LDLᵀ instead of SuperLU after a breakdown (cheaper,
-but HKM stalled with it on the chain test); up to 10 refinement steps (the residual stagnates at
-1e-7 … 1e-6: the factor of S + reg·I cannot resolve S's degenerate directions); a Gram-form S; a
-smaller SuperLU pivot threshold; projecting ΔX back onto A(ΔX) = r_p; stopping on slow progress of
-the residuals alone (saves 1–4 iterations in a few solves, which then end AlmostSolved).
-The tolerance therefore stops at IPM_MIN_TOL (relative); there is no infeasibility detection:
-an infeasible or unbounded problem ends as InsufficientProgress, MaxIterations or NumericalError.
-
-Everything here works on full row-major vec(·) (n_k² entries per block); the svec data of
-``clique_program`` (off-diagonals scaled by √2) is mapped once by the sparse svec → vec operator,
-and the Schur assembly keeps only the upper-triangle entries (a ≤ b) its constraints touch.
+Method: Nesterov–Todd (default) or HKM search direction, Mehrotra's predictor-corrector, SDPT3's
+infeasible start.  Each iteration solves the Schur complement system S Δy = r,
+S_il = Σ_k ⟨A_ik, P_k A_lk Q_k⟩ with (P, Q) = (W, W) for NT (W Z W = X) and (X, Z⁻¹) for HKM.
+S is sparse (S_il ≠ 0 only when constraints i and l touch a common block), assembled per block on
+the entries its constraints touch (``_Schur.assemble``), equilibrated to a unit diagonal,
+regularised by ``SCHUR_REG`` and factorised by sparse LDLᵀ (qdldl, Apache-2.0: AMD ordering and
+symbolic analysis once per solve, a numeric refactorisation per iteration); SuperLU with partial
+pivoting takes over when a pivot is not positive.  One refinement step is kept only when it lowers
+the residual.  Per iteration this costs about ``iteration_cost`` (a ranking used to choose the
+cover, not a prediction).  Everything works on full row-major vec(·) of each block; the svec data
+of ``clique_program`` is mapped once by ``svec_to_vec``.  Measurements and the variants tried are
+in benchmarks/README.md.
 """
 
 from __future__ import annotations
@@ -65,7 +49,8 @@ import scipy.sparse.linalg as spla
 
 from ..svec import SQRT2, triu_indices
 from .clique_program import clique_program
-from .result import SDPResult, SolverOptions, finish
+from .config import SolverConfig, SolverConfigError
+from .result import SDPResult, finish
 
 #: a solve that stops early (iteration or time limit, stalled steps) with every relative residual
 #: below this is AlmostSolved
@@ -206,12 +191,10 @@ class _Schur:
         self.inverse = np.searchsorted(self.rows * M + self.cols, np.concatenate(keys))
         self.M = M
         self.blocks = blocks
-        # the upper triangle in CSR order is the lower triangle in CCS order (CHOLMOD's input)
+        # the upper triangle (row ≤ column) of S in CSC order: qdldl's input
         self.upper = np.flatnonzero(self.cols >= self.rows)
         self.diag = np.flatnonzero(self.cols == self.rows)
-        self._rows_upper, self._cols_upper = self.rows[self.upper], self.cols[self.upper]
-        self._diag_upper = np.flatnonzero(self._cols_upper == self._rows_upper)
-        self._cholmod = _CholmodPattern(self._cols_upper, self._rows_upper, M)
+        self._ldl = _LDLPattern(self.rows[self.upper], self.cols[self.upper], M)
 
     def assemble(self, P: list[np.ndarray], Q: list[np.ndarray]) -> np.ndarray:
         """The values of S = Σ_k G_kᵀ (P_k ⊗ Q_k) G_k on the pattern (CSR order); P_k, Q_k symmetric.
@@ -242,25 +225,24 @@ class _Schur:
         return np.bincount(self.inverse, weights=np.concatenate(parts), minlength=self.rows.size)
 
     def factor(self, vals: np.ndarray, reg: float) -> Callable[[np.ndarray], np.ndarray]:
-        """A solver for S Δy = r: D(DSD + reg·I)⁻¹D with D = diag(S)^(−1/2), by CHOLMOD, or by SuperLU
-        (partial pivoting) when CHOLMOD is missing or finds DSD + reg·I not positive definite; then
-        one refinement step against S.  Raises np.linalg.LinAlgError when diag(S) is not positive,
-        RuntimeError when S is singular."""
+        """A solver for S Δy = r: D(DSD + reg·I)⁻¹D with D = diag(S)^(−1/2), by sparse LDLᵀ
+        (``_LDLPattern``), or by SuperLU (partial pivoting) when a pivot of LDLᵀ is not positive;
+        then one refinement step against S, kept only when it lowers the residual.  Raises
+        np.linalg.LinAlgError when diag(S) is not positive or S is numerically singular."""
         d = vals[self.diag]
         if not np.all(d > 0):
             raise np.linalg.LinAlgError("Schur complement has a non-positive diagonal entry")
         dsc = 1 / np.sqrt(d)
         S = sp.csr_matrix((vals, self.cols, self.indptr), shape=(self.M, self.M))
-        inner = None
-        if self._cholmod.available:
-            lower = vals[self.upper] * dsc[self._rows_upper] * dsc[self._cols_upper]
-            lower[self._diag_upper] += reg
-            inner = self._cholmod.factor(lower)  # None: not positive definite
+        scaled = vals * dsc[self.rows] * dsc[self.cols]
+        scaled[self.diag] += reg
+        inner = self._ldl.factor(scaled[self.upper])  # None: a pivot was not positive
         if inner is None:
-            scaled = vals * dsc[self.rows] * dsc[self.cols]
-            scaled[self.diag] += reg
-            inner = spla.splu(sp.csc_matrix((scaled, self.cols, self.indptr), shape=(self.M, self.M)),
-                              permc_spec="COLAMD").solve  # S symmetric: its CSR arrays are CSC
+            try:
+                inner = spla.splu(sp.csc_matrix((scaled, self.cols, self.indptr), shape=(self.M, self.M)),
+                                  permc_spec="COLAMD").solve  # S symmetric: its CSR arrays are CSC
+            except RuntimeError as e:  # SuperLU: "Factor is exactly singular"
+                raise np.linalg.LinAlgError(f"Schur complement: {e}") from e
 
         def solve(r: np.ndarray) -> np.ndarray:
             dy = dsc * inner(dsc * r)
@@ -272,39 +254,35 @@ class _Schur:
         return solve
 
 
-class _CholmodPattern:
-    """CHOLMOD (supernodal, via cvxopt) on a fixed lower-triangular pattern: one symbolic analysis,
-    then a numeric factorisation per call.  ``available`` is False without cvxopt."""
+class _LDLPattern:
+    """Sparse LDLᵀ by qdldl (Apache-2.0) on a fixed upper-triangular pattern: AMD ordering and
+    symbolic analysis on the first call, a numeric refactorisation on each later one."""
 
     def __init__(self, rows: np.ndarray, cols: np.ndarray, M: int):
-        try:
-            from cvxopt import cholmod, matrix, spmatrix
-        except ImportError:
-            self.available = False
-            return
-        self.available = True
-        self._cholmod, self._matrix = cholmod, matrix
-        self.A = spmatrix(matrix(np.ones(rows.size)), matrix(rows.astype(np.int64)), matrix(cols.astype(np.int64)), (M, M))
-        self.F = None
+        order = np.lexsort((rows, cols))  # CSC: by column, then row
+        self.order = order
+        self.indices = rows[order].astype(np.int32)
+        self.indptr = np.concatenate([[0], np.cumsum(np.bincount(cols, minlength=M))]).astype(np.int32)
+        self.M = M
+        self.solver = None
 
-    def factor(self, lower_vals: np.ndarray) -> Callable[[np.ndarray], np.ndarray] | None:
-        """lower_vals in CCS order of the pattern; None when the matrix is not positive definite."""
-        cholmod, matrix = self._cholmod, self._matrix
-        self.A.V = matrix(lower_vals)
-        if self.F is None:
-            self.F = cholmod.symbolic(self.A)
+    def factor(self, upper_vals: np.ndarray) -> Callable[[np.ndarray], np.ndarray] | None:
+        """upper_vals in the (row, column) order of the pattern given to __init__; None when a
+        pivot is not positive (the matrix is not positive definite to working accuracy)."""
+        import qdldl
+
+        A = sp.csc_matrix((upper_vals[self.order], self.indices, self.indptr), shape=(self.M, self.M))
         try:
-            cholmod.numeric(self.A, self.F)
-        except ArithmeticError:
+            if self.solver is None:
+                self.solver = qdldl.Solver(A, upper=True)
+            else:
+                self.solver.update(A, upper=True)
+        except RuntimeError:  # a zero pivot ("not quasi-definite")
+            self.solver = None
             return None
-        F = self.F
-
-        def solve(r: np.ndarray) -> np.ndarray:
-            B = matrix(r)
-            cholmod.solve(F, B)
-            return np.asarray(B).ravel()
-
-        return solve
+        if not np.all(self.solver.factors()[1] > 0):
+            return None
+        return self.solver.solve
 
 
 def solve_blocks(F: sp.csc_matrix, c: np.ndarray, g: np.ndarray, sizes: list[int], *, tol: float = 1e-7,
@@ -424,7 +402,7 @@ def solve_blocks(F: sp.csc_matrix, c: np.ndarray, g: np.ndarray, sizes: list[int
                 ap1, ad1 = min(1.0, gamma * _max_step(X, dX1)), min(1.0, gamma * _max_step(Z, dZ1))
                 if min(ap1, ad1) > min(ap, ad):
                     dX, dy, dZ, ap, ad = dX1, dy1, dZ1, ap1, ad1
-        except (np.linalg.LinAlgError, RuntimeError) as e:
+        except np.linalg.LinAlgError as e:  # the factorisation broke down (raised by _Schur.factor)
             status, message = "NumericalError", str(e)
             break
         if verbose:
@@ -452,13 +430,13 @@ def iteration_cost(sizes: Sequence[int], loads: Sequence[float]) -> float:
     return float(np.sum(n ** 4 + m ** 2 * n ** 2 + m ** 3))
 
 
-#: the IPM's tolerance is max(SolverOptions.tol, IPM_MIN_TOL): on tight, primal-degenerate SDPs the
+#: the IPM's tolerance is max(SolverConfig.tol, IPM_MIN_TOL): on tight, primal-degenerate SDPs the
 #: Schur complement's conditioning (~1/μ²) limits its attainable relative residuals to about 1e-8
 IPM_MIN_TOL = 1e-7
 
 
 def solve_ipm(Q: sp.csr_array, As: Sequence[sp.csr_array], b: np.ndarray, d: int,
-              cliques: Sequence[np.ndarray] | None, opts: SolverOptions) -> SDPResult:
+              cliques: Sequence[np.ndarray] | None, opts: SolverConfig) -> SDPResult:
     """The Shor SDP by our IPM on the clique blocks of ``clique_program`` (one block of all N
     columns when ``cliques`` is None).  X is completed from the blocks' rank-d factors."""
     t0 = time.perf_counter()
@@ -471,6 +449,29 @@ def solve_ipm(Q: sp.csr_array, As: Sequence[sp.csr_array], b: np.ndarray, d: int
     res = SDPResult(status=sol.status, solver="autotight-ipm", d=d, X=X, y=y,
                     primal_cost=float(Q.multiply(X).sum()) if X is not None else float("nan"),
                     dual_cost=float(np.dot(b, y)), solve_time_s=sol.time_s, setup_time_s=t1 - t0,
-                    iterations=sol.iterations, clique_log_svr=svrs or None,
-                    message=sol.message + f" (relative gap {sol.gap:.1e}, pinf {sol.pinf:.1e}, dinf {sol.dinf:.1e})")
+                    iterations=sol.iterations, clique_log_svr=svrs or None, cliques=prog.cliques if svrs else None,
+                    message=(f"{sol.message}; " if sol.message else "")
+                    + f"relative gap {sol.gap:.1e}, pinf {sol.pinf:.1e}, dinf {sol.dinf:.1e}")
     return finish(res)
+
+
+class IPMBackend:
+    """Our IPM (this module) on the clique cover of policy "ipm"; an unusable result is solved again
+    by Clarabel (``fallback``) on Clarabel's own cover."""
+
+    name = "ipm"
+    decompose_default = True
+    cover = "ipm"
+    fallback = "clarabel"
+    errors: tuple[type[BaseException], ...] = ()  # a breakdown of S's factorisation is a status already
+
+    def check(self, arg: str | None) -> None:
+        if arg is not None:
+            raise SolverConfigError(f"backend 'ipm' takes no argument, got 'ipm:{arg}'")
+
+    def solve(self, Q: sp.csr_array, As: Sequence[sp.csr_array], b: np.ndarray, d: int,
+              cliques: Sequence[np.ndarray] | None, config: SolverConfig) -> SDPResult:
+        return solve_ipm(Q, As, b, d, cliques, config)
+
+    def retries(self, config: SolverConfig, decomposed: bool, N: int) -> list[tuple[str, SolverConfig, tuple[str, ...]]]:
+        return []

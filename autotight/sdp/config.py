@@ -1,0 +1,110 @@
+"""``SolverConfig``: how the SDP layer solves one Shor relaxation (backend, accuracy, limits, scaling).
+
+A config is passed explicitly to every solve and never stored module-wide.  It is validated when it
+is built: an unknown backend, an out-of-range field or a cvxpy solver that is not installed raises
+``SolverConfigError`` (an ``AutotightError``: a one-line input error) before any work is done.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from ..errors import ParameterError
+
+
+class SolverConfigError(ParameterError):
+    """A ``SolverConfig`` field is unknown, out of range, or names a solver that is not installed."""
+
+
+SCALES = ("auto", "none")
+REGULARIZATIONS = ("small", "default")
+CHORDAL_MERGES = ("parent_child", "clique_graph", "none")
+
+
+@dataclass(frozen=True)
+class SolverConfig:
+    """How to solve min ⟨Q,X⟩ s.t. ⟨Aᵢ,X⟩ = bᵢ, X ⪰ 0.
+
+    backend: "clarabel" (default: Clarabel called directly with sparse data), "ipm" (our
+        Schur-complement interior-point method on clique blocks, ``schur_ipm``) or "cvxpy:<NAME>"
+        (any solver cvxpy has installed: "cvxpy:SCS", "cvxpy:MOSEK", …).  See ``sdp.registry``.
+    decompose: solve on a clique cover chosen by the SDP layer (``sdp.covers``): True, False, or
+        None for the backend's default (clarabel: False, i.e. Clarabel's own chordal decomposition,
+        see ``clarabel_chordal``; ipm: True; cvxpy: no decomposition at all).
+    tol: the backend's relative gap and feasibility tolerance (the IPM stops at no less than
+        ``schur_ipm.IPM_MIN_TOL``).
+    max_iter: iteration limit per solver call.  time_limit: seconds per solver call (inf: none).
+    threads: solver threads (0: the solver's default).  verbose: the solver's own log.
+    scale: "auto" applies the diagonal congruence X = D X' D when ``solve`` is given a vector D;
+        "none" ignores any vector (see ``sdp.scaling``).
+
+    Clarabel only:
+    clarabel_chordal: let Clarabel decompose the PSD cone along the chordal sparsity of the data
+        (when ``decompose`` is off), merging cliques by ``chordal_merge``.  On by default: 4× faster
+        on rotation averaging, 30× on pose averaging than one dense cone.
+    chordal_merge: "parent_child" (default; Clarabel's own default "clique_graph" took > 120 s on
+        the discrete trajectory at K = 10, where "parent_child" takes 1 s), "clique_graph" or "none".
+        A parent-child solve that stalls on a small lifting is retried with "clique_graph".
+    regularization: "small" (static 1e-10, no dynamic regularisation) solves tight, rank-deficient
+        relaxations to full accuracy; "default" (Clarabel's: static 1e-8, dynamic on) is more
+        robust, and a solve that stalls with "small" is retried with it.
+    """
+
+    backend: str = "clarabel"
+    decompose: bool | None = None
+    tol: float = 1e-9
+    max_iter: int = 500
+    time_limit: float = float("inf")
+    threads: int = 1
+    verbose: bool = False
+    scale: str = "auto"
+    clarabel_chordal: bool = True
+    chordal_merge: str = "parent_child"
+    regularization: str = "small"
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.backend, str):
+            raise SolverConfigError(f"backend must be a string, got {self.backend!r}")
+        if self.decompose not in (None, True, False):
+            raise SolverConfigError(f"decompose must be True, False or None, got {self.decompose!r}")
+        if not (isinstance(self.tol, (int, float)) and 0 < self.tol < 1):
+            raise SolverConfigError(f"tol must be in (0, 1), got {self.tol!r}")
+        if not (isinstance(self.max_iter, int) and self.max_iter >= 1):
+            raise SolverConfigError(f"max_iter must be an integer ≥ 1, got {self.max_iter!r}")
+        if not (isinstance(self.time_limit, (int, float)) and self.time_limit > 0 and not math.isnan(self.time_limit)):
+            raise SolverConfigError(f"time_limit must be > 0 seconds (inf: none), got {self.time_limit!r}")
+        if not (isinstance(self.threads, int) and self.threads >= 0):
+            raise SolverConfigError(f"threads must be an integer ≥ 0 (0: the solver's default), got {self.threads!r}")
+        for field, value, allowed in (("scale", self.scale, SCALES), ("regularization", self.regularization, REGULARIZATIONS),
+                                      ("chordal_merge", self.chordal_merge, CHORDAL_MERGES)):
+            if value not in allowed:
+                raise SolverConfigError(f"unknown {field} {value!r}; use " + " or ".join(map(repr, allowed)))
+        self.check()
+
+    @property
+    def backend_name(self) -> str:
+        """The registry key: "cvxpy" for "cvxpy:SCS"."""
+        return self.backend.split(":", 1)[0]
+
+    @property
+    def backend_arg(self) -> str | None:
+        """What follows the colon ("SCS" for "cvxpy:SCS"), or None."""
+        return self.backend.split(":", 1)[1] if ":" in self.backend else None
+
+    def check(self) -> "SolverConfig":
+        """Raise SolverConfigError unless the backend is registered and its solver installed;
+        returns self.  Called on construction."""
+        from .registry import BACKENDS
+
+        backend = BACKENDS.get(self.backend_name)
+        if backend is None:
+            raise SolverConfigError(f"unknown solver {self.backend!r}; use "
+                                    + ", ".join(repr(n) for n in BACKENDS if n != "cvxpy")
+                                    + " or 'cvxpy:<NAME>' ('cvxpy:SCS', 'cvxpy:MOSEK', …)")
+        backend.check(self.backend_arg)
+        return self
+
+
+#: the old name of SolverConfig (deprecated; the same class, so every old field still works)
+SolverOptions = SolverConfig
