@@ -174,7 +174,7 @@ def solve_instance(problem: Problem, inst: Instance, *, set_name: str | None = N
     rng = rng or np.random.default_rng(0 if inst.seed is None else inst.seed + 1)
     loc = local_search(problem, inst, rng, n_random)
     t3 = time.perf_counter()
-    verdict = judge(res, loc.best.cost, criteria)
+    verdict = judge(res, loc.best.cost, criteria, Q=model.Q, constraints=cons)
     estimate, err_sdp = None, {}
     if res.Theta is not None and res.usable:
         try:

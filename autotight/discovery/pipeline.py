@@ -113,7 +113,7 @@ def heldout_check(problem: Problem, params: dict[str, Any], seeds: Sequence[int]
             h = out[name]
             h.issues += [f"seed {s}: {i}" for i in issues]
             res = solve_sdp(model, model.primary() + extra, options=options)
-            v = judge(res, loc.best.cost, criteria)
+            v = judge(res, loc.best.cost, criteria, Q=model.Q, constraints=model.primary() + extra)
             h.seeds.append(int(s)); h.tight.append(v.tight); h.log_svr.append(res.log_svr)
             h.rel_gap.append(v.rel_gap); h.status.append(res.status)
     return out

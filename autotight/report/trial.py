@@ -102,7 +102,7 @@ def _solve(problem: Problem, spec: SweepSpec, i: int, t: int, discovered: Any) -
         extra = discovered.instantiate(problem, inst, rng_disc, model=model) if name == "discovered" else None
         cons = constraint_set(model, name, extra)
         res = solve_sdp(model, cons, solver=spec.solver, options=options)
-        verdict = judge(res, loc.best.cost, spec.criteria)
+        verdict = judge(res, loc.best.cost, spec.criteria, Q=model.Q, constraints=cons)
         errs: dict[str, float] = {}
         if res.Theta is not None and res.usable:
             try:
