@@ -7,14 +7,17 @@ H(y)Θ̂ᵀ = 0.  With redundant constraints such y are not unique, so finding o
    clique block of H(y₀) is PSD (a necessary test, dense and cheap) and the full certificate below holds,
    we are done.
 2. A margin program on the clique tree.  By Agler's theorem every H ⪰ 0 with the chordal pattern is
-   Σ_k E_kᵀ S_k E_k with S_k ⪰ 0, and Θ̂ H Θ̂ᵀ = 0 forces S_k Θ̂_kᵀ = 0 in every clique.  So
-   S_k = P_k T_k P_kᵀ with P_k an orthonormal basis of the complement of Θ̂_k's rows, and we solve
+   Σ_k E_kᵀ S_k E_k with S_k ⪰ 0, and Θ̂ H Θ̂ᵀ = 0 forces S_k Θ̂_kᵀ = 0 in every clique.  With Π_k the
+   projector onto the complement of Θ̂_k's rows we solve
 
-       max λ  s.t.  S_k(y, t) Θ̂_kᵀ = 0,  P_kᵀ S_k(y, t) P_k ⪰ λ I,  λ ≤ cap,
+       max λ  s.t.  ‖(S_k(y, t) Θ̂_kᵀ)_k‖ ≤ ε,  S_k(y, t) ⪰ λ Π_k,  λ ≤ cap,
 
-   over y, the clique program's transfers t (``sdp.clique_program``) and λ, with Clarabel at a loose
-   tolerance.  The cones are d smaller than the full SDP's, the problem is strictly feasible whenever
-   the relaxation is tight with a margin, and no X is completed or factored.
+   over y, the clique program's transfers t (``sdp.clique_program``) and λ, with Clarabel.  ε (10× the
+   least-squares residual of step 1) replaces "= 0": x̂ is stationary only to its local solver's
+   accuracy, and the exact system is then inconsistent.  The program is strictly feasible whenever the
+   relaxation is tight with a margin; no X is completed or factored.  It is as large as the full SDP's
+   dual (same cones, plus one second-order cone), so it is not much cheaper to solve (see
+   benchmarks/certify.py).
 3. Polish and check.  y is moved onto {y : H(y)Θ̂ᵀ = 0} (LSQR on the residual) and the certificate of
    ``autotight.certificate`` (sparse λ_min(H), trace bound, suboptimality bound) decides.
 
