@@ -36,7 +36,7 @@ import scipy.sparse as sp
 
 from .certificate import Certificate, certificate, stack
 from .model import Constraint, Model
-from .svec import SQRT2, svec_dim, triu_indices
+from .svec import SQRT2, triu_indices
 
 
 def stationarity_system(Q: sp.sparray, As: Sequence[sp.sparray], Th: np.ndarray) -> tuple[sp.csr_array, np.ndarray]:
