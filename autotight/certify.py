@@ -131,12 +131,13 @@ def default_cliques(Q: sp.sparray, As: Sequence[sp.sparray], d: int) -> list[np.
 
 
 def certify(Q: sp.sparray, constraints: Sequence[Constraint], theta_hat: np.ndarray, *, d: int = 1,
-            cliques: Sequence[np.ndarray] | None = None, tol: float = 1e-6, solver_tol: float = 1e-8,
+            cliques: Sequence[np.ndarray] | None = None, tol: float = 1e-5, solver_tol: float = 1e-8,
             max_iter: int = 100, trace: float | None = None) -> Certificate:
     """Certify x̂ (Θ̂ = ``theta_hat``) for min ⟨Q,X⟩ s.t. ``constraints``, X ⪰ 0 (module docstring).
 
     certified: the certified suboptimality bound f(x̂) − p* is ≤ tol relative to f(x̂)
-    (``certificate.certificate``).  cliques: a chordal cover containing the pattern of Q and every Aᵢ,
+    (``certificate.certificate``; the default is ``Criteria.gap_tol``, so that certify and the bracket
+    test of a full SDP decide with the same relative gap).  cliques: a chordal cover containing the pattern of Q and every Aᵢ,
     each with the h columns (default: ``default_cliques``).  solver_tol: Clarabel's tolerance for the
     margin program (its y is polished and checked exactly afterwards, so it need not be tight).
     trace: a known bound on tr(X) (default: derived from the constraints).
