@@ -86,20 +86,28 @@ def default_name(model: Model) -> str:
     return "paper" if model.paper else "primary"
 
 
+def named(model: Model, name: str) -> list[Constraint]:
+    """The named sets on ``model``: "primary" (homogenisation and primary constraints) or "paper"
+    (those plus every paper family); ParameterError for another name or a model without families."""
+    if name == "primary":
+        return model.primary()
+    if name == "paper":
+        if not model.paper:
+            raise ParameterError("this problem has no paper families; use 'primary' or a learned set")
+        return model.primary() + model.paper_constraints()
+    raise ParameterError(f"unknown constraint set {name!r}; use 'primary', 'paper', a ConstraintSet "
+                         "or a list of Constraint")
+
+
 def resolve(constraints: ConstraintsLike, problem: Problem, inst: Instance, model: Model,
             rng: np.random.Generator) -> list[Constraint]:
     """Every constraint of the SDP for ``inst``: homogenisation, primary and the set's own."""
     if constraints is None:
         constraints = default_name(model)
     if isinstance(constraints, str):
-        if constraints == "primary":
-            return model.primary()
-        if constraints == "paper":
-            if not model.paper:
-                raise ParameterError(f"problem {problem.name} has no paper families; use 'primary' or a learned set")
-            return model.primary() + model.paper_constraints()
-        raise ParameterError(f"unknown constraint set {constraints!r}; use 'primary', 'paper', a ConstraintSet "
-                             "or a list of Constraint")
+        if constraints == "paper" and not model.paper:
+            raise ParameterError(f"problem {problem.name} has no paper families; use 'primary' or a learned set")
+        return named(model, constraints)
     if isinstance(constraints, ConstraintSet):
         if constraints.problem != problem.name:
             raise AutotightError(f"the constraint set is for {constraints.problem!r}, not {problem.name!r}")

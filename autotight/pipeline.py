@@ -19,6 +19,7 @@ from typing import Any
 
 import numpy as np
 
+from .certificate import Certificate, certificate
 from .constraint_set import ConstraintsLike, resolve, set_name
 from .model import Model
 from .problem import Instance, LocalResult, Problem
@@ -81,6 +82,7 @@ class SolveResult:
 
     upper: U, the best feasible cost found (local solves, the SDP's estimate and its refinement);
     refined: the local solve started at the SDP's estimate (None when X was unusable);
+    certificate: what the SDP's multipliers prove about the point of cost U (``certified``, ``bound``);
     attempts: every SDP solve made (a second one when the first verdict was undecided).
     """
 
@@ -96,6 +98,7 @@ class SolveResult:
     upper: float
     errors_sdp: dict[str, float]
     errors_local: dict[str, float]
+    certificate: Certificate | None = None
     attempts: list[dict[str, Any]] = field(default_factory=list)
     times: dict[str, float] = field(default_factory=dict)
 
@@ -136,6 +139,10 @@ class SolveResult:
             "refined_cost": None if self.refined is None else self.refined.cost,
             "upper_bound": self.upper, "rel_gap": v.rel_gap, "trapped": self.trapped,
             "sdp_beats_local": self.sdp_beats_local, "solve_time_s": self.sdp.solve_time_s,
+            "undecided": v.undecided, "bracket": {"lower": v.lower, "primal": v.primal, "upper": v.upper,
+                                                  "accuracy": v.accuracy, "tolerance": v.tolerance},
+            "certified": None if self.certificate is None else self.certificate.certified,
+            "certificate": None if self.certificate is None else self.certificate.record(),
             "errors_sdp": self.errors_sdp, "errors_local": self.errors_local, "attempts": self.attempts,
             "times": self.times,
         }
@@ -145,6 +152,17 @@ def _attempt(res: SDPResult, verdict: Verdict | None) -> dict[str, Any]:
     return {"status": res.status, "primal_cost": res.primal_cost, "dual_cost": res.dual_cost,
             "log_svr": res.log_svr, "solve_time_s": res.solve_time_s, "outcome": getattr(verdict, "outcome", None),
             "message": res.message}
+
+
+def dual_certificate(problem: Problem, inst: Instance, model: Model, cons: list, res: SDPResult,
+                     best: LocalResult, criteria: Criteria) -> Certificate | None:
+    """What the SDP's multipliers y prove about the best feasible point found
+    (``autotight.certificate``), or None when the solve returned no y."""
+    if res.y is None or not np.all(np.isfinite(res.y)):
+        return None
+    theta = problem.lift(inst, best.state)
+    return certificate(model.Q, cons, res.y, theta, d=model.d, tol=criteria.gap_tol,
+                       floor=criteria.cost_atol / criteria.gap_tol)  # the bracket's absolute tolerance
 
 
 def block_scale_at(problem: Problem, inst: Instance, model: Model, state: dict[str, np.ndarray],
@@ -188,7 +206,7 @@ def solve_instance(problem: Problem, inst: Instance, constraints: ConstraintsLik
             res, unscaled = unscaled, res
     t3 = time.perf_counter()
     estimate = refined = None
-    upper = local.best.cost
+    best = local.best
     note = ""
     if res.Theta is not None and res.usable:
         try:
@@ -197,19 +215,22 @@ def solve_instance(problem: Problem, inst: Instance, constraints: ConstraintsLik
             note = f"; recovery failed: {e}"
         else:
             refined = problem.local_solve(inst, estimate)
-            upper = min(upper, refined.cost)
-    verdict = judge(res, upper, criteria)
+            best = min(best, refined, key=lambda r: r.cost)
+    upper = best.cost
+    cert = dual_certificate(problem, inst, model, cons, res, best, criteria)
+    verdict = judge(res, upper, criteria, cert, Q=model.Q, constraints=cons)
     attempts = ([] if unscaled is None else [_attempt(unscaled, None)]) + [_attempt(res, verdict)]
     if getattr(verdict, "undecided", False) and config.tol > 1e-13:
         res2 = sdp.solve_model(model, cons, replace(config, tol=max(config.tol / 100, 1e-13)), scale)
-        verdict2 = judge(res2, upper, criteria)
+        cert2 = dual_certificate(problem, inst, model, cons, res2, best, criteria)
+        verdict2 = judge(res2, upper, criteria, cert2, Q=model.Q, constraints=cons)
         attempts.append(_attempt(res2, verdict2))
         if res2.usable:
-            res, verdict = res2, verdict2
+            res, verdict, cert = res2, verdict2, cert2
     verdict.reason += note
     t4 = time.perf_counter()
     times = {"build_s": t1 - t0, "local_s": t2 - t1, "sdp_total_s": t3 - t2, "sdp_solve_s": res.solve_time_s,
              "refine_s": t4 - t3, "local_truth_s": local.from_truth.time_s}
     return SolveResult(problem.name, inst, set_name(constraints, model), len(cons), res, verdict, local, estimate,
                        refined, upper, problem.errors(inst, estimate) if estimate is not None else {},
-                       problem.errors(inst, local.from_truth.state), attempts, times)
+                       problem.errors(inst, local.from_truth.state), cert, attempts, times)

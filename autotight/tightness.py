@@ -1,31 +1,63 @@
-"""When a relaxation counts as tight.
+"""When a relaxation counts as tight: a rank test and a bracket test on the cost.
 
 Rank: log SVR = log10(λ_d/λ_{d+1}) of X above ``min_log_svr`` (5, as in the paper).
-Cost: |f_local − f_SDP| ≤ gap_tol·max(|f_local|, cost_floor) + solver_accuracy·Σ|Q_ij X_ij|, where
-f_local is the best local solution found.  The second term is what an interior-point solver can
-resolve: the cost is a sum of terms of total magnitude Σ|Q_ij X_ij| that may cancel to a much
-smaller value, and the solver is accurate relative to the terms, not to their sum.
-The reported ``rel_gap`` is (f_local − f_SDP)/max(|f_local|, cost_floor).
+
+Cost (the bracket).  The SDP gives D = bᵀy (its dual cost, a lower bound on its value p* up to the
+solver's accuracy) and P = ⟨Q,X⟩ (its primal cost); U (``upper``) is the best feasible cost of the QCQP,
+so p* ≤ U.  The accuracy this solve reached, ``acc``, is the largest of
+  |P − D|;  Σᵢ|yᵢ|·|⟨Aᵢ,X⟩ − bᵢ| (what the primal infeasibility can move the cost by);
+  max(−λ_min(H), 0)·tr(X), H = Q − Σ yᵢAᵢ (what the dual infeasibility can move the lower bound by:
+  ⟨Q,X'⟩ ≥ D + min(λ_min(H), 0)·tr(X') for every feasible X')
+(the last two need the data: pass ``Q`` and ``constraints``; without them acc is |P − D| plus the
+roundoff of summing the cost).  L = D − max(−λ_min(H), 0)·tr(X) is the lower end of the bracket.
+The gap being tested is  tol = gap_tol·|U| + cost_atol·s,  s = ‖Q‖_max·tr(X) (≥ |⟨Q,X⟩|, the cost's own
+scale; without Q: max(Σ|Q_ij X_ij|, |P|, |D|)), so a zero-cost instance is judged by cost_atol alone and
+nothing is divided by 0.  Then:
+  tight      if U − L ≤ tol (with the data only), or (acc ≤ tol and U − D ≤ tol + acc);
+  not tight  if U − P > tol + acc (the SDP's value is below U by more than tolerance and accuracy), or
+             the SDP is unbounded (DualInfeasible);
+  undecided  otherwise (the solver stopped early or is less accurate than the gap being tested; also any
+             unusable solve): never counted as not tight.
+The reported ``rel_gap`` is (U − P)/max(|U|, cost_floor).
+
+``accept`` says which verdict counts as ``tight``: "rank" (rank and cost, the paper's; a low rank
+counts as not tight only when the bracket is tight and acc ≤ tol, else undecided), "cost" (the
+bracket; with a certificate given, both the bracket and the certificate, and a certificate alone
+decides an undecided bracket), "certified" (the certificate of ``autotight.certificate`` alone).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Sequence
 
 import numpy as np
 
 from .sdp.result import SDPResult
 
+ACCEPT = ("rank", "cost", "certified")
+TIGHT, NOT_TIGHT, UNDECIDED = "tight", "not tight", "undecided"
+
 
 @dataclass(frozen=True)
 class Criteria:
-    """Tightness thresholds.  gap_tol is relative to the local cost (floored at cost_floor);
-    solver_accuracy (10× the default solver tolerance) is relative to the cost's term magnitude."""
+    """Tightness thresholds.
+
+    min_log_svr: rank tight when log SVR exceeds it.  gap_tol: the relative cost gap U − D allowed,
+    relative to |U|.  cost_atol: the absolute gap allowed, relative to the cost's scale ‖Q‖_max·tr(X)
+    (decides zero- and near-zero-cost instances).  cost_floor: the denominator floor of the reported
+    ``rel_gap``.  accept: "rank" | "cost" | "certified" (module docstring).
+    """
 
     min_log_svr: float = 5.0
     gap_tol: float = 1e-5
+    cost_atol: float = 1e-9
     cost_floor: float = 1e-9
-    solver_accuracy: float = 1e-8
+    accept: str = "rank"
+
+    def __post_init__(self) -> None:
+        if self.accept not in ACCEPT:
+            raise ValueError(f"accept must be one of {ACCEPT}, got {self.accept!r}")
 
 
 def relative_gap(sdp_cost: float, local_cost: float, floor: float = 1e-9) -> float:
@@ -35,28 +67,122 @@ def relative_gap(sdp_cost: float, local_cost: float, floor: float = 1e-9) -> flo
 
 @dataclass
 class Verdict:
+    """outcome: "tight" | "not tight" | "undecided" under ``accept``; tight = (outcome == "tight").
+    rank_tight, cost_tight: the two tests separately (cost_tight: the bracket says tight);
+    cost_outcome: the bracket's own outcome.  lower, primal, upper: L, P, U; accuracy: acc;
+    tolerance: the gap tested (module docstring).  certified: the certificate's verdict (None: none given).
+    """
+
     tight: bool
     rank_tight: bool
     cost_tight: bool
     log_svr: float
     rel_gap: float
     reason: str
+    undecided: bool = False
+    outcome: str = NOT_TIGHT
+    cost_outcome: str = NOT_TIGHT
+    lower: float = float("nan")
+    primal: float = float("nan")
+    upper: float = float("nan")
+    accuracy: float = float("nan")
+    tolerance: float = float("nan")
+    certified: bool | None = None
+
+    def record(self) -> dict:
+        return {k: getattr(self, k) for k in self.__dataclass_fields__}
 
 
-def judge(res: SDPResult, best_local: float, criteria: Criteria = Criteria()) -> Verdict:
-    """Tightness of one SDP solution against the best local cost."""
-    if not res.usable:
-        return Verdict(False, False, False, res.log_svr, float("nan"), f"solver status {res.status}")
-    gap = relative_gap(res.primal_cost, best_local, criteria.cost_floor)
-    rank_tight = bool(np.isfinite(res.log_svr) and res.log_svr > criteria.min_log_svr) or res.log_svr == np.inf
-    slack = criteria.gap_tol * max(abs(best_local), criteria.cost_floor) + criteria.solver_accuracy * res.cost_scale
-    cost_tight = bool(abs(best_local - res.primal_cost) <= slack)
-    reasons = []
-    if not rank_tight:
-        reasons.append(f"log SVR {res.log_svr:.2f} ≤ {criteria.min_log_svr}")
-    if not cost_tight:
-        reasons.append(f"relative cost gap {gap:.2e} exceeds {criteria.gap_tol:g} (+ solver accuracy)")
-    if res.status != "Solved":
+@dataclass
+class Accuracy:
+    """What one solve's residuals say (module docstring): acc, the dual correction of L, the cost's
+    scale s, and the parts of acc."""
+
+    acc: float
+    dual_correction: float
+    scale: float
+    gap_pd: float
+    primal_term: float
+    from_residuals: bool = True
+
+
+def accuracy(res: SDPResult, Q=None, constraints: Sequence | None = None) -> Accuracy:
+    """The accuracy of ``res`` from its residuals (with the data) or from |P − D| alone."""
+    P, D = res.primal_cost, res.dual_cost
+    gap_pd = abs(P - D)
+    if Q is None or constraints is None or res.X is None or res.y is None:
+        scale = max(res.cost_scale, abs(P), abs(D))
+        return Accuracy(gap_pd + 10 * np.finfo(float).eps * scale, 0.0, scale, gap_pd, 0.0, False)
+    from .certificate import dual_matrix, lambda_min, stack
+
+    As, b = stack(constraints)
+    X = res.X
+    r = np.array([float(A.multiply(X).sum()) for A in As]) - b
+    primal_term = float(np.abs(res.y) @ np.abs(r))
+    trX = float(np.trace(X))
+    _, lam_lo, _ = lambda_min(dual_matrix(Q, As, res.y))
+    dual_corr = max(-lam_lo, 0.0) * trX
+    scale = (float(abs(Q).max()) if Q.nnz else 0.0) * trX
+    return Accuracy(max(gap_pd, primal_term, dual_corr), dual_corr, scale, gap_pd, primal_term)
+
+
+def bracket(res: SDPResult, upper: float, criteria: Criteria, acc: Accuracy) -> tuple[str, float, float, str]:
+    """(cost outcome, L, tol, reason) of the bracket test (module docstring)."""
+    if res.status.endswith("DualInfeasible"):
+        return NOT_TIGHT, -np.inf, np.nan, f"the relaxation is unbounded (solver status {res.status})"
+    if not res.usable or not np.isfinite(res.dual_cost) or not np.isfinite(res.primal_cost):
+        return UNDECIDED, np.nan, np.nan, f"solver status {res.status}: no usable bracket"
+    U, P, D = float(upper), res.primal_cost, res.dual_cost
+    L = D - acc.dual_correction
+    tol = criteria.gap_tol * abs(U) + criteria.cost_atol * acc.scale
+    if (acc.from_residuals and U - L <= tol) or (acc.acc <= tol and U - D <= tol + acc.acc):
+        return TIGHT, L, tol, ""
+    if U - P > tol + acc.acc:
+        return NOT_TIGHT, L, tol, f"U − P = {U - P:.3e} exceeds the tolerance {tol:.2e} + accuracy {acc.acc:.2e}"
+    return UNDECIDED, L, tol, (f"bracket too wide: U − D = {U - D:.3e} > tolerance {tol:.2e}, "
+                               f"solver accuracy {acc.acc:.2e}")
+
+
+def judge(res: SDPResult, upper: float, criteria: Criteria = Criteria(), certificate=None, *,
+          Q=None, constraints: Sequence | None = None) -> Verdict:
+    """Tightness of one SDP solution against the best feasible cost ``upper`` (module docstring).
+
+    certificate: an ``autotight.certificate.Certificate`` for the local solution (optional; needed for
+    accept="certified").  Q, constraints: the SDP's data, for the residual-based accuracy.
+    """
+    acc = accuracy(res, Q, constraints)
+    cost_outcome, L, tol, why = bracket(res, upper, criteria, acc)
+    lsvr = res.log_svr
+    rank_tight = bool(lsvr == np.inf or (np.isfinite(lsvr) and lsvr > criteria.min_log_svr))
+    cert = None if certificate is None else bool(certificate.certified)
+    reasons = [why] if why else []
+    if criteria.accept == "rank":
+        if cost_outcome == TIGHT and rank_tight:
+            outcome = TIGHT
+        elif cost_outcome == NOT_TIGHT or (not rank_tight and cost_outcome == TIGHT and acc.acc <= tol):
+            outcome = NOT_TIGHT
+        else:
+            outcome = UNDECIDED  # the rank of an X solved less accurately than the gap tested says little
+        if not rank_tight:
+            reasons.append(f"log SVR {lsvr:.2f} ≤ {criteria.min_log_svr}")
+    elif criteria.accept == "cost":
+        outcome = cost_outcome
+        if cert is not None:
+            if cert and cost_outcome != NOT_TIGHT:
+                outcome = TIGHT
+            elif not cert and cost_outcome == TIGHT:
+                outcome = UNDECIDED
+                reasons.append("the bracket is tight but the certificate is not")
+    else:
+        outcome = UNDECIDED if cert is None else (TIGHT if cert else NOT_TIGHT)
+        if cert is None:
+            reasons.append("accept='certified' needs a certificate")
+    if cert is False:
+        reasons.append("not certified" + (f": {certificate.message}" if certificate.message else ""))
+    if res.status != "Solved" and res.usable:
         reasons.append(f"status {res.status}")
-    return Verdict(rank_tight and cost_tight, rank_tight, cost_tight, res.log_svr, gap,
-                   "; ".join(reasons) or "tight")
+    return Verdict(outcome == TIGHT, rank_tight, cost_outcome == TIGHT, lsvr,
+                   relative_gap(res.primal_cost, upper, criteria.cost_floor) if res.usable else float("nan"),
+                   "; ".join(reasons) or "tight", undecided=outcome == UNDECIDED, outcome=outcome,
+                   cost_outcome=cost_outcome, lower=float(L), primal=float(res.primal_cost), upper=float(upper),
+                   accuracy=float(acc.acc), tolerance=float(tol), certified=cert)

@@ -443,7 +443,7 @@ def test_scaling_reaches_the_local_optimum_at_low_noise():
     cons = model.primary() + model.paper_constraints()
     loc = prob.local_solve(inst, inst.truth)
     D = block_scale(model.variables, [prob.lift(inst, loc.state)])
-    assert D.min() < 1e-3 < 0.5 < D.max()  # the scaling is far from the identity here
+    assert D.min() < 0.02 < 0.5 < D.max()  # the scaling is far from the identity here
     res = sdp.solve_model(model, cons, scale=D)
     assert res.usable, res.message
     assert abs(res.primal_cost - loc.cost) <= 1e-6 * abs(loc.cost), (res.primal_cost, loc.cost, res.message)

@@ -46,7 +46,7 @@ class Oracle:
         res = sdp.solve_model(self.model, cons, self.options)
         self.n_solves += 1
         self.solve_time_s += res.solve_time_s + res.setup_time_s
-        v = judge(res, self.best_local, self.criteria)
+        v = judge(res, self.best_local, self.criteria, Q=self.model.Q, constraints=cons)
         self.log.append({"stage": stage, "n_pairs": n_pairs, "status": res.status, "log_svr": res.log_svr,
                          "rel_gap": v.rel_gap, "tight": v.tight})
         return v, res

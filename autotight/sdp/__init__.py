@@ -55,7 +55,7 @@ from .covers import IPM_MERGE_CAPS, MERGE_MAX_SIZE, CliqueCovers
 from .registry import BACKENDS, Backend
 from .result import SDPResult, finish, log_svr, rank_d_factor
 
-__all__ = ["solve", "solve_model", "check_solver", "SolverConfig", "SolverConfigError", "SolverOptions",
+__all__ = ["solve", "solve_model", "model_cover", "check_solver", "SolverConfig", "SolverConfigError", "SolverOptions",
            "SDPResult", "BACKENDS", "CliqueCovers", "MERGE_MAX_SIZE", "IPM_MERGE_CAPS", "log_svr",
            "rank_d_factor"]
 
@@ -124,6 +124,7 @@ def _unscale(res: SDPResult, D: np.ndarray) -> SDPResult:
 def _solve(Q: sp.spmatrix | sp.sparray, constraints: Sequence[Constraint], d: int, config: SolverConfig,
            cliques: Sequence[np.ndarray] | None, scale: np.ndarray | None,
            block_sizes: Sequence[int] | None) -> SDPResult:
+    config = SolverConfig() if config is None else config
     Q = sp.csr_array(Q)
     N = Q.shape[0]
     if Q.ndim != 2 or Q.shape != (N, N):
@@ -169,7 +170,7 @@ def _solve(Q: sp.spmatrix | sp.sparray, constraints: Sequence[Constraint], d: in
 
 @single_blas_thread
 def solve(Q: sp.spmatrix | sp.sparray, constraints: Sequence[Constraint], *, d: int = 1,
-          config: SolverConfig = SolverConfig(), cliques: Sequence[np.ndarray] | None = None,
+          config: SolverConfig | None = None, cliques: Sequence[np.ndarray] | None = None,
           scale: np.ndarray | None = None) -> SDPResult:
     """Solve the SDP; ``constraints`` are ``Constraint`` objects (A sparse symmetric N×N, b).
 
@@ -186,7 +187,16 @@ def solve(Q: sp.spmatrix | sp.sparray, constraints: Sequence[Constraint], *, d: 
 
 
 @single_blas_thread
-def solve_model(model: Model, constraints: Sequence[Constraint], config: SolverConfig = SolverConfig(),
+def model_cover(model: Model, constraints: Sequence[Constraint], policy: str = "clarabel") -> list[np.ndarray]:
+    """The clique cover this layer would choose for ``model`` with ``constraints`` under ``policy``
+    ("clarabel" or "ipm"; ``covers.CliqueCovers.choose``)."""
+    V = model.variables
+    hint = model.clique_indices() if model.cliques else None
+    return CliqueCovers(model.Q, [c.A for c in constraints], model.d, [V.sizes[n] for n in V.names],
+                        hint).choose(policy)
+
+
+def solve_model(model: Model, constraints: Sequence[Constraint], config: SolverConfig | None = None,
                 scale: np.ndarray | None = None) -> SDPResult:
     """``solve`` for a model: its Q and d, its own clique cover as the hint, and its variable blocks
     for the block cover (``covers.CliqueCovers``)."""

@@ -1,0 +1,244 @@
+"""A dual certificate for a candidate solution x̂ of the QCQP, from multipliers y.
+
+For the Shor SDP  p* = min ⟨Q,X⟩ s.t. ⟨Aᵢ,X⟩ = bᵢ, X ⪰ 0  and any y, let H = Q − Σ yᵢAᵢ.  For every
+feasible X,  ⟨Q,X⟩ = yᵀb + ⟨H,X⟩ ≥ yᵀb + min(λ_min(H), 0)·tr(X).  Let f̂ = ⟨Q,X̂⟩, X̂ = Θ̂ᵀΘ̂ (the lifted
+candidate, cost offset excluded) and T a bound on tr(X) over the sublevel set S = {X feasible, ⟨Q,X⟩ ≤ f̄}
+with f̄ ≥ p* (we take f̄ = 2|f̂| + ε, valid when x̂ is feasible, since then p* ≤ f̂).  The minimum over the
+feasible set equals the minimum over S, so p* ≥ yᵀb − λ⁻·T with λ⁻ = max(−λ_min(H), 0), and
+
+    f̂ − p*  ≤  f̂ − yᵀb + λ⁻·T  =  ⟨H, X̂⟩ + Σᵢ yᵢ(⟨Aᵢ,X̂⟩ − bᵢ) + λ⁻·T  =: bound.
+
+Since p* ≤ q* (the QCQP's optimum), ``bound`` also bounds the suboptimality of x̂ for the QCQP (up to
+x̂'s own constraint residual, reported as ``primal_residual``).  λ⁻ is a certified lower bound: the
+smallest eigenvalue λ̂ (dense below ``DENSE_MAX`` columns, else shift-invert Lanczos), lowered by δ until
+an LDLᵀ factorisation of H − (λ̂ − δ)I has no negative pivot (exact up to that factorisation's roundoff).
+
+The trace bound T (``trace_bound``) is derived from the data, never assumed: columns are bounded one
+group at a time, by a constraint ⟨A,X⟩ = b or by the cost ⟨Q,X⟩ ≤ f̄, whose part A_UU on the still
+unbounded columns U it touches is definite (|A_UU| ⪰ a·I): with B the bounded columns it touches,
+a·tr X_UU ≤ |b| + ‖A_BB‖_F·T_B + 2‖A_UB‖_F·√(tr X_UU·T_B)  (for X ⪰ 0, ‖X_UB‖_* ≤ √(tr X_UU·tr X_BB)),
+a quadratic inequality in √tr X_UU.  h² = 1 and cᵢᵀcᵢ = h² bound h and rotation columns; the cost
+bounds the residual blocks (tr over them ≤ f̄/λ_min(W) without cross terms); rᵀr = … (R2) then bounds
+translations.  When some column stays unbounded, T is None and nothing is certified.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from typing import Sequence
+
+import numpy as np
+import scipy.sparse as sp
+
+from .model import Constraint
+
+#: below this many columns, eigenvalues are computed densely
+DENSE_MAX = 200
+
+
+@dataclass
+class Certificate:
+    """What multipliers y prove about x̂.
+
+    certified: bound ≤ tol·max(|f̂|, floor) (``rel_bound`` ≤ tol).  bound: f̂ − p* ≤ bound (absolute, in
+    the cost's units); rel_bound = bound / max(|f̂|, floor).  lambda_min: λ_min(H) (estimate);
+    lambda_lower: the certified lower bound on λ_min(H) used in the bound.  residual: ‖H Θ̂ᵀ‖_F /
+    (‖Q Θ̂ᵀ‖_F + ‖H‖_max·‖Θ̂‖_F), the stationarity residual relative to the cost's own terms.
+    primal_residual: max |⟨Aᵢ,X̂⟩ − bᵢ| (x̂'s infeasibility).  trace: the bound T on tr(X), None when the
+    constraints imply none.  method: how y and λ_min were obtained.
+    """
+
+    certified: bool
+    bound: float
+    rel_bound: float
+    lambda_min: float
+    lambda_lower: float
+    residual: float
+    primal_residual: float
+    cost: float
+    dual_value: float
+    trace: float | None
+    time_s: float
+    method: str
+    message: str = ""
+
+    def record(self) -> dict:
+        return {k: getattr(self, k) for k in self.__dataclass_fields__}
+
+
+def stack(constraints: Sequence[Constraint]) -> tuple[list[sp.csr_array], np.ndarray]:
+    return [sp.csr_array(c.A) for c in constraints], np.array([c.b for c in constraints], dtype=float)
+
+
+def dual_matrix(Q: sp.sparray, As: Sequence[sp.sparray], y: np.ndarray) -> sp.csc_array:
+    """H = Q − Σ yᵢAᵢ, sparse (one sum over the stacked entries)."""
+    Q = sp.coo_array(Q)
+    rows, cols, vals = [Q.row], [Q.col], [Q.data]
+    for yi, A in zip(y, As):
+        if yi != 0.0:
+            c = sp.coo_array(A)
+            rows.append(c.row)
+            cols.append(c.col)
+            vals.append(-yi * c.data)
+    H = sp.coo_array((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=Q.shape).tocsc()
+    H.sum_duplicates()
+    return H
+
+
+def negative_pivots(H: sp.sparray, shift: float) -> int | None:
+    """Number of negative eigenvalues of H − shift·I, by Sylvester's law on a symmetric LDLᵀ
+    (SuperLU in symmetric mode without off-diagonal pivoting); None if the factorisation fails or pivots
+    off the diagonal."""
+    from scipy.sparse.linalg import splu
+
+    n = H.shape[0]
+    try:
+        lu = splu(sp.csc_matrix(H - shift * sp.identity(n, format="csc")), permc_spec="MMD_AT_PLUS_A",
+                  diag_pivot_thresh=0.0, options=dict(SymmetricMode=True))
+    except RuntimeError:  # exactly singular
+        return None
+    if not np.array_equal(lu.perm_r, lu.perm_c):
+        return None
+    return int(np.count_nonzero(lu.U.diagonal() < 0))
+
+
+def lambda_min(H: sp.sparray) -> tuple[float, float, str]:
+    """(λ̂ ≈ λ_min(H), a lower bound on λ_min(H), method).  Dense below ``DENSE_MAX`` columns (the lower
+    bound is λ̂ − n·ε·‖H‖); else shift-invert Lanczos near 0, then the lower bound λ̂ − δ is confirmed by
+    an LDLᵀ without negative pivots (δ grows ×100 until it is; −inf when nothing is confirmed)."""
+    n = H.shape[0]
+    scale = float(abs(H).max()) if H.nnz else 0.0
+    if scale == 0.0:
+        return 0.0, 0.0, "zero"
+    eps = np.finfo(float).eps * n * scale
+    if n <= DENSE_MAX:
+        lam = float(np.linalg.eigvalsh(H.toarray())[0])
+        return lam, lam - eps, "dense"
+    from scipy.sparse.linalg import ArpackError, ArpackNoConvergence, eigsh
+
+    method = "shift-invert Lanczos + LDLᵀ inertia"
+    try:
+        lam = float(eigsh(sp.csc_matrix(H), k=1, sigma=-1e-3 * scale, which="LM", v0=np.ones(n),
+                          return_eigenvectors=False, tol=1e-12)[0])
+    except (ArpackError, ArpackNoConvergence, RuntimeError):
+        lam, method = 0.0, "LDLᵀ inertia"
+    delta = max(eps, 1e-9 * abs(lam))
+    while delta < 1e3 * scale:
+        if negative_pivots(H, lam - delta) == 0:
+            return lam, lam - delta, method
+        # an eigenvalue below lam − delta: Lanczos found an interior one; look further down
+        try:
+            low = float(eigsh(sp.csc_matrix(H), k=1, which="SA", v0=np.ones(n), return_eigenvectors=False,
+                              tol=1e-10, maxiter=20 * n)[0])
+            lam = min(lam, low)
+        except (ArpackError, ArpackNoConvergence):
+            pass
+        delta *= 100.0
+    return lam, -np.inf, method + " (no lower bound confirmed)"
+
+
+def trace_bound(Q: sp.sparray, As: Sequence[sp.sparray], b: np.ndarray, f_bar: float,
+                max_passes: int = 8) -> float | None:
+    """A bound on tr(X) over {X ⪰ 0 : ⟨Aᵢ,X⟩ = bᵢ, ⟨Q,X⟩ ≤ f_bar} (see the module docstring), or None
+    when the constraints and the cost leave some column unbounded."""
+    n = Q.shape[0]
+    bound_of = np.full(n, -1, dtype=np.int64)  # the group that bounds each column (−1: none yet)
+    groups: list[float] = []
+    items = [(sp.csr_array(Q), f_bar, True)] + [(sp.csr_array(A), float(bi), False) for A, bi in zip(As, b)]
+    dense = []  # per item: (support columns, the dense block on them)
+    for A, _, _ in items:
+        sup = np.unique(A.indices) if A.nnz else np.zeros(0, dtype=np.int64)
+        dense.append((sup, None if sup.size > 60 else A[sup][:, sup].toarray()))
+    for _ in range(max_passes):
+        progress = False
+        for (A, rhs, is_cost), (sup, D) in zip(items, dense):
+            if sup.size == 0:
+                continue
+            free = bound_of[sup] < 0
+            if not free.any():
+                continue
+            U, B = sup[free], sup[~free]
+            if D is not None:
+                Auu, Aub, Abb = D[np.ix_(free, free)], D[np.ix_(free, ~free)], D[np.ix_(~free, ~free)]
+                w = np.linalg.eigvalsh(Auu)
+                a = w[0] if is_cost else max(w[0], -w[-1])
+                n_ub, n_bb = np.linalg.norm(Aub), np.linalg.norm(Abb)
+            else:  # a large item (the cost): its definite part from its connected components
+                Auu = sp.csr_array(A[U][:, U])
+                a = _lambda_min_blocks(Auu)
+                if not is_cost:
+                    a = max(a, _lambda_min_blocks(-Auu))
+                n_ub, n_bb = float(sp.linalg.norm(A[U][:, B])) if B.size else 0.0, \
+                    float(sp.linalg.norm(A[B][:, B])) if B.size else 0.0
+            if not a > 0:
+                continue
+            TB = float(sum(groups[g] for g in np.unique(bound_of[B]))) if B.size else 0.0
+            beta = abs(rhs) + n_bb * TB
+            alpha = n_ub * np.sqrt(TB)
+            root = (alpha + np.sqrt(alpha ** 2 + a * beta)) / a
+            groups.append(root ** 2)
+            bound_of[U] = len(groups) - 1
+            progress = True
+        if (bound_of >= 0).all():
+            return float(sum(groups))
+        if not progress:
+            return None
+    return None
+
+
+def _lambda_min_blocks(A: sp.csr_array) -> float:
+    """λ_min of a symmetric sparse matrix from its connected components (dense per component)."""
+    from scipy.sparse.csgraph import connected_components
+
+    k, lab = connected_components(A != 0, directed=False)
+    out = np.inf
+    for c in range(k):
+        idx = np.flatnonzero(lab == c)
+        if idx.size > 400:
+            return -np.inf  # not worth it: no bound from this item
+        out = min(out, float(np.linalg.eigvalsh(A[idx][:, idx].toarray())[0]))
+    return out
+
+
+def certificate(Q: sp.sparray, constraints: Sequence[Constraint], y: np.ndarray, theta_hat: np.ndarray, *,
+                d: int = 1, tol: float = 1e-6, floor: float = 1e-12, trace: float | None = None,
+                method: str = "given y") -> Certificate:
+    """What y proves about x̂ (Θ̂ = ``theta_hat``, (N,) or (d, N)): the bound of the module docstring.
+
+    certified when the bound is finite and ≤ tol·max(|f̂|, floor·‖Q‖_max·tr X̂) (``floor`` states the
+    absolute tolerance of a zero-cost candidate relative to the cost's scale).  ``trace``: a known
+    bound on tr(X) (default: ``trace_bound``).
+    """
+    t0 = time.perf_counter()
+    As, b = stack(constraints)
+    Q = sp.csr_array(Q)
+    Th = np.asarray(theta_hat, dtype=float).reshape(d, -1)
+    y = np.asarray(y, dtype=float)
+    H = dual_matrix(Q, As, y)
+    HT = H @ Th.T
+    QT = Q @ Th.T
+    Xhat_tr = float(np.sum(Th * Th))
+    f_hat = float(np.sum(Th.T * QT))
+    res_A = np.array([float(np.sum(Th.T * (A @ Th.T))) for A in As]) - b
+    scale = float(abs(Q).max()) if Q.nnz else 1.0
+    residual = float(np.linalg.norm(HT) / (np.linalg.norm(QT) + float(abs(H).max()) * np.sqrt(Xhat_tr) + 1e-300))
+    lam, lam_lo, how = lambda_min(H)
+    T = trace
+    if T is None and lam_lo < 0:
+        T = trace_bound(Q, As, b, 2 * abs(f_hat) + floor * scale * Xhat_tr)
+    neg = max(-lam_lo, 0.0)
+    msg = ""
+    if neg == 0.0:
+        correction = 0.0
+    elif T is None:
+        correction, msg = np.inf, "λ_min(H) < 0 and no trace bound follows from the constraints"
+    else:
+        correction = neg * T
+    dual_value = float(b @ y)
+    bound = float(np.sum(Th.T * HT) + y @ res_A + correction)
+    denom = max(abs(f_hat), floor * scale * Xhat_tr)
+    rel = bound / denom if denom > 0 else (0.0 if bound <= 0 else np.inf)
+    ok = bool(np.isfinite(bound) and rel <= tol)
+    return Certificate(ok, bound, float(rel), lam, lam_lo, residual, float(np.max(np.abs(res_A), initial=0.0)),
+                       f_hat, dual_value, T, time.perf_counter() - t0, f"{method}; λ_min: {how}", msg)

@@ -1,0 +1,96 @@
+"""Certificates for local solutions: certified on tight instances, never on non-tight or worse ones."""
+
+import numpy as np
+import pytest
+
+from autotight.certificate import certificate, lambda_min, trace_bound, stack
+from autotight.certify import certify_model
+from autotight.problem import load
+from autotight.constraint_set import named as constraint_set
+from autotight.sdp import SolverConfig, solve_model
+import scipy.sparse as sp
+
+
+def _local(name, params, seed):
+    p = load(name)
+    inst = p.generate(params, seed=seed)
+    model = p.build(inst)
+    return p, inst, model, p.local_solve(inst, inst.truth)
+
+
+def _certify_tight(name, params, set_name, seeds):
+    for seed in seeds:
+        p, inst, model, loc = _local(name, params, seed)
+        cons = constraint_set(model, set_name)
+        cert = certify_model(model, cons, p.lift(inst, loc.state))
+        assert cert.certified, (name, seed, cert)
+        assert cert.rel_bound <= 1e-6 and cert.lambda_lower > -1e-6
+        assert abs(cert.cost - loc.cost) <= 1e-9 * max(1.0, abs(loc.cost))  # the lifted cost is f(x̂)
+
+
+def test_rotation_averaging_certified():
+    _certify_tight("rotation_averaging", {"M": 10}, "primary", range(10))
+
+
+def test_pose_averaging_certified():
+    _certify_tight("pose_averaging", {"M": 10}, "paper", range(10))
+
+
+def test_discrete_trajectory_certified_small():
+    _certify_tight("discrete_trajectory", {"K": 10}, "paper", range(2))
+
+
+@pytest.mark.slow
+def test_discrete_trajectory_certified_k20():
+    _certify_tight("discrete_trajectory", {"K": 20}, "paper", range(10))
+
+
+def test_not_tight_set_is_not_certified():
+    """(a) Pose averaging with the primary constraints only: the SDP is not tight, nothing is certified."""
+    p, inst, model, loc = _local("pose_averaging", {"M": 10}, 0)
+    cons = constraint_set(model, "primary")
+    res = solve_model(model, cons)
+    assert res.log_svr < 1  # the full SDP agrees: not tight
+    cert = certify_model(model, cons, p.lift(inst, loc.state))
+    assert not cert.certified and not np.isfinite(cert.bound) and cert.lambda_min < -1e-3
+
+
+def test_worse_local_minimum_is_not_certified():
+    """(b) A converged local solve from a random start, far worse than the one from the truth."""
+    p, inst, model, best = _local("pose_averaging", {"M": 10, "sigma": 0.3}, 0)
+    rng = np.random.default_rng(0)
+    worse = [p.local_solve(inst, p.random_state(inst, rng)) for _ in range(3)][2]
+    assert worse.converged and worse.cost > 10 * best.cost
+    cons = constraint_set(model, "paper")
+    cert = certify_model(model, cons, p.lift(inst, worse.state))
+    assert not cert.certified
+    assert cert.bound >= worse.cost - best.cost - 1e-6  # a valid bound is at least the true gap
+    assert certify_model(model, cons, p.lift(inst, best.state)).certified
+
+
+def test_bound_is_valid_for_the_sdp_dual():
+    """The SDP's own y: f(x̂) − bound ≤ p* ≤ P, and the trace bound holds at the SDP's X."""
+    p, inst, model, loc = _local("pose_averaging", {"M": 5}, 1)
+    cons = constraint_set(model, "paper")
+    res = solve_model(model, cons)
+    x = p.lift(inst, loc.state)
+    cert = certificate(model.Q, cons, res.y, x)
+    assert cert.certified
+    assert cert.cost - cert.bound <= res.primal_cost + 1e-9
+    As, b = stack(cons)
+    T = trace_bound(model.Q, As, b, 2 * loc.cost)
+    assert T is not None and np.trace(res.X) <= T
+    # a y pushed off the certificate (scaled) breaks it, with a negative λ_min
+    bad = certificate(model.Q, cons, 1.5 * res.y, x)
+    assert not bad.certified and bad.lambda_min < 0
+
+
+def test_lambda_min_sparse_matches_dense():
+    rng = np.random.default_rng(3)
+    n = 400
+    A = sp.random(n, n, density=0.01, random_state=4)
+    H = sp.csc_array(A + A.T + sp.identity(n) * 0.5)
+    w = np.linalg.eigvalsh(H.toarray())[0]
+    lam, low, method = lambda_min(H)
+    assert "Lanczos" in method or "inertia" in method
+    assert abs(lam - w) <= 1e-8 * abs(H).max() and low <= w

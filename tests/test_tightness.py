@@ -1,0 +1,91 @@
+"""The bracket test: tight, not tight and undecided, from D, P, U and the solve's accuracy."""
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from autotight.certificate import Certificate
+from autotight.problem import load
+from autotight.constraint_set import named as constraint_set
+from autotight.pipeline import local_search
+from autotight.sdp import solve_model
+from autotight.sdp.result import SDPResult, SolverOptions
+from autotight.tightness import Criteria, judge
+
+
+def _res(P: float, D: float, log_svr: float = 10.0, status: str = "Solved") -> SDPResult:
+    return SDPResult(status=status, solver="test", d=1, X=np.eye(2), y=np.zeros(1), primal_cost=P, dual_cost=D,
+                     solve_time_s=0.0, log_svr=log_svr, cost_scale=1.0)
+
+
+def test_cost_slack_rule():
+    """Numbers on both sides of the tolerance: a slack 10× too large or too small fails one of them."""
+    c = Criteria(gap_tol=1e-5)
+    U = 1.0
+    assert judge(_res(1 - 0.8e-5 + 1e-13, 1 - 0.8e-5), U, c).outcome == "tight"  # U − D = 0.8·tol
+    v = judge(_res(1 - 2e-5 + 1e-13, 1 - 2e-5), U, c)  # U − P = 2·tol, accuracy 1e-13
+    assert v.outcome == "not tight" and not v.undecided and not v.tight
+    # the same gap with a solve only accurate to 5e-5 (|P − D|): undecided, never "not tight"
+    v = judge(_res(1 + 1e-5, 1 - 4e-5), U, c)
+    assert v.outcome == "undecided" and v.undecided and not v.tight
+    assert v.accuracy == pytest.approx(5e-5, rel=1e-6) and v.tolerance == pytest.approx(1e-5, rel=1e-3)
+    # a gap far outside the accuracy is decided
+    assert judge(_res(0.5, 0.5 - 1e-6), U, c).outcome == "not tight"
+    # low rank alone: not tight for accept="rank", tight for accept="cost"
+    low = _res(1 - 1e-8, 1 - 1e-8 - 1e-13, log_svr=1.0)
+    assert judge(low, U, c).outcome == "not tight"
+    assert judge(low, U, replace(c, accept="cost")).outcome == "tight"
+    # an unusable solve is undecided, an unbounded relaxation is not tight
+    failed = SDPResult(status="NumericalError", solver="test", d=1, X=None, y=None, primal_cost=np.nan,
+                       dual_cost=np.nan, solve_time_s=0.0)
+    assert judge(failed, U, c).outcome == "undecided"
+    assert judge(replace(failed, status="DualInfeasible"), U, c).outcome == "not tight"
+
+
+def test_accept_certified_uses_the_certificate():
+    cert = Certificate(True, 1e-12, 1e-12, 0.0, 0.0, 0.0, 0.0, 1.0, 1.0, 5.0, 0.0, "test")
+    wide = _res(1 + 1e-5, 1 - 4e-5)  # undecided bracket
+    assert judge(wide, 1.0, Criteria(accept="certified"), cert).outcome == "tight"
+    assert judge(wide, 1.0, Criteria(accept="cost"), cert).outcome == "tight"
+    assert judge(wide, 1.0, Criteria(accept="certified")).outcome == "undecided"
+    no = replace(cert, certified=False)
+    assert judge(_res(1.0, 1.0), 1.0, Criteria(accept="certified"), no).outcome == "not tight"
+    with pytest.raises(ValueError):
+        Criteria(accept="sometimes")
+
+
+def _judged(name, params, seed, set_name="paper", options=None):
+    p = load(name)
+    inst = p.generate(params, seed=seed)
+    model = p.build(inst)
+    cons = constraint_set(model, set_name)
+    res = solve_model(model, cons, options)
+    loc = local_search(p, inst, np.random.default_rng(seed + 1))
+    return judge(res, loc.best.cost, Criteria(), Q=model.Q, constraints=cons), res
+
+
+def test_loose_solver_tolerance_is_undecided():
+    """Clarabel at tol 1e-3 on pose averaging, σ = 0.001: the bracket is far wider than the gap tested."""
+    for seed in range(3):
+        v, res = _judged("pose_averaging", {"M": 10, "sigma": 0.001}, seed, options=SolverOptions(tol=1e-3))
+        assert v.outcome == "undecided", (seed, v)
+        assert v.accuracy > 100 * v.tolerance
+
+
+def test_tight_at_low_noise_with_default_tolerance():
+    for seed in range(3):
+        v, res = _judged("pose_averaging", {"M": 10, "sigma": 0.001}, seed)
+        assert v.outcome == "tight", (seed, v)
+        assert v.lower <= v.upper + v.tolerance and v.accuracy < v.tolerance
+
+
+def test_zero_cost_is_tight():
+    """σ = 0, M = 1 (the optimum costs exactly 0): decided by the absolute tolerance."""
+    v, res = _judged("pose_averaging", {"M": 1, "sigma": 0.0}, 0)
+    assert v.upper == 0.0 and v.outcome == "tight" and v.tight and np.isfinite(v.rel_gap)
+
+
+def test_primary_set_not_tight():
+    v, res = _judged("pose_averaging", {"M": 10}, 0, set_name="primary")
+    assert v.outcome == "not tight" and not v.rank_tight and not v.cost_tight
