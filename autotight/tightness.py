@@ -26,6 +26,7 @@ class Criteria:
     gap_tol: float = 1e-5
     cost_floor: float = 1e-9
     solver_accuracy: float = 1e-8
+    accept: str = "rank"  # what counts as tight: "rank" | "cost" | "certified" (see discovery.oracle.accepted)
 
 
 def relative_gap(sdp_cost: float, local_cost: float, floor: float = 1e-9) -> float:

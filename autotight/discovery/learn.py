@@ -137,6 +137,15 @@ class LearnedGroup:
     heldout_violation: np.ndarray
     heldout_tol: float
     times: dict[str, float] = field(default_factory=dict)
+    ignored_gap_decades: float | None = None  # a larger gap below the roundoff floor (nullspace.RANK_FLOOR)
+    ignored_gap_rank: int | None = None
+
+    def gaps(self) -> dict:
+        """The chosen spectral gap (decades, rank) and any ignored one below the roundoff floor."""
+        out = {"decades": float(self.gap_decades), "rank": int(self.rank)}
+        if self.ignored_gap_decades is not None:
+            out["ignored"] = {"decades": float(self.ignored_gap_decades), "rank": int(self.ignored_gap_rank)}
+        return out
 
     @property
     def n_monomials(self) -> int:
@@ -247,7 +256,8 @@ def learn_group(model: Model, group: Group, bank: SampleBank, heldout: SampleBan
     viol = np.max(np.abs(Mh @ coeffs) / np.maximum(mag @ np.abs(coeffs), 1e-300), axis=0) if k else np.zeros(0)
     t2 = time.perf_counter()
     return LearnedGroup(group, cols, need, spec.rel, spec.rank, spec.gap_decades, idents, coeffs, in_span, viol,
-                        opts.heldout_tol, {"nullspace_s": t1 - t0, "basis_s": t2 - t1})
+                        opts.heldout_tol, {"nullspace_s": t1 - t0, "basis_s": t2 - t1},
+                        spec.ignored_gap_decades, spec.ignored_gap_rank)
 
 
 def spanning_matrices(model: Model) -> list[sp.coo_array]:
