@@ -74,7 +74,7 @@ def spectrum(Yn: np.ndarray, min_gap_decades: float, where: str = "", floor: flo
     rel = s / s[0]
     logs = np.log10(np.maximum(rel, 1e-300))
     gaps = logs[:-1] - logs[1:]
-    allowed = logs[:-1] >= np.log10(floor)  # the gap's upper end is above the roundoff floor
+    allowed = logs[:-1] >= np.log10(max(floor, 1e-300))  # the gap's upper end is above the roundoff floor
     if rel[-1] > 10.0 ** (-min_gap_decades / 2):
         return Spectrum(rel, m, float(-logs[-1]))
     k = int(np.argmax(np.where(allowed, gaps, -np.inf))) if allowed.any() else 0
