@@ -56,7 +56,8 @@ def bounding_pairs(oracle: Oracle, pairs: list[Pair], blocks: list[str]) -> list
     return out
 
 
-def tighten(oracle: Oracle, min_violation: float = 1e-7, progress=None) -> TightenResult:
+def tighten(oracle: Oracle, min_violation: float = 1e-7, progress=None, max_rounds: int | None = None) -> TightenResult:
+    """Greedy rounds until tight (``oracle.ok``), no candidate cuts X, or ``max_rounds`` rounds."""
     v0, res = oracle.solve([], stage="primary")
     prim_unb = unbounded_blocks(oracle.model, res) if is_unbounded(res) else []
     if oracle.ok(v0):
@@ -90,3 +91,6 @@ def tighten(oracle: Oracle, min_violation: float = 1e-7, progress=None) -> Tight
             progress(f"{len(chosen)} pairs, {state}")
         if oracle.ok(v):
             return TightenResult(chosen, True, v, res, v0, f"tight ({oracle.accept}) after {t} rounds", [], prim_unb)
+        if max_rounds is not None and t >= max_rounds:
+            unb = unbounded_blocks(oracle.model, res) if is_unbounded(res) else []
+            return TightenResult(chosen, False, v, res, v0, f"stopped after {t} rounds (max_rounds)", unb, prim_unb)
