@@ -39,9 +39,15 @@ No paper families.  Rank 1 is generally not reached by quadratic constraints on 
 (as for AutoTight's rPPR, which is cost-tight, not rank-tight): use ``--accept cost``.
 
 Discovery: ``DEFAULT_GROUPS`` (the per-factor groups, "factors") is what ``autotight discover``
-uses for this problem unless ``--groups`` is given; pairwise groups
-``--groups factors,adjacent:robust_meas+robust_meas`` add relations between two measurements
-(learning on 39 columns per pair, M(M−1)/2 pairs: slower).
+uses for this problem unless ``--groups`` is given.  Measured (M = 6, 1 outlier, σ = 0.05, seed 0):
+per factor, 111 candidate pairs (596 constraints); the greedy step bounds the relaxation in 4 rounds
+but ends 5.4 % below the brute-force optimum with no candidate left that cuts X: NOT cost-tight.
+Relations between two measurements are needed, e.g. w_m times the relation between ξ_m and ξ_l
+((I − ½ξ_l^∧)(I + ½ξ_m^∧)T̃_m = (I + ½ξ_l^∧)(I − ½ξ_m^∧)T̃_l, quadratic once multiplied by w_m and
+written with z_m).  Pairwise groups without the shared pose,
+``--groups 'factors,adjacent:robust_meas+robust_meas/rho/phi/w/zrho/zphi'`` (27 columns per pair,
+M(M−1)/2 pairs), hold them; the full unions ``adjacent:robust_meas+robust_meas`` (39 columns) hit an
+ill-conditioned free-monomial basis on some pairs.
 
 Sampling discrete variables: ``sample`` must cover every value of each discrete variable and their
 combinations that the monomials can see.  Here w_m = ±1 independently with probability ½ each, so
