@@ -29,7 +29,7 @@ from autotight.discovery import discover
 from autotight.discovery.discovered import constraint_record
 from autotight.io import jsonable
 from autotight.problem import load
-from autotight.run import local_search
+from autotight.pipeline import local_search
 from autotight.sdp import solve_model
 from autotight.tightness import judge, relative_gap
 

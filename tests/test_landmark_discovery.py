@@ -32,7 +32,7 @@ import pytest
 from autotight.discovery import discover, learn
 from autotight.discovery.samples import draw, relative_violation
 from autotight.problem import load
-from autotight.run import local_search
+from autotight.pipeline import local_search
 from autotight.sdp import solve_model
 from autotight.tightness import judge
 

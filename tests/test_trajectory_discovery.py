@@ -11,7 +11,7 @@ import pytest
 from autotight.discovery import discover, instantiate, learn
 from autotight.discovery.samples import draw, relative_violation
 from autotight.problem import load
-from autotight.run import local_search
+from autotight.pipeline import local_search
 from autotight.sdp import solve_model
 from autotight.tightness import judge
 

@@ -88,36 +88,82 @@ def learn(problem: Problem, inst: Instance, model: Model, rng: np.random.Generat
     return Catalog(model, learned, bank.size, {"sampling_s": t_sample, "nullspace_s": time.perf_counter() - t0})
 
 
-@single_blas_thread
-def instantiate(problem: Problem, inst: Instance, pairs: Sequence[Pair], rng: np.random.Generator,
-                opts: LearnOptions = LearnOptions(), model: Model | None = None,
-                groups: str | Sequence[Sequence[str]] = "factors") -> tuple[list[Constraint], list[str]]:
-    """Re-learn the factors of the needed types on ``inst`` and keep the given identities.
+@dataclass
+class CarryOver:
+    """What instantiating a set of pairs on one instance gave.
 
-    Returns the constraints and a list of problems (identities not found or failing the
-    held-out check on this instance); the constraints returned all passed that check.
+    counts[type] = (expected, instantiated): expected = (pairs of that factor type) × (groups of that
+    type on the instance), instantiated = the constraints found there that passed the held-out check.
+    issues: one line per identity missing or rejected on some group, and per type with a shortfall.
     """
+
+    constraints: list[Constraint]
+    counts: dict[str, tuple[int, int]]
+    issues: list[str]
+
+    def shortfall(self) -> dict[str, tuple[int, int]]:
+        return {t: (e, n) for t, (e, n) in self.counts.items() if n < e}
+
+    def message(self) -> str:
+        """One line naming every factor type with a shortfall, its counts and the first issue."""
+        short = self.shortfall()
+        parts = [f"factor type {t!r}: {n} of {e} expected constraints instantiated" for t, (e, n) in short.items()]
+        lost = [i for i in self.issues if not i.startswith("factor type")]
+        return "; ".join(parts) + (f" (e.g. {lost[0]}; {len(lost)} issue(s))" if lost else "")
+
+
+@single_blas_thread
+def carry_over(problem: Problem, inst: Instance, pairs: Sequence[Pair], rng: np.random.Generator,
+               opts: LearnOptions = LearnOptions(), model: Model | None = None,
+               groups: str | Sequence[Sequence[str]] = "factors") -> CarryOver:
+    """Re-learn the groups of the needed types on ``inst`` and keep the given identities, counting per
+    factor type what was expected and what was instantiated (see ``CarryOver``)."""
     if not pairs:
-        return [], []
+        return CarryOver([], {}, [])
     model = model or problem.build(inst)
     types = sorted({t for t, _ in pairs})
-    cat = learn(problem, inst, model, rng, groups, opts=opts, types=types)
+    per_type = {t: sum(1 for q in set(pairs) if q[0] == t) for t in types}
+    all_groups = groups_of(model, groups)
+    n_groups = {t: sum(1 for g in all_groups if g.type == t) for t in types}
+    issues: list[str] = [f"factor type {t!r} has no group on this instance" for t in types if n_groups[t] == 0]
+    present = [t for t in types if n_groups[t]]
+    cat = learn(problem, inst, model, rng, groups, opts=opts, types=present) if present else None
     want = set(pairs)
-    found: dict[Pair, int] = {p: 0 for p in pairs}
-    out, issues = [], []
+    out: list[Constraint] = []
+    got = {t: 0 for t in types}
+    missing: dict[Pair, list[str]] = {}
     N = model.variables.N
-    for g in cat.groups:
-        if g.group.type not in types:
-            continue
-        for j, ident in enumerate(g.identities):
-            key = (g.group.type, ident)
-            if key in want:
-                if g.passed()[j]:
-                    out.append(g.constraint(j, N))
-                    found[key] += 1
-                else:
-                    issues.append(f"{g.group.name}:{ident} failed the held-out check ({g.heldout_violation[j]:.1e})")
-    for p, n in found.items():
-        if n == 0:
-            issues.append(f"identity {p[0]}:{p[1]} not found on this instance")
-    return out, issues
+    for g in cat.groups if cat is not None else []:
+        have = {ident: j for j, ident in enumerate(g.identities)}
+        for key in sorted(p for p in want if p[0] == g.group.type):
+            j = have.get(key[1])
+            if j is None:
+                missing.setdefault(key, []).append(g.group.name)
+            elif g.passed()[j]:
+                out.append(g.constraint(j, N))
+                got[key[0]] += 1
+            else:
+                issues.append(f"{g.group.name}:{key[1]} failed the held-out check ({g.heldout_violation[j]:.1e})")
+    for (t, ident), where in missing.items():
+        k = len(where)
+        issues.append(f"identity {t}:{ident} not found on {k} of {n_groups[t]} groups ({', '.join(where[:3])}"
+                      f"{', …' if k > 3 else ''})")
+    counts = {t: (per_type[t] * n_groups[t], got[t]) for t in types}
+    issues += [f"factor type {t!r}: {n} of {e} expected constraints instantiated"
+               for t, (e, n) in counts.items() if n < e]
+    return CarryOver(out, counts, issues)
+
+
+def instantiate(problem: Problem, inst: Instance, pairs: Sequence[Pair], rng: np.random.Generator,
+                opts: LearnOptions = LearnOptions(), model: Model | None = None,
+                groups: str | Sequence[Sequence[str]] = "factors",
+                strict: bool = True) -> tuple[list[Constraint], list[str]]:
+    """The pairs' constraints on ``inst`` (each passed the held-out check there) and the issues.
+
+    strict: a shortfall (fewer constraints than pairs × groups for some factor type) raises
+    LearningError naming the factor types and their counts; with strict=False it is in the issues.
+    """
+    co = carry_over(problem, inst, pairs, rng, opts, model, groups)
+    if strict and co.shortfall():
+        raise LearningError(f"the set does not carry over to this instance: {co.message()}")
+    return co.constraints, co.issues

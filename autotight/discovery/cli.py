@@ -9,6 +9,7 @@ from typing import Callable
 from ..cli import add_solver_args, solver_config
 from ..io import jsonable
 from ..pretty import polynomial
+from ..unbounded import compress
 from ..problem import load, parse_assignments
 from .learn import LearnOptions
 from .pipeline import DiscoveryResult, discover
@@ -18,17 +19,22 @@ def register(sub: argparse._SubParsersAction, add_problem_args: Callable) -> Non
     p = sub.add_parser("discover", help="learn, tighten and reduce redundant constraints; compare with the paper")
     add_problem_args(p)
     p.add_argument("--out", default=None, help="save the discovered set as JSON to this file")
-    p.add_argument("--groups", default="factors", help="'factors' (default), 'whole', 'adjacent:TYPE+TYPE' (unions of neighbouring factors), "
+    p.add_argument("--groups", default=None, help="the problem's DEFAULT_GROUPS or 'factors' (default), 'whole', 'adjacent:TYPE+TYPE' (unions of neighbouring factors), "
                         "comma-joined, or explicit blocks 'a,b;c,d'")
     p.add_argument("--heldout", type=int, default=10, help="held-out instances for the sufficiency check (default 10)")
     p.add_argument("--min-gap", type=float, default=6.0, help="spectral gap in decades that decides the rank (default 6)")
     p.add_argument("--gap-tol", type=float, default=1e-5, help="relative cost gap counted as tight (default 1e-5)")
+    p.add_argument("--accept", default="rank", choices=["rank", "cost", "certified"],
+                   help="what counts as tight: rank d and cost (default), the cost bracket only, or a dual "
+                        "certificate of the best local solution")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     add_solver_args(p)
     p.set_defaults(func=cmd_discover)
 
 
-def _groups(spec: str):
+def _groups(spec: str | None):
+    if spec is None:
+        return None
     if ";" not in spec and all(p.strip() in ("factors", "whole") or p.strip().startswith("adjacent:")
                                for p in spec.split(",")):
         return spec
@@ -55,8 +61,8 @@ def cmd_discover(args: argparse.Namespace) -> int:
     try:
         res = discover(prob, params, args.seed, groups=_groups(args.groups),
                        learn_options=LearnOptions(min_gap_decades=args.min_gap),
-                       criteria=Criteria(gap_tol=args.gap_tol), n_heldout=args.heldout, progress=progress,
-                       solver=config)
+                       criteria=Criteria(gap_tol=args.gap_tol, accept=args.accept), n_heldout=args.heldout,
+                       progress=progress, solver=config)
     finally:
         if bar is not None:
             bar.close()
@@ -69,6 +75,10 @@ def cmd_discover(args: argparse.Namespace) -> int:
         if args.out:
             print(f"\nsaved to {args.out}")
     return 0
+
+
+def _num(x) -> str:
+    return "—" if x is None else f"{x:.1e}"
 
 
 def _frac(h) -> str:
@@ -86,8 +96,15 @@ def table(res: DiscoveryResult) -> str:
              f"learned per group: {len(res.catalog.groups)} groups, {s['n_candidates']} new candidates in "
              f"{s['n_candidate_pairs']} (factor type, identity) pairs, {s['n_rejected_heldout']} rejected on held-out samples",
              f"smallest spectral gap: {min(s['spectral_gaps'].values()):.1f} decades",
-             f"result: {'TIGHT' if res.tight else 'NOT TIGHT'} — {res.tightened.message}; "
-             f"log SVR {res.final_log_svr:.2f} (primary alone {s['log_svr_primary']:.2f}); {res.n_solves} SDP solves", "",
+             f"result: {'TIGHT' if res.tight else 'NOT TIGHT'} ({res.accept}) — {res.explanation()}",
+             f"log SVR {res.final_log_svr:.2f} (primary alone {s['log_svr_primary']:.2f}); final relative cost gap "
+             f"{_num(s['final_rel_gap'])}, status {s['final_status']}; {res.n_solves} SDP solver calls "
+             f"({res.times.get('sdp_s', 0.0):.1f} s)",
+             *([f"primary constraints alone: unbounded in {compress(res.tightened.primary_unbounded)}"]
+               if res.tightened.primary_unbounded else []),
+             *([f"ignored spectral gaps below roundoff in {len(s['spectral_gaps_ignored'])} group(s) "
+                f"(largest {max(g['decades'] for g in s['spectral_gaps_ignored'].values()):.1f} decades)"]
+               if s['spectral_gaps_ignored'] else []), "",
              f"{'set':<28}{'constraints':>12}{'in learned span':>18}{'tight (learn inst.)':>21}{'tight (held-out)':>18}",
              f"{'primary':<28}{s['n_primary']:>12}{'yes':>18}{str(res.tightened.primary_verdict.tight):>21}"
              f"{_primary_frac(res.heldout):>18}"]
@@ -100,7 +117,9 @@ def table(res: DiscoveryResult) -> str:
         lines.append(f"{'paper (all families)':<28}{s['n_paper']:>12}{'':>18}{str(res.paper_tight):>21}"
                      f"{_frac(ph):>18}")
     like = sorted(set(res.resembles.values()))
-    lines.append(f"{'discovered (irreducible)' if s['irreducible'] else 'discovered':<28}"
+    label = "discovered (irreducible)" if s["irreducible"] else "discovered" if s["minimal_is_reduced"] \
+        else "greedy (NOT reduced)"
+    lines.append(f"{label:<28}"
                  f"{s['n_minimal']:>12}{'':>18}{str(res.tight):>21}"
                  f"{_frac(res.heldout):>18}")
     lines.append(f"  {len(res.discovered.pairs)} pairs; resembles: {', '.join(like) or '—'}")

@@ -15,7 +15,7 @@ from ..io import versions, write_json
 from ..model import Constraint, Model
 from ..pretty import polynomial
 from ..problem import Instance, Problem
-from .catalog import Pair, instantiate
+from .catalog import Pair, carry_over
 from .learn import LearnOptions
 
 FORMAT = "autotight.discovered/1"
@@ -46,13 +46,17 @@ class DiscoveredSet:
 
     def instantiate(self, problem: Problem, inst: Instance, rng: np.random.Generator,
                     model: Model | None = None, strict: bool = True) -> list[Constraint]:
-        """The set's constraints on ``inst`` (each checked on held-out samples of ``inst``)."""
+        """The set's constraints on ``inst`` (each checked on held-out samples of ``inst``).
+
+        strict: any shortfall (per factor type, fewer constraints than pairs × factors of the type)
+        or identity rejected on held-out samples raises LearningError naming the factor types and
+        their counts; strict=False returns what was instantiated."""
         if problem.name != self.problem:
             raise AutotightError(f"discovered set is for {self.problem!r}, not {problem.name!r}")
-        cons, issues = instantiate(problem, inst, self.pairs, rng, self.options(), model, self.groups)
-        if issues and strict:
-            raise LearningError(f"cannot re-instantiate the discovered set: {issues[0]} ({len(issues)} issue(s))")
-        return cons
+        co = carry_over(problem, inst, self.pairs, rng, self.options(), model, self.groups)
+        if co.issues and strict:
+            raise LearningError(f"cannot re-instantiate the discovered set: {co.message() or co.issues[0]}")
+        return co.constraints
 
     def save(self, path: str | Path, model: Model | None = None, constraints: list[Constraint] | None = None,
              extra: dict[str, Any] | None = None) -> None:

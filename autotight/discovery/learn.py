@@ -50,27 +50,38 @@ class Group:
         return Group(f.name, f.type, tuple(f.blocks), tuple(f.roles or f.blocks))
 
 
-def adjacent_groups(model: Model, type_a: str, type_b: str) -> list[Group]:
+def adjacent_groups(model: Model, type_a: str, type_b: str, keep: Sequence[str] | None = None) -> list[Group]:
     """Unions of a factor of type_a with each later factor of type_b that shares a block with it.
 
     Roles: the first factor's roles prefixed "1.", the second's new blocks prefixed "2.", so that
     the union has the same roles wherever it sits (e.g. two consecutive motion factors).
+    keep: only the blocks of these roles (and h) enter the union; its type then ends in "/role/…".
     """
     fs = model.factors
     out = []
+    if keep is not None:
+        for f in fs:
+            if f.type in (type_a, type_b) and not set(keep) <= set(f.roles or f.blocks):
+                raise ProblemDefinitionError(f"factor type {f.type!r} has no role(s) "
+                                             f"{sorted(set(keep) - set(f.roles or f.blocks))}; roles are {list(f.roles)}")
     for i, fa in enumerate(fs):
         if fa.type != type_a:
             continue
         for fb in fs[i + 1:]:
             if fb.type != type_b or not (set(fa.blocks) & set(fb.blocks)) - {HOMOGENISING}:
                 continue
-            blocks = list(fa.blocks)
-            roles = [r if b == HOMOGENISING else f"1.{r}" for b, r in zip(fa.blocks, fa.roles or fa.blocks)]
+            blocks, roles = [], []
+            for b, r in zip(fa.blocks, fa.roles or fa.blocks):
+                if b == HOMOGENISING or keep is None or r in keep:
+                    blocks.append(b)
+                    roles.append(r if b == HOMOGENISING else f"1.{r}")
             for b, r in zip(fb.blocks, fb.roles or fb.blocks):
-                if b not in blocks:
+                if b not in blocks and (keep is None or r in keep) and b not in fa.blocks:
                     blocks.append(b)
                     roles.append(f"2.{r}")
-            out.append(Group(f"{fa.name}+{fb.name}", f"{type_a}+{type_b}", tuple(blocks), tuple(roles)))
+            suffix = "" if keep is None else "/" + "/".join(keep)
+            out.append(Group(f"{fa.name}+{fb.name}{suffix}", f"{type_a}+{type_b}{suffix}", tuple(blocks),
+                             tuple(roles)))
     return out
 
 
@@ -78,7 +89,8 @@ def groups_of(model: Model, how: str | Sequence[Sequence[str]] = "factors") -> l
     """Learning groups.
 
     how: "factors" (default: one group per factor), "whole" (all blocks), "adjacent:A+B" (unions of
-    neighbouring factors of types A and B), several of these joined by commas, or explicit block lists.
+    neighbouring factors of types A and B; "adjacent:A+B/r1/r2" keeps only the blocks of roles r1, r2 and
+    h), several of these joined by commas, or explicit block lists.
     """
     if isinstance(how, str):
         out: list[Group] = []
@@ -89,12 +101,13 @@ def groups_of(model: Model, how: str | Sequence[Sequence[str]] = "factors") -> l
                 names = tuple(model.variables.names)
                 out.append(Group("whole", "whole", names, names))
             elif part.startswith("adjacent:") and "+" in part:
-                ta, tb = part.split(":", 1)[1].split("+", 1)
+                spec, *keep = part.split(":", 1)[1].split("/")
+                ta, tb = spec.split("+", 1)
                 types = {f.type for f in model.factors}
                 for t in (ta, tb):
                     if t not in types:
                         raise ProblemDefinitionError(f"no factor type {t!r}; types are {sorted(types)}")
-                out += adjacent_groups(model, ta, tb)
+                out += adjacent_groups(model, ta, tb, keep or None)
             else:
                 raise ProblemDefinitionError(
                     f"unknown group spec {part!r}; use factors, whole, adjacent:TYPE+TYPE or block lists")
@@ -137,6 +150,15 @@ class LearnedGroup:
     heldout_violation: np.ndarray
     heldout_tol: float
     times: dict[str, float] = field(default_factory=dict)
+    ignored_gap_decades: float | None = None  # a larger gap below the roundoff floor (nullspace.RANK_FLOOR)
+    ignored_gap_rank: int | None = None
+
+    def gaps(self) -> dict:
+        """The chosen spectral gap (decades, rank) and any ignored one below the roundoff floor."""
+        out = {"decades": float(self.gap_decades), "rank": int(self.rank)}
+        if self.ignored_gap_decades is not None:
+            out["ignored"] = {"decades": float(self.ignored_gap_decades), "rank": int(self.ignored_gap_rank)}
+        return out
 
     @property
     def n_monomials(self) -> int:
@@ -247,7 +269,8 @@ def learn_group(model: Model, group: Group, bank: SampleBank, heldout: SampleBan
     viol = np.max(np.abs(Mh @ coeffs) / np.maximum(mag @ np.abs(coeffs), 1e-300), axis=0) if k else np.zeros(0)
     t2 = time.perf_counter()
     return LearnedGroup(group, cols, need, spec.rel, spec.rank, spec.gap_decades, idents, coeffs, in_span, viol,
-                        opts.heldout_tol, {"nullspace_s": t1 - t0, "basis_s": t2 - t1})
+                        opts.heldout_tol, {"nullspace_s": t1 - t0, "basis_s": t2 - t1},
+                        spec.ignored_gap_decades, spec.ignored_gap_rank)
 
 
 def spanning_matrices(model: Model) -> list[sp.coo_array]:

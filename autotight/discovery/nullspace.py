@@ -4,8 +4,12 @@ Data: Y (S×m), row s = the monomials of sample s in svec order without √2 (se
 this equals the svec(ΘᵀΘ) rows up to a fixed column scaling, and every column is scaled to
 unit norm before the SVD, so the √2 makes no difference to ranks or nullspaces.
 
-Rank: from the relative spectrum σ_i/σ_1 at its largest gap in log10 (decades); no absolute
-threshold.  Basis: the basic solutions of the reduced echelon form.  Monomials are scanned
+Rank: from the relative spectrum σ_i/σ_1 at its largest gap in log10 (decades), among the gaps
+whose upper end lies at or above ``RANK_FLOOR`` (relative); no absolute threshold.  Relations that
+hold exactly in floating point (binary variables: w² = h², z·h = w·u) put singular values at
+roundoff and below, where a second, larger gap may open (1e-17 → 1e-31); such gaps are ignored
+and reported (``Spectrum.ignored_*``).  Basis: the basic solutions of the reduced echelon form.
+Monomials are scanned
 backwards; the "free" ones F are those whose nullspace rows are independent of the rows
 already kept, and constraint f reads  m_f = Σ_{p ∉ F} c_p m_p.  F depends only on which
 monomials are related, not on the measurements, so "the constraint of free monomial f"
@@ -22,25 +26,46 @@ import scipy.linalg as sla
 from ..errors import LearningError
 
 
+#: Relative level below which the spectrum is roundoff: the data Y are products of computed
+#: quantities, each with a relative error of a few ε (ε = 2.2e-16), accumulated in the lifting to
+#: at most κ ≈ 100 ε per entry; with unit-norm columns ‖E‖₂ ≤ ‖E‖_F ≤ κ ε √m ‖Y‖₂, so every
+#: singular value of an exact relation lies below κ ε √m σ_1.  For m ≤ 2000 monomials that is
+#: 100 · 2.2e-16 · √2000 ≈ 1e-12.  A gap whose upper end is below RANK_FLOOR · σ_1 separates
+#: roundoff from roundoff and never decides the rank.
+RANK_FLOOR = 100 * float(np.finfo(float).eps) * float(np.sqrt(2000.0))
+
+
 @dataclass
 class Spectrum:
-    """Relative singular values and the rank read off the largest gap."""
+    """Relative singular values, the rank read off the largest gap above the floor, and the largest
+    gap that was ignored because its upper end lies below ``RANK_FLOOR`` (None when there was none
+    larger than the chosen one)."""
 
     rel: np.ndarray
     rank: int
     gap_decades: float
+    ignored_gap_decades: float | None = None
+    ignored_gap_rank: int | None = None  # the rank a cut at the ignored gap would have given
+
+    def gaps(self) -> dict:
+        """The chosen gap and the ignored one, as JSON-able numbers."""
+        out = {"decades": float(self.gap_decades), "rank": int(self.rank)}
+        if self.ignored_gap_decades is not None:
+            out["ignored"] = {"decades": float(self.ignored_gap_decades), "rank": int(self.ignored_gap_rank)}
+        return out
 
     @property
     def nullity(self) -> int:
         return self.rel.size - self.rank
 
 
-def spectrum(Yn: np.ndarray, min_gap_decades: float, where: str = "") -> Spectrum:
-    """Rank of column-normalised data from its largest relative spectral gap.
+def spectrum(Yn: np.ndarray, min_gap_decades: float, where: str = "", floor: float = RANK_FLOOR) -> Spectrum:
+    """Rank of column-normalised data from its largest relative spectral gap above the floor.
 
     Full rank (no relation) when the whole spectrum spans fewer than min_gap_decades/2
-    decades.  Otherwise the largest gap must span at least ``min_gap_decades``, else
-    LearningError: near-relations that are neither exact nor absent cannot be read off.
+    decades.  Otherwise the largest gap whose upper end is ≥ floor (relative to σ_1) must span at
+    least ``min_gap_decades``, else LearningError: near-relations that are neither exact nor absent
+    cannot be read off.  A larger gap below the floor is reported in ``ignored_gap_decades``.
     """
     s = sla.svdvals(Yn)
     m = Yn.shape[1]
@@ -49,15 +74,24 @@ def spectrum(Yn: np.ndarray, min_gap_decades: float, where: str = "") -> Spectru
     rel = s / s[0]
     logs = np.log10(np.maximum(rel, 1e-300))
     gaps = logs[:-1] - logs[1:]
-    k = int(np.argmax(gaps)) if gaps.size else 0
-    gap = float(gaps[k]) if gaps.size else np.inf
+    allowed = logs[:-1] >= np.log10(max(floor, 1e-300))  # the gap's upper end is above the roundoff floor
     if rel[-1] > 10.0 ** (-min_gap_decades / 2):
         return Spectrum(rel, m, float(-logs[-1]))
+    k = int(np.argmax(np.where(allowed, gaps, -np.inf))) if allowed.any() else 0
+    gap = float(gaps[k]) if allowed.any() else 0.0
+    ignored, ignored_rank = None, None
+    below = np.flatnonzero(~allowed)
+    if below.size:
+        j = int(below[np.argmax(gaps[below])])
+        if gaps[j] > gap:
+            ignored, ignored_rank = float(gaps[j]), j + 1
     if gap < min_gap_decades:
+        extra = (f"; a {ignored:.1f}-decade gap at rank {ignored_rank} lies below the roundoff floor "
+                 f"{floor:.0e} and was ignored") if ignored is not None else ""
         raise LearningError(
             f"no clear spectral gap{where}: the largest gap is {gap:.1f} decades at rank {k + 1} of {m} "
-            f"(need ≥ {min_gap_decades:g}); learn on smaller variable groups (e.g. the problem's factors)")
-    return Spectrum(rel, k + 1, gap)
+            f"(need ≥ {min_gap_decades:g}){extra}; learn on smaller variable groups (e.g. the problem's factors)")
+    return Spectrum(rel, k + 1, gap, ignored, ignored_rank)
 
 
 def nullspace(Yn: np.ndarray, rank: int) -> np.ndarray:

@@ -1,7 +1,11 @@
 """Tightness of an instance's SDP with the primary constraints plus a chosen set of pairs.
 
-The oracle counts its solves; every solve's status is kept (a failed solve is "not tight",
-with its status in ``log``).
+The oracle counts its solves: ``n_solves`` counts solver calls (``SDPResult.n_calls`` when the SDP
+layer reports retries and fallbacks, else 1 per solve) and ``solve_time_s`` their time; every solve's
+status is kept (a failed solve is "not tight", with its status in ``log``).  What counts as tight is
+``criteria.accept`` (applied by ``tightness.judge``): "rank" (rank d and cost), "cost" (the cost
+bracket only) or "certified" (a dual certificate of the best local solution from each solve's y).
+Clarabel has no warm start: each solve starts cold.
 """
 
 from __future__ import annotations
@@ -15,9 +19,10 @@ from .. import sdp
 from ..model import Constraint, Model
 from ..sdp.config import SolverConfig
 from ..sdp.result import SDPResult
+from ..certificate import certificate
 from ..tightness import Criteria, Verdict, judge
+from ..unbounded import is_unbounded
 from .catalog import Pair
-
 
 @dataclass
 class Oracle:
@@ -29,6 +34,15 @@ class Oracle:
     n_solves: int = 0
     solve_time_s: float = 0.0
     log: list[dict] = field(default_factory=list)
+    best_theta: np.ndarray | None = None  # the lifted best local solution (certificates, accept="certified")
+
+    @property
+    def accept(self) -> str:
+        return self.criteria.accept
+
+    def ok(self, v: Verdict) -> bool:
+        """Tight under the oracle's acceptance (``judge`` applies ``criteria.accept``)."""
+        return bool(v.tight)
 
     def constraints(self, chosen: Iterable[Pair]) -> list[Constraint]:
         return self.model.primary() + [c for p in chosen for c in self.pairs[p]]
@@ -44,11 +58,17 @@ class Oracle:
 
     def _solve(self, cons: list[Constraint], stage: str, n_pairs: int) -> tuple[Verdict, SDPResult]:
         res = sdp.solve_model(self.model, cons, self.options)
-        self.n_solves += 1
+        calls = int(getattr(res, "n_calls", 1) or 1)
+        self.n_solves += calls
         self.solve_time_s += res.solve_time_s + res.setup_time_s
-        v = judge(res, self.best_local, self.criteria, Q=self.model.Q, constraints=cons)
+        cert = None
+        if self.accept == "certified" and self.best_theta is not None and res.y is not None:
+            cert = certificate(self.model.Q, cons, res.y, self.best_theta, d=self.model.d, tol=self.criteria.gap_tol,
+                               floor=self.criteria.cost_atol / self.criteria.gap_tol)
+        v = judge(res, self.best_local, self.criteria, cert, Q=self.model.Q, constraints=cons)
         self.log.append({"stage": stage, "n_pairs": n_pairs, "status": res.status, "log_svr": res.log_svr,
-                         "rel_gap": v.rel_gap, "tight": v.tight})
+                         "rel_gap": v.rel_gap, "tight": self.ok(v), "calls": calls,
+                         "unbounded": is_unbounded(res)})
         return v, res
 
     def violation(self, X: np.ndarray, pair: Pair) -> float:

@@ -14,7 +14,8 @@ from ..model import Constraint, Model
 from ..pipeline import local_search, seeds, solve_instance
 from ..problem import Instance, Problem, load
 from ..sdp.config import SolverConfig
-from ..tightness import Criteria
+from ..tightness import Criteria, Verdict
+from ..unbounded import UnboundedRelaxation
 from .catalog import Catalog, instantiate, learn
 from .compare import paper_in_span, resemblance
 from .discovered import DiscoveredSet
@@ -67,9 +68,13 @@ class DiscoveryResult:
     times: dict[str, float]
     best_local_cost: float
     final_log_svr: float
+    final_verdict: Verdict | None = None
+    final_status: str = ""
+    accept: str = "rank"
 
     @property
     def tight(self) -> bool:
+        """Tight under the acceptance used (``accept``: rank, or cost only)."""
         return self.tightened.tight
 
     @property
@@ -81,19 +86,41 @@ class DiscoveryResult:
         """The set as JSON with the learning instance's constraints and this run's summary."""
         self.discovered.save(path, self.model, self.constraints, {"summary": self.summary()})
 
+    def explanation(self) -> str:
+        """Why the result is what it is, in one line (for rank acceptance that is not reached: why)."""
+        v = self.final_verdict or self.tightened.verdict
+        if self.tight:
+            return f"{self.accept}-tight: {self.tightened.message}"
+        if self.accept == "rank" and v.cost_tight:
+            return (f"rank {self.model.d} is not reached: {v.reason} with every learned candidate that cuts the "
+                    f"SDP solution; the relaxation is cost-tight (relative gap {v.rel_gap:.1e}): its optimum is "
+                    "not unique in the lifting, so use --accept cost")
+        if self.accept == "rank":
+            return f"rank {self.model.d} is not reached: {v.reason}; {self.tightened.message}"
+        return f"not {self.accept}-tight: {v.reason}; {self.tightened.message}"
+
     def summary(self) -> dict[str, Any]:
         """The JSON summary (``autotight discover --json``)."""
         n_prim = len(self.model.primary())
         return {
             "problem": self.problem, "params": self.params, "seed": self.seed, "tight": self.tight,
-            "message": self.tightened.message, "log_svr": self.final_log_svr,
+            "accept": self.accept, "message": self.tightened.message, "explanation": self.explanation(),
+            "log_svr": self.final_log_svr,
+            "final_rel_gap": None if self.final_verdict is None else self.final_verdict.rel_gap,
+            "final_cost_tight": None if self.final_verdict is None else self.final_verdict.cost_tight,
+            "final_rank_tight": None if self.final_verdict is None else self.final_verdict.rank_tight,
+            "final_status": self.final_status,
+            "primary_unbounded_blocks": self.tightened.primary_unbounded,
             "log_svr_primary": self.tightened.primary_verdict.log_svr,
             "n_primary": n_prim, "n_paper": len(self.model.paper_constraints()),
             "n_candidates": len(self.catalog.candidates()), "n_candidate_pairs": len(self.catalog.by_pair()),
             "n_rejected_heldout": len(self.catalog.rejected()),
             "n_greedy_pairs": len(self.tightened.chosen),
             "n_minimal": len(self.constraints), "n_minimal_pairs": len(self.discovered.pairs),
+            "minimal_is_reduced": self.reduction is not None,
             "irreducible": bool(self.reduction and self.reduction.irreducible),
+            "n_reduce_solves": None if self.reduction is None else self.reduction.n_solves,
+            "n_verify_solves": None if self.reduction is None else self.reduction.n_verify_solves,
             "heldout_tight_fraction": self.heldout.fraction, "heldout_instances": len(self.heldout.seeds),
             "heldout_primary_tight_fraction": self.heldout.primary_fraction,
             "paper_tight": self.paper_tight,
@@ -102,6 +129,8 @@ class DiscoveryResult:
             "pairs": [f"{t}:{i}" for t, i in self.discovered.pairs], "n_solves": self.n_solves,
             "best_local_cost": self.best_local_cost, "times": self.times,
             "spectral_gaps": {g.group.name: g.gap_decades for g in self.catalog.groups},
+            "spectral_gaps_ignored": {g.group.name: g.gaps()["ignored"] for g in self.catalog.groups
+                                      if g.ignored_gap_decades is not None},
         }
 
 
@@ -129,7 +158,7 @@ def heldout_check(problem: Problem, params: dict[str, Any], seeds_: Sequence[int
 
 @single_blas_thread
 def discover(problem: Problem | str, params: dict[str, Any] | None = None, seed: int = 0, *,
-             groups: str | Sequence[Sequence[str]] = "factors", learn_options: LearnOptions = LearnOptions(),
+             groups: str | Sequence[Sequence[str]] | None = None, learn_options: LearnOptions = LearnOptions(),
              criteria: Criteria = Criteria(), solver: SolverConfig | None = None, n_heldout: int = 10,
              n_random: int = 2, verify: bool = True, compare: bool = True,
              progress: Callable[[str, str], None] | None = None) -> DiscoveryResult:
@@ -137,11 +166,16 @@ def discover(problem: Problem | str, params: dict[str, Any] | None = None, seed:
 
     The learning instance is ``generate(params, seed)``; held-out instances use seeds
     seed + 1 … seed + n_heldout (generators from ``autotight.pipeline.seeds``).  ``solver`` (a
-    ``SolverConfig``) is used for every SDP solve, tightening and held-out check alike.
-    progress(stage, text) is called as work proceeds.
+    ``SolverConfig``) is used for every SDP solve, tightening and held-out check alike.  groups: the
+    learning groups (None: the module's ``DEFAULT_GROUPS``, else "factors").  ``criteria.accept``
+    decides what counts as tight (rank and cost, cost only, or certified) for tightening, reduction
+    and the held-out check.  Raises UnboundedRelaxation when the SDP stays unbounded and no learned
+    candidate bounds its unbounded blocks.  progress(stage, text) is called as work proceeds.
     """
     prob = load(problem) if isinstance(problem, str) else problem
     config = SolverConfig() if solver is None else solver
+    if groups is None:  # the problem module's default learning groups
+        groups = getattr(prob.module, "DEFAULT_GROUPS", "factors")
     say = progress or (lambda stage, text: None)
     full = prob.parse_params(params)
     times: dict[str, float] = {}
@@ -155,10 +189,13 @@ def discover(problem: Problem | str, params: dict[str, Any] | None = None, seed:
     times["sampling_s"] = cat.times["sampling_s"]
     times["nullspace_s"] = cat.times["nullspace_s"]
     pairs = cat.by_pair()
-    oracle = Oracle(model, pairs, loc.best.cost, criteria, config)
+    oracle = Oracle(model, pairs, loc.best.cost, criteria, config,
+                    best_theta=prob.lift(inst, loc.best.state))
     t = time.perf_counter()
     tr = tighten(oracle, progress=lambda s: say("tighten", s))
     times["tighten_s"] = time.perf_counter() - t
+    if tr.unbounded:
+        raise UnboundedRelaxation(tr.message, tr.unbounded)
     t = time.perf_counter()
     red = None
     chosen = tr.chosen
@@ -167,19 +204,20 @@ def discover(problem: Problem | str, params: dict[str, Any] | None = None, seed:
         chosen = red.pairs
     times["reduce_s"] = time.perf_counter() - t
     constraints = [c for p in chosen for c in pairs[p]]
-    final_res = tr.sdp
+    final_v, final_res = tr.verdict, tr.sdp
     if red is not None:
-        _, final_res = oracle.solve(chosen, stage="final")
+        final_v, final_res = oracle.solve(chosen, stage="final")
     n_solves = oracle.n_solves
     times["sdp_s"] = oracle.solve_time_s
     ds = DiscoveredSet(prob.name, full, seed, list(chosen), asdict(learn_options),
-                       {"criteria": asdict(criteria), "tight": tr.tight, "message": tr.message},
+                       {"criteria": asdict(criteria), "tight": tr.tight, "message": tr.message,
+                        "accept": oracle.accept, "reduced": red is not None},
                        groups if isinstance(groups, str) else [list(g) for g in groups])
     t = time.perf_counter()
     held_seeds = [seed + 1 + k for k in range(n_heldout)]
     sets: dict[str, Maker] = {"primary": lambda i, m, r: ("primary", [])}
     if tr.tight and chosen:
-        sets["discovered"] = lambda i, m, r: instantiate(prob, i, ds.pairs, r, ds.options(), m, groups)
+        sets["discovered"] = lambda i, m, r: instantiate(prob, i, ds.pairs, r, ds.options(), m, groups, strict=False)
     if compare and model.paper:
         sets["paper"] = lambda i, m, r: ("paper", [])
     held = heldout_check(prob, full, held_seeds, sets, criteria, config, n_random) if tr.tight else {}
@@ -191,11 +229,12 @@ def discover(problem: Problem | str, params: dict[str, Any] | None = None, seed:
     if compare and model.paper:
         t = time.perf_counter()
         pv, _ = oracle.solve_extra(model.paper_constraints(), stage="paper")
-        paper_tight = pv.tight
+        paper_tight = oracle.ok(pv)
         span = paper_in_span(cat)
         like = {c.name: resemblance(c, cat) for c in constraints}
         times["compare_s"] = time.perf_counter() - t
     times["total_s"] = time.perf_counter() - t0
     say("done", "")
     return DiscoveryResult(prob.name, full, seed, inst, model, cat, tr, red, ds, constraints, hold, paper_hold,
-                           paper_tight, span, like, n_solves, times, loc.best.cost, final_res.log_svr)
+                           paper_tight, span, like, n_solves, times, loc.best.cost, final_res.log_svr, final_v,
+                           final_res.status, oracle.accept)

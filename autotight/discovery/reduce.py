@@ -6,7 +6,10 @@ at once (the block size then doubles); otherwise it is halved, and a single pair
 breaks tightness is necessary.  Tightness is monotone in the constraint set, so a pair found
 necessary stays necessary as others are removed; the final check re-solves only for pairs whose
 test was made on a larger set than the final one.  The set is reported irreducible only after
-that check: removing any one remaining pair breaks tightness.
+that check: removing any one remaining pair breaks tightness.  "Tight" is the oracle's acceptance
+(rank, or cost only).  Solver calls (retries included) are counted by the oracle.  Clarabel has no
+warm start, so every solve starts cold; what is reused is the order (dual importance) and the
+monotonicity, and the verification re-solves only pairs not yet tested on the final set.
 """
 
 from __future__ import annotations
@@ -43,7 +46,7 @@ def reduce_pairs(oracle: Oracle, chosen: list[Pair], tight_res: SDPResult, verif
         v, _ = oracle.solve(trial, stage="reduce")
         if progress is not None:
             progress(f"{len(current)} pairs")
-        if v.tight:
+        if oracle.ok(v):
             current, pending, chunk = trial, pending[c:], 2 * c
         elif c == 1:
             tested_on[pending[0]] = frozenset(current)
@@ -63,7 +66,7 @@ def reduce_pairs(oracle: Oracle, chosen: list[Pair], tight_res: SDPResult, verif
                 continue  # tested on exactly this set already
             v, _ = oracle.solve([q for q in current if q != p], stage="verify")
             tested_on[p] = final
-            if v.tight:  # numerically non-monotone: drop it and verify again
+            if oracle.ok(v):  # numerically non-monotone: drop it and verify again
                 current.remove(p)
                 dropped.append(p)
                 final = frozenset(current)
@@ -82,6 +85,6 @@ def shortest_tight_prefix(oracle: Oracle, chosen: list[Pair], tight_res: SDPResu
     order = sorted(chosen, key=lambda p: -imp[p])
     for k in range(0, len(order) + 1):
         v, _ = oracle.solve(order[:k], stage="prefix")
-        if v.tight:
+        if oracle.ok(v):
             return order[:k], oracle.n_solves - start
     return order, oracle.n_solves - start
