@@ -85,7 +85,9 @@ def build_parser() -> argparse.ArgumentParser:
     _add_problem_args(p)
     p.add_argument("--set", choices=["primary", "paper"], default=None,
                    help="constraint set (default: paper if the problem has paper families, else primary)")
-    p.add_argument("--solver", default="clarabel", help="clarabel (default), ipm (our interior-point method on clique blocks) or cvxpy:SCS, cvxpy:MOSEK, …")
+    p.add_argument("--solver", default="clarabel",
+                   help="clarabel (default), ipm (our interior-point method on clique blocks) "
+                        "or cvxpy:SCS, cvxpy:MOSEK, …")
     p.add_argument("--decompose", action="store_true",
                    help="Clarabel on our own clique cover (min-fill covers of the columns and of the variable "
                         "blocks, autotight/run.py: CliqueCovers) instead of its built-in chordal decomposition; "

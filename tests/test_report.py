@@ -180,7 +180,8 @@ def test_stopped_sweep_resumes_only_missing_trials_and_equals_uninterrupted(refe
     s1 = run_sweep(_spec(), out, jobs=1, limit=2, progress=False)
     assert (s1.computed, s1.complete) == (2, False)
     first = load_trials(out)
-    assert len(first) == 4 and set(zip(first["sigma_index"], first["trial"])) == {(0, 0), (1, 0)}  # trial-major: trial 0 at every σ first
+    # trial-major: trial 0 at every σ first
+    assert len(first) == 4 and set(zip(first["sigma_index"], first["trial"])) == {(0, 0), (1, 0)}
     with open(out / CSV_NAME, "a") as f:  # a torn write from a crash: half a line, no newline
         f.write("rotation_averaging,0,0.01,2,1234,prim")
     s2 = run_sweep(_spec(), out, jobs=1, progress=False)

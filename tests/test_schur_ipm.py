@@ -291,7 +291,8 @@ def test_block_cover_keeps_blocks_whole_and_finds_the_small_separators():
     starts = {V.offsets[n]: V.sizes[n] for n in V.names}
     for c in cl:  # whole blocks: the columns split into runs that start a block and span it
         cols = set(c.tolist())
-        assert all(set(range(o, o + size)) <= cols or not (set(range(o, o + size)) & cols) for o, size in starts.items())
+        assert all(set(range(o, o + size)) <= cols or not (set(range(o, o + size)) & cols)
+                   for o, size in starts.items())
     assert _holds_every_nonzero(cl, [model.Q] + [c.A for c in cons])
 
     def separators(cover):
@@ -329,7 +330,8 @@ def test_clarabel_resolves_on_its_own_cover(monkeypatch):
     model, cons = _continuous_kept(7, 1)
     seen = []
     real = sdp._clarabel
-    monkeypatch.setattr(sdp, "_clarabel", lambda Q, As, b, d, cliques, opts: seen.append(cliques) or real(Q, As, b, d, cliques, opts))
+    monkeypatch.setattr(sdp, "_clarabel",
+                        lambda Q, As, b, d, cliques, opts: seen.append(cliques) or real(Q, As, b, d, cliques, opts))
     res = solve_sdp(model, cons, solver="ipm")
     assert res.message.startswith("ipm: InsufficientProgress") and res.usable, res.message
     want = cliques_for(model, cons, "clarabel")

@@ -17,10 +17,12 @@ def register(sub: argparse._SubParsersAction, add_problem_args: Callable) -> Non
     p = sub.add_parser("discover", help="learn, tighten and reduce redundant constraints; compare with the paper")
     add_problem_args(p)
     p.add_argument("--out", default=None, help="save the discovered set as JSON to this file")
-    p.add_argument("--groups", default="factors", help="'factors' (default), 'whole', 'adjacent:TYPE+TYPE' (unions of neighbouring factors), "
+    p.add_argument("--groups", default="factors",
+                   help="'factors' (default), 'whole', 'adjacent:TYPE+TYPE' (unions of neighbouring factors), "
                         "comma-joined, or explicit blocks 'a,b;c,d'")
     p.add_argument("--heldout", type=int, default=10, help="held-out instances for the sufficiency check (default 10)")
-    p.add_argument("--min-gap", type=float, default=6.0, help="spectral gap in decades that decides the rank (default 6)")
+    p.add_argument("--min-gap", type=float, default=6.0,
+                   help="spectral gap in decades that decides the rank (default 6)")
     p.add_argument("--gap-tol", type=float, default=1e-5, help="relative cost gap counted as tight (default 1e-5)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_discover)
@@ -80,11 +82,14 @@ def table(res: DiscoveryResult) -> str:
     s = res.summary()
     lines = [f"problem {res.problem}  params {res.params}  seed {res.seed}",
              f"learned per group: {len(res.catalog.groups)} groups, {s['n_candidates']} new candidates in "
-             f"{s['n_candidate_pairs']} (factor type, identity) pairs, {s['n_rejected_heldout']} rejected on held-out samples",
+             f"{s['n_candidate_pairs']} (factor type, identity) pairs, "
+             f"{s['n_rejected_heldout']} rejected on held-out samples",
              f"smallest spectral gap: {min(s['spectral_gaps'].values()):.1f} decades",
              f"result: {'TIGHT' if res.tight else 'NOT TIGHT'} — {res.tightened.message}; "
-             f"log SVR {res.final_log_svr:.2f} (primary alone {s['log_svr_primary']:.2f}); {res.n_solves} SDP solves", "",
-             f"{'set':<28}{'constraints':>12}{'in learned span':>18}{'tight (learn inst.)':>21}{'tight (held-out)':>18}",
+             f"log SVR {res.final_log_svr:.2f} (primary alone {s['log_svr_primary']:.2f}); "
+             f"{res.n_solves} SDP solves", "",
+             f"{'set':<28}{'constraints':>12}{'in learned span':>18}{'tight (learn inst.)':>21}"
+             f"{'tight (held-out)':>18}",
              f"{'primary':<28}{s['n_primary']:>12}{'yes':>18}{str(res.tightened.primary_verdict.tight):>21}"
              f"{_primary_frac(res.heldout):>18}"]
     for fam, info in res.paper_span.items():
@@ -107,5 +112,6 @@ def table(res: DiscoveryResult) -> str:
     for f, cons in by_factor.items():
         lines.append(f"[{f}]")
         for c in cons:
-            lines.append(f"  ({c.identity}, like {res.resembles.get(c.name, '?')})  {polynomial(c.A, res.model.variables)}")
+            lines.append(f"  ({c.identity}, like {res.resembles.get(c.name, '?')})  "
+                         f"{polynomial(c.A, res.model.variables)}")
     return "\n".join(lines)

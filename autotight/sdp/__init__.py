@@ -103,7 +103,8 @@ def solve(Q: sp.spmatrix | sp.sparray, constraints: Sequence[Constraint], *, d: 
                 first = f"ipm: {res.status} ({res.message.strip()}, {res.solve_time_s:.2f} s, counted in solve_time_s)"
                 spent = res.solve_time_s + res.setup_time_s
                 res = _clarabel(Q, As, b, d, cliques if fallback_cliques is None else fallback_cliques, opts)
-                res.message = f"{first}; solved again by {res.solver}: {res.status}" + (f"; {res.message}" if res.message else "")
+                res.message = (f"{first}; solved again by {res.solver}: {res.status}"
+                               + (f"; {res.message}" if res.message else ""))
                 res.solve_time_s += spent
         else:
             name = solver.split(":", 1)[1] if ":" in solver else "SCS"

@@ -88,7 +88,8 @@ def solve_dense(Q: sp.csr_array, As: Sequence[sp.csr_array], b: np.ndarray, d: i
         from .chordal import column_cliques
 
         X, svrs = complete_from_cliques(X, column_cliques(N, [Q, *As], always=range(d)), d)
-    res = SDPResult(status=status, solver="clarabel-chordal" if opts.clarabel_chordal else "clarabel", d=d, X=X, y=y, primal_cost=primal, dual_cost=dual,
+    res = SDPResult(status=status, solver="clarabel-chordal" if opts.clarabel_chordal else "clarabel", d=d, X=X, y=y,
+                    primal_cost=primal, dual_cost=dual,
                     solve_time_s=t2 - t1, setup_time_s=t1 - t0, iterations=int(sol.iterations),
                     clique_log_svr=svrs)
     return finish(res)

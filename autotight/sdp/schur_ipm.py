@@ -284,7 +284,8 @@ class _CholmodPattern:
             return
         self.available = True
         self._cholmod, self._matrix = cholmod, matrix
-        self.A = spmatrix(matrix(np.ones(rows.size)), matrix(rows.astype(np.int64)), matrix(cols.astype(np.int64)), (M, M))
+        self.A = spmatrix(matrix(np.ones(rows.size)), matrix(rows.astype(np.int64)), matrix(cols.astype(np.int64)),
+                          (M, M))
         self.F = None
 
     def factor(self, lower_vals: np.ndarray) -> Callable[[np.ndarray], np.ndarray] | None:
