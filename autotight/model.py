@@ -242,7 +242,8 @@ class Model:
         d, out = self.d, []
         for i in range(d):
             for j in range(i, d):
-                E = sp.coo_array(([1.0] if i == j else [0.5, 0.5], ([i] if i == j else [i, j], [j] if i == j else [j, i])),
+                E = sp.coo_array(([1.0] if i == j else [0.5, 0.5],
+                                  ([i] if i == j else [i, j], [j] if i == j else [j, i])),
                                  shape=(self.variables.N, self.variables.N)).tocsr()
                 out.append(Constraint(E, 1.0 if i == j else 0.0, name=f"h{i}{j}", family="homogenisation"))
         return out

@@ -17,8 +17,8 @@ from autotight.gauss_newton import gauss_newton
 from autotight.model import Factor, Model, Variables
 from autotight.problem import Instance, LocalResult, Param
 
-from ._cayley import draw_valid, measured_columns, orthonormality, rot_blocks, rotation_cayley, rotation_values, state_columns, \
-    weighted_norm
+from ._cayley import (draw_valid, measured_columns, orthonormality, rot_blocks, rotation_cayley, rotation_values,
+                      state_columns, weighted_norm)
 
 NAME = "rotation_averaging"
 DESCRIPTION = "Average M noisy rotation measurements (paper §3.1)."

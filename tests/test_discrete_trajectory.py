@@ -100,7 +100,9 @@ def test_local_solver_reaches_a_stationary_point():
     inst = _instance(4, K=8)
     res = PROB.local_solve(inst, inst.truth)
     assert res.converged
-    assert res.cost <= PROB.cost(inst, inst.truth)
+    # the truth does not minimise noisy data, so the solver must lower its cost (≤ would hold by
+    # construction: Gauss-Newton never increases the cost)
+    assert res.cost < 0.99 * PROB.cost(inst, inst.truth)
     e, J, W = dt.linearize(inst, dt._poses(res.state))
     grad = J.T @ (W @ e)
     assert np.linalg.norm(grad) <= 1e-6 * np.linalg.norm(e) * np.linalg.norm(J.toarray(), 2) ** 2

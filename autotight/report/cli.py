@@ -9,6 +9,7 @@ import sys
 from pathlib import Path
 from typing import Any, Callable
 
+from ..extras import require
 from ..io import jsonable
 from ..problem import load, parse_assignments
 from .spec import SETS, make_spec
@@ -56,6 +57,7 @@ def register(sub: Any, add_problem_args: Callable[[argparse.ArgumentParser], Non
 
 
 def cmd_report(args: argparse.Namespace) -> int:
+    require("report", "autotight report")
     from .render import render  # heavy imports (matplotlib, pandas) only when reporting
     from .store import Store
     from .sweep import run_sweep

@@ -19,7 +19,8 @@ from .store import load_trials
 CAPTIONS = {
     "trapped": "Fraction of local solves from a random start that end above the global cost "
                "(the lowest local cost, or the SDP cost where the relaxation is tight); bars: 95 % Wilson interval.",
-    "log_svr": "log SVR of the SDP solution per constraint set; above the dashed line counts as rank d (d = lifting width, 1 for a vector lifting).",
+    "log_svr": "log SVR of the SDP solution per constraint set; above the dashed line counts as rank d "
+               "(d = lifting width, 1 for a vector lifting).",
     "tight": "Fraction of SDP solves judged tight (rank d and cost equal to the best local cost).",
     "times": "Median solve times of the SDP per constraint set and of the local solver.",
 }
@@ -81,7 +82,8 @@ def tables(df: pd.DataFrame, sigmas: Sequence[float], sets: Sequence[str]) -> li
                          + [_median(pt["local_truth_time_s"]), _median(pt["local_random_time_s"])])
     out.append(Table("Fraction tight per noise level", ["σ", "trials", *[f"tight: {s}" for s in sets],
                                                         "trapped (random start)"], rows_t,
-                     "Tight: log SVR = log10(λ_d/λ_{d+1}) above the rank-d threshold and SDP cost equal to the best local cost."))
+                     "Tight: log SVR = log10(λ_d/λ_{d+1}) above the rank-d threshold and SDP cost equal to the "
+                     "best local cost."))
     out.append(Table("Median log SVR", ["σ", *sets], rows_s))
     out.append(Table("Median times (s)", ["σ", *[f"SDP {s}" for s in sets], "local (truth)", "local (random)"],
                      rows_time))
