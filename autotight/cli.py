@@ -101,7 +101,7 @@ def build_parser() -> argparse.ArgumentParser:
 def _extensions() -> list:
     """Sub-commands defined in other modules (discover, report)."""
     out = []
-    for mod in ("autotight.discovery.cli", "autotight.report.cli"):
+    for mod in ("autotight.discovery.cli", "autotight.report.cli", "autotight.check_cli"):
         try:
             m = __import__(mod, fromlist=["register"])
         except ModuleNotFoundError:
