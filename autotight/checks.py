@@ -32,6 +32,7 @@ from .errors import AutotightError
 from .model import Constraint, Model
 from .problem import SAMPLE_TOL, Instance, Problem, State, load
 from .svec import as_theta
+from .threads import single_blas_thread
 
 #: relative tolerance of the cost checks (see module docstring)
 COST_RTOL = 1e-8
@@ -147,6 +148,7 @@ class _Checker:
         (self.out.passed if ok else self.out.failures).append(f"{name}: {good if ok else bad}")
 
 
+@single_blas_thread
 def check_problem(problem: Problem | str, params: dict[str, Any] | None = None, seed: int = 0, n_samples: int = 5,
                   rng: np.random.Generator | None = None) -> ProblemCheck:
     """Run every check on one instance (``params``: default the module's CHECK_PARAMS, else PARAMS' defaults)."""
@@ -170,7 +172,13 @@ def check_problem(problem: Problem | str, params: dict[str, Any] | None = None, 
     def draw() -> None:
         for _ in range(n_samples):
             states.append(prob.sample(inst, rng))
-        thetas.extend(as_theta(prob.lift(inst, s)) for s in states)
+        for i, s in enumerate(states):
+            try:
+                thetas.append(as_theta(prob.lift(inst, s)))
+            except AutotightError as e:
+                why = "lift(truth) failed" if i == 0 else \
+                    f"lift(sample {i}) failed, so sample() may return states off the constraints"
+                raise type(e)(f"{why}: {e}") from e
         unlifted.extend(_unlifted(prob, inst, s, T) for s, T in zip(states, thetas))
         v, name = _worst_violation(model, np.stack(thetas))
         out.measurements["sample_violation"] = v

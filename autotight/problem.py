@@ -264,7 +264,7 @@ class Problem:
         if V is not None:
             ok = T.shape == (V.d, V.N) or (V.d == 1 and T.shape == (V.N,))
             if not ok:
-                want = f"({V.N},)" if V.d == 1 else f"({V.d}, {V.N})"
+                want = f"({V.N},) or (1, {V.N})" if V.d == 1 else f"({V.d}, {V.N})"
                 raise self.fail("lift", f"returned an array of shape {T.shape}, expected {want} "
                                         f"(build's Variables: d = {V.d}, N = {V.N})")
         return T
