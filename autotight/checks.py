@@ -28,7 +28,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from .errors import AutotightError
+from .errors import AutotightError, ProblemDefinitionError
 from .model import Constraint, Model
 from .problem import SAMPLE_TOL, Instance, Problem, State, load
 from .svec import as_theta
@@ -161,7 +161,7 @@ def check_problem(problem: Problem | str, params: dict[str, Any] | None = None, 
     try:
         inst = prob.generate(full, seed)
         model = prob.build(inst)
-    except AutotightError as e:
+    except ProblemDefinitionError as e:  # a broken generate or build fails the check; bad parameters raise
         out.failures.append(f"setup: {str(e).splitlines()[0]}")
         return out
     c = _Checker(prob, inst, model, rng, out)

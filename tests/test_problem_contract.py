@@ -309,3 +309,36 @@ def test_default_errors_and_perturb_state_by_entry_kind():
     assert np.allclose(np.einsum("sji,sjk->sik", p["C"], p["C"]), np.eye(3))
     assert np.allclose(p["T"][:, 3], [0, 0, 0, 1]) and np.all(np.linalg.det(p["T"][:, :3, :3]) > 0)
     assert not np.allclose(p["l"], 0)
+
+
+def test_worked_example_in_the_docs_passes_the_check(tmp_path):
+    import re
+
+    doc = (Path(__file__).resolve().parents[1] / "docs" / "problem_contract.md").read_text()
+    [code] = re.findall(r"```python\n(.*?)```", doc, re.S)
+    assert "from ._cayley" not in code and "problems._cayley" not in code and "autotight.affine" not in code
+    p = tmp_path / "doc_example.py"
+    p.write_text(code + "\nfrom problems.rotation_averaging import cost, generate, local_solve  # noqa: E402,F401\n")
+    res = check_problem(str(p), {"M": 3})
+    assert res.ok and not res.warnings, res.lines()
+
+
+def test_rotation_averaging_imports_only_public_helpers():
+    src = (Path(__file__).resolve().parents[1] / "problems" / "rotation_averaging.py").read_text()
+    imports = [line for line in src.splitlines() if line.startswith(("from ", "import "))]
+    assert not any("._cayley" in line or "autotight.affine" in line or "from ." in line for line in imports), imports
+
+
+def test_check_module_broken_generate_is_a_failed_check_and_bad_parameters_are_bad_input(tmp_path, capsys):
+    path = _module(tmp_path, "ra_generate_keyerror", "def generate(params, rng):\n    return {}['M']\n")
+    assert main(["check-module", path]) == 1
+    out = capsys.readouterr().out.splitlines()
+    assert [line for line in out if line.startswith("FAIL ")] == [
+        f"FAIL setup: problem module 'ra_generate_keyerror' ({path}): generate raised KeyError: 'M'"]
+    refuse = _module(tmp_path, "ra_refuses", """
+        from autotight.errors import ParameterError
+        def generate(params, rng):
+            raise ParameterError("this combination of parameters is impossible")
+        """)
+    assert main(["check-module", refuse]) == 2
+    assert capsys.readouterr().err.strip() == "autotight: error: this combination of parameters is impossible"
