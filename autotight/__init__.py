@@ -1,3 +1,26 @@
-"""autotight: find the redundant constraints that make Shor's SDP relaxation tight."""
+"""autotight: find the redundant constraints that make Shor's SDP relaxation tight.
+
+The public API (see README, "Python"):
+
+>>> import autotight as at
+>>> result = at.discover("pose_averaging", {"M": 5})                # learn, tighten, reduce, check
+>>> result.constraint_set.save("pose_set.json")
+>>> out = at.solve("pose_averaging", {"M": 5}, seed=3,
+...                constraints=at.ConstraintSet.load("pose_set.json"))
+>>> out.tight, out.log_svr
+"""
 
 __version__ = "0.1.0"
+
+from .api import discover, load_problem, solve
+from .constraint_set import ConstraintSet
+from .errors import AutotightError
+from .model import Constraint, Factor, Model, QuadForm, Variables
+from .pipeline import SolveResult
+from .problem import Instance, LocalResult, Param, Problem
+from .sdp.result import SolverOptions
+from .tightness import Criteria, Verdict
+
+__all__ = ["__version__", "load_problem", "solve", "discover", "ConstraintSet", "SolveResult", "Criteria",
+           "Verdict", "SolverOptions", "AutotightError", "Problem", "Param", "Instance", "LocalResult", "Model",
+           "Variables", "Factor", "QuadForm", "Constraint"]

@@ -1,7 +1,9 @@
-"""Command line: ``autotight list | solve | discover | report``.
+"""Command line: ``autotight list | solve | discover | report | check-module``.
 
-Bad input (unknown problem, bad parameter, malformed module, Cayley singularity, failed solve)
-prints one line ``autotight: error: …`` and exits with status 2; never a traceback.
+The CLI is a thin layer over the Python API (``autotight.api``).  Errors: an input error or a
+failed solve (any ``autotight.errors.AutotightError``) prints one line ``autotight: error: …``
+and exits with status 2; anything else is a bug and raises with its traceback.  ``--debug``
+shows the traceback of every error.
 """
 
 from __future__ import annotations
@@ -10,8 +12,6 @@ import argparse
 import json
 import sys
 from typing import Sequence
-
-import numpy as np
 
 from .errors import AutotightError
 from .io import jsonable, versions
@@ -42,18 +42,29 @@ def cmd_list(args: argparse.Namespace) -> int:
     return 0
 
 
+def constraints_arg(value: str | None):
+    """``--set``: "primary", "paper", or the path of a saved constraint set (JSON)."""
+    if value is None or value in ("primary", "paper"):
+        return value
+    from .constraint_set import ConstraintSet
+
+    return ConstraintSet.load(value)
+
+
 def cmd_solve(args: argparse.Namespace) -> int:
-    from .run import solve_instance
+    from .api import solve
+    from .errors import ParameterError
     from .sdp.result import SolverOptions
 
     if args.decompose and args.solver.startswith("cvxpy"):
-        raise ValueError(f"--decompose needs --solver clarabel or ipm, not {args.solver!r}")
+        raise ParameterError(f"--decompose needs --solver clarabel or ipm, not {args.solver!r}")
+    if args.random_starts < 0:
+        raise ParameterError(f"--random-starts {args.random_starts}: must be ≥ 0")
     prob = load(args.problem)
-    inst = prob.generate(parse_assignments(args.param), args.seed)
-    out = solve_instance(prob, inst, set_name=args.set, solver=args.solver, options=SolverOptions(),
-                         rng=np.random.default_rng(args.seed + 1_000_003), n_random=args.random_starts,
-                         decompose=True if args.decompose else None)
-    rec = out.record(prob)
+    out = solve(prob, parse_assignments(args.param), args.seed, constraints=constraints_arg(args.set),
+                solver=SolverOptions(), n_random=args.random_starts)
+    inst = out.instance
+    rec = out.record()
     if args.json:
         rec |= {"measurements": inst.measurements, "truth": inst.truth, "estimate": out.estimate,
                 "versions": versions()}
@@ -61,30 +72,37 @@ def cmd_solve(args: argparse.Namespace) -> int:
         return 0
     v = out.verdict
     print(f"problem {prob.name}  params {inst.params}  seed {inst.seed}")
-    print(f"constraints: {args.set or rec['constraint_set']} ({rec['n_constraints']})  solver {out.sdp.solver}")
+    print(f"constraints: {rec['constraint_set']} ({rec['n_constraints']})  solver {out.sdp.solver}")
     print(f"SDP: status {out.sdp.status}  cost {out.sdp.primal_cost:.10g}  log SVR {out.sdp.log_svr:.2f}  "
-          f"{'TIGHT' if v.tight else 'NOT TIGHT'} ({v.reason})")
+          f"{out.outcome.upper()} ({v.reason})")
+    print(f"bounds: SDP dual {out.sdp.dual_cost:.10g} ≤ optimum ≤ best feasible {out.upper:.10g}")
     print(f"local solver from ground truth: cost {out.local.from_truth.cost:.10g}  "
           f"({out.local.from_truth.iterations} it, {out.local.from_truth.message})")
     for r in out.local.from_random:
         print(f"local solver from a random start: cost {r.cost:.10g}"
-              f"{'  (trapped)' if r.cost > out.local.best.cost * (1 + 1e-6) + 1e-12 else ''}")
-    print(f"relative gap (best local − SDP)/best local: {v.rel_gap:.3e}")
+              f"{'  (trapped)' if r.cost > out.upper * (1 + 1e-6) + 1e-12 else ''}")
+    if out.refined is not None:
+        print(f"local solver from the SDP estimate: cost {out.refined.cost:.10g}"
+              f"{'  (better than every local search)' if out.sdp_beats_local else ''}")
+    print(f"relative gap (upper bound − SDP)/upper bound: {v.rel_gap:.3e}")
     print(f"errors: SDP estimate {out.errors_sdp}  local {out.errors_local}")
     print("times: " + "  ".join(f"{k} {t:.3f}s" for k, t in out.times.items()))
     return 0
 
 
 def build_parser() -> argparse.ArgumentParser:
-    ap = argparse.ArgumentParser(prog="autotight", description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(prog="autotight", description=__doc__.splitlines()[0],
+                                 epilog="--debug (anywhere on the line): show the traceback of any error")
     sub = ap.add_subparsers(dest="cmd", required=True)
     p = sub.add_parser("list", help="list problems and their parameters")
     p.add_argument("--json", action="store_true")
     p.set_defaults(func=cmd_list)
     p = sub.add_parser("solve", help="solve one instance: SDP, local solver, tightness")
     _add_problem_args(p)
-    p.add_argument("--set", choices=["primary", "paper"], default=None,
-                   help="constraint set (default: paper if the problem has paper families, else primary)")
+    p.add_argument("--set", default=None, metavar="primary|paper|FILE",
+                   help="constraint set: primary, paper, or a saved set's JSON (from `discover --out`), applied "
+                        "to this instance whatever its size (default: paper if the problem has paper families, "
+                        "else primary)")
     p.add_argument("--solver", default="clarabel", help="clarabel (default), ipm (our interior-point method on clique blocks) or cvxpy:SCS, cvxpy:MOSEK, …")
     p.add_argument("--decompose", action="store_true",
                    help="Clarabel on our own clique cover (min-fill covers of the columns and of the variable "
@@ -93,28 +111,24 @@ def build_parser() -> argparse.ArgumentParser:
                         "The IPM always uses our cover")
     p.add_argument("--random-starts", type=int, default=1, help="random-start local solves (default 1)")
     p.set_defaults(func=cmd_solve)
-    for extra in _extensions():
-        extra(sub, _add_problem_args)
+    from .discovery.cli import register as register_discover
+    from .report.cli import register as register_report
+    from .check_cli import register as register_check
+
+    for register in (register_discover, register_report, register_check):
+        register(sub, _add_problem_args)
     return ap
 
 
-def _extensions() -> list:
-    """Sub-commands defined in other modules (discover, report)."""
-    out = []
-    for mod in ("autotight.discovery.cli", "autotight.report.cli", "autotight.check_cli"):
-        try:
-            m = __import__(mod, fromlist=["register"])
-        except ModuleNotFoundError:
-            continue
-        out.append(m.register)
-    return out
-
-
 def main(argv: Sequence[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    argv = list(sys.argv[1:] if argv is None else argv)
+    debug = "--debug" in argv
+    args = build_parser().parse_args([a for a in argv if a != "--debug"])
     try:
         return int(args.func(args) or 0)
-    except (AutotightError, ValueError, np.linalg.LinAlgError) as e:
+    except AutotightError as e:
+        if debug:
+            raise
         msg = str(e).splitlines()[0] if str(e) else type(e).__name__
         print(f"autotight: error: {msg}", file=sys.stderr)
         return 2

@@ -27,7 +27,7 @@ from autotight.report.spec import ReportError, make_spec, parse_sigmas, trial_se
 from autotight.report.store import CSV_NAME, Store, load_trials
 from autotight.report.sweep import run_sweep
 from autotight.report.trial import TIME_COLUMNS, columns, is_trapped, run_trial
-from autotight.run import solve_instance
+from autotight.api import solve
 from autotight.sdp.result import SolverOptions
 
 PROBLEM = "rotation_averaging"
@@ -38,7 +38,7 @@ FILES = ("trials.csv", "meta.json", "trapped.png", "log_svr.png", "tight.png", "
 
 
 def _spec(**kw):
-    args = dict(params={"M": 3}, sigmas=",".join(map(str, SIGMAS)), trials=TRIALS, sets="primary,paper")
+    args = dict(params={"M": 3}, sigmas=",".join(map(str, SIGMAS)), trials=TRIALS, sets="primary")
     args.update(kw)
     return make_spec(load(PROBLEM), PROBLEM, **args)
 
@@ -68,9 +68,9 @@ def test_tiny_sweep_writes_every_file_and_expected_rows(reference):
         assert (reference / name).is_file() and (reference / name).stat().st_size > 0, name
     df = load_trials(reference)
     assert list(df.columns) == columns(["rotation_deg"])
-    assert len(df) == len(SIGMAS) * TRIALS * 2
+    assert len(df) == len(SIGMAS) * TRIALS
     keys = list(zip(df["sigma_index"], df["trial"], df["constraint_set"]))
-    assert keys == [(i, t, s) for i in range(2) for t in range(TRIALS) for s in ("primary", "paper")]
+    assert keys == [(i, t, s) for i in range(2) for t in range(TRIALS) for s in ("primary",)]
     assert sorted(df["sigma"].unique()) == list(SIGMAS)
     for _, r in df.iterrows():
         assert r["seed"] == trial_seeds(0, r["sigma_index"], r["trial"])[0]
@@ -84,13 +84,10 @@ def test_tiny_sweep_writes_every_file_and_expected_rows(reference):
     assert (df["global_cost"] <= df["local_cost_truth"] + 1e-12).all()
     assert (df["err_sdp_rotation_deg"] < 45).all()
     assert df["trapped"].dtype == bool
-    # the two sets share each trial's instance and local solves
-    for col in ("seed", "local_cost_truth", "local_cost_random", "trapped"):
-        assert (df[col].to_numpy()[0::2] == df[col].to_numpy()[1::2]).all(), col
     meta = json.loads((reference / "meta.json").read_text())
     assert meta["problem"] == PROBLEM and meta["params"] == {"M": 3, "anisotropy": 1.0}
     assert meta["sigmas"] == list(SIGMAS) and meta["trials"] == TRIALS and meta["seed"] == 0
-    assert meta["sets"] == ["primary", "paper"] and meta["columns"] == list(df.columns)
+    assert meta["sets"] == ["primary"] and meta["columns"] == list(df.columns)
     assert meta["versions"]["numpy"] == np.__version__
     assert meta["runs"][0]["backend"] == "joblib" and meta["runs"][0]["jobs"] == 2
 
@@ -100,8 +97,8 @@ def test_a_row_equals_a_direct_solve_of_its_instance(reference):
     r = df[(df["sigma_index"] == 1) & (df["trial"] == 2) & (df["constraint_set"] == "primary")].iloc[0]
     prob = load(PROBLEM)
     inst = prob.generate({"M": 3, "sigma": 0.3}, int(r["seed"]))
-    _, rng_local, _ = trial_seeds(0, 1, 2)
-    out = solve_instance(prob, inst, set_name="primary", options=SolverOptions(threads=1), rng=rng_local)
+    assert trial_seeds(0, 1, 2)[0] == int(r["seed"])  # the trial's generators are those of its instance seed
+    out = solve(prob, {"M": 3, "sigma": 0.3}, int(r["seed"]), constraints="primary", solver=SolverOptions(threads=1))
     assert r["log_svr"] == pytest.approx(out.sdp.log_svr, rel=1e-9)
     assert r["sdp_cost"] == pytest.approx(out.sdp.primal_cost, rel=1e-9)
     assert r["local_cost_truth"] == pytest.approx(out.local.from_truth.cost, rel=1e-12)
@@ -112,16 +109,15 @@ def test_a_row_equals_a_direct_solve_of_its_instance(reference):
 def test_report_md_tables_agree_with_the_csv(reference):
     df = load_trials(reference)
     md = (reference / "report.md").read_text()
-    assert "| primary | 34 |" in md and "| paper | 34 |" in md
+    assert "| primary | 34 |" in md
     for i, s in enumerate(SIGMAS):
         at = df[df["sigma_index"] == i]
         tp = at[at["constraint_set"] == "primary"]["tight"].mean()
-        tq = at[at["constraint_set"] == "paper"]["tight"].mean()
         trapped = at.drop_duplicates("trial")["trapped"].mean()
-        assert f"| {s:.3g} | {TRIALS} | {tp:.2f} | {tq:.2f} | {trapped:.2f} |" in md
+        assert f"| {s:.3g} | {TRIALS} | {tp:.2f} | {trapped:.2f} |" in md
         med = np.median(at[at["constraint_set"] == "primary"]["log_svr"])
         assert f"| {s:.3g} | {med:.1f} |" in md
-    assert "--sigmas 0.01,0.3 --trials 3 --sets primary,paper --seed 0" in md
+    assert "--sigmas 0.01,0.3 --trials 3 --sets primary --seed 0" in md
     for fig in ("trapped.png", "log_svr.png", "tight.png", "times.png"):
         assert f"]({fig})" in md
 
@@ -180,7 +176,7 @@ def test_stopped_sweep_resumes_only_missing_trials_and_equals_uninterrupted(refe
     s1 = run_sweep(_spec(), out, jobs=1, limit=2, progress=False)
     assert (s1.computed, s1.complete) == (2, False)
     first = load_trials(out)
-    assert len(first) == 4 and set(zip(first["sigma_index"], first["trial"])) == {(0, 0), (1, 0)}  # trial-major: trial 0 at every σ first
+    assert len(first) == 2 and set(zip(first["sigma_index"], first["trial"])) == {(0, 0), (1, 0)}  # trial-major: trial 0 at every σ first
     with open(out / CSV_NAME, "a") as f:  # a torn write from a crash: half a line, no newline
         f.write("rotation_averaging,0,0.01,2,1234,prim")
     s2 = run_sweep(_spec(), out, jobs=1, progress=False)
@@ -198,7 +194,7 @@ def test_more_trials_extends_the_sweep(reference, tmp_path):
     s = run_sweep(_spec(trials=4), out, jobs=1, progress=False)
     assert (s.total, s.done_before, s.computed) == (8, 6, 2)
     df = load_trials(out)
-    assert len(df) == 16 and sorted(set(df["trial"])) == [0, 1, 2, 3]
+    assert len(df) == 8 and sorted(set(df["trial"])) == [0, 1, 2, 3]
 
 
 def test_redo_recomputes_only_the_trials_with_those_statuses(reference, tmp_path):
@@ -206,7 +202,7 @@ def test_redo_recomputes_only_the_trials_with_those_statuses(reference, tmp_path
     out = tmp_path / "r"
     shutil.copytree(reference, out)
     df = load_trials(out)
-    hit = (df["sigma_index"] == 1) & (df["trial"] == 1) & (df["constraint_set"] == "paper")
+    hit = (df["sigma_index"] == 1) & (df["trial"] == 1) & (df["constraint_set"] == "primary")
     df.loc[hit, "status"] = "InsufficientProgress"
     df.loc[hit, "log_svr"] = -1.0
     df.to_csv(out / CSV_NAME, index=False)
@@ -246,7 +242,7 @@ def test_dask_local_cluster_gives_the_same_results_as_joblib(reference, tmp_path
 
 
 @pytest.mark.parametrize("change, setting", [({"params": {"M": 4}}, "params"), ({"sigmas": "0.01,0.1"}, "sigmas"),
-                                             ({"sets": "primary"}, "sets"), ({"seed": 1}, "seed"),
+                                             ({"seed": 1}, "seed"),
                                              ({"solver": "ipm"}, "solver")])
 def test_a_different_sweep_in_the_same_folder_is_refused(reference, change, setting):
     before = (reference / CSV_NAME).read_bytes()
@@ -287,7 +283,7 @@ def test_a_sweep_with_our_ipm_records_it_and_agrees_with_clarabel(reference, tmp
     """--solver ipm: recorded in the settings and the command; the same verdicts and costs to the
     IPM's accuracy (1e-7 relative) as the Clarabel reference sweep."""
     out = tmp_path / "ipm"
-    rc = main(["report", PROBLEM, "-p", "M=3", "--sigmas", "0.01,0.3", "--trials", "3", "--sets", "primary,paper",
+    rc = main(["report", PROBLEM, "-p", "M=3", "--sigmas", "0.01,0.3", "--trials", "3", "--sets", "primary",
                "--jobs", "1", "--out", str(out), "--no-progress", "--solver", "ipm"])
     assert rc == 0, capsys.readouterr().err
     meta = Store(out).meta()
@@ -315,12 +311,6 @@ def test_bad_input_gives_one_line_errors(tmp_path, capsys, args, words):
     err = capsys.readouterr().err.strip()
     assert rc == 2 and len(err.splitlines()) == 1 and err.startswith("autotight: error:") and words in err, err
     assert not (tmp_path / "x" / CSV_NAME).exists()
-
-
-def test_discovered_without_discovery_is_a_clear_error(tmp_path, monkeypatch):
-    monkeypatch.setitem(sys.modules, "autotight.discovery", None)  # as if the package were absent
-    with pytest.raises(ReportError, match="needs autotight.discovery"):
-        run_sweep(_spec(sets="primary,discovered"), tmp_path / "x", progress=False)
 
 
 class _FakeSet:
@@ -366,6 +356,8 @@ def test_discovered_set_from_a_file_is_instantiated_per_trial(tmp_path, fake_dis
     assert list(df["n_constraints"]) == [34, 37] * 2
     meta = json.loads((out / "meta.json").read_text())
     assert meta["discovered"]["file"] == "set.json" and len(meta["discovered"]["sha256"]) == 64
+    with pytest.raises(ReportError, match="holds a different sweep \\(sets:"):
+        run_sweep(_spec(trials=1), out, progress=False)
     path.write_text(json.dumps({"n": 4}))  # another set: refused on resume
     with pytest.raises(ReportError, match="discovered"):
         run_sweep(_spec(sets="primary,discovered", trials=1, discovered=str(path)), out, progress=False)
@@ -420,7 +412,7 @@ def test_a_failing_trial_is_recorded_and_reported(tmp_path, monkeypatch):
     assert (s.computed, s.failed) == (2, 1)
     df = load_trials(out)
     bad = df[df["sigma_index"] == 1]
-    assert list(bad["status"]) == ["Error: AutotightError: boom"] * 2 and bad["log_svr"].isna().all()
+    assert list(bad["status"]) == ["Error: AutotightError: boom"] and bad["log_svr"].isna().all()
     assert (df[df["sigma_index"] == 0]["status"] == "Solved").all()
     _render(out)
     md = (out / "report.md").read_text()
@@ -430,7 +422,7 @@ def test_a_failing_trial_is_recorded_and_reported(tmp_path, monkeypatch):
 def test_run_trial_is_reproducible():
     spec = _spec(trials=1)
     a, b = run_trial(spec, 1, 0), run_trial(spec, 1, 0)
-    assert a.key == (1, 0) and [r["constraint_set"] for r in a.rows] == ["primary", "paper"]
+    assert a.key == (1, 0) and [r["constraint_set"] for r in a.rows] == ["primary"]
     for ra, rb in zip(a.rows, b.rows):
         assert {k: v for k, v in ra.items() if k not in TIME_COLUMNS} == \
                {k: v for k, v in rb.items() if k not in TIME_COLUMNS}
@@ -439,22 +431,22 @@ def test_run_trial_is_reproducible():
 def test_ctrl_c_keeps_finished_trials_and_the_rerun_resumes(tmp_path):
     out = tmp_path / "k"
     cmd = [sys.executable, "-m", "autotight.cli", "report", PROBLEM, "-p", "M=3", "--sigmas", "0.01,0.3",
-           "--sets", "primary,paper", "--trials", "40", "--jobs", "1", "--out", str(out), "--no-progress"]
+           "--sets", "primary", "--trials", "40", "--jobs", "1", "--out", str(out), "--no-progress"]
     # a shell that runs pytest in the background passes SIGINT on as ignored; give the CLI the
     # disposition of an interactive terminal so that the signal is Ctrl-C
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                             preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     csv, deadline = out / CSV_NAME, time.time() + 60
     while time.time() < deadline and proc.poll() is None:
-        if csv.exists() and csv.read_text().count("\n") >= 1 + 2 * 3:
+        if csv.exists() and csv.read_text().count("\n") >= 1 + 3:
             break
         time.sleep(0.05)
     proc.send_signal(signal.SIGINT)
     _, err = proc.communicate(timeout=60)
     assert proc.returncode == 130 and "re-run the same command to resume" in err
     saved = load_trials(out)
-    done = len(saved) // 2
-    assert 3 <= done < 80 and len(saved) == 2 * done
+    done = len(saved)
+    assert 3 <= done < 80
     s = run_sweep(_spec(trials=40), out, jobs=1, limit=1, progress=False)
     assert (s.done_before, s.computed) == (done, 1)
     again = load_trials(out)

@@ -57,7 +57,7 @@ def cmd_discover(args: argparse.Namespace) -> int:
         if bar is not None:
             bar.close()
     if args.out:
-        res.discovered.save(args.out, res.model, res.constraints, {"summary": res.summary()})
+        res.save(args.out)
     if args.json:
         print(json.dumps(jsonable(res.summary()), ensure_ascii=False))
     else:

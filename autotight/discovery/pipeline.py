@@ -9,11 +9,12 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
+from ..constraint_set import ConstraintSet, ConstraintsLike
 from ..model import Constraint, Model
+from ..pipeline import local_search, seeds, solve_instance
 from ..problem import Instance, Problem, load
-from ..run import local_search, solve_sdp
 from ..sdp.result import SolverOptions
-from ..tightness import Criteria, judge
+from ..tightness import Criteria
 from .catalog import Catalog, instantiate, learn
 from .compare import paper_in_span, resemblance
 from .discovered import DiscoveredSet
@@ -71,6 +72,15 @@ class DiscoveryResult:
     def tight(self) -> bool:
         return self.tightened.tight
 
+    @property
+    def constraint_set(self) -> ConstraintSet:
+        """The discovered set, ready for ``autotight.solve(constraints=…)`` on any instance."""
+        return ConstraintSet(self.discovered)
+
+    def save(self, path: str) -> None:
+        """The set as JSON with the learning instance's constraints and this run's summary."""
+        self.discovered.save(path, self.model, self.constraints, {"summary": self.summary()})
+
     def summary(self) -> dict[str, Any]:
         """The JSON summary (``autotight discover --json``)."""
         n_prim = len(self.model.primary())
@@ -95,56 +105,57 @@ class DiscoveryResult:
         }
 
 
-Maker = Callable[[Instance, Model, np.random.Generator], tuple[list[Constraint], list[str]]]
+Maker = Callable[[Instance, Model, np.random.Generator], tuple[ConstraintsLike, list[str]]]
 
 
-def heldout_check(problem: Problem, params: dict[str, Any], seeds: Sequence[int], sets: dict[str, Maker],
-                  criteria: Criteria, options: SolverOptions, n_random: int = 1) -> dict[str, HeldOut]:
-    """For each fresh instance (one local search each), solve primary + make(...) for every set
-    and judge it against the instance's best local solution."""
+def heldout_check(problem: Problem, params: dict[str, Any], seeds_: Sequence[int], sets: dict[str, Maker],
+                  criteria: Criteria, config: Any, n_random: int = 1) -> dict[str, HeldOut]:
+    """For each fresh instance (one local search each, shared by the sets), solve it with every set's
+    constraints through the per-instance pipeline (``autotight.pipeline.solve_instance``)."""
     out = {name: HeldOut([], [], [], [], []) for name in sets}
-    for s in seeds:
+    for s in seeds_:
         inst = problem.generate(params, s)
         model = problem.build(inst)
-        rng = np.random.default_rng([s, 7])
-        loc = local_search(problem, inst, rng, n_random)
+        loc = local_search(problem, inst, seeds(s).local(), n_random)
         for name, make in sets.items():
-            extra, issues = make(inst, model, rng)
+            cons, issues = make(inst, model, seeds(s).constraints())
+            r = solve_instance(problem, inst, cons, config=config, criteria=criteria, model=model, local=loc)
             h = out[name]
             h.issues += [f"seed {s}: {i}" for i in issues]
-            res = solve_sdp(model, model.primary() + extra, options=options)
-            v = judge(res, loc.best.cost, criteria)
-            h.seeds.append(int(s)); h.tight.append(v.tight); h.log_svr.append(res.log_svr)
-            h.rel_gap.append(v.rel_gap); h.status.append(res.status)
+            h.seeds.append(int(s)); h.tight.append(r.tight); h.log_svr.append(r.log_svr)
+            h.rel_gap.append(r.verdict.rel_gap); h.status.append(r.sdp.status)
     return out
 
 
 @single_blas_thread
 def discover(problem: Problem | str, params: dict[str, Any] | None = None, seed: int = 0, *,
              groups: str | Sequence[Sequence[str]] = "factors", learn_options: LearnOptions = LearnOptions(),
-             criteria: Criteria = Criteria(), options: SolverOptions = SolverOptions(), n_heldout: int = 10,
+             criteria: Criteria = Criteria(), solver: Any = None, n_heldout: int = 10,
              n_random: int = 2, verify: bool = True, compare: bool = True,
              progress: Callable[[str, str], None] | None = None) -> DiscoveryResult:
     """Discover an irreducible set of redundant constraints for ``problem`` at ``params``.
 
     The learning instance is ``generate(params, seed)``; held-out instances use seeds
-    seed + 1 … seed + n_heldout.  progress(stage, text) is called as work proceeds.
+    seed + 1 … seed + n_heldout (generators from ``autotight.pipeline.seeds``).  ``solver`` (a
+    ``SolverConfig``) is used for every SDP solve, tightening and held-out check alike.
+    progress(stage, text) is called as work proceeds.
     """
     prob = load(problem) if isinstance(problem, str) else problem
+    config = SolverOptions() if solver is None else solver
     say = progress or (lambda stage, text: None)
     full = prob.parse_params(params)
     times: dict[str, float] = {}
     t0 = time.perf_counter()
     inst = prob.generate(full, seed)
     model = prob.build(inst)
-    rng = np.random.default_rng([seed, 1])
-    loc = local_search(prob, inst, rng, n_random)
+    loc = local_search(prob, inst, seeds(seed).local(), n_random)
+    rng = seeds(seed).constraints()
     times["local_s"] = time.perf_counter() - t0
     cat = learn(prob, inst, model, rng, groups, learn_options, progress=lambda g: say("learn", g))
     times["sampling_s"] = cat.times["sampling_s"]
     times["nullspace_s"] = cat.times["nullspace_s"]
     pairs = cat.by_pair()
-    oracle = Oracle(model, pairs, loc.best.cost, criteria, options)
+    oracle = Oracle(model, pairs, loc.best.cost, criteria, config, solver=getattr(config, "backend", "clarabel"))
     t = time.perf_counter()
     tr = tighten(oracle, progress=lambda s: say("tighten", s))
     times["tighten_s"] = time.perf_counter() - t
@@ -165,13 +176,13 @@ def discover(problem: Problem | str, params: dict[str, Any] | None = None, seed:
                        {"criteria": asdict(criteria), "tight": tr.tight, "message": tr.message},
                        groups if isinstance(groups, str) else [list(g) for g in groups])
     t = time.perf_counter()
-    seeds = [seed + 1 + k for k in range(n_heldout)]
-    sets: dict[str, Maker] = {"primary": lambda i, m, r: ([], [])}
+    held_seeds = [seed + 1 + k for k in range(n_heldout)]
+    sets: dict[str, Maker] = {"primary": lambda i, m, r: ("primary", [])}
     if tr.tight and chosen:
         sets["discovered"] = lambda i, m, r: instantiate(prob, i, ds.pairs, r, ds.options(), m, groups)
     if compare and model.paper:
-        sets["paper"] = lambda i, m, r: (m.paper_constraints(), [])
-    held = heldout_check(prob, full, seeds, sets, criteria, options, n_random) if tr.tight else {}
+        sets["paper"] = lambda i, m, r: ("paper", [])
+    held = heldout_check(prob, full, held_seeds, sets, criteria, config, n_random) if tr.tight else {}
     hold = held.get("discovered", held.get("primary", HeldOut([], [], [], [], [])))
     hold.primary_tight = list(held["primary"].tight) if held else []
     times["heldout_s"] = time.perf_counter() - t

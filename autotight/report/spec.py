@@ -13,8 +13,7 @@ from ..tightness import Criteria
 
 SETS = ("primary", "paper", "discovered")
 DEFAULT_SIGMAS = tuple(float(s) for s in np.logspace(-3, 0, 7))
-TRAP_RTOL = 1e-4
-"""A random-start local solve is trapped if its cost exceeds the global cost by this (relative)."""
+from ..pipeline import TRAP_RTOL  # noqa: E402  (re-exported: a sweep's default trap tolerance)
 
 
 class ReportError(ParameterError):
@@ -80,9 +79,15 @@ def _fmt(v: Any) -> str:
 
 
 def trial_seeds(seed: int, sigma_index: int, trial: int) -> tuple[int, np.random.Generator, np.random.Generator]:
-    """(instance seed, rng for the random start, rng for re-instantiating discovered constraints)."""
-    inst, local, disc = np.random.SeedSequence([seed, sigma_index, trial]).spawn(3)
-    return int(inst.generate_state(1, np.uint32)[0]), np.random.default_rng(local), np.random.default_rng(disc)
+    """(instance seed s, rng for the random starts, rng for re-instantiating learned constraints).
+
+    s comes from ``SeedSequence((seed, σ index, trial))``; the generators are those of s in the
+    one seed scheme of ``autotight.pipeline.seeds`` (the same as ``autotight solve --seed s``).
+    """
+    from ..pipeline import seeds
+
+    s = int(np.random.SeedSequence([seed, sigma_index, trial]).generate_state(1, np.uint32)[0])
+    return s, seeds(s).local(), seeds(s).constraints()
 
 
 def default_sigmas(problem: Problem) -> tuple[float, ...]:
@@ -149,9 +154,13 @@ def make_spec(problem: Problem, source: str, params: dict[str, Any] | None = Non
             raise ReportError(str(e)) from None
     full = problem.parse_params(params)
     full.pop("sigma")
+    paper = has_paper(problem, full)
     if sets is None:
-        sets = ("primary", "paper") if has_paper(problem, full) else ("primary",)
-    return SweepSpec(problem.name, full, parse_sigmas(problem, sigmas), int(trials), parse_sets(sets), int(seed),
+        sets = ("primary", "paper") if paper else ("primary",)
+    sets = parse_sets(sets)
+    if "paper" in sets and not paper:
+        raise ReportError(f"--sets paper: problem {problem.name} has no paper families")
+    return SweepSpec(problem.name, full, parse_sigmas(problem, sigmas), int(trials), sets, int(seed),
                      discovered=discovered, source=str(source), **kw)
 
 

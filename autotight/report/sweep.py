@@ -9,6 +9,7 @@ from typing import Any, Callable, Sequence
 
 from tqdm import tqdm
 
+from ..constraint_set import ConstraintSet
 from ..problem import Problem
 from .backends import execute
 from .spec import ReportError, SweepSpec
@@ -88,16 +89,12 @@ def prepare_discovered(spec: SweepSpec, problem: Problem, out: Path,
     path = Path(spec.discovered) if spec.discovered else None
     if path is not None and not path.is_file():
         raise ReportError(f"no discovered-set file {path}")
-    try:
-        from ..discovery import DiscoveredSet, discover
-    except ImportError:
-        raise ReportError("the 'discovered' set needs autotight.discovery, which is not available "
-                          "(give a saved set with --discovered FILE once it is)") from None
+    from ..discovery import DiscoveredSet, discover
     if path is not None:
         ds = DiscoveredSet.load(path)
         if getattr(ds, "problem", problem.name) != problem.name:
             raise ReportError(f"{path} is a discovered set for {ds.problem}, not {problem.name}")
-        return ds, {"file": path.name, "sha256": _sha256(path)}
+        return ConstraintSet(ds), {"file": path.name, "sha256": _sha256(path)}
     saved = out / DISCOVERED_NAME
     if not saved.is_file():
         params = problem.parse_params(spec.params)  # σ at the problem's default
@@ -105,4 +102,4 @@ def prepare_discovered(spec: SweepSpec, problem: Problem, out: Path,
         res = discover(problem, params, seed=spec.seed, criteria=spec.criteria)
         out.mkdir(parents=True, exist_ok=True)
         res.discovered.save(saved, res.model, res.constraints, {"summary": res.summary()})
-    return DiscoveredSet.load(saved), {"source": "discover", "seed": spec.seed, "sha256": _sha256(saved)}
+    return ConstraintSet(DiscoveredSet.load(saved)), {"source": "discover", "seed": spec.seed, "sha256": _sha256(saved)}

@@ -13,15 +13,15 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from ..errors import AutotightError
+from ..pipeline import is_trapped, local_search, solve_instance
 from ..problem import Instance, Problem
-from ..run import constraint_set, local_search, solve_sdp
 from ..sdp.result import SolverOptions
-from ..tightness import judge
 from .spec import SweepSpec, trial_seeds
 
 KEY = ("sigma_index", "trial")
 BASE_COLUMNS = ("problem", "sigma_index", "sigma", "trial", "seed", "constraint_set", "n_constraints", "status",
-                "tight", "rank_tight", "cost_tight", "log_svr", "sdp_cost", "sdp_dual_cost", "rel_gap",
+                "outcome", "tight", "rank_tight", "cost_tight", "log_svr", "sdp_cost", "sdp_dual_cost", "rel_gap",
+                "upper_bound", "refined_cost", "sdp_attempts",
                 "local_cost_truth", "local_cost_random", "local_converged_truth", "local_converged_random",
                 "global_cost", "trapped")
 TIME_COLUMNS = ("sdp_time_s", "sdp_setup_s", "local_truth_time_s", "local_random_time_s", "build_time_s",
@@ -41,13 +41,6 @@ def error_keys(problem: Problem, spec: SweepSpec) -> list[str]:
     seed, _, _ = trial_seeds(spec.seed, 0, 0)
     inst = problem.generate(dict(spec.params, sigma=spec.sigmas[0]), seed)
     return list(problem.errors(inst, inst.truth))
-
-
-def is_trapped(random_cost: float, global_cost: float, rtol: float, floor: float = 1e-9) -> bool:
-    """Random-start cost above the global cost by more than ``rtol`` relative (floored at ``floor``)."""
-    if not np.isfinite(random_cost):
-        return True
-    return bool(random_cost - global_cost > rtol * max(abs(global_cost), floor))
 
 
 @dataclass
@@ -85,6 +78,8 @@ def _errors(problem: Problem, inst: Instance, state: dict | None, prefix: str) -
 
 
 def _solve(problem: Problem, spec: SweepSpec, i: int, t: int, discovered: Any) -> list[dict[str, Any]]:
+    """Every constraint set of ``spec`` on trial (i, t)'s instance, through ``autotight.pipeline``
+    (one build and one local search shared by the sets)."""
     seed, rng_local, rng_disc = trial_seeds(spec.seed, i, t)
     t0 = time.perf_counter()
     inst = problem.generate(dict(spec.params, sigma=spec.sigmas[i]), seed)
@@ -96,27 +91,23 @@ def _solve(problem: Problem, spec: SweepSpec, i: int, t: int, discovered: Any) -
               "local_converged_truth": truth.converged, "local_converged_random": rand.converged,
               "local_truth_time_s": truth.time_s, "local_random_time_s": rand.time_s, "build_time_s": build_s,
               **_errors(problem, inst, truth.state, "err_truth_"), **_errors(problem, inst, rand.state, "err_random_")}
-    options = SolverOptions(threads=1)
-    rows, tight_costs = [], []
+    config = spec.solver_config() if hasattr(spec, "solver_config") else SolverOptions(threads=1)
+    rows, uppers = [], []
     for name in spec.sets:
-        extra = discovered.instantiate(problem, inst, rng_disc, model=model) if name == "discovered" else None
-        cons = constraint_set(model, name, extra)
-        res = solve_sdp(model, cons, solver=spec.solver, options=options)
-        verdict = judge(res, loc.best.cost, spec.criteria)
-        errs: dict[str, float] = {}
-        if res.Theta is not None and res.usable:
-            try:
-                errs = _errors(problem, inst, problem.recover(inst, res.Theta), "err_sdp_")
-            except (ValueError, np.linalg.LinAlgError) as e:
-                verdict.reason += f"; recovery failed: {e}"
-        if verdict.tight:
-            tight_costs.append(res.primal_cost)
-        rows.append(_row(problem, spec, i, t, seed, name, n_constraints=len(cons), status=res.status,
-                         tight=verdict.tight, rank_tight=verdict.rank_tight, cost_tight=verdict.cost_tight,
-                         log_svr=res.log_svr, sdp_cost=res.primal_cost, sdp_dual_cost=res.dual_cost,
-                         rel_gap=verdict.rel_gap, sdp_time_s=res.solve_time_s, sdp_setup_s=res.setup_time_s,
+        constraints = discovered if name == "discovered" else name
+        out = solve_instance(problem, inst, constraints, config=config, criteria=spec.criteria, model=model,
+                             local=loc, rng_constraints=rng_disc)
+        res, verdict = out.sdp, out.verdict
+        uppers.append(out.upper)
+        errs = {"err_sdp_" + k: v for k, v in out.errors_sdp.items()}
+        rows.append(_row(problem, spec, i, t, seed, name, n_constraints=out.n_constraints, status=res.status,
+                         outcome=out.outcome, tight=verdict.tight, rank_tight=verdict.rank_tight,
+                         cost_tight=verdict.cost_tight, log_svr=res.log_svr, sdp_cost=res.primal_cost,
+                         sdp_dual_cost=res.dual_cost, rel_gap=verdict.rel_gap, upper_bound=out.upper,
+                         refined_cost=None if out.refined is None else out.refined.cost,
+                         sdp_attempts=len(out.attempts), sdp_time_s=res.solve_time_s, sdp_setup_s=res.setup_time_s,
                          verdict=verdict.reason, **common, **errs))
-    finite = [c for c in (truth.cost, rand.cost, *tight_costs) if np.isfinite(c)]
+    finite = [c for c in (truth.cost, rand.cost, *uppers) if np.isfinite(c)]
     global_cost = min(finite) if finite else float("nan")
     trapped = is_trapped(rand.cost, global_cost, spec.trap_rtol, spec.criteria.cost_floor)
     for r in rows:

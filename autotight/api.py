@@ -1,0 +1,62 @@
+"""The public Python API: ``load_problem``, ``solve``, ``discover``, ``check_problem``.
+
+Each function validates its input at the boundary and returns a result with plain attributes;
+the CLI, the report sweep and discovery all run through the same per-instance pipeline
+(``autotight.pipeline``).  Seeds follow one scheme (``autotight.pipeline`` docstring).
+"""
+
+from __future__ import annotations
+
+from types import ModuleType
+from typing import Any
+
+from .constraint_set import ConstraintsLike
+from .pipeline import SolveResult, solve_instance
+from .problem import Problem, load
+from .sdp.result import SolverOptions
+from .tightness import Criteria
+
+
+def load_problem(name_or_path: str | ModuleType | Problem) -> Problem:
+    """A problem by name (``autotight list``), by path to a ``.py`` module, or from a module object."""
+    return load(name_or_path)
+
+
+def _problem(problem: str | ModuleType | Problem) -> Problem:
+    return problem if isinstance(problem, Problem) else load(problem)
+
+
+def _seed(seed: Any) -> int:
+    if isinstance(seed, bool) or not isinstance(seed, (int,)) or seed < 0:
+        from .errors import ParameterError
+
+        raise ParameterError(f"seed must be a non-negative int, got {seed!r}")
+    return int(seed)
+
+
+def solve(problem: str | ModuleType | Problem, params: dict[str, Any] | None = None, seed: int = 0, *,
+          constraints: ConstraintsLike = None, solver: Any = None, criteria: Criteria = Criteria(),
+          n_random: int = 1) -> SolveResult:
+    """Generate the instance ``(params, seed)``, solve its SDP with ``constraints`` and judge tightness.
+
+    constraints: "paper" (the default when the problem has paper families), "primary", a
+    ``ConstraintSet`` (e.g. ``ConstraintSet.load(path)``, applied to this instance whatever its size)
+    or a list of ``Constraint``.  solver: a ``SolverConfig``.  n_random: random-start local solves.
+    """
+    prob = _problem(problem)
+    inst = prob.generate(params, _seed(seed))
+    return solve_instance(prob, inst, constraints, config=solver or SolverOptions(), criteria=criteria,
+                          n_random=n_random)
+
+
+def discover(problem: str | ModuleType | Problem, params: dict[str, Any] | None = None, seed: int = 0, *,
+             solver: Any = None, **options: Any):
+    """Learn, tighten, reduce and check a constraint set on ``problem`` at ``params``.
+
+    Returns a ``DiscoveryResult``; its ``constraint_set`` is what ``solve(constraints=…)`` takes.
+    ``options`` are those of ``autotight.discovery.pipeline.discover`` (groups, learn_options,
+    criteria, n_heldout, n_random, progress, …).
+    """
+    from .discovery.pipeline import discover as _discover
+
+    return _discover(_problem(problem), params, _seed(seed), solver=solver or SolverOptions(), **options)

@@ -1,0 +1,112 @@
+"""Which constraints an SDP gets: ``ConstraintSet`` and the names ``"primary"`` and ``"paper"``.
+
+A constraint set is applied to one instance at a time, so the same set serves any instance and
+any size of its problem:
+
+- ``"primary"``: the homogenisation (h² = 1, or X_hh = I_d) and the problem's primary constraints;
+- ``"paper"``: those plus every hand-derived family of the paper (``Model.paper``);
+- a ``ConstraintSet`` learned by ``discover``: the primary constraints plus, on every factor of
+  each learned type, the learned identities (``(factor type, identity)`` pairs), re-instantiated
+  on the instance and checked on its held-out samples;
+- a list of ``Constraint``: the primary constraints plus exactly these (for one instance).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Sequence, Union
+
+import numpy as np
+
+from .errors import AutotightError, ParameterError
+from .model import Constraint, Model
+from .problem import Instance, Problem
+
+NAMED = ("primary", "paper")
+
+
+@dataclass
+class ConstraintSet:
+    """A learned constraint set: ``(factor type, identity)`` pairs of one problem.
+
+    ``discovered`` is the saved form (``autotight.discovery.DiscoveredSet``); ``apply`` re-creates
+    the constraints on any instance of the problem.  ``save``/``load`` use JSON (see README,
+    "Constraint-set files").
+    """
+
+    discovered: Any  # autotight.discovery.DiscoveredSet (imported lazily: discovery imports this module's users)
+
+    @property
+    def problem(self) -> str:
+        return self.discovered.problem
+
+    @property
+    def pairs(self) -> list[tuple[str, str]]:
+        return list(self.discovered.pairs)
+
+    def __len__(self) -> int:
+        return len(self.discovered.pairs)
+
+    def __repr__(self) -> str:
+        return f"ConstraintSet(problem={self.problem!r}, pairs={len(self)})"
+
+    def apply(self, problem: Problem, inst: Instance, model: Model, rng: np.random.Generator) -> list[Constraint]:
+        """The learned constraints on ``inst`` (without the primary ones), each checked on held-out samples."""
+        return self.discovered.instantiate(problem, inst, rng, model=model)
+
+    def save(self, path: str | Path, model: Model | None = None, constraints: Sequence[Constraint] | None = None,
+             extra: dict[str, Any] | None = None) -> None:
+        """Write the set as JSON; with ``model`` and ``constraints`` also the learning instance's constraints."""
+        self.discovered.save(path, model, None if constraints is None else list(constraints), extra)
+
+    @classmethod
+    def load(cls, path: str | Path) -> "ConstraintSet":
+        from .discovery.discovered import DiscoveredSet
+
+        return cls(DiscoveredSet.load(path))
+
+
+ConstraintsLike = Union[str, ConstraintSet, Sequence[Constraint], None]
+
+
+def set_name(constraints: ConstraintsLike, model: Model) -> str:
+    """The name a result records for ``constraints`` (None → the default for ``model``)."""
+    if constraints is None:
+        return default_name(model)
+    if isinstance(constraints, str):
+        return constraints
+    if isinstance(constraints, ConstraintSet):
+        return "discovered"
+    return "custom"
+
+
+def default_name(model: Model) -> str:
+    """"paper" when the problem has hand-derived families, else "primary"."""
+    return "paper" if model.paper else "primary"
+
+
+def resolve(constraints: ConstraintsLike, problem: Problem, inst: Instance, model: Model,
+            rng: np.random.Generator) -> list[Constraint]:
+    """Every constraint of the SDP for ``inst``: homogenisation, primary and the set's own."""
+    if constraints is None:
+        constraints = default_name(model)
+    if isinstance(constraints, str):
+        if constraints == "primary":
+            return model.primary()
+        if constraints == "paper":
+            if not model.paper:
+                raise ParameterError(f"problem {problem.name} has no paper families; use 'primary' or a learned set")
+            return model.primary() + model.paper_constraints()
+        raise ParameterError(f"unknown constraint set {constraints!r}; use 'primary', 'paper', a ConstraintSet "
+                             "or a list of Constraint")
+    if isinstance(constraints, ConstraintSet):
+        if constraints.problem != problem.name:
+            raise AutotightError(f"the constraint set is for {constraints.problem!r}, not {problem.name!r}")
+        return model.primary() + constraints.apply(problem, inst, model, rng)
+    extra = list(constraints)
+    bad = [type(c).__name__ for c in extra if not isinstance(c, Constraint)]
+    if bad:
+        raise ParameterError(f"constraints must be 'primary', 'paper', a ConstraintSet or Constraint objects, "
+                             f"got {bad[0]}")
+    return model.primary() + extra

@@ -1,0 +1,195 @@
+"""The one pipeline for one instance: build → local search → SDP → judge → recover → errors.
+
+``solve_instance`` is what ``autotight.solve``, every trial of a report sweep and discovery's
+held-out check run.  Seeds (one scheme everywhere, see ``seeds``): an instance with seed s is
+``generate(params, default_rng(s))``; its random local starts draw from ``default_rng([s, 1])``
+and re-instantiating a learned set draws from ``default_rng([s, 2])``.
+
+The upper bound U of a verdict is the lowest cost of a feasible point found: the local solves
+(from the ground truth and from random starts), the state recovered from the SDP solution, and
+one local solve started there.  When the SDP's estimate beats every local search, the random
+start counts as trapped and the relaxation can still be judged tight.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from .constraint_set import ConstraintsLike, resolve, set_name
+from .model import Model
+from .problem import Instance, LocalResult, Problem
+from .sdp.result import SDPResult
+from .threads import single_blas_thread
+from .tightness import Criteria, Verdict, judge
+
+#: relative cost excess over U above which a local solve counts as trapped in a worse minimum
+TRAP_RTOL = 1e-4
+
+
+@dataclass(frozen=True)
+class Seeds:
+    """The generators of one instance seed s (see the module docstring)."""
+
+    instance: int
+
+    def local(self) -> np.random.Generator:
+        return np.random.default_rng([self.instance, 1])
+
+    def constraints(self) -> np.random.Generator:
+        return np.random.default_rng([self.instance, 2])
+
+
+def seeds(instance_seed: int) -> Seeds:
+    return Seeds(int(instance_seed))
+
+
+@dataclass
+class LocalSearch:
+    """Local solves from the ground truth and from random starts; ``best`` is the lowest cost."""
+
+    from_truth: LocalResult
+    from_random: list[LocalResult]
+
+    @property
+    def best(self) -> LocalResult:
+        return min([self.from_truth, *self.from_random], key=lambda r: r.cost)
+
+
+def local_search(problem: Problem, inst: Instance, rng: np.random.Generator, n_random: int = 1) -> LocalSearch:
+    truth = problem.local_solve(inst, inst.truth)
+    rand = [problem.local_solve(inst, problem.random_state(inst, rng)) for _ in range(n_random)]
+    return LocalSearch(truth, rand)
+
+
+def is_trapped(cost: float, global_cost: float, rtol: float = TRAP_RTOL, floor: float = 1e-9) -> bool:
+    """A local cost above the global cost by more than ``rtol`` relative (floored at ``floor``)."""
+    if not np.isfinite(cost):
+        return True
+    return bool(cost - global_cost > rtol * max(abs(global_cost), floor))
+
+
+@dataclass
+class SolveResult:
+    """One instance solved with one constraint set.  Plain attributes; ``record()`` is the JSON form.
+
+    upper: U, the best feasible cost found (local solves, the SDP's estimate and its refinement);
+    refined: the local solve started at the SDP's estimate (None when X was unusable);
+    attempts: every SDP solve made (a second one when the first verdict was undecided).
+    """
+
+    problem: str
+    instance: Instance
+    constraint_set: str
+    n_constraints: int
+    sdp: SDPResult
+    verdict: Verdict
+    local: LocalSearch
+    estimate: dict[str, np.ndarray] | None
+    refined: LocalResult | None
+    upper: float
+    errors_sdp: dict[str, float]
+    errors_local: dict[str, float]
+    attempts: list[dict[str, Any]] = field(default_factory=list)
+    times: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def tight(self) -> bool:
+        return self.verdict.tight
+
+    @property
+    def log_svr(self) -> float:
+        return self.sdp.log_svr
+
+    @property
+    def outcome(self) -> str:
+        """"tight", "not tight" or "undecided"."""
+        return getattr(self.verdict, "outcome", "tight" if self.verdict.tight else "not tight")
+
+    @property
+    def trapped(self) -> bool:
+        """Whether the (first) random-start local solve ended above U."""
+        rand = self.local.from_random
+        return bool(rand) and is_trapped(rand[0].cost, self.upper)
+
+    @property
+    def sdp_beats_local(self) -> bool:
+        """The SDP's estimate (refined) is better than every local search: the local search was trapped."""
+        return self.upper < self.local.best.cost and is_trapped(self.local.best.cost, self.upper)
+
+    def record(self) -> dict[str, Any]:
+        lt, v = self.local.from_truth, self.verdict
+        return {
+            "problem": self.problem, "params": self.instance.params, "seed": self.instance.seed,
+            "constraint_set": self.constraint_set, "n_constraints": self.n_constraints,
+            "solver": self.sdp.solver, "status": self.sdp.status, "outcome": self.outcome, "tight": v.tight,
+            "rank_tight": v.rank_tight, "cost_tight": v.cost_tight, "verdict": v.reason,
+            "log_svr": self.sdp.log_svr, "sdp_cost": self.sdp.primal_cost, "sdp_dual_cost": self.sdp.dual_cost,
+            "local_cost": lt.cost, "local_cost_random": [r.cost for r in self.local.from_random],
+            "best_local_cost": self.local.best.cost,
+            "refined_cost": None if self.refined is None else self.refined.cost,
+            "upper_bound": self.upper, "rel_gap": v.rel_gap, "trapped": self.trapped,
+            "sdp_beats_local": self.sdp_beats_local, "solve_time_s": self.sdp.solve_time_s,
+            "errors_sdp": self.errors_sdp, "errors_local": self.errors_local, "attempts": self.attempts,
+            "times": self.times,
+        }
+
+
+def _attempt(res: SDPResult, verdict: Verdict) -> dict[str, Any]:
+    return {"status": res.status, "primal_cost": res.primal_cost, "dual_cost": res.dual_cost,
+            "log_svr": res.log_svr, "solve_time_s": res.solve_time_s, "outcome": getattr(verdict, "outcome", None),
+            "message": res.message}
+
+
+def _sdp(model: Model, cons: list, config: Any) -> SDPResult:
+    from .run import solve_sdp
+
+    return solve_sdp(model, cons, solver=getattr(config, "backend", "clarabel"), options=config)
+
+
+@single_blas_thread
+def solve_instance(problem: Problem, inst: Instance, constraints: ConstraintsLike = None, *,
+                   config: Any = None, criteria: Criteria = Criteria(), n_random: int = 1,
+                   model: Model | None = None, local: LocalSearch | None = None,
+                   rng_local: np.random.Generator | None = None,
+                   rng_constraints: np.random.Generator | None = None) -> SolveResult:
+    """Solve ``inst`` with ``constraints`` (see ``autotight.constraint_set``) and judge tightness.
+
+    ``model`` and ``local`` may be given to share them between several constraint sets of one
+    instance; the generators default to the seed scheme of the module docstring.
+    """
+    from .sdp.result import SolverOptions
+
+    config = SolverOptions() if config is None else config
+    s = seeds(inst.seed if inst.seed is not None else 0)
+    t0 = time.perf_counter()
+    model = model if model is not None else problem.build(inst)
+    cons = resolve(constraints, problem, inst, model, rng_constraints or s.constraints())
+    t1 = time.perf_counter()
+    local = local if local is not None else local_search(problem, inst, rng_local or s.local(), n_random)
+    t2 = time.perf_counter()
+    res = _sdp(model, cons, config)
+    t3 = time.perf_counter()
+    estimate = refined = None
+    upper = local.best.cost
+    note = ""
+    if res.Theta is not None and res.usable:
+        try:
+            estimate = problem.recover(inst, res.Theta)
+        except (ValueError, np.linalg.LinAlgError) as e:  # a useless X is reported, not raised
+            note = f"; recovery failed: {e}"
+        else:
+            refined = problem.local_solve(inst, estimate)
+            upper = min(upper, refined.cost)
+    verdict = judge(res, upper, criteria)
+    verdict.reason += note
+    attempts = [_attempt(res, verdict)]
+    t4 = time.perf_counter()
+    times = {"build_s": t1 - t0, "local_s": t2 - t1, "sdp_total_s": t3 - t2, "sdp_solve_s": res.solve_time_s,
+             "refine_s": t4 - t3, "local_truth_s": local.from_truth.time_s}
+    return SolveResult(problem.name, inst, set_name(constraints, model), len(cons), res, verdict, local, estimate,
+                       refined, upper, problem.errors(inst, estimate) if estimate is not None else {},
+                       problem.errors(inst, local.from_truth.state), attempts, times)

@@ -1,0 +1,100 @@
+"""What the public-API refactor costs: `solve` and `discover` before and after, in the same run.
+
+Both checkouts are run through their own CLI (`python -m autotight.cli … --json`, the one
+interface that both versions share) in fresh processes, interleaved (before, after, before, …),
+so that the load of this shared machine falls on both alike.  The figure is the ratio of the
+medians (after / before) of the time the run itself reports (solve: SDP + local solves + build;
+discover: its total), and of the process's wall time.
+
+    git worktree add /tmp/autotight-before b5513cf
+    python benchmarks/refactor_cost.py --before /tmp/autotight-before [--repeats 5]
+
+Prints and writes benchmarks/results/refactor_cost.json.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+
+#: (name, CLI arguments, what the JSON reports as the run's own time)
+CASES = [
+    ("solve rotation_averaging M=10", ["solve", "rotation_averaging", "-p", "M=10", "--json"], "solve"),
+    ("solve pose_averaging M=10", ["solve", "pose_averaging", "-p", "M=10", "--json"], "solve"),
+    ("solve discrete_trajectory K=20", ["solve", "discrete_trajectory", "-p", "K=20", "--json"], "solve"),
+    ("discover rotation_averaging M=5", ["discover", "rotation_averaging", "-p", "M=5", "--heldout", "2",
+                                         "--json"], "discover"),
+    ("discover pose_averaging M=5", ["discover", "pose_averaging", "-p", "M=5", "--heldout", "2", "--json"],
+     "discover"),
+    ("discover discrete_trajectory K=20", ["discover", "discrete_trajectory", "-p", "K=20", "--heldout", "0",
+                                           "--json"], "discover"),
+]
+
+
+def own_time(kind: str, rec: dict) -> float:
+    """The run's own time: solve → the sum of its timed stages; discover → its total."""
+    t = rec["times"]
+    if kind == "discover":
+        return float(t["total_s"])
+    return float(sum(v for k, v in t.items() if k in ("build_s", "sdp_total_s", "local_s", "refine_s")))
+
+
+def run(checkout: Path, args: list[str]) -> tuple[float, float, dict]:
+    env = dict(os.environ, PYTHONPATH=str(checkout))
+    t0 = time.perf_counter()
+    proc = subprocess.run([sys.executable, "-m", "autotight.cli", *args], cwd=checkout, env=env,
+                          capture_output=True, text=True, check=False)
+    wall = time.perf_counter() - t0
+    if proc.returncode != 0:
+        raise SystemExit(f"{checkout}: {' '.join(args)} failed:\n{proc.stderr[-2000:]}")
+    rec = json.loads(proc.stdout.strip().splitlines()[-1])
+    return wall, own_time("discover" if args[0] == "discover" else "solve", rec), rec
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--before", type=Path, required=True, help="checkout of the commit before the refactor")
+    ap.add_argument("--after", type=Path, default=ROOT, help="checkout after (default: this one)")
+    ap.add_argument("--repeats", type=int, default=5)
+    ap.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results" / "refactor_cost.json")
+    a = ap.parse_args()
+    rows = []
+    for name, args, _ in CASES:
+        t = {"before": {"wall": [], "own": []}, "after": {"wall": [], "own": []}}
+        verdicts = {}
+        for _ in range(a.repeats):
+            for side, path in (("before", a.before), ("after", a.after)):
+                wall, own, rec = run(path, args)
+                t[side]["wall"].append(wall)
+                t[side]["own"].append(own)
+                verdicts[side] = rec.get("tight")
+        med = {s: {k: float(np.median(v)) for k, v in d.items()} for s, d in t.items()}
+        row = {"case": name, "command": "autotight " + " ".join(args), "median_s": med,
+               "ratio_own": med["after"]["own"] / med["before"]["own"],
+               "ratio_wall": med["after"]["wall"] / med["before"]["wall"], "tight": verdicts, "samples": t}
+        rows.append(row)
+        print(f"{name:<36} own {med['before']['own']:.3f} → {med['after']['own']:.3f} s "
+              f"(×{row['ratio_own']:.2f})   wall {med['before']['wall']:.2f} → {med['after']['wall']:.2f} s "
+              f"(×{row['ratio_wall']:.2f})   tight {verdicts}")
+    load = os.getloadavg()
+    from autotight.io import versions
+
+    out = {"benchmark": "refactor_cost", "repeats": a.repeats, "before": str(a.before), "after": str(a.after),
+           "compared_against": "the same commands on the checkout before the refactor, interleaved",
+           "target": "ratio within 1.1", "load_average": load, "versions": versions(), "cases": rows}
+    a.out.parent.mkdir(parents=True, exist_ok=True)
+    a.out.write_text(json.dumps(out, indent=1) + "\n")
+    print(f"load average {load[0]:.1f}; written {a.out}")
+
+
+if __name__ == "__main__":
+    main()
