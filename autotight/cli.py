@@ -127,8 +127,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_solve)
     from .discovery.cli import register as register_discover
     from .report.cli import register as register_report
+    from .check_cli import register as register_check
 
-    for register in (register_discover, register_report):
+    for register in (register_discover, register_report, register_check):
         register(sub, _add_problem_args)
     return ap
 
