@@ -21,6 +21,7 @@ import numpy as np
 
 from .certificate import Certificate, certificate
 from .constraint_set import ConstraintsLike, resolve, set_name
+from .errors import ProblemModuleError
 from .model import Model
 from .problem import Instance, LocalResult, Problem
 from . import sdp
@@ -211,8 +212,10 @@ def solve_instance(problem: Problem, inst: Instance, constraints: ConstraintsLik
     if res.Theta is not None and res.usable:
         try:
             estimate = problem.recover(inst, res.Theta)
-        except (ValueError, np.linalg.LinAlgError) as e:  # a useless X is reported, not raised
-            note = f"; recovery failed: {e}"
+        except ProblemModuleError as e:  # on an X far from rank d this is reported, not raised
+            if not res.log_svr <= criteria.min_log_svr:
+                raise
+            note = f"; recovery failed on a solution of rank > d: {e}"
         else:
             refined = problem.local_solve(inst, estimate)
             best = min(best, refined, key=lambda r: r.cost)

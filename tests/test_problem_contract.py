@@ -20,7 +20,7 @@ from autotight.problem import available, default_errors, load, perturb_state
 # small sizes so that every shipped problem checks in a few seconds
 SMALL = {"rotation_averaging": {"M": 4}, "pose_averaging": {"M": 3}, "discrete_trajectory": {"K": 3},
          "continuous_trajectory": {"K": 3}, "pose_graph": {"n_poses": 3}, "landmark_slam": {"n_poses": 2},
-         "landmark_localization": {}}
+         "landmark_localization": {}, "robust_pose_averaging": {"M": 3}}
 
 HEAD = """
 from problems.rotation_averaging import *  # noqa: F401,F403
