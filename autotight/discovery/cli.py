@@ -6,7 +6,10 @@ import argparse
 import json
 from typing import Callable
 
+from ..cli_checks import nonneg_float, nonneg_int, pos_float
 from ..io import jsonable
+from ..limits import check_count, check_size
+from ..outpaths import check_file, writing
 from ..pretty import polynomial
 from ..problem import load, parse_assignments
 from .learn import LearnOptions
@@ -16,12 +19,13 @@ from .pipeline import DiscoveryResult, discover
 def register(sub: argparse._SubParsersAction, add_problem_args: Callable) -> None:
     p = sub.add_parser("discover", help="learn, tighten and reduce redundant constraints; compare with the paper")
     add_problem_args(p)
-    p.add_argument("--out", default=None, help="save the discovered set as JSON to this file")
+    p.add_argument("--out", default=None, help="save the discovered set as JSON to this file (checked before the work)")
+    p.add_argument("--force", action="store_true", help="overwrite --out if it exists")
     p.add_argument("--groups", default="factors", help="'factors' (default), 'whole', 'adjacent:TYPE+TYPE' (unions of neighbouring factors), "
                         "comma-joined, or explicit blocks 'a,b;c,d'")
-    p.add_argument("--heldout", type=int, default=10, help="held-out instances for the sufficiency check (default 10)")
-    p.add_argument("--min-gap", type=float, default=6.0, help="spectral gap in decades that decides the rank (default 6)")
-    p.add_argument("--gap-tol", type=float, default=1e-5, help="relative cost gap counted as tight (default 1e-5)")
+    p.add_argument("--heldout", type=nonneg_int, default=10, help="held-out instances for the sufficiency check (default 10)")
+    p.add_argument("--min-gap", type=pos_float, default=6.0, help="spectral gap in decades that decides the rank (default 6)")
+    p.add_argument("--gap-tol", type=nonneg_float, default=1e-5, help="relative cost gap counted as tight (default 1e-5)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_discover)
 
@@ -36,8 +40,12 @@ def _groups(spec: str):
 def cmd_discover(args: argparse.Namespace) -> int:
     from ..tightness import Criteria
 
+    if args.out is not None:
+        check_file(args.out, force=args.force)
     prob = load(args.problem)
     params = prob.parse_params(parse_assignments(args.param))
+    check_size(prob, params)
+    check_count(prob, params, f"--heldout {args.heldout}", args.heldout, per_item=3, what="held-out instances")
     bar = None
     if not args.json and not args.no_progress:
         from tqdm import tqdm
@@ -57,7 +65,8 @@ def cmd_discover(args: argparse.Namespace) -> int:
         if bar is not None:
             bar.close()
     if args.out:
-        res.save(args.out)
+        with writing(args.out):
+            res.save(args.out)
     if args.json:
         print(json.dumps(jsonable(res.summary()), ensure_ascii=False))
     else:

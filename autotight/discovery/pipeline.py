@@ -15,6 +15,7 @@ from ..pipeline import local_search, seeds, solve_instance
 from ..problem import Instance, Problem, load
 from ..sdp.result import SolverOptions
 from ..tightness import Criteria
+from ..validate import check_instance
 from .catalog import Catalog, instantiate, learn
 from .compare import paper_in_span, resemblance
 from .discovered import DiscoveredSet
@@ -149,6 +150,7 @@ def discover(problem: Problem | str, params: dict[str, Any] | None = None, seed:
     inst = prob.generate(full, seed)
     model = prob.build(inst)
     loc = local_search(prob, inst, seeds(seed).local(), n_random)
+    check_instance(prob, inst, model, loc)  # NaN/inf data, or a cost that does not match its lifting
     rng = seeds(seed).constraints()
     times["local_s"] = time.perf_counter() - t0
     cat = learn(prob, inst, model, rng, groups, learn_options, progress=lambda g: say("learn", g))
