@@ -29,12 +29,12 @@ class OutputError(AutotightError):
     """An output path that cannot or must not be written."""
 
 
-def _nearest_existing(path: Path, option: str) -> Path:
+def _nearest_existing(path: Path, option: str, given: Path) -> Path:
     """The deepest existing ancestor of ``path`` (itself included); it must be a folder."""
     for p in [path, *path.parents]:
         if p.exists():
-            if p != path and not p.is_dir():
-                raise OutputError(f"{option} {path}: {p} is a file, not a folder")
+            if not p.is_dir():
+                raise OutputError(f"{option} {given}: {p} is a file, not a folder")
             return p
     return Path(".")
 
@@ -66,7 +66,7 @@ def check_file(path: str | os.PathLike, *, option: str = "--out", force: bool = 
         raise OutputError(f"{option} {path}: is a folder; give a file name")
     if p.exists() and not force:
         raise OutputError(f"{option} {path}: exists; give --force to overwrite it")
-    folder = _nearest_existing(p.parent if str(p.parent) else Path("."), option)
+    folder = _nearest_existing(p.parent, option, p)
     _check_writable(folder, option, p)
     return p
 
@@ -76,7 +76,7 @@ def check_folder(path: str | os.PathLike, *, option: str = "--out") -> Path:
     p = _nonempty(path, option)
     if p.exists() and not p.is_dir():
         raise OutputError(f"{option} {path}: is a file, not a folder")
-    _check_writable(_nearest_existing(p, option), option, p)
+    _check_writable(_nearest_existing(p, option, p), option, p)
     return p
 
 

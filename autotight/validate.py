@@ -38,12 +38,7 @@ def _nonfinite(values: np.ndarray) -> str:
 
 
 def check_data(problem: Any, inst: Any, model: Any) -> None:
-    """Q, the measurements (weights included) and the primary constraints hold only finite numbers."""
-    Q = sp.csr_array(model.Q)
-    bad = _nonfinite(Q.data)
-    if bad:
-        raise InstanceError(f"{problem.name}: the cost matrix Q has non-finite entries ({bad}); "
-                            "check the measurements and weights that build it")
+    """The measurements (weights included), Q and the primary constraints hold only finite numbers."""
     for key, value in (inst.measurements or {}).items():
         try:
             arr = np.asarray(value, dtype=float)
@@ -52,6 +47,10 @@ def check_data(problem: Any, inst: Any, model: Any) -> None:
         bad = _nonfinite(arr)
         if bad:
             raise InstanceError(f"{problem.name}: measurement {key!r} has non-finite entries ({bad})")
+    Q = sp.csr_array(model.Q)
+    bad = _nonfinite(Q.data)
+    if bad:
+        raise InstanceError(f"{problem.name}: the cost matrix Q has non-finite entries ({bad})")
     for c in model.primary():
         bad = _nonfinite(np.append(sp.csr_array(c.A).data, c.b))
         if bad:
