@@ -23,8 +23,8 @@ class _Parser(argparse.ArgumentParser):
     """argparse with the CLI's error rule: one line ``autotight: error: …``, exit status 2."""
 
     def error(self, message: str) -> NoReturn:
-        print(f"autotight: error: {self.prog.removeprefix('autotight ')}: {message} (see {self.prog} --help)",
-              file=sys.stderr)
+        where = self.prog.removeprefix("autotight").strip()
+        print(f"autotight: error: {where + ': ' if where else ''}{message} (see {self.prog} --help)", file=sys.stderr)
         sys.exit(2)
 
 

@@ -231,6 +231,8 @@ def _cases(base: Path) -> list[dict]:
     add("solve_anisotropy_huge", ["solve", "rotation_averaging", *SMALL, "-p", "anisotropy=1e12"], "anisotropy")
     # sizes that cannot fit: an estimate, fast
     add("solve_M_huge", ["solve", "rotation_averaging", "-p", "M=100000000"], "GB", timeout=HANG_S)
+    add("report_M_huge", ["report", "rotation_averaging", "-p", "M=100000000", "--out", sweeps / "t0"], "GB",
+        out=sweeps / "t0", timeout=HANG_S)
     add("report_trials_huge", [*REPORT[:6], "--trials", "100000000", "--out", sweeps / "t1"], "would take",
         out=sweeps / "t1", timeout=HANG_S)
     add("solve_random_starts_huge", ["solve", "rotation_averaging", *SMALL, "--random-starts", "100000000"],

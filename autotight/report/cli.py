@@ -67,11 +67,12 @@ def cmd_report(args: argparse.Namespace) -> int:
     if args.out is not None and not args.out.strip():
         raise ReportError("--out '': give a folder")
     prob = load(args.problem)
-    spec = make_spec(prob, args.problem, parse_assignments(args.param), sigmas=args.sigmas, trials=args.trials,
+    given = parse_assignments(args.param)
+    check_size(prob, prob.parse_params(given))  # before make_spec builds an instance
+    spec = make_spec(prob, args.problem, given, sigmas=args.sigmas, trials=args.trials,
                      sets=args.sets, seed=args.seed, discovered=args.discovered, solver=args.solver)
     check_solver(spec.solver)
     fixed = prob.parse_params(spec.params)  # σ at its default
-    check_size(prob, fixed)
     check_count(prob, fixed, f"--trials {spec.trials}", spec.trials * len(spec.sigmas), per_item=2,
                 what=f"trials ({len(spec.sigmas)} noise levels)")
     out = Path(args.out) if args.out else Path("out") / prob.name
