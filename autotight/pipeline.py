@@ -30,6 +30,7 @@ from .sdp.result import SDPResult
 from .sdp.scaling import block_scale
 from .threads import single_blas_thread
 from .tightness import Criteria, Verdict, judge
+from .validate import check_instance
 
 #: relative cost excess over U above which a local solve counts as trapped in a worse minimum
 TRAP_RTOL = 1e-4
@@ -197,6 +198,7 @@ def solve_instance(problem: Problem, inst: Instance, constraints: ConstraintsLik
     cons = resolve(constraints, problem, inst, model, rng_constraints or s.constraints())
     t1 = time.perf_counter()
     local = local if local is not None else local_search(problem, inst, rng_local or s.local(), n_random)
+    check_instance(problem, inst, model, local)  # NaN/inf data, or a cost that does not match its lifting
     t2 = time.perf_counter()
     scale = block_scale_at(problem, inst, model, local.best.state, config)
     res = sdp.solve_model(model, cons, config, scale)

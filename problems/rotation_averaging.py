@@ -25,8 +25,10 @@ NAME = "rotation_averaging"
 DESCRIPTION = "Average M noisy rotation measurements (paper §3.1)."
 PARAMS = {
     "M": Param(10, "number of rotation measurements", low=1),
-    "sigma": Param(0.1, "noise standard deviation of each φ_m (rad)", low=0.0),
-    "anisotropy": Param(1.0, "ratio of largest to smallest noise std per axis (W_m anisotropic if > 1)", low=1.0),
+    "sigma": Param(0.1, "noise standard deviation of each φ_m (rad; ≤ 10: beyond a few rad the measurements are "
+                        "uniform on SO(3))", low=0.0, high=10.0),
+    "anisotropy": Param(1.0, "ratio of largest to smallest noise std per axis (W_m anisotropic if > 1; "
+                             "≤ 1e6: W_m reaches anisotropy²/σ²)", low=1.0, high=1e6),
 }
 
 

@@ -336,6 +336,11 @@ class _FakeSet:
         return (model or problem.build(inst)).primary()[1:1 + self.n]
 
 
+def _fake_file(n: int) -> dict:
+    """A file that passes the checks of a saved set (format, problem, pairs), read by _FakeSet."""
+    return {"format": "autotight.discovered/1", "problem": PROBLEM, "pairs": [], "n": n}
+
+
 @pytest.fixture
 def fake_discovery(monkeypatch):
     calls = []
@@ -351,7 +356,7 @@ def fake_discovery(monkeypatch):
 
 def test_discovered_set_from_a_file_is_instantiated_per_trial(tmp_path, fake_discovery):
     path = tmp_path / "set.json"
-    path.write_text(json.dumps({"n": 3}))
+    path.write_text(json.dumps(_fake_file(3)))
     out = tmp_path / "d"
     s = run_sweep(_spec(sets="primary,discovered", trials=1, discovered=str(path)), out, progress=False)
     assert s.computed == 2 and fake_discovery == []
@@ -362,7 +367,7 @@ def test_discovered_set_from_a_file_is_instantiated_per_trial(tmp_path, fake_dis
     assert meta["discovered"]["file"] == "set.json" and len(meta["discovered"]["sha256"]) == 64
     with pytest.raises(ReportError, match="holds a different sweep \\(sets:"):
         run_sweep(_spec(trials=1), out, progress=False)
-    path.write_text(json.dumps({"n": 4}))  # another set: refused on resume
+    path.write_text(json.dumps(_fake_file(4)))  # another set: refused on resume
     with pytest.raises(ReportError, match="discovered"):
         run_sweep(_spec(sets="primary,discovered", trials=1, discovered=str(path)), out, progress=False)
 

@@ -7,7 +7,10 @@ import json
 from typing import Callable
 
 from ..cli import add_solver_args, solver_config
+from ..cli_checks import nonneg_float, nonneg_int, pos_float
 from ..io import jsonable
+from ..limits import check_count, check_size
+from ..outpaths import check_file, writing
 from ..pretty import polynomial
 from ..unbounded import compress
 from ..problem import load, parse_assignments
@@ -18,12 +21,13 @@ from .pipeline import DiscoveryResult, discover
 def register(sub: argparse._SubParsersAction, add_problem_args: Callable) -> None:
     p = sub.add_parser("discover", help="learn, tighten and reduce redundant constraints; compare with the paper")
     add_problem_args(p)
-    p.add_argument("--out", default=None, help="save the discovered set as JSON to this file")
-    p.add_argument("--groups", default=None, help="the problem's DEFAULT_GROUPS or 'factors' (default), 'whole', 'adjacent:TYPE+TYPE' (unions of neighbouring factors), "
-                        "comma-joined, or explicit blocks 'a,b;c,d'")
-    p.add_argument("--heldout", type=int, default=10, help="held-out instances for the sufficiency check (default 10)")
-    p.add_argument("--min-gap", type=float, default=6.0, help="spectral gap in decades that decides the rank (default 6)")
-    p.add_argument("--gap-tol", type=float, default=1e-5, help="relative cost gap counted as tight (default 1e-5)")
+    p.add_argument("--out", default=None, help="save the discovered set as JSON to this file (checked before the work)")
+    p.add_argument("--force", action="store_true", help="overwrite --out if it exists")
+    p.add_argument("--groups", default=None, help="the problem's DEFAULT_GROUPS or 'factors' (default), 'whole', "
+                   "'adjacent:TYPE+TYPE' (unions of neighbouring factors), comma-joined, or explicit blocks 'a,b;c,d'")
+    p.add_argument("--heldout", type=nonneg_int, default=10, help="held-out instances for the sufficiency check (default 10)")
+    p.add_argument("--min-gap", type=pos_float, default=6.0, help="spectral gap in decades that decides the rank (default 6)")
+    p.add_argument("--gap-tol", type=nonneg_float, default=1e-5, help="relative cost gap counted as tight (default 1e-5)")
     p.add_argument("--accept", default="rank", choices=["rank", "cost", "certified"],
                    help="what counts as tight: rank d and cost (default), the cost bracket only, or a dual "
                         "certificate of the best local solution")
@@ -45,8 +49,12 @@ def cmd_discover(args: argparse.Namespace) -> int:
     from ..tightness import Criteria
 
     config = solver_config(args)
+    if args.out is not None:
+        check_file(args.out, force=args.force)
     prob = load(args.problem)
     params = prob.parse_params(parse_assignments(args.param))
+    check_size(prob, params)
+    check_count(prob, params, f"--heldout {args.heldout}", args.heldout, per_item=3, what="held-out instances")
     bar = None
     if not args.json and not args.no_progress:
         from tqdm import tqdm
@@ -67,7 +75,8 @@ def cmd_discover(args: argparse.Namespace) -> int:
         if bar is not None:
             bar.close()
     if args.out:
-        res.save(args.out)
+        with writing(args.out):
+            res.save(args.out)
     if args.json:
         print(json.dumps(jsonable(res.summary()), ensure_ascii=False))
     else:

@@ -16,6 +16,7 @@ from ..problem import Instance, Problem, load
 from ..sdp.config import SolverConfig
 from ..tightness import Criteria, Verdict
 from ..unbounded import UnboundedRelaxation
+from ..validate import check_instance
 from .catalog import Catalog, instantiate, learn
 from .compare import paper_in_span, resemblance
 from .discovered import DiscoveredSet
@@ -183,6 +184,7 @@ def discover(problem: Problem | str, params: dict[str, Any] | None = None, seed:
     inst = prob.generate(full, seed)
     model = prob.build(inst)
     loc = local_search(prob, inst, seeds(seed).local(), n_random)
+    check_instance(prob, inst, model, loc)  # NaN/inf data, or a cost that does not match its lifting
     rng = seeds(seed).constraints()
     times["local_s"] = time.perf_counter() - t0
     cat = learn(prob, inst, model, rng, groups, learn_options, progress=lambda g: say("learn", g))

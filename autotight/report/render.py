@@ -13,6 +13,7 @@ import numpy as np
 import pandas as pd
 
 from ..io import atomic_write_text
+from ..outpaths import writing
 from . import figures
 from .store import load_trials
 
@@ -171,6 +172,7 @@ def render(out: str | Path, meta: dict[str, Any]) -> dict[str, Path]:
     out = Path(out)
     s = summarize(out, meta)
     md, page = out / "report.md", out / "report.html"
-    atomic_write_text(md, markdown(s))
-    atomic_write_text(page, html_page(s))
+    for path, text in ((md, markdown(s)), (page, html_page(s))):
+        with writing(path):
+            atomic_write_text(path, text)
     return {**s.figures, "report.md": md, "report.html": page}
