@@ -361,7 +361,8 @@ def test_a_stalled_solve_is_retried_and_every_call_is_counted(ra, monkeypatch):
     assert res.solve_time_s == pytest.approx(sum(t for t, _ in times), rel=1e-12)
     assert res.setup_time_s == pytest.approx(sum(t for _, t in times), rel=1e-12)
     parts = res.message.split("; ")
-    assert parts[0].startswith("1. clarabel-chordal InsufficientProgress"), res.message
+    assert parts[0] == f"1. clarabel-chordal InsufficientProgress ({times[0][0]:.2f} s)", res.message
+    assert f"Solved ({times[2][0]:.2f} s)" in parts[2]  # each attempt's own time
     assert parts[1].startswith("2. retried with default regularisation: clarabel-chordal InsufficientProgress")
     assert parts[2].startswith("3. retried with clique_graph merge: clarabel-chordal Solved")
     local = ra.local_solve(inst, inst.truth)

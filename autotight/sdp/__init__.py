@@ -9,8 +9,8 @@ model's own clique cover (a hint) and a scaling vector:
   is chosen here (``covers.CliqueCovers``: min-fill covers of the columns and of the variable
   blocks, small cliques merged, and the hint, ranked by the backend's cost model);
 - retries: a result is solved again with each of the backend's ``retries`` configs in turn whose
-  statuses include its status (Clarabel: default regularisation on a stalled or AlmostSolved
-  solve, then clique-graph merging on a stalled one); the retry replaces the result when it is
+  statuses include its status (Clarabel: default regularisation on a stalled solve, or an
+  AlmostSolved one of at most 100 columns, then clique-graph merging on a stalled one); the retry replaces the result when it is
   Solved or the result is unusable;
 - fallback: an unusable result of a backend with a ``fallback`` (the IPM) is solved again by that
   backend on its own cover (Clarabel's), with its retries;
@@ -155,10 +155,9 @@ def _solve(Q: sp.spmatrix | sp.sparray, constraints: Sequence[Constraint], d: in
     if not res.usable and fb is not None:
         # the backend's attainable accuracy was not enough: the fallback on its own cover
         res = _with_retries(fb, f"solved again by {fb.name}", Qs, As_s, b, d, _cover(fb, decompose, covers), config, log)
-    res.n_calls = len(log)
-    res.solve_time_s = sum(a.res.solve_time_s for a in log)
-    res.setup_time_s = sum(a.res.setup_time_s for a in log)
-    res.message = "; ".join(a.describe(k + 1) for k, a in enumerate(log))
+    message = "; ".join(a.describe(k + 1) for k, a in enumerate(log))  # before res (one of them) is changed
+    solve_s, setup_s = sum(a.res.solve_time_s for a in log), sum(a.res.setup_time_s for a in log)
+    res.n_calls, res.solve_time_s, res.setup_time_s, res.message = len(log), solve_s, setup_s, message
     if D is not None:
         res = _unscale(res, D)
     elif res.Theta is None:
