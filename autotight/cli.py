@@ -116,6 +116,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     for register in (register_discover, register_report):
         register(sub, _add_problem_args)
+    from .check_cmd import register as register_check  # autotight check
+    register_check(sub, _add_problem_args)
     return ap
 
 
