@@ -55,8 +55,16 @@ def discover(problem: str | ModuleType | Problem, params: dict[str, Any] | None 
 
     Returns a ``DiscoveryResult``; its ``constraint_set`` is what ``solve(constraints=…)`` takes.
     ``options`` are those of ``autotight.discovery.pipeline.discover`` (groups, learn_options,
-    criteria, n_heldout, n_random, progress, …).
+    criteria, n_heldout, n_random, progress, …).  With ``over={"sigma": [...], ...}`` the set is
+    learned over the whole range (``autotight.discovery.range.discover_range``: options n_train,
+    train_params, n_heldout, …) and a ``RangeDiscoveryResult`` is returned.
     """
     from .discovery.pipeline import discover as _discover
+
+    if options.get("over") is not None:
+        from .discovery.range import discover_range
+
+        return discover_range(_problem(problem), params, options.pop("over"), _seed(seed),
+                              solver=solver or SolverOptions(), **options)
 
     return _discover(_problem(problem), params, _seed(seed), solver=solver or SolverOptions(), **options)

@@ -23,14 +23,14 @@ from __future__ import annotations
 import itertools
 import time
 from dataclasses import dataclass, field
-from typing import Any, Mapping, Sequence
+from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
 from .constraint_set import ConstraintSet, ConstraintsLike, set_name
 from .errors import AutotightError, ParameterError
 from .io import versions
-from .pipeline import local_search, seeds, solve_instance
+from .pipeline import SolveResult, local_search, seeds, solve_instance
 from .problem import Problem, load
 from .tightness import Criteria
 
@@ -54,6 +54,8 @@ class PointResult:
     log_svr: list[float] = field(default_factory=list)
     reasons: list[str] = field(default_factory=list)
     n_constraints: list[int] = field(default_factory=list)
+    statuses: list[str] = field(default_factory=list)
+    rel_gap: list[float] = field(default_factory=list)
     set_label: str = ""
 
     def count(self, outcome: str) -> int:
@@ -80,7 +82,8 @@ class PointResult:
         return {"params": self.params, "varied": self.varied, "instances": len(self.seeds),
                 "tight": self.count("tight"), "undecided": self.count("undecided"),
                 "not_tight": self.count("not tight"), "fraction": self.fraction, "passed": self.passed,
-                "n_constraints": sorted(set(self.n_constraints)),
+                "n_constraints": sorted(set(self.n_constraints)), "statuses": self.statuses,
+                "rel_gap": self.rel_gap,
                 "failing": [{"seed": s, "reason": r, "log_svr": v} for s, r, v in self.with_outcome("not tight")],
                 "undecided_seeds": [{"seed": s, "reason": r, "log_svr": v} for s, r, v in self.with_outcome("undecided")],
                 "seeds": self.seeds, "outcomes": self.outcomes, "log_svr": self.log_svr}
@@ -199,9 +202,11 @@ def points_of(problem: Problem, params: Mapping[str, Any] | None, over: Mapping[
 
 def solve_points(problem: Problem, sets: Mapping[str, ConstraintsLike], points: Sequence[tuple[dict, dict]],
                  instances: int, seed: int, *, min_fraction: float = 1.0, solver: Any = None,
-                 criteria: Criteria = Criteria(), n_random: int = 1) -> tuple[dict[str, list[PointResult]], int]:
+                 criteria: Criteria = Criteria(), n_random: int = 1,
+                 on_result: Callable[[SolveResult], None] | None = None) -> tuple[dict[str, list[PointResult]], int]:
     """Solve ``instances`` fresh instances per point with each set (one model and local search per instance,
-    shared by the sets).  Returns {set name: [PointResult per point]} and the number of SDP solves."""
+    shared by the sets).  Returns {set name: [PointResult per point]} and the number of SDP solves.
+    ``on_result`` is called with every ``SolveResult`` (e.g. for a test's own assertions)."""
     for cons in sets.values():
         if isinstance(cons, ConstraintSet) and cons.problem != problem.name:
             raise ParameterError(f"the constraint set is for {cons.problem!r}, not {problem.name!r}")
@@ -222,12 +227,16 @@ def solve_points(problem: Problem, sets: Mapping[str, ConstraintsLike], points: 
                     except AutotightError as e:
                         pr.seeds.append(s); pr.outcomes.append("not tight"); pr.log_svr.append(float("nan"))
                         pr.reasons.append(f"cannot instantiate the set: {e}"); pr.n_constraints.append(0)
+                        pr.statuses.append("not instantiated"); pr.rel_gap.append(float("nan"))
                         continue
                 r = solve_instance(problem, inst, given, config=solver, criteria=criteria, model=model, local=loc)
                 pr.set_label = set_name(cons, model)
                 n_solves += max(1, len(r.attempts))
                 pr.seeds.append(s); pr.outcomes.append(r.outcome); pr.log_svr.append(float(r.log_svr))
                 pr.reasons.append(r.verdict.reason); pr.n_constraints.append(r.n_constraints)
+                pr.statuses.append(r.sdp.status); pr.rel_gap.append(float(r.verdict.rel_gap))
+                if on_result is not None:
+                    on_result(r)
     return out, n_solves
 
 
@@ -235,11 +244,13 @@ def check_sufficient(problem: str | Problem, constraints: ConstraintsLike = "pap
                      sigmas: Sequence[float] | None = None, instances: int = 10, min_fraction: float = 1.0,
                      params: Mapping[str, Any] | None = None, seed: int = 0, solver: Any = None, *,
                      over: Mapping[str, Sequence[Any]] | None = None, criteria: Criteria = Criteria(),
-                     n_random: int = 1) -> SufficiencyReport:
+                     n_random: int = 1, on_result: Callable[[SolveResult], None] | None = None) -> SufficiencyReport:
     """Solve ``instances`` fresh instances per point with ``constraints`` and count the outcomes.
 
     constraints: "paper", "primary" or a ``ConstraintSet``.  sigmas/over: the points (module
     docstring).  min_fraction F: a point passes when tight / (instances − undecided) ≥ F.
+    n_random: random-start local solves per instance (0: from the ground truth only).
+    on_result: called with each instance's ``SolveResult``.
     """
     prob = problem if isinstance(problem, Problem) else load(problem)
     if isinstance(instances, bool) or not isinstance(instances, (int, np.integer)) or instances < 1:
@@ -268,7 +279,7 @@ def check_sufficient(problem: str | Problem, constraints: ConstraintsLike = "pap
     t0 = time.perf_counter()
     name = "set" if isinstance(constraints, ConstraintSet) else (constraints or "default")
     res, n = solve_points(prob, {name: constraints}, points, int(instances), int(seed), min_fraction=float(min_fraction),
-                          solver=solver, criteria=criteria, n_random=n_random)
+                          solver=solver, criteria=criteria, n_random=n_random, on_result=on_result)
     label = next((p.set_label for p in res[name] if p.set_label), set_name(constraints, None))  # type: ignore[arg-type]
     return SufficiencyReport(prob.name, label, {k: v for k, v in points[0][0].items() if k not in over_}, over_,
                              int(instances), float(min_fraction), int(seed), res[name], n,

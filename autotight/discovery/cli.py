@@ -23,6 +23,9 @@ def register(sub: argparse._SubParsersAction, add_problem_args: Callable) -> Non
     p.add_argument("--min-gap", type=float, default=6.0, help="spectral gap in decades that decides the rank (default 6)")
     p.add_argument("--gap-tol", type=float, default=1e-5, help="relative cost gap counted as tight (default 1e-5)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    from .range import add_range_args  # discovery over a range: --sigmas, --range, --train, --train-param
+
+    add_range_args(p)
     p.set_defaults(func=cmd_discover)
 
 
@@ -36,6 +39,10 @@ def _groups(spec: str):
 def cmd_discover(args: argparse.Namespace) -> int:
     from ..tightness import Criteria
 
+    if args.sigmas is not None or args.range:
+        from .range import cmd_discover_range
+
+        return cmd_discover_range(args, _groups(args.groups))
     prob = load(args.problem)
     params = prob.parse_params(parse_assignments(args.param))
     bar = None
