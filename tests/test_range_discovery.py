@@ -114,3 +114,15 @@ def test_bad_range_input():
     with pytest.raises(ParameterError, match="n_train"):
         discover_range("pose_averaging", None, {"sigma": [0.1]}, n_train=0)
     assert main(["discover", "pose_averaging", "--range", "sigma"]) == 2
+
+
+def test_validation_rounds_add_training_instances_the_set_is_then_tight_on():
+    prob = at.load_problem("pose_averaging")
+    res = discover_range(prob, {"M": 3}, {"sigma": [1.0]}, seed=0, n_train=1, n_validate=1, max_rounds=1,
+                         n_heldout=0)
+    assert len(res.validation) == 1 and res.validation[0]["new_instances"] == 1
+    assert res.points[0].train_seeds == [training_seed(0, 0, 0), training_seed(0, 0, 1)]
+    assert res.points[0].reached == [True, True]
+    inst = prob.generate({"M": 3, "sigma": 1.0}, training_seed(0, 0, 1))
+    assert solve_instance(prob, inst, res.constraint_set, n_random=2).outcome == "tight"
+    assert res.solves_by_stage["validate"] == 1 and res.n_solves == sum(res.solves_by_stage.values())

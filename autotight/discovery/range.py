@@ -30,7 +30,9 @@
 5. **Irreducible**: removing any remaining pair breaks tightness on at least one reached training
    instance, checked by a solve on exactly that set (a pair whose removal turns out not to break
    it is dropped, and the check repeats).
-6. **Held out**: ``n_heldout`` instances per point at the point's own parameters, solved with the
+6. **Validate** (optional, ``n_validate``): more training instances per point, tightened from the
+   set and reduced again where the set is not tight on one of them (at most ``max_rounds`` rounds).
+7. **Held out**: ``n_heldout`` instances per point at the point's own parameters, solved with the
    range set and with the paper's families (``autotight.check.solve_points``).
 
 Every SDP solve goes through ``autotight.pipeline.solve_instance``; an "undecided" verdict counts
@@ -82,7 +84,8 @@ class Trainer:
     tight_sets: list[frozenset] = field(default_factory=list)
     loose_sets: list[frozenset] = field(default_factory=list)
     last: SolveResult | None = None
-    last_pairs: list[Pair] = field(default_factory=list)
+    tight_result: SolveResult | None = None  # the last tight solve, with its pairs in order
+    tight_pairs: list[Pair] = field(default_factory=list)
 
     def known(self, chosen: frozenset, exact: bool = False) -> bool | None:
         """Tightness with ``chosen`` if a known result decides it (monotonicity), else None.
@@ -101,12 +104,12 @@ class Trainer:
 
     def importance(self) -> dict[Pair, float]:
         """Σ|yᵢ|‖Aᵢ‖_F per pair of the last (tight) solve, normalised to sum 1 over its pairs."""
-        out = {p: 0.0 for p in self.last_pairs}
-        res = self.last.sdp if self.last is not None else None
+        out = {p: 0.0 for p in self.tight_pairs}
+        res = self.tight_result.sdp if self.tight_result is not None else None
         if res is None or res.y is None:
             return out
         k = len(self.model.primary())
-        for p in self.last_pairs:
+        for p in self.tight_pairs:
             for c in self.pairs[p]:
                 out[p] += abs(float(res.y[k])) * float(np.sqrt((c.A.multiply(c.A)).sum()))
                 k += 1
@@ -162,6 +165,7 @@ class RangeDiscoveryResult:
     times: dict[str, float]
     log: list[dict[str, Any]]
     example: tuple[Model, list[Constraint]] | None = None
+    validation: list[dict[str, int]] = field(default_factory=list)
 
     @property
     def tight(self) -> bool:
@@ -181,7 +185,7 @@ class RangeDiscoveryResult:
         return {"problem": self.problem, "params": self.params, "over": self.over, "train_params": self.train_params,
                 "n_train": self.n_train, "seed": self.seed, "tight": self.tight,
                 "n_candidate_pairs": len(self.candidates), "not_learned_everywhere": [f"{t}:{i}" for t, i in self.not_everywhere],
-                "n_greedy_pairs": len(self.greedy), "n_pairs": len(self.pairs),
+                "n_greedy_pairs": len(self.greedy), "validation_rounds": self.validation, "n_pairs": len(self.pairs),
                 "pairs": [f"{t}:{i}" for t, i in self.pairs], "irreducible": self.irreducible,
                 "dropped_in_verification": [f"{t}:{i}" for t, i in self.dropped_in_verification],
                 "n_solves": self.n_solves, "solves_by_stage": self.solves_by_stage, "times": self.times,
@@ -192,7 +196,10 @@ class RangeDiscoveryResult:
         lines = [f"problem {self.problem}  params {self.params}  over {self.over}"
                  + (f"  (training at {self.train_params})" if self.train_params else "") + f"  seed {self.seed}",
                  f"{len(self.candidates)} candidate pairs learned on all {sum(len(p.reached) for p in self.points)} "
-                 f"training instances; greedy {len(self.greedy)} pairs → {len(self.pairs)} pairs "
+                 f"training instances; greedy {len(self.greedy)} pairs"
+                 + "".join(f", +{r['new_instances']} instances ({r['not_tight']} not tight, +{r['pairs_added']} pairs)"
+                           for r in self.validation)
+                 + f" → {len(self.pairs)} pairs "
                  f"({'irreducible over the range' if self.irreducible else 'not verified irreducible'}); "
                  f"{self.n_solves} SDP solves ({', '.join(f'{k} {v}' for k, v in s['solves_by_stage'].items())}); "
                  f"{self.times.get('total_s', float('nan')):.1f} s", "",
@@ -236,7 +243,7 @@ class _Run:
 
     def solve(self, tr: Trainer, chosen: Sequence[Pair], stage: str) -> bool:
         chosen = list(chosen)
-        cons = [c for p in chosen for c in tr.pairs[p]]
+        cons = [c for p in chosen for c in tr.pairs.get(p, [])]
         r = solve_instance(self.problem, tr.inst, cons, config=self.config, criteria=self.criteria,
                            model=tr.model, local=tr.local)
         n = max(1, len(r.attempts))
@@ -248,7 +255,9 @@ class _Run:
         tight = r.outcome == "tight"
         key = frozenset(chosen)
         (tr.tight_sets if tight else tr.loose_sets).append(key)
-        tr.last, tr.last_pairs = r, chosen
+        tr.last = r
+        if tight:
+            tr.tight_result, tr.tight_pairs = r, chosen
         self.log.append({"stage": stage, "point": tr.point, "seed": tr.seed, "n_pairs": len(chosen),
                          "outcome": r.outcome, "log_svr": r.log_svr, "status": r.sdp.status})
         return tight
@@ -266,16 +275,27 @@ class _Run:
         return True, None
 
 
+def _candidates(trainers: list[Trainer], tparams: dict[str, Any]) -> tuple[list[Pair], list[Pair]]:
+    """Pairs learned on every training instance (in the first one's order), and the others."""
+    everywhere = set.intersection(*(set(tr.pairs) for tr in trainers))
+    if tparams:  # carried to other sizes: only pairs learned on every factor of their type
+        everywhere = {p for p in everywhere if all(_on_every_factor(tr, p) for tr in trainers)}
+    others = sorted(set().union(*(set(tr.pairs) for tr in trainers)) - everywhere)
+    return [p for p in trainers[0].pairs if p in everywhere], others
+
+
 def _on_every_factor(tr: Trainer, pair: Pair) -> bool:
     """Whether every factor of the pair's type learned it (else its name is factor-specific and won't carry over)."""
     return len({c.factor for c in tr.pairs[pair]}) == len(tr.model.factor_types().get(pair[0], ()))
 
 
-def _learn_trainers(prob: Problem, points: list[tuple[dict, dict]], train_params: dict[str, Any], n_train: int,
-                    seed: int, groups: Any, opts: LearnOptions, n_random: int, say: Callable) -> list[Trainer]:
+def _learn_trainers(prob: Problem, points: list[tuple[dict, dict]], which: Sequence[int], train_params: dict[str, Any],
+                    trials: range, seed: int, groups: Any, opts: LearnOptions, n_random: int,
+                    say: Callable) -> list[Trainer]:
     out = []
-    for i, (full, varied) in enumerate(points):
-        for t in range(n_train):
+    for i in which:
+        full, varied = points[i]
+        for t in trials:
             s = training_seed(seed, i, t)
             inst = prob.generate(full | train_params, s)
             model = prob.build(inst)
@@ -287,10 +307,11 @@ def _learn_trainers(prob: Problem, points: list[tuple[dict, dict]], train_params
 
 
 def _tighten(run: _Run, trainers: list[Trainer], candidates: list[Pair], min_violation: float,
-             say: Callable) -> list[Pair]:
-    """Greedy over all training instances (module docstring, step 3); marks the ones not reached."""
-    loose = [tr for tr in trainers if not run.solve(tr, [], "primary")]
-    chosen: list[Pair] = []
+             say: Callable, start: Sequence[Pair] = (), stage: str = "primary") -> list[Pair]:
+    """Greedy over all training instances from the set ``start`` (module docstring, step 3); marks the
+    ones not reached."""
+    loose = [tr for tr in trainers if not run.solve(tr, start, stage)]
+    chosen: list[Pair] = list(start)
     r = 0
     while loose:
         remaining = [p for p in candidates if p not in set(chosen)]
@@ -375,16 +396,22 @@ def discover_range(problem: Problem | str, params: Mapping[str, Any] | None, ove
                    seed: int = 0, *, n_train: int = 2, train_params: Mapping[str, Any] | None = None,
                    n_heldout: int = 10, groups: Any = "factors", learn_options: LearnOptions = LearnOptions(),
                    criteria: Criteria = Criteria(), solver: Any = None, n_random: int = 2,
-                   min_violation: float = 1e-7, compare: bool = True,
+                   n_validate: int = 0, max_rounds: int = 3, min_violation: float = 1e-7, compare: bool = True,
                    progress: Callable[[str, str], None] | None = None) -> RangeDiscoveryResult:
-    """Learn, tighten and reduce one set over every point of ``over`` (see the module docstring)."""
+    """Learn, tighten and reduce one set over every point of ``over`` (see the module docstring).
+
+    n_validate: after the reduction, up to ``max_rounds`` times, learn ``n_validate`` more training
+    instances per point that has a reached one; when the set is not tight on one of them, tighten
+    from the set on them and reduce again over all training instances (0: no such rounds).
+    """
     prob = load(problem) if isinstance(problem, str) else problem
     if not over:
         raise ParameterError("give at least one parameter to vary, e.g. over={'sigma': [0.01, 0.1, 1]}")
     if isinstance(n_train, bool) or not isinstance(n_train, (int, np.integer)) or n_train < 1:
         raise ParameterError(f"n_train must be an int ≥ 1, got {n_train!r}")
-    if isinstance(n_heldout, bool) or not isinstance(n_heldout, (int, np.integer)) or n_heldout < 0:
-        raise ParameterError(f"n_heldout must be an int ≥ 0, got {n_heldout!r}")
+    for name, v in (("n_heldout", n_heldout), ("n_validate", n_validate), ("max_rounds", max_rounds)):
+        if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 0:
+            raise ParameterError(f"{name} must be an int ≥ 0, got {v!r}")
     config = SolverOptions() if solver is None else solver
     say = progress or (lambda stage, text: None)
     over_ = parse_over(prob, over)
@@ -397,25 +424,41 @@ def discover_range(problem: Problem | str, params: Mapping[str, Any] | None, ove
     points = points_of(prob, params, over_)
     fixed = {k: v for k, v in points[0][0].items() if k not in over_}
     t0 = time.perf_counter()
-    trainers = _learn_trainers(prob, points, tparams, int(n_train), int(seed), groups, learn_options, n_random, say)
-    t_learn = time.perf_counter() - t0
-    everywhere = set.intersection(*(set(tr.pairs) for tr in trainers))
-    if tparams:  # carried to other sizes: only pairs learned on every factor of their type
-        everywhere = {p for p in everywhere if all(_on_every_factor(tr, p) for tr in trainers)}
-    candidates = [p for p in trainers[0].pairs if p in everywhere]
-    not_everywhere = sorted(set().union(*(set(tr.pairs) for tr in trainers)) - everywhere)
+    tm = {"learn_s": 0.0, "tighten_s": 0.0, "reduce_s": 0.0}
+
+    def timed(key: str, f: Callable, *a: Any, **k: Any) -> Any:
+        t = time.perf_counter()
+        out = f(*a, **k)
+        tm[key] += time.perf_counter() - t
+        return out
+
+    common = (int(seed), groups, learn_options, n_random, say)
+    trainers = timed("learn_s", _learn_trainers, prob, points, range(len(points)), tparams, range(int(n_train)), *common)
+    candidates, not_everywhere = _candidates(trainers, tparams)
     run = _Run(prob, config, criteria)
-    t = time.perf_counter()
-    greedy = _tighten(run, trainers, candidates, min_violation, say)
-    t_tighten = time.perf_counter() - t
+    greedy = timed("tighten_s", _tighten, run, trainers, candidates, min_violation, say)
     reached = [tr for tr in trainers if tr.reached]
-    t = time.perf_counter()
-    pairs, dropped = _reduce(run, reached, greedy, say) if reached and greedy else ([], [])  # none reached: no set
-    t_reduce = time.perf_counter() - t
+    pairs, dropped = timed("reduce_s", _reduce, run, reached, greedy, say) if reached and greedy else ([], [])
+    rounds: list[dict[str, int]] = []
+    next_t = int(n_train)
+    while n_validate and reached and len(rounds) < max_rounds:
+        which = sorted({tr.point for tr in reached})
+        new = timed("learn_s", _learn_trainers, prob, points, which, tparams, range(next_t, next_t + n_validate), *common)
+        next_t += n_validate
+        trainers += new
+        candidates, not_everywhere = _candidates(trainers, tparams)
+        more = timed("tighten_s", _tighten, run, new, candidates, min_violation, say, pairs, "validate")
+        loose = sum(frozenset(pairs) in tr.loose_sets for tr in new)
+        rounds.append({"new_instances": len(new), "not_tight": loose, "pairs_added": len(more) - len(pairs)})
+        if len(more) == len(pairs):
+            break  # tight on every new instance (or none of the loose ones could be reached)
+        reached = [tr for tr in trainers if tr.reached]
+        pairs, d2 = timed("reduce_s", _reduce, run, reached, more, say)
+        dropped += d2
     rpoints = [RangePoint(i, varied, full, [tr.seed for tr in trainers if tr.point == i],
                           [tr.reached for tr in trainers if tr.point == i],
                           [tr.message for tr in trainers if tr.point == i]) for i, (full, varied) in enumerate(points)]
-    info = {"range": {"over": over_, "train_params": tparams, "n_train": int(n_train),
+    info = {"range": {"over": over_, "train_params": tparams, "n_train": int(n_train), "validation": rounds,
                       "training_seeds": "SeedSequence((seed, point, t, 1))",
                       "reached": {str(p.varied): p.reached for p in rpoints}},
             "criteria": asdict(criteria), "tight": bool(reached), "message": "discovered over a range"}
@@ -442,12 +485,11 @@ def discover_range(problem: Problem | str, params: Mapping[str, Any] | None, ove
     if reached:
         tr = reached[0]
         ex = (tr.model, [c for p in pairs for c in tr.pairs[p]])
-    times = {"learn_s": t_learn, "tighten_s": t_tighten, "reduce_s": t_reduce, "heldout_s": t_held,
-             "sdp_training_s": run.sdp_s, "total_s": time.perf_counter() - t0}
+    times = tm | {"heldout_s": t_held, "sdp_training_s": run.sdp_s, "total_s": time.perf_counter() - t0}
     say("done", "")
     return RangeDiscoveryResult(prob.name, fixed, over_, tparams, int(n_train), int(seed), rpoints, candidates,
                                 not_everywhere, greedy, list(pairs), bool(reached), dropped,
-                                ds, run.n_solves, dict(run.by_stage), times, run.log, ex)
+                                ds, run.n_solves, dict(run.by_stage), times, run.log, ex, rounds)
 
 
 def add_range_args(p: argparse.ArgumentParser) -> None:
@@ -459,6 +501,9 @@ def add_range_args(p: argparse.ArgumentParser) -> None:
                    help="with --sigmas/--range: training instances per point (default 2)")
     p.add_argument("--train-param", action="append", default=[], metavar="NAME=VALUE",
                    help="with --sigmas/--range: a parameter of the training instances only, e.g. K=5 (repeatable)")
+    p.add_argument("--validate", type=int, default=0, metavar="N",
+                   help="with --sigmas/--range: up to 3 rounds of N more training instances per point, tightening "
+                        "again where the set is not tight on one (default 0)")
 
 
 def cmd_discover_range(args: argparse.Namespace, groups: Any) -> int:
@@ -480,7 +525,7 @@ def cmd_discover_range(args: argparse.Namespace, groups: Any) -> int:
     try:
         res = discover_range(prob, parse_assignments(args.param), parse_range(args.sigmas, args.range), args.seed,
                              n_train=args.train, train_params=parse_assignments(args.train_param),
-                             n_heldout=args.heldout, groups=groups,
+                             n_heldout=args.heldout, n_validate=args.validate, groups=groups,
                              learn_options=LearnOptions(min_gap_decades=args.min_gap),
                              criteria=Criteria(gap_tol=args.gap_tol), progress=progress)
     finally:
