@@ -3,7 +3,8 @@ when a constraint set is not tight often enough over a range (``autotight.check`
 
 from __future__ import annotations
 
-from typing import Any, Mapping, Sequence
+from collections.abc import Mapping, Sequence
+from typing import Any
 
 from .check import SufficiencyReport, check_sufficient
 from .constraint_set import ConstraintsLike

@@ -8,7 +8,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-import autotight.check as check
+from autotight import check
 from autotight.check import PointResult, check_sufficient, instance_seed
 from autotight.cli import main
 from autotight.errors import ParameterError

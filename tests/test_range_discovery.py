@@ -8,11 +8,11 @@ import json
 import pytest
 
 import autotight as at
+from autotight.check import instance_seed
 from autotight.cli import main
 from autotight.constraint_set import ConstraintSet
 from autotight.discovery.range import RangeDiscoveryResult, Trainer, _reduce, _Run, discover_range, training_seed
 from autotight.errors import ParameterError
-from autotight.check import instance_seed
 from autotight.pipeline import solve_instance
 from autotight.tightness import Criteria
 
