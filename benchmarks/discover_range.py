@@ -6,7 +6,7 @@ and the paper's held-out tight fractions on the same instances, and the redundan
 instantiates.  Prints a table per run and writes benchmarks/results/discover_range.json.
 
     python benchmarks/discover_range.py [--runs pose,discrete] [--train 2] [--validate 0]
-                                        [--heldout 10] [--seed 0] [--out FILE]
+                                        [--heldout 10] [--seed 0] [--out FILE] [--keep-other-runs]
 """
 
 from __future__ import annotations
@@ -69,15 +69,21 @@ def main() -> None:
     ap.add_argument("--heldout", type=int, default=10)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", default=str(Path(__file__).parent / "results" / "discover_range.json"))
+    ap.add_argument("--keep-other-runs", action="store_true", help="keep the other runs already in --out")
     a = ap.parse_args()
-    out = {"benchmark": "discover over a noise range vs the paper's families", "versions": versions(),
-           "command": f"python benchmarks/discover_range.py --runs {a.runs} --train {a.train} --validate {a.validate} "
-                      f"--heldout {a.heldout} --seed {a.seed}",
+    cmd = (f"python benchmarks/discover_range.py --runs {a.runs} --train {a.train} --validate {a.validate} "
+           f"--heldout {a.heldout} --seed {a.seed}")
+    runs = {}
+    for name in a.runs.split(","):
+        runs[name] = run(name, a.train, a.validate, a.heldout, a.seed) | {"command": cmd, "versions": versions()}
+    path = Path(a.out)
+    old = json.loads(path.read_text()) if path.exists() and a.keep_other_runs else {}
+    out = {"benchmark": "discover over a noise range vs the paper's families",
            "target": "held-out tight fraction within 2 pp of the paper's at every σ, no more constraints than the paper's",
-           "runs": {name: run(name, a.train, a.validate, a.heldout, a.seed) for name in a.runs.split(",")}}
+           "runs": {**old.get("runs", {}), **runs}}
     print(json.dumps(jsonable({k: {kk: v[kk] for kk in ("n_pairs", "n_constraints", "n_paper_constraints", "n_solves",
                                                          "wall_s", "meets_target")}
-                               for k, v in out["runs"].items()}), indent=1))
+                               for k, v in runs.items()}), indent=1))
     Path(a.out).parent.mkdir(parents=True, exist_ok=True)
     Path(a.out).write_text(json.dumps(jsonable(out), indent=1) + "\n")
 
