@@ -18,9 +18,9 @@ from .errors import AutotightError
 from .model import Constraint, Factor, Model, QuadForm, Variables
 from .pipeline import SolveResult
 from .problem import Instance, LocalResult, Param, Problem
-from .sdp.result import SolverOptions
+from .sdp.config import SolverConfig, SolverOptions
 from .tightness import Criteria, Verdict
 
 __all__ = ["__version__", "load_problem", "solve", "discover", "ConstraintSet", "SolveResult", "Criteria",
-           "Verdict", "SolverOptions", "AutotightError", "Problem", "Param", "Instance", "LocalResult", "Model",
+           "Verdict", "SolverConfig", "SolverOptions", "AutotightError", "Problem", "Param", "Instance", "LocalResult", "Model",
            "Variables", "Factor", "QuadForm", "Constraint"]

@@ -1,4 +1,4 @@
-"""Command line: ``autotight list | solve | discover | report | check-module``.
+"""Command line: ``autotight list | solve | discover | report | check | check-module``.
 
 The CLI is a thin layer over the Python API (``autotight.api``).  Errors: an input error or a
 failed solve (any ``autotight.errors.AutotightError``) prints one line ``autotight: error: …``
@@ -147,11 +147,12 @@ def build_parser() -> argparse.ArgumentParser:
     add_solver_args(p)
     p.add_argument("--random-starts", type=nonneg_int, default=1, help="random-start local solves (default 1)")
     p.set_defaults(func=cmd_solve)
+    from .check_cli import register as register_check_module
+    from .check_cmd import register as register_check
     from .discovery.cli import register as register_discover
     from .report.cli import register as register_report
-    from .check_cli import register as register_check
 
-    for register in (register_discover, register_report, register_check):
+    for register in (register_discover, register_report, register_check, register_check_module):
         register(sub, _add_problem_args)
     return ap
 

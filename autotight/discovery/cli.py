@@ -33,6 +33,9 @@ def register(sub: argparse._SubParsersAction, add_problem_args: Callable) -> Non
                         "certificate of the best local solution")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     add_solver_args(p)
+    from .range import add_range_args  # discovery over a range: --sigmas, --range, --train, --train-param
+
+    add_range_args(p)
     p.set_defaults(func=cmd_discover)
 
 
@@ -51,6 +54,10 @@ def cmd_discover(args: argparse.Namespace) -> int:
     config = solver_config(args)
     if args.out is not None:
         check_file(args.out, force=args.force)
+    if args.sigmas is not None or args.range:
+        from .range import cmd_discover_range
+
+        return cmd_discover_range(args, _groups(args.groups))
     prob = load(args.problem)
     params = prob.parse_params(parse_assignments(args.param))
     check_size(prob, params)
