@@ -1,4 +1,5 @@
-"""The public Python API: ``load_problem``, ``solve``, ``discover``, ``check_problem``.
+"""The public Python API: ``load_problem``, ``solve``, ``discover`` (``check_problem`` is in
+``autotight.checks``, ``check_sufficient`` in ``autotight.check``).
 
 Each function validates its input at the boundary and returns a result with plain attributes;
 the CLI, the report sweep and discovery all run through the same per-instance pipeline

@@ -52,7 +52,7 @@ def test_json_is_one_object_with_the_same_counts(capsys):
     (["--range", "Q=1,2"], "unknown parameter 'Q'"),
     (["--sigmas", "0.1,0.1"], "duplicate"),
     (["--sigmas", "-1"], "sigma"),
-    (["--set", "/nonexistent/set.json"], "cannot read"),
+    (["--set", "/nonexistent/set.json"], "no such file"),
 ])
 def test_bad_input_exits_2(argv, match, capsys):
     code = main(["check", "pose_averaging", "--instances", "1", *_with_m(argv)])
