@@ -99,7 +99,6 @@ def test_a_row_equals_a_direct_solve_of_its_instance(reference):
     df = load_trials(reference)
     r = df[(df["sigma_index"] == 1) & (df["trial"] == 2) & (df["constraint_set"] == "primary")].iloc[0]
     prob = load(PROBLEM)
-    inst = prob.generate({"M": 3, "sigma": 0.3}, int(r["seed"]))
     assert trial_seeds(0, 1, 2)[0] == int(r["seed"])  # the trial's generators are those of its instance seed
     out = solve(prob, {"M": 3, "sigma": 0.3}, int(r["seed"]), constraints="primary", solver=SolverConfig(threads=1))
     assert r["log_svr"] == pytest.approx(out.sdp.log_svr, rel=1e-9)

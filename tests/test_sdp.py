@@ -121,7 +121,8 @@ def test_contradictory_constraints_return_infeasible_status(ra, factor_cliques, 
     cons = model.primary() + [Constraint(E, 2.0, name="h2=2")]
     res = sdp.solve(model.Q, cons, cliques=factor_cliques(model),
                     config=SolverConfig(backend=solver, decompose=use_cliques if solver == "clarabel" else None))
-    assert res.solver == ("clarabel-cliques" if use_cliques else "clarabel-chordal" if solver == "clarabel" else "cvxpy-scs")
+    expected = "clarabel-cliques" if use_cliques else "clarabel-chordal" if solver == "clarabel" else "cvxpy-scs"
+    assert res.solver == expected
     assert not res.usable
     assert not res.solved
     assert "infeasible" in res.status.lower(), res.status

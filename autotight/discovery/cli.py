@@ -25,9 +25,12 @@ def register(sub: argparse._SubParsersAction, add_problem_args: Callable) -> Non
     p.add_argument("--force", action="store_true", help="overwrite --out if it exists")
     p.add_argument("--groups", default=None, help="the problem's DEFAULT_GROUPS or 'factors' (default), 'whole', "
                    "'adjacent:TYPE+TYPE' (unions of neighbouring factors), comma-joined, or explicit blocks 'a,b;c,d'")
-    p.add_argument("--heldout", type=nonneg_int, default=10, help="held-out instances for the sufficiency check (default 10)")
-    p.add_argument("--min-gap", type=pos_float, default=6.0, help="spectral gap in decades that decides the rank (default 6)")
-    p.add_argument("--gap-tol", type=nonneg_float, default=1e-5, help="relative cost gap counted as tight (default 1e-5)")
+    p.add_argument("--heldout", type=nonneg_int, default=10,
+                   help="held-out instances for the sufficiency check (default 10)")
+    p.add_argument("--min-gap", type=pos_float, default=6.0,
+                   help="spectral gap in decades that decides the rank (default 6)")
+    p.add_argument("--gap-tol", type=nonneg_float, default=1e-5,
+                   help="relative cost gap counted as tight (default 1e-5)")
     p.add_argument("--accept", default="rank", choices=["rank", "cost", "certified"],
                    help="what counts as tight: rank d and cost (default), the cost bracket only, or a dual "
                         "certificate of the best local solution")
@@ -110,7 +113,8 @@ def table(res: DiscoveryResult) -> str:
     s = res.summary()
     lines = [f"problem {res.problem}  params {res.params}  seed {res.seed}",
              f"learned per group: {len(res.catalog.groups)} groups, {s['n_candidates']} new candidates in "
-             f"{s['n_candidate_pairs']} (factor type, identity) pairs, {s['n_rejected_heldout']} rejected on held-out samples",
+             f"{s['n_candidate_pairs']} (factor type, identity) pairs, {s['n_rejected_heldout']} rejected on held-out "
+             "samples",
              f"smallest spectral gap: {min(s['spectral_gaps'].values()):.1f} decades",
              f"result: {'TIGHT' if res.tight else 'NOT TIGHT'} ({res.accept}) — {res.explanation()}",
              f"log SVR {res.final_log_svr:.2f} (primary alone {s['log_svr_primary']:.2f}); final relative cost gap "
@@ -121,7 +125,8 @@ def table(res: DiscoveryResult) -> str:
              *([f"ignored spectral gaps below roundoff in {len(s['spectral_gaps_ignored'])} group(s) "
                 f"(largest {max(g['decades'] for g in s['spectral_gaps_ignored'].values()):.1f} decades)"]
                if s['spectral_gaps_ignored'] else []), "",
-             f"{'set':<28}{'constraints':>12}{'in learned span':>18}{'tight (learn inst.)':>21}{'tight (held-out)':>18}",
+             f"{'set':<28}{'constraints':>12}{'in learned span':>18}{'tight (learn inst.)':>21}"
+             f"{'tight (held-out)':>18}",
              f"{'primary':<28}{s['n_primary']:>12}{'yes':>18}{str(res.tightened.primary_verdict.tight):>21}"
              f"{_primary_frac(res.heldout):>18}"]
     for fam, info in res.paper_span.items():
@@ -146,5 +151,6 @@ def table(res: DiscoveryResult) -> str:
     for f, cons in by_factor.items():
         lines.append(f"[{f}]")
         for c in cons:
-            lines.append(f"  ({c.identity}, like {res.resembles.get(c.name, '?')})  {polynomial(c.A, res.model.variables)}")
+            like = res.resembles.get(c.name, "?")
+            lines.append(f"  ({c.identity}, like {like})  {polynomial(c.A, res.model.variables)}")
     return "\n".join(lines)
