@@ -157,6 +157,11 @@ def heldout_check(problem: Problem, params: dict[str, Any], seeds_: Sequence[int
     return out
 
 
+def default_groups(problem: Problem, groups: str | Sequence[Sequence[str]] | None) -> str | Sequence[Sequence[str]]:
+    """``groups``, or when None the problem module's ``DEFAULT_GROUPS`` (else "factors")."""
+    return getattr(problem.module, "DEFAULT_GROUPS", "factors") if groups is None else groups
+
+
 @single_blas_thread
 def discover(problem: Problem | str, params: dict[str, Any] | None = None, seed: int = 0, *,
              groups: str | Sequence[Sequence[str]] | None = None, learn_options: LearnOptions = LearnOptions(),
@@ -175,8 +180,7 @@ def discover(problem: Problem | str, params: dict[str, Any] | None = None, seed:
     """
     prob = load(problem) if isinstance(problem, str) else problem
     config = SolverConfig() if solver is None else solver
-    if groups is None:  # the problem module's default learning groups
-        groups = getattr(prob.module, "DEFAULT_GROUPS", "factors")
+    groups = default_groups(prob, groups)
     say = progress or (lambda stage, text: None)
     full = prob.parse_params(params)
     times: dict[str, float] = {}

@@ -63,6 +63,7 @@ from ..tightness import Criteria
 from .catalog import Pair, learn
 from .discovered import DiscoveredSet
 from .learn import LearnOptions
+from .pipeline import default_groups
 
 
 def training_seed(seed: int, point: int, trial: int) -> int:
@@ -395,7 +396,7 @@ def _reduce(run: _Run, trainers: list[Trainer], chosen: list[Pair], say: Callabl
 @single_blas_thread
 def discover_range(problem: Problem | str, params: Mapping[str, Any] | None, over: Mapping[str, Sequence[Any]],
                    seed: int = 0, *, n_train: int = 2, train_params: Mapping[str, Any] | None = None,
-                   n_heldout: int = 10, groups: Any = "factors", learn_options: LearnOptions = LearnOptions(),
+                   n_heldout: int = 10, groups: Any = None, learn_options: LearnOptions = LearnOptions(),
                    criteria: Criteria = Criteria(), solver: Any = None, n_random: int = 2,
                    n_validate: int = 0, max_rounds: int = 3, min_violation: float = 1e-7, compare: bool = True,
                    progress: Callable[[str, str], None] | None = None) -> RangeDiscoveryResult:
@@ -406,6 +407,7 @@ def discover_range(problem: Problem | str, params: Mapping[str, Any] | None, ove
     from the set on them and reduce again over all training instances (0: no such rounds).
     """
     prob = load(problem) if isinstance(problem, str) else problem
+    groups = default_groups(prob, groups)
     if not over:
         raise ParameterError("give at least one parameter to vary, e.g. over={'sigma': [0.01, 0.1, 1]}")
     if isinstance(n_train, bool) or not isinstance(n_train, (int, np.integer)) or n_train < 1:
