@@ -121,6 +121,14 @@ def _unscale(res: SDPResult, D: np.ndarray) -> SDPResult:
     return finish(res)
 
 
+def congruence(A: sp.sparray, D: np.ndarray) -> sp.csr_array:
+    """D A D for a diagonal D (given as its vector), by scaling the stored entries."""
+    A = sp.csr_array(A, copy=True)
+    rows = np.repeat(np.arange(A.shape[0]), np.diff(A.indptr))
+    A.data *= D[rows] * D[A.indices]
+    return A
+
+
 def _solve(Q: sp.spmatrix | sp.sparray, constraints: Sequence[Constraint], d: int, config: SolverConfig,
            cliques: Sequence[np.ndarray] | None, scale: np.ndarray | None,
            block_sizes: Sequence[int] | None) -> SDPResult:
@@ -141,8 +149,7 @@ def _solve(Q: sp.spmatrix | sp.sparray, constraints: Sequence[Constraint], d: in
         D = np.asarray(scale, float)
         if D.shape != (N,) or not np.all(np.isfinite(D)) or not np.all(D > 0):
             raise ValueError(f"scale must be a positive finite vector of length N = {N}")
-        Dm = sp.diags_array(D)
-        Qs, As_s = sp.csr_array(Dm @ Q @ Dm), [sp.csr_array(Dm @ A @ Dm) for A in As]
+        Qs, As_s = congruence(Q, D), [congruence(A, D) for A in As]
     else:
         Qs, As_s = Q, As
     backend = BACKENDS[config.backend_name]
