@@ -42,13 +42,13 @@ def cmd_list(args: argparse.Namespace) -> int:
     return 0
 
 
-def constraints_arg(value: str | None):
+def constraints_arg(value: str | None, skip_invalid: bool = False):
     """``--set``: "primary", "paper", or the path of a saved constraint set (JSON)."""
     if value is None or value in ("primary", "paper"):
         return value
     from .constraint_set import ConstraintSet
 
-    return ConstraintSet.load(value)
+    return ConstraintSet.load(value, skip_invalid=skip_invalid)
 
 
 def add_solver_args(p: argparse.ArgumentParser) -> None:
@@ -80,7 +80,7 @@ def cmd_solve(args: argparse.Namespace) -> int:
     if args.random_starts < 0:
         raise ParameterError(f"--random-starts {args.random_starts}: must be ≥ 0")
     prob = load(args.problem)
-    out = solve(prob, parse_assignments(args.param), args.seed, constraints=constraints_arg(args.set),
+    out = solve(prob, parse_assignments(args.param), args.seed, constraints=constraints_arg(args.set, args.skip_invalid),
                 solver=config, n_random=args.random_starts)
     inst = out.instance
     rec = out.record()
@@ -122,6 +122,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="constraint set: primary, paper, or a saved set's JSON (from `discover --out`), applied "
                         "to this instance whatever its size (default: paper if the problem has paper families, "
                         "else primary)")
+    p.add_argument("--skip-invalid", action="store_true",
+                   help="with --set FILE: leave out the constraints of factors whose template fails its check on "
+                        "this instance (default: a one-line error naming the factor)")
     add_solver_args(p)
     p.add_argument("--random-starts", type=int, default=1, help="random-start local solves (default 1)")
     p.set_defaults(func=cmd_solve)
