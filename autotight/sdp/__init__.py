@@ -129,7 +129,8 @@ def _solve(Q: sp.spmatrix | sp.sparray, constraints: Sequence[Constraint], d: in
     N = Q.shape[0]
     if Q.ndim != 2 or Q.shape != (N, N):
         raise ValueError(f"Q must be square, got shape {Q.shape}")
-    As = [sp.csr_array(c.A) for c in constraints]
+    # COO, as the constraints store them: memory ∝ nonzeros (a CSR copy each held an index array of N + 1)
+    As = [c.A if isinstance(c.A, sp.coo_array) else sp.coo_array(c.A) for c in constraints]
     bad = [c.name or str(i) for i, (c, A) in enumerate(zip(constraints, As)) if A.shape != (N, N)]
     if bad:
         raise ValueError(f"constraint matrices must be {N}×{N} like Q; wrong shape: {bad[:5]}")
@@ -142,7 +143,8 @@ def _solve(Q: sp.spmatrix | sp.sparray, constraints: Sequence[Constraint], d: in
         if D.shape != (N,) or not np.all(np.isfinite(D)) or not np.all(D > 0):
             raise ValueError(f"scale must be a positive finite vector of length N = {N}")
         Dm = sp.diags_array(D)
-        Qs, As_s = sp.csr_array(Dm @ Q @ Dm), [sp.csr_array(Dm @ A @ Dm) for A in As]
+        Qs = sp.csr_array(Dm @ Q @ Dm)
+        As_s = [sp.coo_array((A.data * D[A.row] * D[A.col], (A.row, A.col)), shape=A.shape) for A in As]
     else:
         Qs, As_s = Q, As
     backend = BACKENDS[config.backend_name]
