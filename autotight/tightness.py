@@ -119,7 +119,7 @@ def accuracy(res: SDPResult, Q=None, constraints: Sequence | None = None) -> Acc
     X = res.X
     r = np.array([float(A.data @ X[A.row, A.col]) for A in As]) - b  # COO: no per-constraint N×N work
     primal_term = float(np.abs(res.y) @ np.abs(r))
-    trX = float(np.trace(X))
+    trX = float(X.trace())  # dense or sparse (X on the cliques' pattern)
     _, lam_lo, _ = lambda_min(dual_matrix(Q, As, res.y))
     dual_corr = max(-lam_lo, 0.0) * trX
     scale = (float(abs(Q).max()) if Q.nnz else 0.0) * trX

@@ -114,6 +114,16 @@ def _unscale(res: SDPResult, D: np.ndarray) -> SDPResult:
     unchanged (⟨DQD, X'⟩ = ⟨Q, X⟩, and the constraints' right-hand sides are the same)."""
     if res.X is None:
         return res
+    if sp.issparse(res.X):  # X on the cliques' pattern (``result.DENSE_X_MAX``): scale entries and completion
+        Dm = sp.diags_array(D)
+        res.X = sp.csr_array(Dm @ res.X @ Dm)
+        if res.completion is not None:
+            res.completion = res.completion * D[None, :]
+        if res.cliques:
+            res.clique_log_svr = [log_svr(np.linalg.eigvalsh(res.X[C][:, C].toarray())[::-1], res.d)
+                                  for C in res.cliques]
+        res.eigvals, res.Theta, res.log_svr = np.zeros(0), None, float("nan")
+        return finish(res)
     res.X = res.X * D[:, None] * D[None, :]
     if res.cliques:
         res.clique_log_svr = [log_svr(np.linalg.eigvalsh(res.X[np.ix_(C, C)])[::-1], res.d) for C in res.cliques]
