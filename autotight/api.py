@@ -1,4 +1,5 @@
-"""The public Python API: ``load_problem``, ``solve``, ``discover``, ``check_problem``.
+"""The public Python API: ``load_problem``, ``solve``, ``discover`` (``check_problem`` is in
+``autotight.checks``, ``check_sufficient`` in ``autotight.check``).
 
 Each function validates its input at the boundary and returns a result with plain attributes;
 the CLI, the report sweep and discovery all run through the same per-instance pipeline
@@ -13,7 +14,7 @@ from typing import Any
 from .constraint_set import ConstraintsLike
 from .pipeline import SolveResult, solve_instance
 from .problem import Problem, load
-from .sdp.result import SolverOptions
+from .sdp.config import SolverConfig
 from .tightness import Criteria
 
 
@@ -45,7 +46,7 @@ def solve(problem: str | ModuleType | Problem, params: dict[str, Any] | None = N
     """
     prob = _problem(problem)
     inst = prob.generate(params, _seed(seed))
-    return solve_instance(prob, inst, constraints, config=solver or SolverOptions(), criteria=criteria,
+    return solve_instance(prob, inst, constraints, config=solver or SolverConfig(), criteria=criteria,
                           n_random=n_random)
 
 
@@ -55,8 +56,16 @@ def discover(problem: str | ModuleType | Problem, params: dict[str, Any] | None 
 
     Returns a ``DiscoveryResult``; its ``constraint_set`` is what ``solve(constraints=…)`` takes.
     ``options`` are those of ``autotight.discovery.pipeline.discover`` (groups, learn_options,
-    criteria, n_heldout, n_random, progress, …).
+    criteria, n_heldout, n_random, progress, …).  With ``over={"sigma": [...], ...}`` the set is
+    learned over the whole range (``autotight.discovery.range.discover_range``: options n_train,
+    train_params, n_heldout, …) and a ``RangeDiscoveryResult`` is returned.
     """
     from .discovery.pipeline import discover as _discover
 
-    return _discover(_problem(problem), params, _seed(seed), solver=solver or SolverOptions(), **options)
+    if options.get("over") is not None:
+        from .discovery.range import discover_range
+
+        return discover_range(_problem(problem), params, options.pop("over"), _seed(seed),
+                              solver=solver or SolverConfig(), **options)
+
+    return _discover(_problem(problem), params, _seed(seed), solver=solver or SolverConfig(), **options)

@@ -1,4 +1,4 @@
-"""Command line: ``autotight list | solve | discover | report | check-module``.
+"""Command line: ``autotight list | solve | discover | report | check | check-module``.
 
 The CLI is a thin layer over the Python API (``autotight.api``).  Errors: an input error or a
 failed solve (any ``autotight.errors.AutotightError``) prints one line ``autotight: error: …``
@@ -11,18 +11,28 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-from typing import Any, Sequence
+from typing import Any, NoReturn, Sequence
 
+from .cli_checks import nonneg_int
 from .errors import AutotightError
 from .io import jsonable, versions
 from .problem import available, load, parse_assignments
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse with the CLI's error rule: one line ``autotight: error: …``, exit status 2."""
+
+    def error(self, message: str) -> NoReturn:
+        where = self.prog.removeprefix("autotight").strip()
+        print(f"autotight: error: {where + ': ' if where else ''}{message} (see {self.prog} --help)", file=sys.stderr)
+        sys.exit(2)
 
 
 def _add_problem_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("problem", help="problem name (see `autotight list`) or path to a .py problem module")
     p.add_argument("--param", "-p", action="append", default=[], metavar="NAME=VALUE",
                    help="problem parameter, repeatable (e.g. --param M=10 --param sigma=0.1)")
-    p.add_argument("--seed", type=int, default=0, help="instance seed (default 0)")
+    p.add_argument("--seed", type=nonneg_int, default=0, help="instance seed (default 0)")
     p.add_argument("--json", action="store_true", help="print one JSON object instead of text")
 
 
@@ -46,8 +56,10 @@ def constraints_arg(value: str | None, skip_invalid: bool = False):
     """``--set``: "primary", "paper", or the path of a saved constraint set (JSON)."""
     if value is None or value in ("primary", "paper"):
         return value
+    from .cli_checks import check_set_file
     from .constraint_set import ConstraintSet
 
+    check_set_file(value)
     return ConstraintSet.load(value, skip_invalid=skip_invalid)
 
 
@@ -74,21 +86,22 @@ def solver_config(args: argparse.Namespace, **fields: Any):
 
 def cmd_solve(args: argparse.Namespace) -> int:
     from .api import solve
-    from .errors import ParameterError
+    from .limits import check_count, check_size
 
     config = solver_config(args)
-    if args.random_starts < 0:
-        raise ParameterError(f"--random-starts {args.random_starts}: must be ≥ 0")
     prob = load(args.problem)
-    out = solve(prob, parse_assignments(args.param), args.seed, constraints=constraints_arg(args.set, args.skip_invalid),
-                solver=config, n_random=args.random_starts)
+    params = prob.parse_params(parse_assignments(args.param))
+    check_size(prob, params)
+    check_count(prob, params, f"--random-starts {args.random_starts}", args.random_starts, what="local solves")
+    out = solve(prob, params, args.seed, constraints=constraints_arg(args.set, args.skip_invalid), solver=config,
+                n_random=args.random_starts)
     inst = out.instance
     rec = out.record()
     if args.json:
         rec |= {"measurements": inst.measurements, "truth": inst.truth, "estimate": out.estimate,
                 "versions": versions()}
         print(json.dumps(jsonable(rec), ensure_ascii=False))
-        return 0
+        return _failed(out)
     v = out.verdict
     print(f"problem {prob.name}  params {inst.params}  seed {inst.seed}")
     print(f"constraints: {rec['constraint_set']} ({rec['n_constraints']})  solver {out.sdp.solver}")
@@ -106,11 +119,20 @@ def cmd_solve(args: argparse.Namespace) -> int:
     print(f"relative gap (upper bound − SDP)/upper bound: {v.rel_gap:.3e}")
     print(f"errors: SDP estimate {out.errors_sdp}  local {out.errors_local}")
     print("times: " + "  ".join(f"{k} {t:.3f}s" for k, t in out.times.items()))
+    return _failed(out)
+
+
+def _failed(out) -> int:
+    """0, or SolverError when the SDP gave no usable solution (the result above says why)."""
+    from .errors import SolverError
+
+    if not out.sdp.usable:
+        raise SolverError(f"the SDP solve failed: status {out.sdp.status} ({out.sdp.solver})")
     return 0
 
 
 def build_parser() -> argparse.ArgumentParser:
-    ap = argparse.ArgumentParser(prog="autotight", description=__doc__.splitlines()[0],
+    ap = _Parser(prog="autotight", description=__doc__.splitlines()[0],
                                  epilog="--debug (anywhere on the line): show the traceback of any error")
     sub = ap.add_subparsers(dest="cmd", required=True)
     p = sub.add_parser("list", help="list problems and their parameters")
@@ -126,12 +148,14 @@ def build_parser() -> argparse.ArgumentParser:
                    help="with --set FILE: leave out the constraints of factors whose template fails its check on "
                         "this instance (default: a one-line error naming the factor)")
     add_solver_args(p)
-    p.add_argument("--random-starts", type=int, default=1, help="random-start local solves (default 1)")
+    p.add_argument("--random-starts", type=nonneg_int, default=1, help="random-start local solves (default 1)")
     p.set_defaults(func=cmd_solve)
+    from .check_cli import register as register_check_module
+    from .check_cmd import register as register_check
     from .discovery.cli import register as register_discover
     from .report.cli import register as register_report
 
-    for register in (register_discover, register_report):
+    for register in (register_discover, register_report, register_check, register_check_module):
         register(sub, _add_problem_args)
     return ap
 

@@ -57,6 +57,8 @@ class ConstraintSet:
     def apply(self, problem: Problem, inst: Instance, model: Model, rng: np.random.Generator) -> list[Constraint]:
         """The learned constraints on ``inst`` (without the primary ones): templates evaluated and checked on
         fresh states of ``inst``; a set of another problem or block layout is an AutotightError."""
+        if not hasattr(self.discovered, "apply"):  # a stand-in with only the re-learning route
+            return self.discovered.instantiate(problem, inst, rng, model=model)
         return self.discovered.apply(problem, inst, model, rng, skip_invalid=self.skip_invalid)
 
     def save(self, path: str | Path, model: Model | None = None, constraints: Sequence[Constraint] | None = None,

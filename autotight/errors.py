@@ -9,6 +9,14 @@ class ProblemDefinitionError(AutotightError):
     """A problem module is malformed (missing part, inconsistent block sizes, …)."""
 
 
+class ProblemModuleError(ProblemDefinitionError):
+    """A part of a problem module raised, or returned the wrong type or shape.
+
+    The message names the module, the part and the exception; the original exception is the
+    ``__cause__`` (raised ``from`` it), so its traceback is kept for debugging.
+    """
+
+
 class ParameterError(AutotightError):
     """A problem parameter is missing, unknown or out of range."""
 

@@ -4,7 +4,9 @@ The problem supplies ``linearize(state) -> (e, J, W)``: the stacked residual e (
 Jacobian J (m×p, dense or scipy.sparse) with respect to a perturbation ε ∈ R^p, and the
 weight W (m×m, dense or sparse), so that cost = eᵀWe; and ``retract(state, ε) -> state``.
 Each step solves (JᵀWJ + λ diag(JᵀWJ)) ε = −JᵀWe; λ shrinks after a cost decrease and grows
-after an increase, so the cost never goes up.
+after an increase, so the cost never goes up.  A step is rejected (and λ grown) when the system
+is singular, the step is not finite, the new cost is not finite, or the step lands on a Cayley
+singularity; any other exception from ``linearize`` or ``retract`` is a bug and propagates.
 """
 
 from __future__ import annotations
@@ -16,6 +18,7 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
+from .lie import CayleySingularityError
 from .problem import LocalResult
 
 
@@ -41,13 +44,15 @@ def gauss_newton(linearize: Callable[[Any], tuple[np.ndarray, Any, Any]], retrac
         for _ in range(40):
             Hd = Hm + sp.diags(lam * np.maximum(diag, 1e-12)) if sp.issparse(Hm) else \
                 Hm + np.diag(lam * np.maximum(diag, 1e-12))
+            f2 = np.inf
             try:
                 eps = -_solve(Hd, g)
-                cand = retract(state, eps)
-                e2, J2, W2 = linearize(cand)
-                f2 = float(e2 @ (W2 @ e2))
-            except (ValueError, np.linalg.LinAlgError):
-                f2 = np.inf
+                if np.all(np.isfinite(eps)):
+                    cand = retract(state, eps)
+                    e2, J2, W2 = linearize(cand)
+                    f2 = float(e2 @ (W2 @ e2))
+            except (CayleySingularityError, np.linalg.LinAlgError):
+                pass  # a singular system, or a step onto a Cayley singularity: damp more
             if np.isfinite(f2) and f2 <= f:
                 accepted = True
                 break

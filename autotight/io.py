@@ -12,11 +12,14 @@ from typing import Any
 
 import numpy as np
 
-PACKAGES = ("autotight", "numpy", "scipy", "clarabel", "cvxpy", "scikit-learn", "pandas")
+PACKAGES = ("numpy", "scipy", "clarabel", "cvxpy", "qdldl", "pandas")
 
 
 def versions() -> dict[str, str]:
-    out = {"python": platform.python_version()}
+    """Python, autotight (its ``__version__``, the one version source) and the numerical packages."""
+    from . import __version__
+
+    out = {"python": platform.python_version(), "autotight": __version__}
     for p in PACKAGES:
         try:
             out[p] = metadata.version(p)

@@ -234,7 +234,8 @@ def cay_inv_se3(T: np.ndarray) -> np.ndarray:
     T = _check_pose(T)
     phi = cay_inv(T[:3, :3])
     r = T[:3, 3]
-    rho = r - 0.5 * np.array([phi[1] * r[2] - phi[2] * r[1], phi[2] * r[0] - phi[0] * r[2], phi[0] * r[1] - phi[1] * r[0]])
+    rho = r - 0.5 * np.array([phi[1] * r[2] - phi[2] * r[1], phi[2] * r[0] - phi[0] * r[2],
+                              phi[0] * r[1] - phi[1] * r[0]])
     return np.concatenate([rho, phi])
 
 

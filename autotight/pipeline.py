@@ -21,6 +21,7 @@ import numpy as np
 
 from .certificate import Certificate, certificate
 from .constraint_set import ConstraintsLike, resolve, set_name
+from .errors import ProblemModuleError
 from .model import Model
 from .problem import Instance, LocalResult, Problem
 from . import sdp
@@ -29,6 +30,7 @@ from .sdp.result import SDPResult
 from .sdp.scaling import block_scale
 from .threads import single_blas_thread
 from .tightness import Criteria, Verdict, judge
+from .validate import check_instance
 
 #: relative cost excess over U above which a local solve counts as trapped in a worse minimum
 TRAP_RTOL = 1e-4
@@ -196,6 +198,7 @@ def solve_instance(problem: Problem, inst: Instance, constraints: ConstraintsLik
     cons = resolve(constraints, problem, inst, model, rng_constraints or s.constraints())
     t1 = time.perf_counter()
     local = local if local is not None else local_search(problem, inst, rng_local or s.local(), n_random)
+    check_instance(problem, inst, model, local)  # NaN/inf data, or a cost that does not match its lifting
     t2 = time.perf_counter()
     scale = block_scale_at(problem, inst, model, local.best.state, config)
     res = sdp.solve_model(model, cons, config, scale)
@@ -211,8 +214,10 @@ def solve_instance(problem: Problem, inst: Instance, constraints: ConstraintsLik
     if res.Theta is not None and res.usable:
         try:
             estimate = problem.recover(inst, res.Theta)
-        except (ValueError, np.linalg.LinAlgError) as e:  # a useless X is reported, not raised
-            note = f"; recovery failed: {e}"
+        except ProblemModuleError as e:  # on an X far from rank d this is reported, not raised
+            if not res.log_svr <= criteria.min_log_svr:
+                raise
+            note = f"; recovery failed on a solution of rank > d: {e}"
         else:
             refined = problem.local_solve(inst, estimate)
             best = min(best, refined, key=lambda r: r.cost)

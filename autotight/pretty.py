@@ -14,17 +14,26 @@ import scipy.sparse as sp
 
 from .model import HOMOGENISING, Variables
 
-GREEK = {"rho": "ρ", "phi": "φ", "xi": "ξ", "ell": "ℓ", "varpi": "ϖ", "w": "ϖ", "theta": "θ", "psi": "ψ"}
+#: Greek letters by name.  A block's name is rendered with the letter only when the name *is* the
+#: letter's name, alone or followed by a subscript ('_…' or digits): 'varpi_3' → 'ϖ_3', while
+#: 'w_3' and 'weight' print unchanged (continuous_trajectory's twist blocks ϖ_k are named w_k and
+#: print as w_k; an outlier variable w_m of a robust problem is not ϖ).
+GREEK = {"rho": "ρ", "phi": "φ", "xi": "ξ", "ell": "ℓ", "varpi": "ϖ", "theta": "θ", "psi": "ψ"}
 AXES = "xyz"
 
 
 def symbol(block: str) -> str:
-    """'rho_3' → 'ρ_3', 'phi' → 'φ'."""
-    m = re.match(r"([A-Za-z]+)(.*)", block)
+    """'rho_3' → 'ρ_3', 'phi' → 'φ', 'xi12' → 'ξ12'; other names unchanged."""
+    m = re.fullmatch(r"([A-Za-z]+)((?:[_0-9].*)?)", block)
     if not m:
         return block
     head, tail = m.groups()
     return GREEK.get(head, head) + tail
+
+
+def _mag(a: float) -> str:
+    """|a| with 4 significant digits."""
+    return f"{abs(a):.4g}"
 
 
 def _elem(block: str, k: int, size: int) -> str:
@@ -33,12 +42,17 @@ def _elem(block: str, k: int, size: int) -> str:
 
 
 def _num(c: float, first: bool) -> str:
-    sign = "−" if c < 0 else "+"
-    a = abs(c)
-    txt = "" if np.isclose(a, 1.0, rtol=1e-9) else f"{a:.4g} "
+    """Sign and coefficient in front of a term; a coefficient that prints as 1 is left out."""
+    txt = "" if _mag(c) == "1" else f"{_mag(c)} "
     if first:
         return ("−" if c < 0 else "") + txt
-    return f" {sign} {txt}"
+    return f" {'−' if c < 0 else '+'} {txt}"
+
+
+def _const(c: float, first: bool) -> str:
+    if first:
+        return ("−" if c < 0 else "") + _mag(c)
+    return f" {'−' if c < 0 else '+'} {_mag(c)}"
 
 
 def polynomial(A: sp.spmatrix | sp.sparray, V: Variables, b: float = 0.0, tol: float = 1e-10) -> str:
@@ -73,12 +87,8 @@ def polynomial(A: sp.spmatrix | sp.sparray, V: Variables, b: float = 0.0, tol: f
                 terms.append((M[i, j], f"{ea}²" if (a == b_ and i == j) else f"{ea}·{eb}"))
     if abs(const) > tol * scale:
         terms.append((const, "§"))
+    rhs = _const(b, True) if b != 0 else "0"
     if not terms:
-        return f"0 = {b:g}"
-    out = ""
-    for n, (c, t) in enumerate(terms):
-        if t == "§":
-            out += (f"{c:.4g}" if n == 0 else f" {'−' if c < 0 else '+'} {abs(c):.4g}")
-        else:
-            out += _num(c, n == 0) + t
-    return f"{out} = {b:g}"
+        return f"0 = {rhs}"
+    out = "".join(_const(c, n == 0) if t == "§" else _num(c, n == 0) + t for n, (c, t) in enumerate(terms))
+    return f"{out} = {rhs}"

@@ -1,20 +1,39 @@
-"""Problem modules: what they must define, how they are found, and their parameters.
+"""Problem modules: the contract, how modules are found, and the checked boundary into their code.
 
-A problem module (``problems/<name>.py`` or any ``.py`` file) defines:
+The full contract, with shapes, tolerances and an example, is in ``docs/problem_contract.md``;
+``autotight check-module PATH`` (``autotight.checks.check_problem``) verifies a module against it.
 
-- ``NAME``, ``DESCRIPTION``: strings;
-- ``PARAMS``: ``dict[str, Param]`` of size and noise parameters;
-- ``generate(params, rng) -> Instance``: measurements and ground truth;
-- ``build(instance) -> Model``: variables, factors (cost + primary constraints), paper families;
-- ``lift(instance, state) -> Θ``: (N,) or (d, N);
-- ``sample(instance, rng, nominal, spread) -> state``: a feasible state near ``nominal``;
-- ``cost(instance, state) -> float``: the original (unlifted) cost;
-- ``local_solve(instance, init) -> LocalResult``;
-- ``recover(instance, Theta) -> state``: a state from a rank-d factor of the SDP solution;
-- ``random_state(instance, rng) -> state``: a random start for the local solver;
-- ``errors(instance, state) -> dict[str, float]``: estimation errors against ``instance.truth``.
+A problem module (``problems/<name>.py`` or any ``.py`` file) **must** define
 
-A state is a ``dict[str, np.ndarray]`` in the problem's own terms (for example ``{"C": …}``).
+- ``PARAMS: dict[str, Param]``: size and noise parameters (may be empty);
+- ``generate(params, rng) -> Instance``: measurements and ground truth ``truth`` (a state);
+- ``build(instance) -> Model``: variables, factors (cost + primary constraints, ``roles``), paper families;
+- ``lift(instance, state) -> Θ``: (N,) for d = 1 or (d, N), blocks in the order of build's ``Variables``;
+- ``sample(instance, rng, nominal, spread) -> state``: a feasible state near ``nominal``: its lifting
+  satisfies every primary constraint to 1e-8 relative (``discovery.samples.relative_violation``);
+- ``local_solve(instance, init, **options) -> LocalResult``: a local minimiser from ``init``;
+- ``recover(instance, Θ) -> state``: a state from the (d, N) factor of the SDP solution (h block = I_d).
+
+and **may** define (the default is used otherwise)
+
+- ``NAME`` (the file name), ``DESCRIPTION`` (the docstring's first line);
+- ``cost(instance, state) -> float``: the original cost.  Default ⟨Q, ΘᵀΘ⟩ + ``cost_offset`` from
+  build's model; write it anyway: an independent ``cost`` is what lets the check catch a wrong ``lift``;
+- ``random_state(instance, rng) -> state``: default ``sample(instance, rng, truth, RANDOM_SPREAD)``;
+- ``errors(instance, state) -> dict[str, float]``: default ``default_errors`` (rotation-like entries →
+  angle in degrees, poses → angle and translation, other arrays → RMS norm of the difference);
+- ``SPREAD`` (0.5): the spread discovery samples with; ``RANDOM_SPREAD`` (π); ``SIGMAS`` (the noise levels
+  of ``report``); ``CHECK_PARAMS`` (parameters for ``check-module``; default ``PARAMS``' defaults).
+
+A state is a ``dict[str, np.ndarray]`` in the problem's own terms.  h² = 1 (d = 1) or Θ_hh = I_d
+is added to the primary constraints for you (``Model.homogenisation``); ``lift`` fills h in when it
+uses ``Variables.assemble``.  ``sample`` stays required: the local solver's manifold is not part of
+the contract, so no retraction can be derived in general; ``perturb_state`` is one for states made
+of independent rotations, poses and free vectors.
+
+Every call into module code goes through ``Problem``: an exception raised there, or a result of the
+wrong type or shape, becomes ``ProblemModuleError`` naming the module, the part and the exception,
+raised ``from`` the original.  autotight's own errors (``AutotightError``) pass through unchanged.
 """
 
 from __future__ import annotations
@@ -24,20 +43,33 @@ import importlib.util
 import math
 import pkgutil
 import sys
+import weakref
+from collections.abc import Mapping
 from dataclasses import dataclass, field
+from numbers import Real
 from pathlib import Path
 from types import ModuleType
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 
-from .errors import ParameterError, ProblemDefinitionError
-from .model import Model
+from .errors import AutotightError, ParameterError, ProblemDefinitionError, ProblemModuleError
+from .model import Model, Variables
 
 State = dict[str, np.ndarray]
 
-REQUIRED = ("NAME", "DESCRIPTION", "PARAMS", "generate", "build", "lift", "sample", "cost",
-            "local_solve", "recover", "random_state", "errors")
+#: Parts every module must define.
+REQUIRED = ("PARAMS", "generate", "build", "lift", "sample", "local_solve", "recover")
+#: Parts with a default (``Problem`` derives them when absent).
+OPTIONAL = ("NAME", "DESCRIPTION", "cost", "random_state", "errors", "SPREAD", "RANDOM_SPREAD", "SIGMAS",
+            "CHECK_PARAMS")
+FUNCTIONS = ("generate", "build", "lift", "sample", "cost", "local_solve", "recover", "random_state", "errors")
+#: Default sampling spread (discovery's samples, check-module).
+SPREAD = 0.5
+#: Default spread of the derived ``random_state`` (a rotation by |N(0, π² I)| is far from the nominal).
+RANDOM_SPREAD = math.pi
+#: Relative tolerance on the primary constraints at sampled states (see ``relative_violation``).
+SAMPLE_TOL = 1e-8
 
 
 @dataclass(frozen=True)
@@ -102,27 +134,89 @@ class LocalResult:
     message: str = ""
 
 
+def _first_line(e: BaseException) -> str:
+    s = str(e).strip()
+    return s.splitlines()[0] if s else ""
+
+
+def _kind(v: Any) -> str:
+    if isinstance(v, np.ndarray):
+        return f"an array of shape {v.shape}"
+    return type(v).__name__
+
+
 class Problem:
-    """A validated problem module; call its parts as methods."""
+    """A validated problem module; call its parts as methods (each call is checked, see module doc)."""
 
     def __init__(self, module: ModuleType):
+        label = getattr(module, "NAME", module.__name__)
         missing = [p for p in REQUIRED if not hasattr(module, p)]
         if missing:
             raise ProblemDefinitionError(
-                f"problem module {module.__name__!r} lacks required part(s): {', '.join(missing)}")
-        for p in REQUIRED[3:]:
-            if not callable(getattr(module, p)):
-                raise ProblemDefinitionError(f"problem module {module.__name__!r}: {p} must be a function")
+                f"problem module {label!r} lacks required part(s): {', '.join(missing)}")
+        for p in FUNCTIONS:
+            if hasattr(module, p) and not callable(getattr(module, p)):
+                raise ProblemDefinitionError(f"problem module {label!r}: {p} must be a function")
         if not isinstance(module.PARAMS, dict) or not all(isinstance(v, Param) for v in module.PARAMS.values()):
-            raise ProblemDefinitionError(f"problem module {module.__name__!r}: PARAMS must be a dict of Param")
+            raise ProblemDefinitionError(f"problem module {label!r}: PARAMS must be a dict of Param")
         self.module = module
-        self.name: str = module.NAME
-        self.description: str = module.DESCRIPTION
+        self.path: str | None = getattr(module, "__file__", None)
+        stem = Path(self.path).stem if self.path else module.__name__.rsplit(".", 1)[-1]
+        self.name: str = str(getattr(module, "NAME", stem))
+        doc = (module.__doc__ or "").strip()
+        self.description: str = str(getattr(module, "DESCRIPTION", doc.splitlines()[0] if doc else ""))
         self.params: dict[str, Param] = dict(module.PARAMS)
+        self.spread = self._positive("SPREAD", SPREAD)
+        self.random_spread = self._positive("RANDOM_SPREAD", RANDOM_SPREAD)
+        #: parts this module leaves to the defaults
+        self.derived: tuple[str, ...] = tuple(p for p in ("cost", "random_state", "errors") if not hasattr(module, p))
+        self._models: dict[int, tuple[weakref.ref, Model]] = {}
 
     def __repr__(self) -> str:
         return f"Problem({self.name!r})"
 
+    def _positive(self, attr: str, default: float) -> float:
+        v = getattr(self.module, attr, default)
+        if isinstance(v, bool) or not isinstance(v, Real) or not math.isfinite(v) or v <= 0:
+            raise ProblemDefinitionError(f"problem module {self.name!r}: {attr} must be a positive number, got {v!r}")
+        return float(v)
+
+    # ------------------------------------------------------------------ the boundary into module code
+    def where(self) -> str:
+        """'problem module 'x' (path)', the prefix of every message about this module."""
+        return f"problem module {self.name!r}" + (f" ({self.path})" if self.path else "")
+
+    def fail(self, part: str, what: str) -> ProblemModuleError:
+        return ProblemModuleError(f"{self.where()}: {part} {what}")
+
+    def call(self, part: str, *args: Any, **kwargs: Any) -> Any:
+        """Call the module's ``part``; a non-autotight exception becomes ProblemModuleError (from it)."""
+        fn: Callable = getattr(self.module, part)
+        try:
+            return fn(*args, **kwargs)
+        except AutotightError:
+            raise
+        except Exception as e:
+            msg = _first_line(e)
+            raise self.fail(part, f"raised {type(e).__name__}" + (f": {msg}" if msg else "")) from e
+
+    def _state(self, part: str, v: Any) -> State:
+        if not isinstance(v, Mapping):
+            raise self.fail(part, f"returned {_kind(v)}, expected a state (dict of arrays)")
+        return v  # type: ignore[return-value]
+
+    def _float(self, part: str, v: Any) -> float:
+        if isinstance(v, np.ndarray) and v.size == 1:
+            v = v.reshape(()).item()
+        if isinstance(v, (bool, np.bool_)) or not isinstance(v, (Real, np.number)):
+            raise self.fail(part, f"returned {_kind(v)}, expected a float")
+        return float(v)
+
+    def _model(self, instance: Instance) -> Model | None:
+        hit = self._models.get(id(instance))
+        return hit[1] if hit is not None and hit[0]() is instance else None
+
+    # ------------------------------------------------------------------ the parts
     def parse_params(self, given: dict[str, Any] | None = None) -> dict[str, Any]:
         """Defaults overridden by ``given``, each validated; unknown names are refused."""
         given = dict(given or {})
@@ -136,37 +230,203 @@ class Problem:
         """A fresh instance.  ``seed`` is an int (recorded) or a Generator."""
         full = self.parse_params(params)
         rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
-        inst = self.module.generate(full, rng)
+        inst = self.call("generate", full, rng)
+        if not isinstance(inst, Instance):
+            raise self.fail("generate", f"returned {_kind(inst)}, expected autotight.problem.Instance")
+        if not isinstance(inst.truth, Mapping):
+            raise self.fail("generate", f"returned an Instance whose truth is {_kind(inst.truth)}, expected a state")
         inst.seed = None if isinstance(seed, np.random.Generator) else int(seed)
         return inst
 
     def build(self, instance: Instance) -> Model:
-        model = self.module.build(instance)
+        model = self.call("build", instance)
         if not isinstance(model, Model):
-            raise ProblemDefinitionError(f"{self.name}.build must return a Model, got {type(model).__name__}")
+            raise self.fail("build", f"returned {_kind(model)}, expected autotight.model.Model")
+        self._models = {k: v for k, v in self._models.items() if v[0]() is not None}
+        self._models[id(instance)] = (weakref.ref(instance), model)
         return model
 
+    def variables(self, instance: Instance) -> Variables | None:
+        """build's Variables for this instance if it was built already (else None)."""
+        m = self._model(instance)
+        return None if m is None else m.variables
+
     def lift(self, instance: Instance, state: State) -> np.ndarray:
-        return np.asarray(self.module.lift(instance, state), dtype=float)
+        """Θ as the module returns it: (N,) or (1, N) for d = 1, (d, N) for d > 1 (checked against build)."""
+        raw = self.call("lift", instance, state)
+        try:
+            T = np.asarray(raw, dtype=float)
+        except (TypeError, ValueError):
+            raise self.fail("lift", f"returned {_kind(raw)}, expected an array (N,) or (d, N)") from None
+        if T.ndim not in (1, 2):
+            raise self.fail("lift", f"returned an array of shape {T.shape}, expected (N,) or (d, N)")
+        V = self.variables(instance)
+        if V is not None:
+            ok = T.shape == (V.d, V.N) or (V.d == 1 and T.shape == (V.N,))
+            if not ok:
+                want = f"({V.N},) or (1, {V.N})" if V.d == 1 else f"({V.d}, {V.N})"
+                raise self.fail("lift", f"returned an array of shape {T.shape}, expected {want} "
+                                        f"(build's Variables: d = {V.d}, N = {V.N})")
+        return T
 
     def sample(self, instance: Instance, rng: np.random.Generator, nominal: State | None = None,
-               spread: float = 0.5) -> State:
-        return self.module.sample(instance, rng, instance.truth if nominal is None else nominal, spread)
+               spread: float | None = None) -> State:
+        """A feasible state near ``nominal`` (default the truth) with ``spread`` (default ``SPREAD``)."""
+        s = self.spread if spread is None else float(spread)
+        return self._state("sample", self.call("sample", instance, rng,
+                                               instance.truth if nominal is None else nominal, s))
 
     def cost(self, instance: Instance, state: State) -> float:
-        return float(self.module.cost(instance, state))
+        """The module's cost, else ⟨Q, ΘᵀΘ⟩ + cost_offset of build's model."""
+        if "cost" in self.derived:
+            return self.lifted_cost(instance, state)
+        return self._float("cost", self.call("cost", instance, state))
+
+    def lifted_cost(self, instance: Instance, state: State, model: Model | None = None) -> float:
+        """⟨Q, ΘᵀΘ⟩ + cost_offset at Θ = lift(state)."""
+        model = model or self._model(instance) or self.build(instance)
+        T = np.atleast_2d(self.lift(instance, state))
+        return float(np.einsum("dn,dn->", T, (model.Q @ T.T).T)) + float(model.cost_offset)
 
     def local_solve(self, instance: Instance, init: State, **options: Any) -> LocalResult:
-        return self.module.local_solve(instance, init, **options)
+        res = self.call("local_solve", instance, init, **options)
+        if not isinstance(res, LocalResult):
+            raise self.fail("local_solve", f"returned {_kind(res)}, expected autotight.problem.LocalResult")
+        self._state("local_solve", res.state)
+        res.cost = self._float("local_solve", res.cost)
+        return res
 
     def recover(self, instance: Instance, Theta: np.ndarray) -> State:
-        return self.module.recover(instance, Theta)
+        """A state from Θ, passed to the module as a (d, N) array whose h block is I_d."""
+        T = np.asarray(Theta, dtype=float)
+        return self._state("recover", self.call("recover", instance, T[None, :] if T.ndim == 1 else T))
 
     def random_state(self, instance: Instance, rng: np.random.Generator) -> State:
-        return self.module.random_state(instance, rng)
+        """The module's random start, else ``sample(instance, rng, truth, RANDOM_SPREAD)``."""
+        if "random_state" in self.derived:
+            return self.sample(instance, rng, instance.truth, self.random_spread)
+        return self._state("random_state", self.call("random_state", instance, rng))
 
     def errors(self, instance: Instance, state: State) -> dict[str, float]:
-        return {k: float(v) for k, v in self.module.errors(instance, state).items()}
+        """The module's errors, else ``default_errors(state, truth)``."""
+        if "errors" in self.derived:
+            return default_errors(state, instance.truth)
+        out = self.call("errors", instance, state)
+        if not isinstance(out, Mapping):
+            raise self.fail("errors", f"returned {_kind(out)}, expected dict[str, float]")
+        try:
+            return {str(k): self._float("errors", v) for k, v in out.items()}
+        except ProblemModuleError:
+            bad = next(k for k, v in out.items() if not isinstance(v, (Real, np.number, np.ndarray)))
+            raise self.fail("errors", f"returned {_kind(out[bad])} for {bad!r}, expected dict[str, float]") from None
+
+
+# ----------------------------------------------------------------------------- defaults for states
+
+
+def _rotations(a: np.ndarray, tol: float = 1e-6) -> bool:
+    """A (…, k, k) stack of rotations, k ∈ {2, 3}."""
+    if a.ndim < 2 or a.shape[-1] != a.shape[-2] or a.shape[-1] not in (2, 3):
+        return False
+    M = a.reshape(-1, a.shape[-1], a.shape[-1])
+    return bool(np.allclose(np.einsum("sji,sjk->sik", M, M), np.eye(M.shape[-1]), atol=tol)
+                and np.all(np.linalg.det(M) > 0))
+
+
+def _poses(a: np.ndarray) -> bool:
+    """A (…, k+1, k+1) stack of homogeneous poses [[C, r], [0, 1]], k ∈ {2, 3}."""
+    if a.ndim < 2 or a.shape[-1] != a.shape[-2] or a.shape[-1] not in (3, 4):
+        return False
+    k = a.shape[-1] - 1
+    last = np.zeros(k + 1)
+    last[-1] = 1.0
+    return bool(np.allclose(a[..., k, :], last) and _rotations(a[..., :k, :k]))
+
+
+def _angle_deg(R: np.ndarray) -> float:
+    k = R.shape[0]
+    cos = (np.trace(R) - (k - 2)) / 2
+    sin = np.linalg.norm(R - R.T) / (2 * np.sqrt(2))
+    return float(np.degrees(np.arctan2(sin, cos)))
+
+
+def _rms(diff: np.ndarray) -> float:
+    """RMS over the leading axis of the norm over the rest; the plain norm for a vector or scalar."""
+    if diff.ndim <= 1:
+        return float(np.linalg.norm(diff))
+    return float(np.sqrt(np.mean(np.sum(diff.reshape(diff.shape[0], -1) ** 2, axis=1))))
+
+
+def default_errors(state: State, truth: State) -> dict[str, float]:
+    """Errors of ``state`` against ``truth``, one per numeric entry of the truth also in the state.
+
+    Rotation stacks (…, k, k): ``<key>_deg``, the largest angle of C Ctrueᵀ (degrees).  Pose stacks
+    (…, k+1, k+1): ``<key>_rotation_deg`` and ``<key>_translation`` (RMS).  Other arrays:
+    ``<key>_err``, the RMS over the leading axis of the norm of the difference.
+    """
+    out: dict[str, float] = {}
+    for key, t in truth.items():
+        if key not in state:
+            continue
+        try:
+            t, s = np.asarray(t, dtype=float), np.asarray(state[key], dtype=float)
+        except (TypeError, ValueError):
+            continue
+        if s.shape != t.shape:
+            continue
+        if _rotations(t):
+            k = t.shape[-1]
+            pairs = zip(s.reshape(-1, k, k), t.reshape(-1, k, k))
+            out[f"{key}_deg"] = max(_angle_deg(a @ b.T) for a, b in pairs)
+        elif _poses(t):
+            k = t.shape[-1] - 1
+            S, Tt = s.reshape(-1, k + 1, k + 1), t.reshape(-1, k + 1, k + 1)
+            out[f"{key}_rotation_deg"] = max(_angle_deg(a[:k, :k] @ b[:k, :k].T) for a, b in zip(S, Tt))
+            out[f"{key}_translation"] = _rms(S[:, :k, k] - Tt[:, :k, k])
+        else:
+            out[f"{key}_err"] = _rms(s - t)
+    return out
+
+
+def _exp(v: np.ndarray, k: int) -> np.ndarray:
+    if k == 2:
+        c, s = np.cos(v[0]), np.sin(v[0])
+        return np.array([[c, -s], [s, c]])
+    th = float(np.linalg.norm(v))
+    P = np.array([[0, -v[2], v[1]], [v[2], 0, -v[0]], [-v[1], v[0], 0]])
+    if th < 1e-8:
+        return np.eye(3) + P + 0.5 * P @ P
+    return np.eye(3) + np.sin(th) / th * P + (1 - np.cos(th)) / th**2 * P @ P
+
+
+def perturb_state(state: State, rng: np.random.Generator, spread: float) -> State:
+    """A retraction of ``state`` by N(0, spread² I) steps, entry by entry.
+
+    Rotations C ← exp(spread·ν^∧) C; poses: their rotation likewise and r ← r + spread·n; any other
+    float array x ← x + spread·n.  A valid ``sample`` only when the state's entries are independent
+    (no entry is a function of another) and ``lift`` computes every other block from them.
+    """
+    out: State = {}
+    for key, v in state.items():
+        a = np.asarray(v, dtype=float)
+        if _rotations(a):
+            k = a.shape[-1]
+            dof = 1 if k == 2 else 3
+            M = a.reshape(-1, k, k)
+            out[key] = np.array([_exp(spread * rng.standard_normal(dof), k) @ C for C in M]).reshape(a.shape)
+        elif _poses(a):
+            k = a.shape[-1] - 1
+            M = a.reshape(-1, k + 1, k + 1).copy()
+            for T in M:
+                T[:k, :k] = _exp(spread * rng.standard_normal(1 if k == 2 else 3), k) @ T[:k, :k]
+                T[:k, k] += spread * rng.standard_normal(k)
+            out[key] = M.reshape(a.shape)
+        else:
+            out[key] = a + spread * rng.standard_normal(a.shape)
+    return out
+
+
+# ----------------------------------------------------------------------------- finding modules
 
 
 def available() -> list[str]:
@@ -176,31 +436,49 @@ def available() -> list[str]:
     return sorted(m.name for m in pkgutil.iter_modules(problems.__path__) if not m.name.startswith("_"))
 
 
-def load(name_or_path: str | ModuleType) -> Problem:
+def _import_failed(what: str, e: Exception) -> ProblemModuleError:
+    msg = _first_line(e)
+    return ProblemModuleError(f"{what}: {type(e).__name__}" + (f": {msg}" if msg else ""))
+
+
+def _load_file(path: Path) -> Problem:
+    if not path.exists():
+        raise ProblemDefinitionError(f"no problem file {path}")
+    if path.is_dir():
+        raise ProblemDefinitionError(f"problem path {path} is a directory, not a .py file")
+    if path.suffix != ".py":
+        raise ProblemDefinitionError(f"problem path {path} is not a .py file")
+    mod_name = f"autotight_user_problem_{path.stem}"
+    spec = importlib.util.spec_from_file_location(mod_name, path)
+    if spec is None or spec.loader is None:
+        raise ProblemDefinitionError(f"cannot load problem file {path}")
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[mod_name] = module
+    try:
+        spec.loader.exec_module(module)
+    except Exception as e:
+        sys.modules.pop(mod_name, None)
+        raise _import_failed(f"cannot import problem file {path}", e) from e
+    return Problem(module)
+
+
+def load(name_or_path: str | Path | ModuleType | Problem) -> Problem:
     """A problem by name (``problems.<name>``), by ``.py`` path, or from a module object."""
-    if isinstance(name_or_path, ModuleType):
-        return Problem(name_or_path)
     if isinstance(name_or_path, Problem):
         return name_or_path
+    if isinstance(name_or_path, ModuleType):
+        return Problem(name_or_path)
     s = str(name_or_path)
-    if s.endswith(".py") or "/" in s:
-        path = Path(s)
-        if not path.is_file():
-            raise ProblemDefinitionError(f"no problem file {s}")
-        mod_name = f"autotight_user_problem_{path.stem}"
-        spec = importlib.util.spec_from_file_location(mod_name, path)
-        assert spec is not None and spec.loader is not None
-        module = importlib.util.module_from_spec(spec)
-        sys.modules[mod_name] = module
-        try:
-            spec.loader.exec_module(module)
-        except Exception as e:  # report, do not crash with a traceback
-            raise ProblemDefinitionError(f"cannot import problem file {s}: {type(e).__name__}: {e}") from e
-        return Problem(module)
+    if isinstance(name_or_path, Path) or s.endswith(".py") or "/" in s or "\\" in s:
+        return _load_file(Path(s))
     known = available()
     if s not in known:
         raise ProblemDefinitionError(f"unknown problem {s!r}; known problems: {', '.join(known)}")
-    return Problem(importlib.import_module(f"problems.{s}"))
+    try:
+        module = importlib.import_module(f"problems.{s}")
+    except Exception as e:
+        raise _import_failed(f"cannot import problem module {s!r} (problems/{s}.py)", e) from e
+    return Problem(module)
 
 
 def parse_assignments(items: list[str] | None) -> dict[str, str]:
@@ -212,4 +490,3 @@ def parse_assignments(items: list[str] | None) -> dict[str, str]:
         k, v = it.split("=", 1)
         out[k.strip()] = v.strip()
     return out
-

@@ -106,8 +106,11 @@ class Accuracy:
     from_residuals: bool = True
 
 
-def accuracy(res: SDPResult, Q=None, constraints: Sequence | None = None) -> Accuracy:
-    """The accuracy of ``res`` from its residuals (with the data) or from |P − D| alone."""
+def accuracy(res: SDPResult, Q=None, constraints: Sequence | None = None,
+             lambda_lower: float | None = None) -> Accuracy:
+    """The accuracy of ``res`` from its residuals (with the data) or from |P − D| alone.
+    ``lambda_lower``: a certified lower bound on λ_min(Q − Σ yᵢAᵢ) for this solve's y when already
+    known (a ``Certificate`` from the same y has it), else computed here."""
     P, D = res.primal_cost, res.dual_cost
     gap_pd = abs(P - D)
     if Q is None or constraints is None or res.X is None or res.y is None:
@@ -120,7 +123,7 @@ def accuracy(res: SDPResult, Q=None, constraints: Sequence | None = None) -> Acc
     r = np.array([float(A.data @ X[A.row, A.col]) for A in As]) - b  # COO: no per-constraint N×N work
     primal_term = float(np.abs(res.y) @ np.abs(r))
     trX = float(X.trace())  # dense or sparse (X on the cliques' pattern)
-    _, lam_lo, _ = lambda_min(dual_matrix(Q, As, res.y))
+    lam_lo = lambda_min(dual_matrix(Q, As, res.y))[1] if lambda_lower is None else lambda_lower
     dual_corr = max(-lam_lo, 0.0) * trX
     scale = (float(abs(Q).max()) if Q.nnz else 0.0) * trX
     return Accuracy(max(gap_pd, primal_term, dual_corr), dual_corr, scale, gap_pd, primal_term)
@@ -147,10 +150,10 @@ def judge(res: SDPResult, upper: float, criteria: Criteria = Criteria(), certifi
           Q=None, constraints: Sequence | None = None) -> Verdict:
     """Tightness of one SDP solution against the best feasible cost ``upper`` (module docstring).
 
-    certificate: an ``autotight.certificate.Certificate`` for the local solution (optional; needed for
-    accept="certified").  Q, constraints: the SDP's data, for the residual-based accuracy.
+    certificate: an ``autotight.certificate.Certificate`` for the local solution from this solve's y
+    (optional; needed for accept="certified"; its λ_min bound is reused for the accuracy).  Q, constraints: the SDP's data, for the residual-based accuracy.
     """
-    acc = accuracy(res, Q, constraints)
+    acc = accuracy(res, Q, constraints, None if certificate is None else certificate.lambda_lower)
     cost_outcome, L, tol, why = bracket(res, upper, criteria, acc)
     lsvr = res.log_svr
     rank_tight = bool(lsvr == np.inf or (np.isfinite(lsvr) and lsvr > criteria.min_log_svr))

@@ -142,8 +142,8 @@ def main() -> None:
 
 
 def markdown(findings: list[dict]) -> str:
-    lines = ["| case | primary tight (of seeds) | local trapped / reflection | seed | discovery | pairs | constraints | "
-             "held-out tight | polynomials (one pose) |", "|" + "---|" * 9]
+    lines = ["| case | primary tight (of seeds) | local trapped / reflection | seed | discovery | pairs "
+             "| constraints | held-out tight | polynomials (one pose) |", "|" + "---|" * 9]
     for c in findings:
         n = len(c["scan"])
         head = f"| {c['case']} | {c['primary_tight']}/{n} | {c['local_trapped']} / {c['reflection']} "

@@ -88,7 +88,8 @@ def solve_cvxpy_plain(model, cons) -> dict[str, Any]:
     problem.solve(solver="CLARABEL", **_clarabel_settings())
     full, cpu = time.perf_counter() - t0, time.process_time() - c0
     stats = problem.solver_stats
-    return {"full_s": full, "cpu_s": cpu, "solve_s": float(stats.solve_time) if stats.solve_time is not None else float("nan"),
+    return {"full_s": full, "cpu_s": cpu,
+            "solve_s": float(stats.solve_time) if stats.solve_time is not None else float("nan"),
             "status": str(problem.status), "cost": float(problem.value) if problem.value is not None else float("nan"),
             "compile_s": float(problem.compilation_time or float("nan"))}
 

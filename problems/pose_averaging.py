@@ -31,8 +31,9 @@ NAME = "pose_averaging"
 DESCRIPTION = "Average M noisy SE(3) pose measurements (paper §3.2)."
 PARAMS = {
     "M": Param(10, "number of pose measurements", low=1),
-    "sigma": Param(0.1, "noise standard deviation of each ξ_m component (rad, and length units)", low=0.0),
-    "scale": Param(1.0, "standard deviation of each component of the true translation", low=0.0),
+    "sigma": Param(0.1, "noise standard deviation of each ξ_m component (rad, and length units; ≤ 10)", low=0.0,
+                   high=10.0),
+    "scale": Param(1.0, "standard deviation of each component of the true translation (≤ 1e6)", low=0.0, high=1e6),
 }
 
 

@@ -5,6 +5,9 @@ Estimate C ∈ SO(3) from M noisy measurements C̃_m = cay(φ_m^∧) C, φ_m ~ N
 Lifting  x = [h, c₁, c₂, c₃, φ₁, …, φ_M]  (n = 10 + 3M),  cost  Σ φ_mᵀ W_m φ_m.
 Primary constraints: c_iᵀc_j = δ_ij h² and, per m, c_i − c̃_{m,i} − ½ φ_m × (c_i + c̃_{m,i}) = 0.
 The paper finds Shor's relaxation tight without redundant constraints.
+
+The worked example of docs/problem_contract.md: it imports only public names (``autotight.constraints``,
+``autotight.problem``, ``autotight.lie``, ``autotight.gauss_newton``).
 """
 
 from __future__ import annotations
@@ -13,19 +16,19 @@ import numpy as np
 from scipy.linalg import block_diag
 
 from autotight import lie
+from autotight.constraints import (Factor, Model, Variables, draw_valid, measured_columns, orthonormality, rot_blocks,
+                                   rotation_cayley, rotation_values, state_columns, weighted_norm)
 from autotight.gauss_newton import gauss_newton
-from autotight.model import Factor, Model, Variables
 from autotight.problem import Instance, LocalResult, Param
-
-from ._cayley import draw_valid, measured_columns, orthonormality, rot_blocks, rotation_cayley, rotation_values, state_columns, \
-    weighted_norm
 
 NAME = "rotation_averaging"
 DESCRIPTION = "Average M noisy rotation measurements (paper §3.1)."
 PARAMS = {
     "M": Param(10, "number of rotation measurements", low=1),
-    "sigma": Param(0.1, "noise standard deviation of each φ_m (rad)", low=0.0),
-    "anisotropy": Param(1.0, "ratio of largest to smallest noise std per axis (W_m anisotropic if > 1)", low=1.0),
+    "sigma": Param(0.1, "noise standard deviation of each φ_m (rad; ≤ 10: beyond a few rad the measurements are "
+                        "uniform on SO(3))", low=0.0, high=10.0),
+    "anisotropy": Param(1.0, "ratio of largest to smallest noise std per axis (W_m anisotropic if > 1; "
+                             "≤ 1e6: W_m reaches anisotropy²/σ²)", low=1.0, high=1e6),
 }
 
 

@@ -11,7 +11,8 @@ from autotight.model import Variables
 from autotight.problem import load
 from autotight.sdp import SolverConfig, solve_model
 from autotight.sdp.chordal import has_running_intersection
-from autotight.tightness import relative_gap
+from autotight.testing import assert_sufficient
+from autotight.tightness import Criteria, relative_gap
 from problems import _pose
 from problems import discrete_trajectory as dt
 
@@ -100,7 +101,9 @@ def test_local_solver_reaches_a_stationary_point():
     inst = _instance(4, K=8)
     res = PROB.local_solve(inst, inst.truth)
     assert res.converged
-    assert res.cost <= PROB.cost(inst, inst.truth)
+    # the truth does not minimise noisy data, so the solver must lower its cost (≤ would hold by
+    # construction: Gauss-Newton never increases the cost)
+    assert res.cost < 0.99 * PROB.cost(inst, inst.truth)
     e, J, W = dt.linearize(inst, dt._poses(res.state))
     grad = J.T @ (W @ e)
     assert np.linalg.norm(grad) <= 1e-6 * np.linalg.norm(e) * np.linalg.norm(J.toarray(), 2) ** 2
@@ -143,22 +146,23 @@ def test_primary_alone_is_not_tight():
     assert res.log_svr < 5  # on the clique blocks (decomposed solve): not rank 1
 
 
-@pytest.mark.parametrize("seed", [0, 1, 2])
-def test_paper_constraints_make_it_tight(seed):
-    inst = _instance(seed)
-    model = PROB.build(inst)
-    local = PROB.local_solve(inst, inst.truth)
-    assert local.converged
-    res = solve_model(model, model.primary() + model.paper_constraints())
-    assert res.solver in ("clarabel-chordal", "clarabel-cliques")  # never one dense 475×475 cone
-    assert res.status == "Solved", res.summary()
-    assert res.log_svr > 5
-    assert abs(relative_gap(res.primal_cost, local.cost)) < 1e-6
-    est = PROB.recover(inst, res.Theta)
-    assert np.abs(est["det_raw"] - 1.0).max() < 1e-6
-    assert abs(PROB.cost(inst, est) - local.cost) <= 1e-6 * local.cost
-    err = PROB.errors(inst, est)
-    assert err["rotation_deg"] < 20 and err["translation"] < 1.0
+def test_paper_constraints_make_it_tight():
+    """Regression over 3 fresh instances (K = 20, σ = 0.1): R1–R3 are tight on each (Solved on a
+    decomposed cone, log SVR > 5, gap ≤ 1e-6) and the recovered trajectory is the local optimum."""
+
+    def recovered(out) -> None:
+        assert out.sdp.solver in ("clarabel-chordal", "clarabel-cliques")  # never one dense 475×475 cone
+        assert out.sdp.status == "Solved", out.sdp.summary()
+        est, local = out.estimate, out.local.from_truth
+        assert local.converged
+        assert np.abs(est["det_raw"] - 1.0).max() < 1e-6
+        assert abs(PROB.cost(out.instance, est) - local.cost) <= 1e-6 * local.cost
+        err = PROB.errors(out.instance, est)
+        assert err["rotation_deg"] < 20 and err["translation"] < 1.0
+
+    rep = assert_sufficient(PROB, "paper", sigmas=[0.1], instances=3, params={"K": 20}, n_random=0,
+                            criteria=Criteria(gap_tol=1e-6), on_result=recovered)
+    assert min(rep.points[0].log_svr) > 5 and max(np.abs(rep.points[0].rel_gap)) < 1e-6
 
 
 def test_bad_input_is_refused():

@@ -320,7 +320,8 @@ def test_block_cover_keeps_blocks_whole_and_finds_the_small_separators():
     starts = {V.offsets[n]: V.sizes[n] for n in V.names}
     for c in cl:  # whole blocks: the columns split into runs that start a block and span it
         cols = set(c.tolist())
-        assert all(set(range(o, o + size)) <= cols or not (set(range(o, o + size)) & cols) for o, size in starts.items())
+        assert all(set(range(o, o + size)) <= cols or not (set(range(o, o + size)) & cols)
+                   for o, size in starts.items())
     assert _holds_every_nonzero(cl, [model.Q] + [c.A for c in cons])
 
     def separators(cover):
@@ -365,7 +366,8 @@ def test_clarabel_resolves_on_its_own_cover(monkeypatch):
     real = BACKENDS["clarabel"].solve
     monkeypatch.setattr(BACKENDS["ipm"], "solve", stalled)
     monkeypatch.setattr(BACKENDS["clarabel"], "solve",
-                        lambda Q, As, b, d, cliques, config: seen["clarabel"].append(cliques) or real(Q, As, b, d, cliques, config))
+                        lambda Q, As, b, d, cliques, config:
+                        seen["clarabel"].append(cliques) or real(Q, As, b, d, cliques, config))
     res = solve_model(model, cons, IPM)
     assert res.usable and res.solver == "clarabel-cliques" and res.n_calls == 2, res.message
     covers = _covers(model, cons)

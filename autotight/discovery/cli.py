@@ -7,7 +7,10 @@ import json
 from typing import Callable
 
 from ..cli import add_solver_args, solver_config
+from ..cli_checks import nonneg_float, nonneg_int, pos_float
 from ..io import jsonable
+from ..limits import check_count, check_size
+from ..outpaths import check_file, writing
 from ..pretty import polynomial
 from ..unbounded import compress
 from ..problem import load, parse_assignments
@@ -18,17 +21,24 @@ from .pipeline import DiscoveryResult, discover
 def register(sub: argparse._SubParsersAction, add_problem_args: Callable) -> None:
     p = sub.add_parser("discover", help="learn, tighten and reduce redundant constraints; compare with the paper")
     add_problem_args(p)
-    p.add_argument("--out", default=None, help="save the discovered set as JSON to this file")
-    p.add_argument("--groups", default=None, help="the problem's DEFAULT_GROUPS or 'factors' (default), 'whole', 'adjacent:TYPE+TYPE' (unions of neighbouring factors), "
-                        "comma-joined, or explicit blocks 'a,b;c,d'")
-    p.add_argument("--heldout", type=int, default=10, help="held-out instances for the sufficiency check (default 10)")
-    p.add_argument("--min-gap", type=float, default=6.0, help="spectral gap in decades that decides the rank (default 6)")
-    p.add_argument("--gap-tol", type=float, default=1e-5, help="relative cost gap counted as tight (default 1e-5)")
+    p.add_argument("--out", default=None, help="save the discovered set as JSON to this file (checked before the work)")
+    p.add_argument("--force", action="store_true", help="overwrite --out if it exists")
+    p.add_argument("--groups", default=None, help="the problem's DEFAULT_GROUPS or 'factors' (default), 'whole', "
+                   "'adjacent:TYPE+TYPE' (unions of neighbouring factors), comma-joined, or explicit blocks 'a,b;c,d'")
+    p.add_argument("--heldout", type=nonneg_int, default=10,
+                   help="held-out instances for the sufficiency check (default 10)")
+    p.add_argument("--min-gap", type=pos_float, default=6.0,
+                   help="spectral gap in decades that decides the rank (default 6)")
+    p.add_argument("--gap-tol", type=nonneg_float, default=1e-5,
+                   help="relative cost gap counted as tight (default 1e-5)")
     p.add_argument("--accept", default="rank", choices=["rank", "cost", "certified"],
                    help="what counts as tight: rank d and cost (default), the cost bracket only, or a dual "
                         "certificate of the best local solution")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     add_solver_args(p)
+    from .range import add_range_args  # discovery over a range: --sigmas, --range, --train, --train-param
+
+    add_range_args(p)
     p.set_defaults(func=cmd_discover)
 
 
@@ -45,8 +55,16 @@ def cmd_discover(args: argparse.Namespace) -> int:
     from ..tightness import Criteria
 
     config = solver_config(args)
+    if args.out is not None:
+        check_file(args.out, force=args.force)
+    if args.sigmas is not None or args.range:
+        from .range import cmd_discover_range
+
+        return cmd_discover_range(args, _groups(args.groups))
     prob = load(args.problem)
     params = prob.parse_params(parse_assignments(args.param))
+    check_size(prob, params)
+    check_count(prob, params, f"--heldout {args.heldout}", args.heldout, per_item=3, what="held-out instances")
     bar = None
     if not args.json and not args.no_progress:
         from tqdm import tqdm
@@ -67,7 +85,8 @@ def cmd_discover(args: argparse.Namespace) -> int:
         if bar is not None:
             bar.close()
     if args.out:
-        res.save(args.out)
+        with writing(args.out):
+            res.save(args.out)
     if args.json:
         print(json.dumps(jsonable(res.summary()), ensure_ascii=False))
     else:
@@ -94,7 +113,8 @@ def table(res: DiscoveryResult) -> str:
     s = res.summary()
     lines = [f"problem {res.problem}  params {res.params}  seed {res.seed}",
              f"learned per group: {len(res.catalog.groups)} groups, {s['n_candidates']} new candidates in "
-             f"{s['n_candidate_pairs']} (factor type, identity) pairs, {s['n_rejected_heldout']} rejected on held-out samples",
+             f"{s['n_candidate_pairs']} (factor type, identity) pairs, {s['n_rejected_heldout']} rejected on held-out "
+             "samples",
              f"smallest spectral gap: {min(s['spectral_gaps'].values()):.1f} decades",
              f"result: {'TIGHT' if res.tight else 'NOT TIGHT'} ({res.accept}) — {res.explanation()}",
              f"log SVR {res.final_log_svr:.2f} (primary alone {s['log_svr_primary']:.2f}); final relative cost gap "
@@ -105,7 +125,8 @@ def table(res: DiscoveryResult) -> str:
              *([f"ignored spectral gaps below roundoff in {len(s['spectral_gaps_ignored'])} group(s) "
                 f"(largest {max(g['decades'] for g in s['spectral_gaps_ignored'].values()):.1f} decades)"]
                if s['spectral_gaps_ignored'] else []), "",
-             f"{'set':<28}{'constraints':>12}{'in learned span':>18}{'tight (learn inst.)':>21}{'tight (held-out)':>18}",
+             f"{'set':<28}{'constraints':>12}{'in learned span':>18}{'tight (learn inst.)':>21}"
+             f"{'tight (held-out)':>18}",
              f"{'primary':<28}{s['n_primary']:>12}{'yes':>18}{str(res.tightened.primary_verdict.tight):>21}"
              f"{_primary_frac(res.heldout):>18}"]
     for fam, info in res.paper_span.items():
@@ -130,5 +151,6 @@ def table(res: DiscoveryResult) -> str:
     for f, cons in by_factor.items():
         lines.append(f"[{f}]")
         for c in cons:
-            lines.append(f"  ({c.identity}, like {res.resembles.get(c.name, '?')})  {polynomial(c.A, res.model.variables)}")
+            like = res.resembles.get(c.name, "?")
+            lines.append(f"  ({c.identity}, like {like})  {polynomial(c.A, res.model.variables)}")
     return "\n".join(lines)

@@ -21,7 +21,8 @@ class LearnOptions:
     """Settings of learning.
 
     sample_factor: samples per monomial (≥ 1.2).  min_gap_decades: the spectral gap that
-    decides the rank (log10 units).  spread: how far samples stray from the nominal state.
+    decides the rank (log10 units).  spread: how far samples stray from the nominal state (None: the
+    problem's ``SPREAD``, 0.5 unless the module sets it).
     heldout: held-out samples per instance; heldout_tol: the largest relative violation
     |Σ p_ij θ_iᵀθ_j| / Σ|p_ij|‖θ_i‖‖θ_j‖ a learned constraint may show on them.  span_tol: relative
     residual below which a candidate counts as in the span of the primary constraints.
@@ -29,7 +30,7 @@ class LearnOptions:
 
     sample_factor: float = 1.2
     min_gap_decades: float = 6.0
-    spread: float = 0.5
+    spread: float | None = None
     heldout: int = 60
     heldout_tol: float = 1e-8
     span_tol: float = 1e-6

@@ -1,7 +1,7 @@
 """Tightness of an instance's SDP with the primary constraints plus a chosen set of pairs.
 
 The oracle counts its solves: ``n_solves`` counts solver calls (``SDPResult.n_calls`` when the SDP
-layer reports retries and fallbacks, else 1 per solve) and ``solve_time_s`` their time; every solve's
+layer reports retries and re-solves, else 1 per solve) and ``solve_time_s`` their time; every solve's
 status is kept (a failed solve is "not tight", with its status in ``log``).  What counts as tight is
 ``criteria.accept`` (applied by ``tightness.judge``): "rank" (rank d and cost), "cost" (the cost
 bracket only) or "certified" (a dual certificate of the best local solution from each solve's y).

@@ -16,6 +16,7 @@ from ..problem import Instance, Problem, load
 from ..sdp.config import SolverConfig
 from ..tightness import Criteria, Verdict
 from ..unbounded import UnboundedRelaxation
+from ..validate import check_instance
 from .catalog import Catalog, instantiate, learn
 from .compare import paper_in_span, resemblance
 from .discovered import DiscoveredSet
@@ -156,6 +157,11 @@ def heldout_check(problem: Problem, params: dict[str, Any], seeds_: Sequence[int
     return out
 
 
+def default_groups(problem: Problem, groups: str | Sequence[Sequence[str]] | None) -> str | Sequence[Sequence[str]]:
+    """``groups``, or when None the problem module's ``DEFAULT_GROUPS`` (else "factors")."""
+    return getattr(problem.module, "DEFAULT_GROUPS", "factors") if groups is None else groups
+
+
 @single_blas_thread
 def discover(problem: Problem | str, params: dict[str, Any] | None = None, seed: int = 0, *,
              groups: str | Sequence[Sequence[str]] | None = None, learn_options: LearnOptions = LearnOptions(),
@@ -174,8 +180,7 @@ def discover(problem: Problem | str, params: dict[str, Any] | None = None, seed:
     """
     prob = load(problem) if isinstance(problem, str) else problem
     config = SolverConfig() if solver is None else solver
-    if groups is None:  # the problem module's default learning groups
-        groups = getattr(prob.module, "DEFAULT_GROUPS", "factors")
+    groups = default_groups(prob, groups)
     say = progress or (lambda stage, text: None)
     full = prob.parse_params(params)
     times: dict[str, float] = {}
@@ -183,6 +188,7 @@ def discover(problem: Problem | str, params: dict[str, Any] | None = None, seed:
     inst = prob.generate(full, seed)
     model = prob.build(inst)
     loc = local_search(prob, inst, seeds(seed).local(), n_random)
+    check_instance(prob, inst, model, loc)  # NaN/inf data, or a cost that does not match its lifting
     rng = seeds(seed).constraints()
     times["local_s"] = time.perf_counter() - t0
     cat = learn(prob, inst, model, rng, groups, learn_options, progress=lambda g: say("learn", g))

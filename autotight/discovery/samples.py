@@ -25,7 +25,7 @@ class SampleBank:
         return self.thetas.shape[0]
 
 
-def draw(problem: Problem, inst: Instance, n: int, rng: np.random.Generator, spread: float,
+def draw(problem: Problem, inst: Instance, n: int, rng: np.random.Generator, spread: float | None,
          max_growth: float = 1e3) -> SampleBank:
     """n samples from the problem's sampler around the ground truth, lifted.
 
@@ -33,6 +33,7 @@ def draw(problem: Problem, inst: Instance, n: int, rng: np.random.Generator, spr
     nominal lifting is drawn again: near a Cayley singularity (angle π) the residual variables blow
     up and would wreck the conditioning of the data.
     """
+    spread = problem.spread if spread is None else spread
     scale = max_growth * max(1.0, float(np.abs(as_theta(problem.lift(inst, inst.truth))).max()))
     thetas, tries = [], 0
     while len(thetas) < n:

@@ -3,15 +3,36 @@
 Every backend yields results as they complete, in the parent process, so the caller can save
 each one at once.  Workers use one solver/BLAS thread each (loky: ``inner_max_num_threads=1``
 sets OMP/OpenBLAS/MKL threads in the workers; the trial itself also limits BLAS to one thread).
+A loky worker exits within ``WATCH_INTERVAL_S`` of its parent's death (SIGKILL, SIGTERM): a
+watchdog thread started by the worker initializer polls its parent pid.  A Dask scheduler is
+reached (``connect``) before any work, within ``CONNECT_TIMEOUT_S``.
 """
 
 from __future__ import annotations
 
+import contextlib
+import os
+import threading
+import time
 from typing import Any, Callable, Iterator, Sequence
 
 from ..errors import AutotightError
 
 RESUME = "finished trials are saved; re-run the same command to resume"
+#: how often a worker checks that its parent is alive (s)
+WATCH_INTERVAL_S = 0.2
+#: how long reaching a Dask scheduler may take (s)
+CONNECT_TIMEOUT_S = 5
+
+
+def _exit_with_parent(parent: int, interval: float = WATCH_INTERVAL_S) -> None:
+    """Worker initializer: a daemon thread that ends this process once ``parent`` is gone."""
+    def watch() -> None:
+        while os.getppid() == parent:
+            time.sleep(interval)
+        os._exit(1)
+
+    threading.Thread(target=watch, name="autotight-parent-watchdog", daemon=True).start()
 
 
 def execute(fn: Callable[..., Any], calls: Sequence[tuple], *, jobs: int = 1,
@@ -34,7 +55,8 @@ def _joblib(fn: Callable[..., Any], calls: Sequence[tuple], jobs: int) -> Iterat
     from joblib import Parallel, delayed, parallel_config
     from joblib.externals.loky.process_executor import TerminatedWorkerError
 
-    with parallel_config(backend="loky", inner_max_num_threads=1):
+    with parallel_config(backend="loky", inner_max_num_threads=1, initializer=_exit_with_parent,
+                         initargs=(os.getpid(),)):
         par = Parallel(n_jobs=jobs, return_as="generator_unordered", batch_size=1, pre_dispatch="2*n_jobs")
         results = par(delayed(fn)(*args) for args in calls)
     try:
@@ -44,23 +66,41 @@ def _joblib(fn: Callable[..., Any], calls: Sequence[tuple], jobs: int) -> Iterat
         raise AutotightError(f"a worker process died ({first}); {RESUME}") from e
 
 
-def _dask(fn: Callable[..., Any], calls: Sequence[tuple], scheduler: Any) -> Iterator[Any]:
+@contextlib.contextmanager
+def connect(scheduler: Any) -> Iterator[Any]:
+    """A ``distributed.Client`` for ``scheduler`` (an address, or a Client used as is), closed afterwards;
+    None for None.  AutotightError when it cannot be reached within ``CONNECT_TIMEOUT_S``."""
+    if scheduler is None:
+        yield None
+        return
     try:
-        from distributed import Client, as_completed
+        from distributed import Client
     except ImportError:
         raise AutotightError("--scheduler needs dask.distributed: pip install 'autotight[dask]'") from None
-    own = not isinstance(scheduler, Client)
+    if isinstance(scheduler, Client):
+        yield scheduler
+        return
     try:
-        client = Client(scheduler, timeout=30) if own else scheduler
-    except (OSError, TimeoutError, ValueError) as e:
-        raise AutotightError(f"cannot reach the Dask scheduler at {scheduler!r}: {e}") from None
-    futures = []
+        client = Client(scheduler, timeout=CONNECT_TIMEOUT_S)
+    except (OSError, TimeoutError, ValueError, TypeError) as e:
+        first = (str(e).splitlines() or [type(e).__name__])[0]
+        raise AutotightError(f"cannot reach the Dask scheduler at {scheduler!r} within {CONNECT_TIMEOUT_S} s: "
+                             f"{first}") from None
     try:
-        futures = client.map(fn, *zip(*calls), pure=False) if calls else []
-        for fut in as_completed(futures):
-            yield fut.result()
+        yield client
     finally:
-        if futures:
-            client.cancel(futures)
-        if own:
-            client.close()
+        client.close()
+
+
+def _dask(fn: Callable[..., Any], calls: Sequence[tuple], scheduler: Any) -> Iterator[Any]:
+    from distributed import as_completed
+
+    with connect(scheduler) as client:
+        futures = []
+        try:
+            futures = client.map(fn, *zip(*calls), pure=False) if calls else []
+            for fut in as_completed(futures):
+                yield fut.result()
+        finally:
+            if futures:
+                client.cancel(futures)

@@ -9,9 +9,12 @@ import sys
 from pathlib import Path
 from typing import Any, Callable
 
+from ..extras import require
+from ..cli_checks import check_solver, nonneg_int
 from ..io import jsonable
+from ..limits import check_count, check_size
 from ..problem import load, parse_assignments
-from .spec import SETS, make_spec
+from .spec import SETS, ReportError, make_spec
 
 
 def _cores() -> int:
@@ -32,14 +35,17 @@ def register(sub: Any, add_problem_args: Callable[[argparse.ArgumentParser], Non
             action.help = "base seed: trial (i, t) uses SeedSequence((seed, i, t)) (default 0)"
     p.add_argument("--sigmas", metavar="LIST", default=None,
                    help="comma-separated noise levels (default: the problem's SIGMAS, else 7 levels over 1e-3…1)")
-    p.add_argument("--trials", type=int, default=100, help="trials per noise level (default 100)")
+    p.add_argument("--trials", type=nonneg_int, default=100, help="trials per noise level (default 100)")
     p.add_argument("--sets", metavar="LIST", default=None,
                    help=f"constraint sets, a subset of {','.join(SETS)} "
-                        "(default: primary, plus paper if the problem has paper families)")
+                        "(default: primary, plus paper if the problem has paper families); file:PATH: a saved "
+                        "constraint set (`discover --out`) as the discovered set")
     p.add_argument("--jobs", "-j", type=int, default=None, help="local worker processes (default: all cores)")
     p.add_argument("--scheduler", metavar="ADDRESS", default=None,
                    help="run on a Dask distributed cluster at this scheduler address (e.g. tcp://host:8786)")
-    p.add_argument("--out", metavar="DIR", default=None, help="report folder (default: reports/PROBLEM)")
+    p.add_argument("--out", metavar="DIR", default=None,
+                   help="report folder (default: out/PROBLEM in the current folder; a folder holding another "
+                        "sweep or files no report wrote is refused)")
     p.add_argument("--discovered", metavar="FILE", default=None,
                    help="a saved discovered-set JSON for the 'discovered' set (default: run discovery)")
     p.add_argument("--limit", type=int, default=None, metavar="N",
@@ -56,17 +62,28 @@ def register(sub: Any, add_problem_args: Callable[[argparse.ArgumentParser], Non
 
 
 def cmd_report(args: argparse.Namespace) -> int:
+    require("report", "autotight report")
     from .render import render  # heavy imports (matplotlib, pandas) only when reporting
     from .store import Store
     from .sweep import run_sweep
 
+    if args.out is not None and not args.out.strip():
+        raise ReportError("--out '': give a folder")
     prob = load(args.problem)
-    spec = make_spec(prob, args.problem, parse_assignments(args.param), sigmas=args.sigmas, trials=args.trials,
+    given = parse_assignments(args.param)
+    check_size(prob, prob.parse_params(given))  # before make_spec builds an instance
+    spec = make_spec(prob, args.problem, given, sigmas=args.sigmas, trials=args.trials,
                      sets=args.sets, seed=args.seed, discovered=args.discovered, solver=args.solver)
-    out = Path(args.out) if args.out else Path("reports") / prob.name
+    check_solver(spec.solver)
+    fixed = prob.parse_params(spec.params)  # σ at its default
+    check_count(prob, fixed, f"--trials {spec.trials}", spec.trials * len(spec.sigmas), per_item=2,
+                what=f"trials ({len(spec.sigmas)} noise levels)")
+    out = Path(args.out) if args.out else Path("out") / prob.name
     jobs = _cores() if args.jobs is None else args.jobs
+    redo = [x.strip() for x in args.redo.split(",") if x.strip()] if args.redo is not None else []
+    if args.redo is not None and not redo:
+        raise ReportError("--redo '': give solver statuses, e.g. --redo NumericalError,InsufficientProgress")
     try:
-        redo = [x.strip() for x in args.redo.split(",") if x.strip()] if args.redo else []
         summary = run_sweep(spec, out, jobs=jobs, scheduler=args.scheduler, limit=args.limit, redo=redo,
                             progress=not args.no_progress, log=lambda msg: print(msg, file=sys.stderr))
     except KeyboardInterrupt:

@@ -6,6 +6,7 @@ built as ``matplotlib.figure.Figure`` objects (Agg canvas), never through pyplot
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 from typing import Sequence
 
@@ -13,6 +14,8 @@ import numpy as np
 import pandas as pd
 from matplotlib.axes import Axes
 from matplotlib.figure import Figure
+
+from ..outpaths import writing
 
 COLORS = {"primary": "tab:blue", "paper": "tab:orange", "discovered": "tab:green"}
 LOG_SVR_CAP = 16.0
@@ -50,8 +53,15 @@ def _figure(width: float, height: float) -> tuple[Figure, Axes]:
 
 
 def _save(fig: Figure, path: Path) -> Path:
+    """Save to a temporary file in the same folder, then rename: never a half-written figure."""
     fig.tight_layout()
-    fig.savefig(path, dpi=DPI)
+    tmp = path.with_name(f".{path.name}.tmp")
+    try:
+        with writing(path):
+            fig.savefig(tmp, dpi=DPI, format="png")
+            os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
     return path
 
 

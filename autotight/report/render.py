@@ -13,14 +13,17 @@ import numpy as np
 import pandas as pd
 
 from ..io import atomic_write_text
+from ..outpaths import writing
 from . import figures
 from .store import load_trials
 
 CAPTIONS = {
     "trapped": "Fraction of local solves from a random start that end above the global cost "
                "(the lowest local cost, or the SDP cost where the relaxation is tight); bars: 95 % Wilson interval.",
-    "log_svr": "log SVR of the SDP solution per constraint set; above the dashed line counts as rank d (d = lifting width, 1 for a vector lifting).",
-    "tight": "Fraction of SDP solves judged tight (rank d and cost equal to the best local cost).",
+    "log_svr": "log SVR of the SDP solution per constraint set; above the dashed line counts as rank d "
+               "(d = lifting width, 1 for a vector lifting).",
+    "tight": "Fraction of SDP solves judged tight (rank d, and the bracket [dual cost, best feasible cost] "
+             "within the gap tolerance).",
     "times": "Median solve times of the SDP per constraint set and of the local solver.",
 }
 
@@ -57,6 +60,28 @@ def _median(v: pd.Series, fmt: str = ".3g") -> str:
     return format(np.median(x), fmt) if x.size else "–"
 
 
+VERDICT_RULE = (
+    "How a verdict is decided (autotight/tightness.py). The SDP gives its dual cost D (a lower bound on the "
+    "optimum, up to the accuracy the solver reached on that solve) and its primal cost P; the best feasible "
+    "cost U is the lowest of the local solves (from the ground truth and a random start) and of one local "
+    "solve started at the SDP's own estimate. The accuracy acc of a solve is read off its residuals "
+    "(|P − D|, the constraint residuals weighted by the multipliers, and λ_min of the dual slack times a "
+    "trace bound). Cost-tight: U − D ≤ gap_tol·|U| + cost_atol·‖Q‖_max·tr X (+ acc); not tight: "
+    "U − P exceeds that by more than acc; otherwise undecided, and the SDP is solved once more at a 100× "
+    "tighter tolerance. Rank-tight: log SVR = log10(λ_d/λ_{d+1}) > the threshold. Tight = rank-tight and "
+    "cost-tight; undecided verdicts are never counted as not tight. Certified: the SDP's multipliers y "
+    "prove the best feasible point optimal to gap_tol (autotight/certificate.py). Trapped: the random-start "
+    "local solve ends above the best feasible cost.")
+
+
+def _verdicts(at: pd.DataFrame, s: str) -> list[str]:
+    """Fractions of one set's solves: rank-tight, cost-tight, certified, undecided, and the SDP's estimate
+    beating every local search."""
+    x = at[at["constraint_set"] == s]
+    cols = ("rank_tight", "cost_tight", "certified", "undecided", "sdp_beats_local")
+    return [_frac(x[c].astype(float)) if c in x else "–" for c in cols]
+
+
 def tables(df: pd.DataFrame, sigmas: Sequence[float], sets: Sequence[str]) -> list[Table]:
     """Constraint counts, fraction tight, median log SVR, median times, solver statuses."""
     ok = df[~df["status"].astype(str).str.startswith("Error")]
@@ -81,7 +106,15 @@ def tables(df: pd.DataFrame, sigmas: Sequence[float], sets: Sequence[str]) -> li
                          + [_median(pt["local_truth_time_s"]), _median(pt["local_random_time_s"])])
     out.append(Table("Fraction tight per noise level", ["σ", "trials", *[f"tight: {s}" for s in sets],
                                                         "trapped (random start)"], rows_t,
-                     "Tight: log SVR = log10(λ_d/λ_{d+1}) above the rank-d threshold and SDP cost equal to the best local cost."))
+                     "Tight: log SVR = log10(λ_d/λ_{d+1}) above the rank-d threshold and the cost bracket "
+                     "closed (see 'Verdicts per noise level' for how a verdict is decided)."))
+    rows_v = []
+    for i, sg in enumerate(sigmas):
+        at = ok[ok["sigma_index"] == i]
+        for s in sets:
+            rows_v.append([_sig(sg), s, *_verdicts(at, s)])
+    out.append(Table("Verdicts per noise level", ["σ", "set", "rank-tight", "cost-tight", "certified", "undecided",
+                                                   "SDP estimate beats local search"], rows_v, VERDICT_RULE))
     out.append(Table("Median log SVR", ["σ", *sets], rows_s))
     out.append(Table("Median times (s)", ["σ", *[f"SDP {s}" for s in sets], "local (truth)", "local (random)"],
                      rows_time))
@@ -105,7 +138,8 @@ def summarize(out: Path, meta: dict[str, Any]) -> Summary:
              ("Trials", f"{done} of {meta['trials'] * len(sigmas)} done ({meta['trials']} per σ)"),
              ("Constraint sets", ", ".join(sets)),
              ("Base seed", f"{meta['seed']} (trial seeds: SeedSequence((seed, σ index, trial)))"),
-             ("Tight", f"log SVR > {crit['min_log_svr']:g} and |relative cost gap| ≤ {crit['gap_tol']:g}"),
+             ("Tight", f"log SVR > {crit['min_log_svr']:g} and the cost bracket within {crit['gap_tol']:g} relative "
+                       f"(accept: {crit.get('accept', 'rank')}; see 'Verdicts per noise level')"),
              ("Trapped", f"random-start local cost above the global cost by more than {meta['trap_rtol']:g} "
                          "relative"),
              ("Command", meta["runs"][-1].get("command", "") if meta.get("runs") else ""),
@@ -169,6 +203,7 @@ def render(out: str | Path, meta: dict[str, Any]) -> dict[str, Path]:
     out = Path(out)
     s = summarize(out, meta)
     md, page = out / "report.md", out / "report.html"
-    atomic_write_text(md, markdown(s))
-    atomic_write_text(page, html_page(s))
+    for path, text in ((md, markdown(s)), (page, html_page(s))):
+        with writing(path):
+            atomic_write_text(path, text)
     return {**s.figures, "report.md": md, "report.html": page}

@@ -2,7 +2,9 @@
 
 Each finished trial is appended with one ``write`` and an fsync.  On reading, a torn last line or
 a trial with missing set rows (a crash mid-write) is dropped and the file rewritten atomically,
-so a trial is either fully present or absent.  A folder holding a different sweep is refused.
+so a trial is either fully present or absent.  A folder holding a different sweep, or files that
+no report wrote, is refused before any work (``precheck``).  Every write goes through
+``autotight.outpaths.writing``: a full disk is a one-line error and leaves no partial file.
 """
 
 from __future__ import annotations
@@ -19,10 +21,18 @@ from typing import Any, Iterable, Sequence
 import pandas as pd
 
 from ..io import atomic_write_text, jsonable, versions, write_json
+from ..outpaths import writing
 from .spec import ReportError
 
 CSV_NAME = "trials.csv"
 META_NAME = "meta.json"
+#: files a report writes besides meta.json (a folder holding one of them without meta.json is refused)
+OUTPUTS = (CSV_NAME, "report.md", "report.html", "trapped.png", "log_svr.png", "tight.png", "times.png")
+REPORT_TITLE = "# Tightness report"
+#: the statuses a solve can end with (Clarabel's, which the IPM and the cvxpy path map to), for --redo
+STATUSES = ("Solved", "AlmostSolved", "MaxIterations", "MaxTime", "NumericalError", "InsufficientProgress",
+            "PrimalInfeasible", "DualInfeasible", "AlmostPrimalInfeasible", "AlmostDualInfeasible",
+            "CallbackTerminated", "Unsolved", "Failed")
 BOOL_COLUMNS = ("tight", "rank_tight", "cost_tight", "local_converged_truth", "local_converged_random", "trapped")
 
 
@@ -56,6 +66,32 @@ class Store:
         self.dropped = 0
 
     # -- settings ---------------------------------------------------------------------------
+    def precheck(self, identity: dict[str, Any]) -> None:
+        """Refuse, before any work, a folder holding another sweep (settings in ``identity`` that
+        differ; the discovered set and the columns are checked by ``open``) or files no report wrote."""
+        if not self.out.is_dir():
+            return
+        meta = self.meta()
+        md = self.out / "report.md"
+        if md.is_file() and not _starts_with(md, REPORT_TITLE):
+            raise ReportError(f"{md} is not a report written by autotight; use another --out or remove it")
+        if meta is None:
+            foreign = [n for n in OUTPUTS if (self.out / n).exists() and not (n == CSV_NAME and
+                                                                              not (self.out / n).stat().st_size)]
+            if foreign:
+                raise ReportError(f"{self.out / foreign[0]} exists without {META_NAME}; cannot check its settings — "
+                                  "use another --out or remove it")
+            return
+        self._compare(meta, _norm(identity))
+
+    def _compare(self, meta: dict[str, Any], ident: dict[str, Any]) -> None:
+        diff = [k for k in ident if _norm(meta.get(k)) != ident[k]]
+        if diff:
+            k = diff[0]
+            raise ReportError(f"{self.out} holds a different sweep ({k}: {_short(meta.get(k))} there, "
+                              f"{_short(ident[k])} here; {len(diff)} setting(s) differ: {', '.join(diff)}) — "
+                              "use another --out or remove that folder")
+
     def open(self, identity: dict[str, Any], columns: Sequence[str], sets: Sequence[str], trials: int,
              info: dict[str, Any] | None = None, run_info: dict[str, Any] | None = None,
              redo: Sequence[str] = ()) -> set[tuple[int, int]]:
@@ -73,18 +109,14 @@ class Store:
                 raise ReportError(f"{self.csv} exists without {META_NAME}; cannot check its settings — "
                                   "use another --out or remove it")
             meta = {"format": 1, **ident, "created": time.strftime("%Y-%m-%dT%H:%M:%S"), "runs": []}
+            self._write_meta(meta)  # first: a folder with meta.json and no CSV resumes; the reverse is refused
         else:
-            diff = [k for k in ident if _norm(meta.get(k)) != ident[k]]
-            if diff:
-                k = diff[0]
-                raise ReportError(f"{self.out} holds a different sweep ({k}: {_short(meta.get(k))} there, "
-                                  f"{_short(ident[k])} here; {len(diff)} setting(s) differ: {', '.join(diff)}) — "
-                                  "use another --out or remove that folder")
+            self._compare(meta, ident)
         rows = self._load_rows()
         self.dropped = 0
         if redo:
             ist, ii, it = (self.columns.index(c) for c in ("status", "sigma_index", "trial"))
-            again = self._keys(r for r in rows if r[ist] in set(redo))
+            again = self._keys(r for r in rows if redo_matches(r[ist], redo))
             if again:
                 rows = [r for r in rows if (int(r[ii]), int(r[it])) not in again]
                 self._rewrite(rows)
@@ -98,30 +130,42 @@ class Store:
         meta["versions"] = now
         meta["runs"] = [*meta.get("runs", []), {"started": time.strftime("%Y-%m-%dT%H:%M:%S"),
                                                 "versions": meta["versions"], **(run_info or {})}]
-        write_json(self.meta_path, meta)
+        self._write_meta(meta)
         return self._keys(rows)
+
+    def _write_meta(self, meta: dict[str, Any]) -> None:
+        with writing(self.meta_path):
+            write_json(self.meta_path, meta)
 
     def meta(self) -> dict[str, Any] | None:
         if not self.meta_path.exists():
             return None
         try:
-            return json.loads(self.meta_path.read_text(encoding="utf-8"))
-        except json.JSONDecodeError as e:
+            meta = json.loads(self.meta_path.read_text(encoding="utf-8"))
+        except (UnicodeDecodeError, json.JSONDecodeError) as e:
             raise ReportError(f"{self.meta_path} is not valid JSON ({e}); remove it or use another --out") from None
+        except OSError as e:
+            raise ReportError(f"cannot read {self.meta_path}: {e.strerror or e}") from None
+        if not isinstance(meta, dict) or not isinstance(meta.get("runs", []), list):
+            raise ReportError(f"{self.meta_path} is not a report's settings (a JSON object); "
+                              "remove it or use another --out")
+        return meta
 
     # -- rows -------------------------------------------------------------------------------
     def _load_rows(self) -> list[list[str]]:
         """Complete trials' rows (raw strings); repairs the file if anything was dropped or duplicated."""
         header_line = ",".join(self.columns) + "\n"
         if not self.csv.exists():
-            atomic_write_text(self.csv, header_line)
+            with writing(self.csv):
+                atomic_write_text(self.csv, header_line)
             return []
         text = self.csv.read_text(encoding="utf-8")
         lines = text.split("\n")
         damaged = lines[-1] != ""  # a torn last line has no newline
         lines = lines[:-1]
         if not lines:
-            atomic_write_text(self.csv, header_line)
+            with writing(self.csv):
+                atomic_write_text(self.csv, header_line)
             return []
         header = next(csv.reader([lines[0]]))
         if header != self.columns:
@@ -157,19 +201,38 @@ class Store:
         return buf.getvalue()
 
     def _rewrite(self, rows: list[list[str]]) -> None:
-        atomic_write_text(self.csv, self._text([self.columns, *rows]))
+        with writing(self.csv):
+            atomic_write_text(self.csv, self._text([self.columns, *rows]))
 
     def append(self, rows: Sequence[dict[str, Any]]) -> None:
         """Append one trial's rows with a single write, then fsync."""
         data = self._text([[_cell(r.get(c)) for c in self.columns] for r in rows]).encode("utf-8")
-        fd = os.open(self.csv, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
+        with writing(self.csv):
+            fd = os.open(self.csv, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
+            try:
+                view = memoryview(data)
+                while view:
+                    view = view[os.write(fd, view):]
+                os.fsync(fd)
+            finally:
+                os.close(fd)
+
+    def saved_statuses(self) -> set[str]:
+        """The statuses in the saved CSV (empty when there is none or it cannot be read)."""
         try:
-            view = memoryview(data)
-            while view:
-                view = view[os.write(fd, view):]
-            os.fsync(fd)
-        finally:
-            os.close(fd)
+            df = pd.read_csv(self.csv, usecols=["status"], keep_default_na=False)
+        except (OSError, ValueError, pd.errors.ParserError):
+            return set()
+        return set(df["status"].astype(str))
+
+    def first_error_if_all_failed(self) -> str | None:
+        """The status of the first trial (by σ index, trial) when every saved trial failed, else None."""
+        rows = self._load_rows()
+        ist, ii, it = (self.columns.index(c) for c in ("status", "sigma_index", "trial"))
+        if not rows or not all(r[ist].startswith("Error") for r in rows):
+            return None
+        first = min(rows, key=lambda r: (int(r[ii]), int(r[it])))
+        return first[ist].removeprefix("Error: ")
 
     def finalize(self) -> None:
         """Rewrite the CSV sorted by (σ index, trial, set) unless it already is."""
@@ -192,6 +255,19 @@ def load_trials(out: str | Path, trials: int | None = None) -> pd.DataFrame:
     if trials is not None:
         df = df[df["trial"] < trials].reset_index(drop=True)
     return df
+
+
+def redo_matches(status: str, redo: Sequence[str]) -> bool:
+    """Whether a saved status is one of ``redo``: equal to an entry; "Error" or "Failed": every status so starting."""
+    return any(status == r or (r in ("Error", "Failed") and status.startswith(r)) for r in redo)
+
+
+def _starts_with(path: Path, prefix: str) -> bool:
+    try:
+        with open(path, encoding="utf-8", errors="replace") as f:
+            return f.read(len(prefix)) == prefix
+    except OSError:
+        return False
 
 
 def _short(v: Any, n: int = 80) -> str:

@@ -9,12 +9,14 @@ from typing import Any, Callable, Sequence
 
 from tqdm import tqdm
 
+from ..cli_checks import check_set_file
 from ..constraint_set import ConstraintSet
 from ..problem import Problem
+from ..outpaths import LOCK_NAME, check_folder, folder_lock, writing
 from ..sdp.config import SolverConfig
-from .backends import execute
+from .backends import connect, execute
 from .spec import ReportError, SweepSpec
-from .store import Store
+from .store import CSV_NAME, META_NAME, STATUSES, Store
 from .trial import columns, error_keys, run_trial
 
 DISCOVERED_NAME = "discovered.json"
@@ -40,42 +42,83 @@ def run_sweep(spec: SweepSpec, out: str | Path, *, jobs: int = 1, scheduler: Any
               log: Callable[[str], None] = lambda msg: None) -> SweepSummary:
     """Compute the trials of ``spec`` missing from ``out`` (at most ``limit`` of them); ``log`` gets notes.
 
-    redo: solver statuses whose saved trials are dropped first and computed again."""
+    redo: solver statuses whose saved trials are dropped first and computed again ("Error": every
+    failed trial).  Before any work: the folder is checked (``outpaths.check_folder``,
+    ``Store.precheck``) and the scheduler reached.  While running, ``out/.lock`` is held.  A run that
+    created ``out`` and saved no trial leaves no folder behind (only a discovered set it computed).
+    ReportError when every trial of the sweep failed (the first trial's error)."""
     if jobs < 1:
         raise ReportError(f"--jobs {jobs}: need at least 1 worker")
     if limit is not None and limit < 0:
         raise ReportError(f"--limit {limit}: must be ≥ 0")
-    out = Path(out)
-    problem = spec.load()
-    discovered, disc_id = prepare_discovered(spec, problem, out, log)
+    out = check_folder(out)
     store = Store(out)
+    store.precheck(spec.identity())
+    check_redo(redo, store.saved_statuses())
     backend = "dask" if scheduler is not None else ("joblib" if jobs > 1 else "serial")
-    done = store.open(dict(spec.identity(), discovered=disc_id), columns(error_keys(problem, spec)), spec.sets,
-                      spec.trials, info={"description": problem.description, "source": spec.source},
-                      run_info={"backend": backend, "jobs": jobs, "command": f"{spec.command()} --out {out}"},
-                      redo=redo)
-    if store.dropped:
-        log(f"re-running {store.dropped} saved trial(s) with status {', '.join(redo)}")
-    if store.version_changes:
-        log(f"note: package versions changed since the last run ({', '.join(store.version_changes)}); "
-            f"each run's versions are in {store.meta_path}")
-    tasks = spec.tasks()
-    missing = [k for k in tasks if k not in done]
-    pending = missing if limit is None else missing[:limit]
-    before = len(tasks) - len(missing)
-    computed = failed = 0
-    with tqdm(total=len(tasks), initial=before, disable=None if progress else True, unit="trial", desc=problem.name,
-              dynamic_ncols=True) as bar:
-        calls = [(spec, i, t, discovered) for i, t in pending]
-        for res in execute(run_trial, calls, jobs=jobs, scheduler=scheduler):
-            store.append(res.rows)
-            computed += 1
-            failed += str(res.rows[0]["status"]).startswith("Error")
-            bar.update()
-    summary = SweepSummary(out, len(tasks), before, computed, failed)
-    if summary.complete:
-        store.finalize()
-    return summary
+    created = not out.exists()
+    kept = not created  # whether the folder stays on an error: it existed, or holds a successful trial
+    try:
+        with connect(scheduler) as client, folder_lock(out):
+            problem = spec.load()
+            discovered, disc_id = prepare_discovered(spec, problem, out, log)
+            done = store.open(dict(spec.identity(), discovered=disc_id), columns(error_keys(problem, spec)),
+                              spec.sets, spec.trials, info={"description": problem.description, "source": spec.source},
+                              run_info={"backend": backend, "jobs": jobs, "command": f"{spec.command()} --out {out}"},
+                              redo=redo)
+            if store.dropped:
+                log(f"re-running {store.dropped} saved trial(s) with status {', '.join(redo)}")
+            if store.version_changes:
+                log(f"note: package versions changed since the last run ({', '.join(store.version_changes)}); "
+                    f"each run's versions are in {store.meta_path}")
+            tasks = spec.tasks()
+            missing = [k for k in tasks if k not in done]
+            pending = missing if limit is None else missing[:limit]
+            before = len(tasks) - len(missing)
+            computed = failed = 0
+            with tqdm(total=len(tasks), initial=before, disable=None if progress else True, unit="trial",
+                      desc=problem.name, dynamic_ncols=True) as bar:
+                calls = [(spec, i, t, discovered) for i, t in pending]
+                for res in execute(run_trial, calls, jobs=jobs, scheduler=client):
+                    store.append(res.rows)
+                    computed += 1
+                    bad = str(res.rows[0]["status"]).startswith("Error")
+                    failed += bad
+                    kept |= not bad
+                    bar.update()
+            summary = SweepSummary(out, len(tasks), before, computed, failed)
+            if computed and failed == computed:
+                first = store.first_error_if_all_failed()
+                if first is not None:  # no figures from nothing: the error, and a new folder is removed
+                    raise ReportError(f"every trial failed; the first: {first}")
+            if summary.complete:
+                store.finalize()
+            return summary
+    except BaseException:
+        if not kept:
+            _remove_new_folder(out)
+        raise
+
+
+def check_redo(redo: Sequence[str], saved: set[str] = frozenset()) -> None:
+    """Every ``--redo`` entry is a solver status, a status saved in the folder, or "Error" (every failed trial)."""
+    bad = [r for r in redo if r not in STATUSES and r != "Error" and r not in saved]
+    if bad:
+        raise ReportError(f"--redo {','.join(bad)}: not a solver status; use some of {', '.join(STATUSES)} "
+                          "or Error (every failed trial)")
+
+
+def _remove_new_folder(out: Path) -> None:
+    """Remove what this run wrote into the folder it created, but a discovered set it computed (work kept);
+    a rerun then starts afresh."""
+    for name in (META_NAME, CSV_NAME, LOCK_NAME):
+        (out / name).unlink(missing_ok=True)
+    for tmp in out.glob(".*.tmp"):
+        tmp.unlink(missing_ok=True)
+    try:
+        out.rmdir()
+    except OSError:  # not empty: the discovered set stays for the next run
+        pass
 
 
 def _sha256(path: Path) -> str:
@@ -92,6 +135,7 @@ def prepare_discovered(spec: SweepSpec, problem: Problem, out: Path,
         raise ReportError(f"no discovered-set file {path}")
     from ..discovery import DiscoveredSet, discover
     if path is not None:
+        check_set_file(path, "--discovered")
         ds = DiscoveredSet.load(path)
         if getattr(ds, "problem", problem.name) != problem.name:
             raise ReportError(f"{path} is a discovered set for {ds.problem}, not {problem.name}")
@@ -102,6 +146,6 @@ def prepare_discovered(spec: SweepSpec, problem: Problem, out: Path,
         log(f"running discovery for {problem.name} at {params} (seed {spec.seed}); saving it to {saved}")
         res = discover(problem, params, seed=spec.seed, criteria=spec.criteria,
                        solver=SolverConfig(backend=spec.solver, threads=1))
-        out.mkdir(parents=True, exist_ok=True)
-        res.discovered.save(saved, res.model, res.constraints, {"summary": res.summary()})
+        with writing(saved):
+            res.discovered.save(saved, res.model, res.constraints, {"summary": res.summary()})
     return ConstraintSet(DiscoveredSet.load(saved)), {"source": "discover", "seed": spec.seed, "sha256": _sha256(saved)}

@@ -21,7 +21,8 @@ from .spec import SweepSpec, trial_seeds
 KEY = ("sigma_index", "trial")
 BASE_COLUMNS = ("problem", "sigma_index", "sigma", "trial", "seed", "constraint_set", "n_constraints", "status",
                 "outcome", "tight", "rank_tight", "cost_tight", "log_svr", "sdp_cost", "sdp_dual_cost", "rel_gap",
-                "upper_bound", "refined_cost", "sdp_attempts",
+                "upper_bound", "refined_cost", "sdp_attempts", "undecided", "certified", "cert_rel_bound",
+                "sdp_beats_local",
                 "local_cost_truth", "local_cost_random", "local_converged_truth", "local_converged_random",
                 "global_cost", "trapped")
 TIME_COLUMNS = ("sdp_time_s", "sdp_setup_s", "local_truth_time_s", "local_random_time_s", "build_time_s",
@@ -105,7 +106,11 @@ def _solve(problem: Problem, spec: SweepSpec, i: int, t: int, discovered: Any) -
                          cost_tight=verdict.cost_tight, log_svr=res.log_svr, sdp_cost=res.primal_cost,
                          sdp_dual_cost=res.dual_cost, rel_gap=verdict.rel_gap, upper_bound=out.upper,
                          refined_cost=None if out.refined is None else out.refined.cost,
-                         sdp_attempts=len(out.attempts), sdp_time_s=res.solve_time_s, sdp_setup_s=res.setup_time_s,
+                         sdp_attempts=len(out.attempts), undecided=verdict.undecided,
+                         certified=None if out.certificate is None else out.certificate.certified,
+                         cert_rel_bound=None if out.certificate is None else out.certificate.rel_bound,
+                         sdp_beats_local=out.sdp_beats_local,
+                         sdp_time_s=res.solve_time_s, sdp_setup_s=res.setup_time_s,
                          verdict=verdict.reason, **common, **errs))
     finite = [c for c in (truth.cost, rand.cost, *uppers) if np.isfinite(c)]
     global_cost = min(finite) if finite else float("nan")

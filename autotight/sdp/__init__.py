@@ -9,8 +9,8 @@ model's own clique cover (a hint) and a scaling vector:
   is chosen here (``covers.CliqueCovers``: min-fill covers of the columns and of the variable
   blocks, small cliques merged, and the hint, ranked by the backend's cost model);
 - retries: a result is solved again with each of the backend's ``retries`` configs in turn whose
-  statuses include its status (Clarabel: default regularisation on a stalled or AlmostSolved
-  solve, then clique-graph merging on a stalled one); the retry replaces the result when it is
+  statuses include its status (Clarabel: default regularisation on a stalled solve, or an
+  AlmostSolved one of at most 100 columns, then clique-graph merging on a stalled one); the retry replaces the result when it is
   Solved or the result is unusable;
 - fallback: an unusable result of a backend with a ``fallback`` (the IPM) is solved again by that
   backend on its own cover (Clarabel's), with its retries;
@@ -131,6 +131,17 @@ def _unscale(res: SDPResult, D: np.ndarray) -> SDPResult:
     return finish(res)
 
 
+def congruence(A: sp.sparray, D: np.ndarray) -> sp.sparray:
+    """D A D for a diagonal D (given as its vector), by scaling the stored entries (a COO matrix stays COO:
+    a CSR copy per constraint would hold an N + 1 index array)."""
+    if isinstance(A, (sp.coo_array, sp.coo_matrix)):
+        return sp.coo_array((A.data * D[A.row] * D[A.col], (A.row, A.col)), shape=A.shape)
+    A = sp.csr_array(A, copy=True)
+    rows = np.repeat(np.arange(A.shape[0]), np.diff(A.indptr))
+    A.data *= D[rows] * D[A.indices]
+    return A
+
+
 def _solve(Q: sp.spmatrix | sp.sparray, constraints: Sequence[Constraint], d: int, config: SolverConfig,
            cliques: Sequence[np.ndarray] | None, scale: np.ndarray | None,
            block_sizes: Sequence[int] | None) -> SDPResult:
@@ -152,9 +163,7 @@ def _solve(Q: sp.spmatrix | sp.sparray, constraints: Sequence[Constraint], d: in
         D = np.asarray(scale, float)
         if D.shape != (N,) or not np.all(np.isfinite(D)) or not np.all(D > 0):
             raise ValueError(f"scale must be a positive finite vector of length N = {N}")
-        Dm = sp.diags_array(D)
-        Qs = sp.csr_array(Dm @ Q @ Dm)
-        As_s = [sp.coo_array((A.data * D[A.row] * D[A.col], (A.row, A.col)), shape=A.shape) for A in As]
+        Qs, As_s = congruence(Q, D), [congruence(A, D) for A in As]
     else:
         Qs, As_s = Q, As
     backend = BACKENDS[config.backend_name]
@@ -167,10 +176,9 @@ def _solve(Q: sp.spmatrix | sp.sparray, constraints: Sequence[Constraint], d: in
     if not res.usable and fb is not None:
         # the backend's attainable accuracy was not enough: the fallback on its own cover
         res = _with_retries(fb, f"solved again by {fb.name}", Qs, As_s, b, d, _cover(fb, decompose, covers), config, log)
-    res.n_calls = len(log)
-    res.solve_time_s = sum(a.res.solve_time_s for a in log)
-    res.setup_time_s = sum(a.res.setup_time_s for a in log)
-    res.message = "; ".join(a.describe(k + 1) for k, a in enumerate(log))
+    message = "; ".join(a.describe(k + 1) for k, a in enumerate(log))  # before res (one of them) is changed
+    solve_s, setup_s = sum(a.res.solve_time_s for a in log), sum(a.res.setup_time_s for a in log)
+    res.n_calls, res.solve_time_s, res.setup_time_s, res.message = len(log), solve_s, setup_s, message
     if D is not None:
         res = _unscale(res, D)
     elif res.Theta is None:

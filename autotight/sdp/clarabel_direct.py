@@ -119,13 +119,15 @@ def solve_cliques(Q: sp.csr_array, As: Sequence[sp.csr_array], b: np.ndarray, d:
     return finish(res)
 
 
-#: a solve that ends with one of these statuses is retried with Clarabel's default regularisation
-#: (AlmostSolved too: on scaled data, pose averaging M = 10 at σ = 1e-3, "small" stops AlmostSolved
-#: 7e-7 from the optimum where "default" solves it to 1e-9)
-RETRY_STATUSES = ("NumericalError", "InsufficientProgress", "AlmostSolved")
-#: … and with clique-graph merging on one of these, on liftings of at most RETRY_MAX_N columns
-#: (clique-graph merging can take many minutes on larger chains)
-MERGE_RETRY_STATUSES = ("NumericalError", "InsufficientProgress")
+#: a solve that stalls (these statuses) is retried with Clarabel's default regularisation, and (one
+#: cone, at most RETRY_MAX_N columns: clique-graph merging can take many minutes on larger chains)
+#: with clique-graph merging
+RETRY_STATUSES = ("NumericalError", "InsufficientProgress")
+#: on liftings of at most RETRY_MAX_N columns, an AlmostSolved solve is retried with the default
+#: regularisation too (scaled pose averaging, M = 10, σ = 1e-3: "small" stops AlmostSolved 7e-7 from
+#: the optimum, "default" solves it to 1e-9); on larger ones that retry costs more than it gains
+#: (continuous time, K = 17, not tight: 100 s more for no change of verdict)
+SMALL_RETRY_STATUSES = RETRY_STATUSES + ("AlmostSolved",)
 RETRY_MAX_N = 100
 
 
@@ -133,9 +135,10 @@ class ClarabelBackend:
     """Clarabel, direct: one PSD cone (with Clarabel's own chordal decomposition when
     ``clarabel_chordal``), or one cone per clique of the cover the SDP layer chose.
 
-    Retries (``retries``): a solve that stalls or stops short (``RETRY_STATUSES``) is solved again
-    with Clarabel's default regularisation, then one that stalls (``MERGE_RETRY_STATUSES``; one
-    cone, parent-child merging, at most ``RETRY_MAX_N`` columns) with clique-graph merging."""
+    Retries (``retries``): a solve that stalls (``RETRY_STATUSES``; on at most ``RETRY_MAX_N``
+    columns also AlmostSolved) is solved again with Clarabel's default regularisation, then one that
+    still stalls (one cone, parent-child merging, at most ``RETRY_MAX_N`` columns) with clique-graph
+    merging."""
 
     name = "clarabel"
     decompose_default = False  # Clarabel's own chordal decomposition is the default path
@@ -156,7 +159,8 @@ class ClarabelBackend:
     def retries(self, config: SolverConfig, decomposed: bool, N: int) -> list[tuple[str, SolverConfig, tuple[str, ...]]]:
         out = []
         if config.regularization == "small":
-            out.append(("default regularisation", replace(config, regularization="default"), RETRY_STATUSES))
+            out.append(("default regularisation", replace(config, regularization="default"),
+                        SMALL_RETRY_STATUSES if N <= RETRY_MAX_N else RETRY_STATUSES))
         if not decomposed and config.clarabel_chordal and config.chordal_merge == "parent_child" and N <= RETRY_MAX_N:
-            out.append(("clique_graph merge", replace(config, chordal_merge="clique_graph"), MERGE_RETRY_STATUSES))
+            out.append(("clique_graph merge", replace(config, chordal_merge="clique_graph"), RETRY_STATUSES))
         return out

@@ -1,0 +1,153 @@
+"""Refuse work that cannot fit, before it starts: an estimate of the memory or time it needs.
+
+Sizes (``check_size``): an integer parameter far above its default (more than ``PROBE_FACTOR`` ×
+the default and more than ``PROBE_MIN``) is probed: the problem is built at 1, 2 and 3 × the
+default (the other parameters as given, or at their defaults when they are probed too), and the
+lifting size N and the SDP data's nonzeros (Q and the primary constraints) are extrapolated by the
+quadratic through those three points, summed over the probed parameters.  The memory estimate is
+``BYTES_PER_NONZERO`` per nonzero of the data plus ``BYTES_PER_DENSE_ENTRY`` per entry of the
+N × N solution X (the result holds X dense), fitted to the peak RSS of ``autotight solve`` on
+rotation averaging with M = 50, 200, 400 (89, 173, 350 MB); the run is refused when it exceeds
+the memory available.
+
+Counts (``check_count``): trials, random starts, held-out instances: n × the measured time of one
+local solve from the ground truth (a lower bound: every item does at least that) must stay below
+``MAX_SECONDS``; counts up to ``COUNT_FREE`` are never timed.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import scipy.sparse as sp
+
+from .errors import ParameterError
+
+PROBE_FACTOR = 4
+PROBE_MIN = 64
+BYTES_PER_NONZERO = 3000.0
+BYTES_PER_DENSE_ENTRY = 100.0
+MAX_SECONDS = 24 * 3600.0
+COUNT_FREE = 1000
+
+
+class SizeError(ParameterError):
+    """A run that cannot fit in memory or finish in reasonable time."""
+
+
+@dataclass(frozen=True)
+class SizeEstimate:
+    N: float
+    nonzeros: float
+
+    @property
+    def bytes(self) -> float:
+        return self.nonzeros * BYTES_PER_NONZERO + self.N * self.N * BYTES_PER_DENSE_ENTRY
+
+
+def _measure(problem: Any, params: dict[str, Any]) -> tuple[int, int]:
+    inst = problem.generate(params, 0)
+    model = problem.build(inst)
+    nnz = sp.csr_array(model.Q).nnz + sum(sp.csr_array(c.A).nnz for c in model.primary())
+    return model.variables.N, nnz
+
+
+def _extrapolate(xs: list[float], ys: list[float], x: float) -> float:
+    """The quadratic through (xs, ys) at x, its curvature clipped at 0 (growth at least linear)."""
+    a2, a1, a0 = np.polyfit(np.asarray(xs, float), np.asarray(ys, float), 2)
+    if a2 < 0:
+        a1, a0 = np.polyfit(np.asarray(xs, float), np.asarray(ys, float), 1)
+        a2 = 0.0
+    return float(a2 * x * x + a1 * x + a0)
+
+
+def probed(problem: Any, params: dict[str, Any]) -> dict[str, int]:
+    """The integer parameters far above their defaults (see the module docstring)."""
+    out = {}
+    for k, p in problem.params.items():
+        if type(p.default) is int and isinstance(params.get(k), int) and not isinstance(params[k], bool):
+            base = max(p.default, 1)
+            if params[k] > max(PROBE_FACTOR * base, PROBE_MIN):
+                out[k] = base
+    return out
+
+
+def estimate_size(problem: Any, params: dict[str, Any]) -> SizeEstimate | None:
+    """N and the nonzeros at ``params`` (parsed), or None when no parameter needs probing."""
+    big = probed(problem, params)
+    if not big:
+        return None
+    base = dict(params, **big)
+    N0, z0 = _measure(problem, base)
+    N, z = float(N0), float(z0)
+    for k, a in big.items():
+        pts = [(N0, z0)] + [_measure(problem, dict(base, **{k: m * a})) for m in (2, 3)]
+        xs = [a, 2 * a, 3 * a]
+        N += _extrapolate(xs, [q[0] for q in pts], params[k]) - N0
+        z += _extrapolate(xs, [q[1] for q in pts], params[k]) - z0
+    return SizeEstimate(N, z)
+
+
+def available_memory() -> float:
+    """Bytes of memory available (MemAvailable on Linux, else physical memory)."""
+    try:
+        with open("/proc/meminfo", encoding="ascii") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    return float(line.split()[1]) * 1024
+    except OSError:
+        pass
+    try:
+        return float(os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE"))
+    except (ValueError, OSError, AttributeError):
+        return float("inf")
+
+
+def _gb(b: float) -> str:
+    return f"{b / 1e9:.3g} GB"
+
+
+def check_size(problem: Any, params: dict[str, Any]) -> SizeEstimate | None:
+    """Refuse parameters whose SDP data would not fit in memory (``SizeError``); returns the estimate."""
+    est = estimate_size(problem, params)
+    if est is None:
+        return None
+    avail = available_memory()
+    if est.bytes > avail:
+        given = ", ".join(f"{k}={params[k]}" for k in probed(problem, params))
+        raise SizeError(f"{problem.name} with {given}: the SDP would have N ≈ {est.N:.3g} columns and "
+                        f"≈ {est.nonzeros:.3g} nonzeros, needing about {_gb(est.bytes)} of memory; "
+                        f"{_gb(avail)} available")
+    return est
+
+
+def _duration(s: float) -> str:
+    for unit, n, start in (("years", 365 * 86400, 2), ("days", 86400, 2), ("h", 3600, 1), ("min", 60, 1)):
+        if s >= start * n:
+            return f"{s / n:.3g} {unit}"
+    return f"{s:.3g} s"
+
+
+def local_solve_seconds(problem: Any, params: dict[str, Any]) -> float:
+    """The time of one generate + local solve from the ground truth at ``params`` (seed 0)."""
+    t0 = time.perf_counter()
+    inst = problem.generate(params, 0)
+    problem.local_solve(inst, inst.truth)
+    return time.perf_counter() - t0
+
+
+def check_count(problem: Any, params: dict[str, Any], option: str, n: int, per_item: float = 1.0,
+                what: str = "items") -> None:
+    """Refuse ``n`` items (each at least ``per_item`` local solves) that would take more than ``MAX_SECONDS``."""
+    if n <= COUNT_FREE:
+        return
+    t = local_solve_seconds(problem, params)
+    total = n * per_item * t
+    if total > MAX_SECONDS:
+        raise SizeError(f"{option}: {n} {what} would take at least {_duration(total)} (one local solve alone "
+                        f"takes {t * 1e3:.3g} ms here); at most about {int(MAX_SECONDS / (per_item * t))} fit in "
+                        f"{_duration(MAX_SECONDS)}")

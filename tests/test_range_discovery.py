@@ -1,0 +1,128 @@
+"""Discovery over a range (autotight.discovery.range): tight on every training instance, irreducible over
+the range, saved with its range, and passing `check` at every point it was learned for."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+import autotight as at
+from autotight.check import instance_seed
+from autotight.cli import main
+from autotight.constraint_set import ConstraintSet
+from autotight.discovery.range import RangeDiscoveryResult, Trainer, _reduce, _Run, discover_range, training_seed
+from autotight.errors import ParameterError
+from autotight.pipeline import solve_instance
+from autotight.tightness import Criteria
+
+
+class _Needs(_Run):
+    """A fake oracle: trainer s is tight with a set iff the set contains one of needs[s] (monotone)."""
+
+    def __init__(self, needs: dict[int, list[set[str]]]):
+        super().__init__(None, None, Criteria())  # type: ignore[arg-type]
+        self.needs = needs
+        self.calls: list[tuple[int, frozenset]] = []
+
+    def solve(self, tr, chosen, stage):
+        key = frozenset(chosen)
+        self.calls.append((tr.seed, key))
+        self.n_solves += 1
+        tight = any(n <= key for n in self.needs[tr.seed])
+        (tr.tight_sets if tight else tr.loose_sets).append(key)
+        return tight
+
+
+def _trainer(seed: int) -> Trainer:
+    return Trainer(0, seed, None, None, None, {})  # type: ignore[arg-type]
+
+
+def test_reduction_is_irreducible_over_all_trainers_and_never_solves_a_set_twice():
+    needs = {1: [{"a", "b"}, {"c"}], 2: [{"b"}], 3: [{"d", "e"}, {"a", "b"}]}
+    run = _Needs(needs)
+    trainers = [_trainer(s) for s in needs]
+    for tr in trainers:  # the greedy's final tight result on each trainer
+        tr.tight_sets.append(frozenset("abcdef"))
+    pairs, dropped = _reduce(run, trainers, list("abcdef"), lambda *a: None)
+    final = set(pairs)
+    assert all(any(n <= final for n in needs[s]) for s in needs)  # tight on every trainer
+    for p in final:  # removing any pair breaks tightness on at least one trainer
+        assert any(not any(n <= final - {p} for n in needs[s]) for s in needs)
+    assert "f" not in final and dropped == []  # f is needed nowhere
+    assert len(run.calls) == len(set(run.calls))  # the cache never re-solves a set on a trainer
+    assert run.n_solves < 2 ** 6
+
+
+def test_training_and_heldout_seeds_differ():
+    train = {training_seed(0, i, t) for i in range(5) for t in range(2)}
+    held = {instance_seed(0, i, t) for i in range(5) for t in range(10)}
+    assert not train & held
+
+
+def test_range_set_is_tight_irreducible_saved_and_passes_check(tmp_path, capsys):
+    """Pose averaging M = 3 over σ ∈ {0.01, 0.316}: learn on one instance per σ, save, then `check` the file."""
+    out = tmp_path / "range.json"
+    assert main(["discover", "pose_averaging", "-p", "M=3", "--sigmas", "0.01,0.316", "--train", "1",
+                 "--heldout", "2", "--json", "--out", str(out)]) == 0
+    s = json.loads(capsys.readouterr().out)
+    assert s["tight"] and s["irreducible"] and s["n_pairs"] >= 1
+    assert [p["reached"] for p in s["points"]] == [[True], [True]]
+    assert [p["heldout_fraction"] for p in s["points"]] == [1.0, 1.0]
+    assert s["n_solves"] == sum(s["solves_by_stage"].values())
+    cs = ConstraintSet.load(out)
+    assert cs.discovered.info["range"]["over"] == {"sigma": [0.01, 0.316]}
+    assert len(cs) == s["n_pairs"]
+    # the saved set passes `check` at every σ it was learned for (its recorded range is the default)
+    assert main(["check", "pose_averaging", "-p", "M=3", "--set", str(out), "--instances", "3", "--seed", "5"]) == 0
+    table = capsys.readouterr().out
+    assert "sigma=0.01" in table and "sigma=0.316" in table and "PASSED" in table
+
+
+def test_each_pair_is_needed_on_some_training_instance():
+    """Irreducibility re-checked independently, through the pipeline, on the training instances."""
+    prob = at.load_problem("pose_averaging")
+    res = at.discover(prob, {"M": 3}, seed=1, over={"sigma": [0.1, 1.0]}, n_train=1, n_heldout=0)
+    assert isinstance(res, RangeDiscoveryResult) and res.tight and res.pairs
+    insts = [prob.generate({"M": 3, "sigma": sg}, training_seed(1, i, 0)) for i, sg in enumerate([0.1, 1.0])]
+    sets = [ConstraintSet(type(res.discovered)(prob.name, {}, 1, pairs, res.discovered.learn_options))
+            for pairs in [res.pairs] + [[q for q in res.pairs if q != p] for p in res.pairs]]
+
+    def tight(cs, inst):
+        return solve_instance(prob, inst, cs, n_random=2).outcome == "tight"
+
+    assert all(tight(sets[0], inst) for inst in insts)
+    for cs in sets[1:]:
+        assert not all(tight(cs, inst) for inst in insts)
+
+
+def test_a_range_no_candidate_can_tighten_is_reported_point_by_point():
+    """Learning on the rotation blocks only: no candidate closes pose averaging's gap, at any σ."""
+    res = discover_range("pose_averaging", {"M": 2}, {"sigma": [0.1]}, groups=[("c1", "c2", "c3")],
+                         n_train=1, n_heldout=0)
+    assert not res.tight and res.pairs == []
+    assert res.points[0].reached == [False]
+    assert "no remaining candidate cuts its SDP solution" in res.points[0].messages[0]
+    assert "not reached at {'sigma': 0.1}" in res.table()
+
+
+def test_bad_range_input():
+    with pytest.raises(ParameterError, match="vary"):
+        discover_range("pose_averaging", {"M": 2}, {})
+    with pytest.raises(ParameterError, match="both"):
+        discover_range("pose_averaging", {"M": 2}, {"M": [2, 3]})
+    with pytest.raises(ParameterError, match="n_train"):
+        discover_range("pose_averaging", None, {"sigma": [0.1]}, n_train=0)
+    assert main(["discover", "pose_averaging", "--range", "sigma"]) == 2
+
+
+def test_validation_rounds_add_training_instances_the_set_is_then_tight_on():
+    prob = at.load_problem("pose_averaging")
+    res = discover_range(prob, {"M": 3}, {"sigma": [1.0]}, seed=0, n_train=1, n_validate=1, max_rounds=1,
+                         n_heldout=0)
+    assert len(res.validation) == 1 and res.validation[0]["new_instances"] == 1
+    assert res.points[0].train_seeds == [training_seed(0, 0, 0), training_seed(0, 0, 1)]
+    assert res.points[0].reached == [True, True]
+    inst = prob.generate({"M": 3, "sigma": 1.0}, training_seed(0, 0, 1))
+    assert solve_instance(prob, inst, res.constraint_set, n_random=2).outcome == "tight"
+    assert res.solves_by_stage["validate"] == 1 and res.n_solves == sum(res.solves_by_stage.values())
