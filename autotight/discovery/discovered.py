@@ -21,7 +21,7 @@ import scipy.sparse as sp
 
 from ..errors import AutotightError, LearningError
 from ..io import versions, write_json
-from ..model import Constraint, Model
+from ..model import Constraint, Model, Variables
 from ..pretty import polynomial
 from ..problem import Instance, Problem
 from .catalog import Pair, carry_over
@@ -52,7 +52,21 @@ def constraint_record(c: Constraint, model: Model) -> dict[str, Any]:
     up = A.row <= A.col
     return {"name": c.name, "factor": c.factor, "identity": c.identity, "family": c.family, "b": c.b,
             "triplets": [[int(i), int(j), float(v)] for i, j, v in zip(A.row[up], A.col[up], A.data[up])],
-            "readable": polynomial(c.A, model.variables, c.b)}
+            "readable": readable(c, model)}
+
+
+def readable(c: Constraint, model: Model) -> str:
+    """``pretty.polynomial`` of ``c`` on the blocks it touches only (its cost is then independent of N)."""
+    V = model.variables
+    A = sp.coo_array(c.A)
+    touched = {V.block_of(int(k))[0] for k in np.unique(np.concatenate([A.row, A.col]))} - {"h"}
+    names = [n for n in V.names[1:] if n in touched]
+    sub = Variables([(n, V.sizes[n]) for n in names], d=V.d)
+    old = np.concatenate([np.arange(V.offsets[n], V.offsets[n] + V.sizes[n]) for n in ["h", *names]])
+    new = np.full(V.N, -1, dtype=np.int64)
+    new[old] = np.arange(old.size)
+    As = sp.coo_array((A.data, (new[A.row], new[A.col])), shape=(sub.N, sub.N))
+    return polynomial(As, sub, c.b)
 
 
 def variables_record(model: Model) -> list[dict[str, Any]]:
