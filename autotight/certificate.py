@@ -67,8 +67,10 @@ class Certificate:
         return {k: getattr(self, k) for k in self.__dataclass_fields__}
 
 
-def stack(constraints: Sequence[Constraint]) -> tuple[list[sp.csr_array], np.ndarray]:
-    return [sp.csr_array(c.A) for c in constraints], np.array([c.b for c in constraints], dtype=float)
+def stack(constraints: Sequence[Constraint]) -> tuple[list[sp.coo_array], np.ndarray]:
+    """The constraints' matrices as COO (memory ∝ nonzeros, no per-constraint CSR index array) and b."""
+    return ([c.A if isinstance(c.A, sp.coo_array) else sp.coo_array(c.A) for c in constraints],
+            np.array([c.b for c in constraints], dtype=float))
 
 
 def dual_matrix(Q: sp.sparray, As: Sequence[sp.sparray], y: np.ndarray) -> sp.csc_array:
@@ -145,9 +147,19 @@ def trace_bound(Q: sp.sparray, As: Sequence[sp.sparray], b: np.ndarray, f_bar: f
     n = Q.shape[0]
     bound_of = np.full(n, -1, dtype=np.int64)  # the group that bounds each column (−1: none yet)
     groups: list[float] = []
-    items = [(sp.csr_array(Q), f_bar, True)] + [(sp.csr_array(A), float(bi), False) for A, bi in zip(As, b)]
-    dense = []  # per item: (support columns, the dense block on them)
-    for A, _, _ in items:
+    items = [(sp.csr_array(Q), f_bar, True)] + [(sp.coo_array(A), float(bi), False) for A, bi in zip(As, b)]
+    dense = []  # per item: (support columns, the dense block on them); COO items need no N + 1 index array
+    for k, (A, rhs, is_cost) in enumerate(items):
+        if isinstance(A, sp.coo_array):
+            sup = np.unique(A.row) if A.nnz else np.zeros(0, dtype=np.int64)
+            if sup.size > 60:
+                items[k] = (sp.csr_array(A), rhs, is_cost)
+                dense.append((sup, None))
+                continue
+            D = np.zeros((sup.size, sup.size))
+            np.add.at(D, (np.searchsorted(sup, A.row), np.searchsorted(sup, A.col)), A.data)
+            dense.append((sup, D))
+            continue
         sup = np.unique(A.indices) if A.nnz else np.zeros(0, dtype=np.int64)
         dense.append((sup, None if sup.size > 60 else A[sup][:, sup].toarray()))
     for _ in range(max_passes):

@@ -52,7 +52,7 @@ def cmd_list(args: argparse.Namespace) -> int:
     return 0
 
 
-def constraints_arg(value: str | None):
+def constraints_arg(value: str | None, skip_invalid: bool = False):
     """``--set``: "primary", "paper", or the path of a saved constraint set (JSON)."""
     if value is None or value in ("primary", "paper"):
         return value
@@ -60,7 +60,7 @@ def constraints_arg(value: str | None):
     from .constraint_set import ConstraintSet
 
     check_set_file(value)
-    return ConstraintSet.load(value)
+    return ConstraintSet.load(value, skip_invalid=skip_invalid)
 
 
 def add_solver_args(p: argparse.ArgumentParser) -> None:
@@ -93,7 +93,7 @@ def cmd_solve(args: argparse.Namespace) -> int:
     params = prob.parse_params(parse_assignments(args.param))
     check_size(prob, params)
     check_count(prob, params, f"--random-starts {args.random_starts}", args.random_starts, what="local solves")
-    out = solve(prob, params, args.seed, constraints=constraints_arg(args.set), solver=config,
+    out = solve(prob, params, args.seed, constraints=constraints_arg(args.set, args.skip_invalid), solver=config,
                 n_random=args.random_starts)
     inst = out.instance
     rec = out.record()
@@ -144,6 +144,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="constraint set: primary, paper, or a saved set's JSON (from `discover --out`), applied "
                         "to this instance whatever its size (default: paper if the problem has paper families, "
                         "else primary)")
+    p.add_argument("--skip-invalid", action="store_true",
+                   help="with --set FILE: leave out the constraints of factors whose template fails its check on "
+                        "this instance (default: a one-line error naming the factor)")
     add_solver_args(p)
     p.add_argument("--random-starts", type=nonneg_int, default=1, help="random-start local solves (default 1)")
     p.set_defaults(func=cmd_solve)

@@ -53,7 +53,7 @@ def check_solver(name: str) -> str:
 
 def check_set_file(path: str | Path, option: str = "--set") -> dict[str, Any]:
     """The JSON object of a saved constraint set (``discover --out``), checked as the module docstring says."""
-    from .discovery.discovered import FORMAT
+    from .discovery.discovered import FORMAT, FORMAT_V1
     from .discovery.learn import LearnOptions
 
     p = Path(path)
@@ -65,7 +65,7 @@ def check_set_file(path: str | Path, option: str = "--set") -> dict[str, Any]:
         raise ParameterError(f"{option} {path}: not a readable JSON file ({e})") from None
     if not isinstance(obj, dict):
         raise ParameterError(f"{option} {path}: a constraint-set file holds a JSON object, not {type(obj).__name__}")
-    if obj.get("format") != FORMAT:
+    if obj.get("format") not in (FORMAT, FORMAT_V1):
         raise ParameterError(f"{option} {path}: not a constraint-set file (format {obj.get('format')!r}, "
                              f"expected {FORMAT!r})")
     missing = [k for k in ("problem", "pairs") if k not in obj]

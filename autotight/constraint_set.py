@@ -6,8 +6,9 @@ any size of its problem:
 - ``"primary"``: the homogenisation (h² = 1, or X_hh = I_d) and the problem's primary constraints;
 - ``"paper"``: those plus every hand-derived family of the paper (``Model.paper``);
 - a ``ConstraintSet`` learned by ``discover``: the primary constraints plus, on every factor of
-  each learned type, the learned identities (``(factor type, identity)`` pairs), re-instantiated
-  on the instance and checked on its held-out samples;
+  each learned type, the learned identities (``(factor type, identity)`` pairs), evaluated from their
+  templates (``autotight.discovery.templates``: coefficients polynomial in the factor's measurements)
+  and checked on fresh feasible states of the instance; types without a template are re-learned;
 - a list of ``Constraint``: the primary constraints plus exactly these (for one instance).
 """
 
@@ -36,6 +37,8 @@ class ConstraintSet:
     """
 
     discovered: Any  # autotight.discovery.DiscoveredSet (imported lazily: discovery imports this module's users)
+    skip_invalid: bool = False
+    """Leave out the constraints of factors whose template fails its check (default: AutotightError)."""
 
     @property
     def problem(self) -> str:
@@ -52,8 +55,11 @@ class ConstraintSet:
         return f"ConstraintSet(problem={self.problem!r}, pairs={len(self)})"
 
     def apply(self, problem: Problem, inst: Instance, model: Model, rng: np.random.Generator) -> list[Constraint]:
-        """The learned constraints on ``inst`` (without the primary ones), each checked on held-out samples."""
-        return self.discovered.instantiate(problem, inst, rng, model=model)
+        """The learned constraints on ``inst`` (without the primary ones): templates evaluated and checked on
+        fresh states of ``inst``; a set of another problem or block layout is an AutotightError."""
+        if not hasattr(self.discovered, "apply"):  # a stand-in with only the re-learning route
+            return self.discovered.instantiate(problem, inst, rng, model=model)
+        return self.discovered.apply(problem, inst, model, rng, skip_invalid=self.skip_invalid)
 
     def save(self, path: str | Path, model: Model | None = None, constraints: Sequence[Constraint] | None = None,
              extra: dict[str, Any] | None = None) -> None:
@@ -61,10 +67,11 @@ class ConstraintSet:
         self.discovered.save(path, model, None if constraints is None else list(constraints), extra)
 
     @classmethod
-    def load(cls, path: str | Path) -> "ConstraintSet":
+    def load(cls, path: str | Path, skip_invalid: bool = False) -> "ConstraintSet":
+        """A saved set (format 2, or format 1 whose templates are learned on first use)."""
         from .discovery.discovered import DiscoveredSet
 
-        return cls(DiscoveredSet.load(path))
+        return cls(DiscoveredSet.load(path), skip_invalid)
 
 
 ConstraintsLike = Union[str, ConstraintSet, Sequence[Constraint], None]

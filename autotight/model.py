@@ -124,36 +124,70 @@ class QuadForm:
     def const(self, c: float) -> "QuadForm":
         return self.add(HOMOGENISING, HOMOGENISING, (float(c) / self.v.d) * np.eye(self.v.d))
 
-    def matrix(self) -> sp.csr_array:
+    def matrix(self) -> sp.coo_array:
+        """The form as a canonical COO array (see ``coo``)."""
+        return self.coo()
+
+    def coo(self) -> sp.coo_array:
+        """The form as a canonical COO array: storage proportional to its nonzeros (no n + 1 index array)."""
         N = self.v.N
         if not self._vals:
-            return sp.csr_array((N, N))
-        A = sp.coo_array((np.concatenate(self._vals), (np.concatenate(self._rows), np.concatenate(self._cols))),
-                         shape=(N, N)).tocsr()
-        A.sum_duplicates()
-        A.eliminate_zeros()
+            return sp.coo_array((N, N))
+        return canonical_coo(np.concatenate(self._rows), np.concatenate(self._cols), np.concatenate(self._vals), N)
+
+
+def canonical_coo(rows: np.ndarray, cols: np.ndarray, vals: np.ndarray, N: int) -> sp.coo_array:
+    """An N×N COO array with duplicates summed and zeros dropped, sorted by (row, col), in O(nnz log nnz)
+    time and O(nnz) memory (no CSR index array of length N + 1)."""
+    rows, cols, vals = (np.asarray(rows, np.int64), np.asarray(cols, np.int64), np.asarray(vals, float))
+    if rows.size:
+        key = rows * N + cols
+        uniq, inv = np.unique(key, return_inverse=True)
+        summed = np.bincount(inv.ravel(), weights=vals, minlength=uniq.size)
+        keep = summed != 0
+        uniq, summed = uniq[keep], summed[keep]
+        rows, cols, vals = uniq // N, uniq % N, summed
+    A = sp.coo_array((vals, (rows, cols)), shape=(N, N))
+    A.has_canonical_format = True
+    return A
+
+
+def as_coo(A) -> sp.coo_array:
+    """A sparse (or dense) square matrix as a canonical COO array without going through CSR."""
+    if isinstance(A, sp.coo_array) and getattr(A, "has_canonical_format", False):
         return A
+    if sp.issparse(A):
+        C = A.tocoo() if not isinstance(A, (sp.coo_array, sp.coo_matrix)) else A
+        return canonical_coo(C.row, C.col, C.data, A.shape[0]) if A.shape[0] == A.shape[1] else sp.coo_array(C)
+    return sp.coo_array(np.asarray(A, dtype=float))
 
 
 @dataclass
 class Constraint:
     """⟨A, X⟩ = b with A sparse symmetric N×N.
 
+    A is stored as a canonical ``scipy.sparse.coo_array`` (duplicates summed, zeros dropped): its size is
+    proportional to its nonzeros, whatever N (a CSR array would hold an index array of N + 1 entries per
+    constraint, quadratic memory over a model).  Any sparse or dense matrix given is converted.
     family: "homogenisation", "primary", a paper family ("R1", …) or "learned".
     factor: the factor it belongs to (None for model-wide constraints).
     identity: for learned constraints, its canonical name within the factor type.
     """
 
-    A: sp.csr_array
+    A: sp.coo_array
     b: float = 0.0
     name: str = ""
     family: str = "primary"
     factor: str | None = None
     identity: str | None = None
 
+    def __post_init__(self) -> None:
+        self.A = as_coo(self.A)
+
     def value(self, X: np.ndarray) -> float:
         """⟨A, X⟩ − b."""
-        return float((self.A.multiply(X)).sum() - self.b)
+        A = self.A
+        return float(np.dot(A.data, np.asarray(X)[A.row, A.col]) - self.b)
 
 
 @dataclass
@@ -163,6 +197,9 @@ class Factor:
     blocks: the blocks the factor touches, h first; factors of the same ``type`` list
     corresponding blocks in the same order (this order fixes learned identities).
     roles: names of those blocks within the factor type (default: the block names).
+    data: the factor's measurement entries (a fixed-length float vector per factor type, e.g. the 12
+    entries of a measured pose [C̃ r̃]); None for a factor without measurements.  Learned templates
+    (``autotight.discovery.templates``) express a constraint's coefficients as a polynomial in them.
     """
 
     name: str
@@ -171,8 +208,11 @@ class Factor:
     cost: sp.csr_array | None = None
     constraints: list[Constraint] = field(default_factory=list)
     roles: tuple[str, ...] | None = None
+    data: np.ndarray | None = None
 
     def __post_init__(self) -> None:
+        if self.data is not None:
+            self.data = np.asarray(self.data, dtype=float).ravel()
         self.blocks = tuple(self.blocks)
         if not self.blocks or self.blocks[0] != HOMOGENISING:
             self.blocks = (HOMOGENISING,) + tuple(b for b in self.blocks if b != HOMOGENISING)
@@ -229,22 +269,34 @@ class Model:
 
     @property
     def Q(self) -> sp.csr_array:
+        """The cost matrix, assembled once (one COO concatenation of the factor costs: linear time; the
+        sum of csr arrays one by one was quadratic in the number of factors)."""
+        key = (id(self.cost), len(self.factors))
+        cached = self.__dict__.get("_Q")
+        if cached is not None and cached[0] == key:
+            return cached[1]
         if self.cost is not None:
-            return sp.csr_array(self.cost)
-        Q = sp.csr_array((self.variables.N, self.variables.N))
-        for f in self.factors:
-            if f.cost is not None:
-                Q = Q + f.cost
-        return sp.csr_array(Q)
+            Q = sp.csr_array(self.cost)
+        else:
+            N = self.variables.N
+            parts = [sp.coo_array(f.cost) for f in self.factors if f.cost is not None]
+            if parts:
+                Q = sp.csr_array(sp.coo_array((np.concatenate([p.data for p in parts]),
+                                               (np.concatenate([p.row for p in parts]),
+                                                np.concatenate([p.col for p in parts]))), shape=(N, N)))
+                Q.sum_duplicates()
+            else:
+                Q = sp.csr_array((N, N))
+        self.__dict__["_Q"] = (key, Q)
+        return Q
 
     def homogenisation(self) -> list[Constraint]:
         """h² = 1 (d = 1) or X_hh = I_d (d > 1)."""
         d, out = self.d, []
         for i in range(d):
             for j in range(i, d):
-                E = sp.coo_array(([1.0] if i == j else [0.5, 0.5],
-                                  ([i] if i == j else [i, j], [j] if i == j else [j, i])),
-                                 shape=(self.variables.N, self.variables.N)).tocsr()
+                E = canonical_coo(np.array([i] if i == j else [i, j]), np.array([j] if i == j else [j, i]),
+                                  np.array([1.0] if i == j else [0.5, 0.5]), self.variables.N)
                 out.append(Constraint(E, 1.0 if i == j else 0.0, name=f"h{i}{j}", family="homogenisation"))
         return out
 

@@ -59,6 +59,10 @@ def svec(X: np.ndarray | sp.spmatrix) -> np.ndarray:
 
 def triu_entries(A: sp.spmatrix | sp.sparray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(rows, cols, values) of the stored upper-triangle entries (i ≤ j) of a sparse matrix."""
+    if isinstance(A, (sp.coo_array, sp.coo_matrix)):  # no CSR (its index array has n + 1 entries)
+        r, c = A.row.astype(np.int64), A.col.astype(np.int64)
+        keep = r <= c
+        return r[keep], c[keep], A.data[keep]
     A = A if isinstance(A, (sp.csr_array, sp.csr_matrix)) else sp.csr_array(A)
     r = np.repeat(np.arange(A.shape[0], dtype=np.int64), np.diff(A.indptr))
     c = A.indices.astype(np.int64)

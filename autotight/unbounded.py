@@ -17,7 +17,7 @@ import numpy as np
 
 from .errors import SolverError
 from .model import HOMOGENISING, Model
-from .sdp.result import SDPResult
+from .sdp.result import SDPResult, finite
 
 #: statuses meaning "the SDP in X is unbounded below" (its dual is infeasible)
 UNBOUNDED_STATUSES = ("DualInfeasible", "AlmostDualInfeasible")
@@ -50,9 +50,9 @@ def unbounded_blocks(model: Model, res: SDPResult, scale: float | None = None) -
     ray's largest).  Otherwise: blocks whose max diagonal exceeds HUGE × ``scale`` (default: X_hh, the
     homogenising entry, i.e. 1); [] when X is missing or nothing is that large.
     """
-    if res.X is None or not np.all(np.isfinite(res.X)):
+    if res.X is None or not finite(res.X):
         return []
-    d = np.abs(np.diag(res.X))
+    d = np.abs(res.X.diagonal())  # dense or sparse X
     V = model.variables
     per = {n: float(d[V.slice(n)].max()) for n in V.names}
     if res.status in UNBOUNDED_STATUSES:

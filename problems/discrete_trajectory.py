@@ -16,6 +16,8 @@ n = 1 + 12K + 6K + 6(K − 1).  Block names: pose k is ``T{k}_c1 … T{k}_r``, �
 Cost  Σ ξ_kᵀ W_k ξ_k + Σ ξ_{k+1,k}ᵀ W_{k+1,k} ξ_{k+1,k}.
 Factors: per k "so3" (orthonormality of C_k) and "pose_meas" {h, C_k, r_k, ξ_k} (12 Cayley rows);
 per k < K − 1 "odometry" {h, C_k, r_k, C_{k+1}, r_{k+1}, ξ_{k+1,k}} (12 Cayley rows).
+Factor data (``Factor.data``, for learned templates): the 12 entries [C̃ r̃] of the factor's measured
+pose (row-major 3×4), T̃_k for "pose_meas" and T̃_{k+1,k} for "odometry"; "so3" has none.
 Paper families: R1 (3 per k), R2 (1 per k), R3 (3 per k < K − 1).
 Cliques: the unary and odometry factors' block sets (sizes 19 and 31) form a clique tree, so the
 aggregate sparsity is chordal and the SDP decomposes into 2K − 1 small PSD blocks (see ``cliques``).
@@ -142,14 +144,15 @@ def build(inst: Instance) -> Model:
                               constraints=pose_orthonormality(V, p, factor=f"rotation_{k}"), roles=("h", "c1", "c2", "c3")))
         factors.append(Factor(name, "pose_meas", ("h", *pose, *xi_blocks(s)), cost=weighted_cost(V, s, m["W"][k]),
                               constraints=unary_cayley(V, p, m["T_meas"][k], s, name),
-                              roles=("h", *POSE_ROLES, *XI_ROLES)))
+                              roles=("h", *POSE_ROLES, *XI_ROLES), data=m["T_meas"][k][:3, :]))
         paper["R1"] += r1_unary(V, p, m["T_meas"][k], s, name, factor=name)
         paper["R2"] += r2_unary(V, p, m["T_meas"][k], s, name, factor=name)
     for k in range(K - 1):
         p1, p2, s, name = pose_prefix(k), pose_prefix(k + 1), binary_name(k), f"odom_{k + 1}_{k}"
         factors.append(Factor(name, "odometry", ("h", *pose_blocks(p1), *pose_blocks(p2), *xi_blocks(s)),
                               cost=weighted_cost(V, s, m["W_rel"][k]),
-                              constraints=binary_cayley(V, p1, p2, m["T_rel"][k], s, name), roles=ODOMETRY_ROLES))
+                              constraints=binary_cayley(V, p1, p2, m["T_rel"][k], s, name), roles=ODOMETRY_ROLES,
+                              data=m["T_rel"][k][:3, :]))
         paper["R3"] += r3_binary(V, p1, p2, m["T_rel"][k], s, name, factor=name)
     return Model(V, factors, paper=paper, cliques=cliques(K))
 

@@ -373,7 +373,7 @@ def test_discover_out_existing_is_replaced_only_with_force(tmp_path):
     proc = _cli(["discover", "rotation_averaging", *SMALL, "--heldout", "1", "--no-progress", "--out", target,
                  "--force"])
     assert proc.returncode == 0, proc.stderr
-    assert json.loads(target.read_text())["format"] == "autotight.discovered/1"
+    assert json.loads(target.read_text())["format"] == "autotight.constraint_set/2"
 
 
 # -- processes: killed parents, resume --------------------------------------------------------------------

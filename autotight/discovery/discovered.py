@@ -1,4 +1,13 @@
-"""A discovered set: (factor type, identity) pairs that carry over to any instance, saved as JSON."""
+"""A discovered set: (factor type, identity) pairs that carry over to any instance, saved as JSON.
+
+Format 2 (``autotight.constraint_set/2``, see README "Constraint-set files") is self-contained: the
+problem and its parameters, the pairs, their templates (``templates``: coefficients as polynomials in a
+factor's measurement entries) or, for factor types without one, the reason and the settings to re-learn
+them per factor, the variable order with each block's size, offset and the factor roles it plays, the
+svec/triplet convention, and the learning instance's full constraint list (h², primary and learned).
+Format 1 files (``autotight.discovered/1``: pairs and learned constraints only) still load; their
+templates are learned on first use.
+"""
 
 from __future__ import annotations
 
@@ -12,26 +21,68 @@ import scipy.sparse as sp
 
 from ..errors import AutotightError, LearningError
 from ..io import versions, write_json
-from ..model import Constraint, Model
+from ..model import Constraint, Model, Variables
 from ..pretty import polynomial
 from ..problem import Instance, Problem
 from .catalog import Pair, carry_over
 from .learn import LearnOptions
+from .templates import TemplateSet, apply_templates, learn_templates
 
-FORMAT = "autotight.discovered/1"
+FORMAT = "autotight.constraint_set/2"
+FORMAT_V1 = "autotight.discovered/1"
+
+CONVENTION = {
+    "lifting": "Θ = [h, x_1, …] (d × N); X = ΘᵀΘ; blocks are consecutive columns of Θ in the order of "
+               "'variables' (h first, d columns)",
+    "constraint": "⟨A, X⟩ = b with A symmetric N×N; 'triplets' [i, j, A_ij] list the upper triangle (i ≤ j), "
+                  "the lower is its mirror",
+    "template": "for a factor with local columns c_0…c_{n−1} (its blocks in order), coefficient vector "
+                "p = features(data) @ W on positions 'support' of the k·m stacked vector (identity q = pos // m, "
+                "monomial pos % m, m = n(n+1)/2); monomial μ is θ_{c_i}ᵀθ_{c_j}, i ≤ j, in svec order (column-"
+                "major upper triangle, no √2); the constraint is Σ p_μ θ_{c_i}ᵀθ_{c_j} = 0, i.e. A_ii = p, "
+                "A_ij = A_ji = p/2; features(δ) = [1, δ_i, δ_i δ_j (i ≤ j, svec order)] up to 'degree'",
+    "svec": "svec(X) stacks the upper triangle column by column, off-diagonal entries times √2 (Clarabel's "
+            "PSDTriangle layout); ⟨A, X⟩ = svec(A)·svec(X)",
+}
 
 
 def constraint_record(c: Constraint, model: Model) -> dict[str, Any]:
     """A constraint as sparse upper-triangle triplets (i, j, A_ij) with its readable form."""
-    U = sp.triu(sp.coo_array(c.A)).tocoo()
+    A = sp.coo_array(c.A)
+    up = A.row <= A.col
     return {"name": c.name, "factor": c.factor, "identity": c.identity, "family": c.family, "b": c.b,
-            "triplets": [[int(i), int(j), float(v)] for i, j, v in zip(U.row, U.col, U.data)],
-            "readable": polynomial(c.A, model.variables, c.b)}
+            "triplets": [[int(i), int(j), float(v)] for i, j, v in zip(A.row[up], A.col[up], A.data[up])],
+            "readable": readable(c, model)}
+
+
+def readable(c: Constraint, model: Model) -> str:
+    """``pretty.polynomial`` of ``c`` on the blocks it touches only (its cost is then independent of N)."""
+    V = model.variables
+    A = sp.coo_array(c.A)
+    touched = {V.block_of(int(k))[0] for k in np.unique(np.concatenate([A.row, A.col]))} - {"h"}
+    names = [n for n in V.names[1:] if n in touched]
+    sub = Variables([(n, V.sizes[n]) for n in names], d=V.d)
+    old = np.concatenate([np.arange(V.offsets[n], V.offsets[n] + V.sizes[n]) for n in ["h", *names]])
+    new = np.full(V.N, -1, dtype=np.int64)
+    new[old] = np.arange(old.size)
+    As = sp.coo_array((A.data, (new[A.row], new[A.col])), shape=(sub.N, sub.N))
+    return polynomial(As, sub, c.b)
+
+
+def variables_record(model: Model) -> list[dict[str, Any]]:
+    """Each block: name, size, offset and the (factor type, role) pairs it plays."""
+    roles: dict[str, set] = {}
+    for f in model.factors:
+        for b, r in zip(f.blocks, f.roles or f.blocks):
+            roles.setdefault(b, set()).add((f.type, r))
+    V = model.variables
+    return [{"block": n, "size": V.sizes[n], "offset": V.offsets[n],
+             "roles": [list(x) for x in sorted(roles.get(n, set()))]} for n in V.names]
 
 
 @dataclass
 class DiscoveredSet:
-    """The pairs found by discovery on (problem, params, seed) and how they were learned."""
+    """The pairs found by discovery on (problem, params, seed), how they were learned and their templates."""
 
     problem: str
     params: dict[str, Any]
@@ -40,40 +91,84 @@ class DiscoveredSet:
     learn_options: dict[str, Any] = field(default_factory=dict)
     info: dict[str, Any] = field(default_factory=dict)
     groups: str | list[list[str]] = "factors"
+    templates: TemplateSet | None = None
+    d: int | None = None
 
     def options(self) -> LearnOptions:
         return LearnOptions(**self.learn_options) if self.learn_options else LearnOptions()
 
+    def template_set(self, problem: Problem, progress=None) -> TemplateSet:
+        """The templates (learned once, on fresh instances at the set's parameters, when not loaded)."""
+        if self.templates is None:
+            if self.groups != "factors":
+                self.templates = TemplateSet({}, {t: f"learned on groups {self.groups!r}, not factors: no template"
+                                                  for t in sorted({t for t, _ in self.pairs})})
+            else:
+                self.templates = learn_templates(problem, self.params, self.pairs, int(self.seed or 0),
+                                                 self.options(), progress=progress)
+        return self.templates
+
+    def _check(self, problem: Problem, model: Model | None) -> None:
+        if problem.name != self.problem:
+            raise AutotightError(f"the constraint set is for {self.problem!r}, not {problem.name!r}")
+        if model is not None and self.d is not None and model.d != self.d:
+            raise AutotightError(f"the constraint set has lifting width d = {self.d}, this model d = {model.d}")
+
+    def apply(self, problem: Problem, inst: Instance, model: Model, rng: np.random.Generator,
+              skip_invalid: bool = False) -> list[Constraint]:
+        """The set's constraints on ``inst``: templates evaluated (each checked on fresh states of ``inst``),
+        the pairs of types without a template re-learned per factor (strict, see ``instantiate``)."""
+        self._check(problem, model)
+        ts = self.template_set(problem)
+        out, _ = apply_templates(problem, inst, model, ts, rng, self.options(), skip_invalid)
+        rest = [p for p in self.pairs if p[0] not in ts.templates]
+        if rest:
+            co = carry_over(problem, inst, rest, rng, self.options(), model, self.groups)
+            if co.issues and not skip_invalid:
+                raise LearningError(f"cannot re-instantiate the discovered set: {co.message() or co.issues[0]}")
+            out += co.constraints
+        return out
+
     def instantiate(self, problem: Problem, inst: Instance, rng: np.random.Generator,
                     model: Model | None = None, strict: bool = True) -> list[Constraint]:
-        """The set's constraints on ``inst`` (each checked on held-out samples of ``inst``).
+        """The set's constraints on ``inst``, re-learned on every factor (each checked on held-out samples of
+        ``inst``): the route without templates.
 
         strict: any shortfall (per factor type, fewer constraints than pairs × factors of the type)
         or identity rejected on held-out samples raises LearningError naming the factor types and
         their counts; strict=False returns what was instantiated."""
-        if problem.name != self.problem:
-            raise AutotightError(f"discovered set is for {self.problem!r}, not {problem.name!r}")
+        self._check(problem, model)
         co = carry_over(problem, inst, self.pairs, rng, self.options(), model, self.groups)
         if co.issues and strict:
             raise LearningError(f"cannot re-instantiate the discovered set: {co.message() or co.issues[0]}")
         return co.constraints
 
     def save(self, path: str | Path, model: Model | None = None, constraints: list[Constraint] | None = None,
-             extra: dict[str, Any] | None = None) -> None:
+             extra: dict[str, Any] | None = None, problem: Problem | None = None) -> None:
+        """Write format 2; learns the templates first when they are missing (``problem``: default, the
+        problem module named by the set)."""
+        if self.templates is None:
+            from ..problem import load
+
+            self.template_set(problem or load(self.problem))
         obj: dict[str, Any] = {
             "format": FORMAT, "problem": self.problem, "params": self.params, "seed": self.seed,
             "versions": versions(), "learn_options": self.learn_options, "groups": self.groups,
             "pairs": [{"factor_type": t, "identity": i} for t, i in self.pairs], "info": self.info,
+            "convention": CONVENTION,
         }
+        obj |= self.templates.record()
         if model is not None:
-            obj["variables"] = [{"block": n, "size": model.variables.sizes[n], "offset": model.variables.offsets[n]}
-                                for n in model.variables.names]
+            obj["variables"] = variables_record(model)
             obj["d"] = model.d
         if constraints is not None and model is not None:
             groups: dict[str, list] = {}
             for c in constraints:
                 groups.setdefault(c.factor or "", []).append(constraint_record(c, model))
             obj["constraints_by_factor"] = groups
+            obj["learning_instance"] = {"constraints": [constraint_record(c, model) for c in model.primary()]
+                                        + [r for g in groups.values() for r in g],
+                                        "note": "every constraint of the learning instance's SDP: h², primary, learned"}
         obj |= extra or {}
         write_json(path, obj)
 
@@ -82,9 +177,14 @@ class DiscoveredSet:
         try:
             obj = json.loads(Path(path).read_text(encoding="utf-8"))
         except (OSError, json.JSONDecodeError) as e:
-            raise AutotightError(f"cannot read discovered set {path}: {e}") from None
-        if obj.get("format") != FORMAT:
-            raise AutotightError(f"{path} is not a discovered-set file (format {obj.get('format')!r})")
-        pairs = [(p["factor_type"], p["identity"]) for p in obj["pairs"]]
-        return cls(obj["problem"], obj["params"], obj.get("seed"), pairs, obj.get("learn_options", {}),
-                   obj.get("info", {}), obj.get("groups", "factors"))
+            raise AutotightError(f"cannot read constraint set {path}: {e}") from None
+        fmt = obj.get("format") if isinstance(obj, dict) else None
+        if fmt not in (FORMAT, FORMAT_V1):
+            raise AutotightError(f"{path} is not a constraint-set file (format {fmt!r})")
+        try:
+            pairs = [(p["factor_type"], p["identity"]) for p in obj["pairs"]]
+            ts = TemplateSet.from_record(obj) if fmt == FORMAT else None
+            return cls(obj["problem"], obj["params"], obj.get("seed"), pairs, obj.get("learn_options", {}),
+                       obj.get("info", {}), obj.get("groups", "factors"), ts, obj.get("d"))
+        except (KeyError, TypeError, ValueError) as e:
+            raise AutotightError(f"{path}: malformed constraint-set file ({type(e).__name__}: {e})") from None

@@ -38,7 +38,8 @@ def register(sub: Any, add_problem_args: Callable[[argparse.ArgumentParser], Non
     p.add_argument("--trials", type=nonneg_int, default=100, help="trials per noise level (default 100)")
     p.add_argument("--sets", metavar="LIST", default=None,
                    help=f"constraint sets, a subset of {','.join(SETS)} "
-                        "(default: primary, plus paper if the problem has paper families)")
+                        "(default: primary, plus paper if the problem has paper families); file:PATH: a saved "
+                        "constraint set (`discover --out`) as the discovered set")
     p.add_argument("--jobs", "-j", type=int, default=None, help="local worker processes (default: all cores)")
     p.add_argument("--scheduler", metavar="ADDRESS", default=None,
                    help="run on a Dask distributed cluster at this scheduler address (e.g. tcp://host:8786)")

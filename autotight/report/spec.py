@@ -132,6 +132,17 @@ def parse_sets(text: str | Sequence[str]) -> tuple[str, ...]:
     return tuple(names)
 
 
+def file_sets(sets: str | Sequence[str], discovered: str | None) -> tuple[list[str], str | None]:
+    """``file:PATH`` in ``sets``: the saved constraint set at PATH as the "discovered" set."""
+    names = [x.strip() for x in (sets.split(",") if isinstance(sets, str) else sets) if x.strip()]
+    files = [x[5:] for x in names if x.startswith("file:")]
+    if not files:
+        return names, discovered
+    if len(files) > 1 or (discovered and discovered != files[0]):
+        raise ReportError(f"--sets: one saved set per sweep (file:PATH or --discovered), got {files}")
+    return [("discovered" if x.startswith("file:") else x) for x in names], files[0]
+
+
 def make_spec(problem: Problem, source: str, params: dict[str, Any] | None = None, *,
               sigmas: str | Sequence[float] | None = None, trials: int = 100,
               sets: str | Sequence[str] | None = None, seed: int = 0, discovered: str | None = None,
@@ -157,6 +168,7 @@ def make_spec(problem: Problem, source: str, params: dict[str, Any] | None = Non
     paper = has_paper(problem, full)
     if sets is None:
         sets = ("primary", "paper") if paper else ("primary",)
+    sets, discovered = file_sets(sets, discovered)
     sets = parse_sets(sets)
     if "paper" in sets and not paper:
         raise ReportError(f"--sets paper: problem {problem.name} has no paper families")

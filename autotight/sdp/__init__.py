@@ -114,6 +114,16 @@ def _unscale(res: SDPResult, D: np.ndarray) -> SDPResult:
     unchanged (⟨DQD, X'⟩ = ⟨Q, X⟩, and the constraints' right-hand sides are the same)."""
     if res.X is None:
         return res
+    if sp.issparse(res.X):  # X on the cliques' pattern (``result.DENSE_X_MAX``): scale entries and completion
+        Dm = sp.diags_array(D)
+        res.X = sp.csr_array(Dm @ res.X @ Dm)
+        if res.completion is not None:
+            res.completion = res.completion * D[None, :]
+        if res.cliques:
+            res.clique_log_svr = [log_svr(np.linalg.eigvalsh(res.X[C][:, C].toarray())[::-1], res.d)
+                                  for C in res.cliques]
+        res.eigvals, res.Theta, res.log_svr = np.zeros(0), None, float("nan")
+        return finish(res)
     res.X = res.X * D[:, None] * D[None, :]
     if res.cliques:
         res.clique_log_svr = [log_svr(np.linalg.eigvalsh(res.X[np.ix_(C, C)])[::-1], res.d) for C in res.cliques]
@@ -121,8 +131,11 @@ def _unscale(res: SDPResult, D: np.ndarray) -> SDPResult:
     return finish(res)
 
 
-def congruence(A: sp.sparray, D: np.ndarray) -> sp.csr_array:
-    """D A D for a diagonal D (given as its vector), by scaling the stored entries."""
+def congruence(A: sp.sparray, D: np.ndarray) -> sp.sparray:
+    """D A D for a diagonal D (given as its vector), by scaling the stored entries (a COO matrix stays COO:
+    a CSR copy per constraint would hold an N + 1 index array)."""
+    if isinstance(A, (sp.coo_array, sp.coo_matrix)):
+        return sp.coo_array((A.data * D[A.row] * D[A.col], (A.row, A.col)), shape=A.shape)
     A = sp.csr_array(A, copy=True)
     rows = np.repeat(np.arange(A.shape[0]), np.diff(A.indptr))
     A.data *= D[rows] * D[A.indices]
@@ -137,7 +150,8 @@ def _solve(Q: sp.spmatrix | sp.sparray, constraints: Sequence[Constraint], d: in
     N = Q.shape[0]
     if Q.ndim != 2 or Q.shape != (N, N):
         raise ValueError(f"Q must be square, got shape {Q.shape}")
-    As = [sp.csr_array(c.A) for c in constraints]
+    # COO, as the constraints store them: memory ∝ nonzeros (a CSR copy each held an index array of N + 1)
+    As = [c.A if isinstance(c.A, sp.coo_array) else sp.coo_array(c.A) for c in constraints]
     bad = [c.name or str(i) for i, (c, A) in enumerate(zip(constraints, As)) if A.shape != (N, N)]
     if bad:
         raise ValueError(f"constraint matrices must be {N}×{N} like Q; wrong shape: {bad[:5]}")

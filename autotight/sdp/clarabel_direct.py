@@ -20,7 +20,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..svec import smat, svec_columns, svec_dim
-from .clique_program import clique_program, complete_from_cliques, cost_scale
+from .clique_program import clique_program, complete_auto, complete_from_cliques, cost_scale
 from .config import SolverConfig, SolverConfigError
 from .result import SDPResult, finish
 
@@ -109,13 +109,13 @@ def solve_cliques(Q: sp.csr_array, As: Sequence[sp.csr_array], b: np.ndarray, d:
     sol = solver.solve()
     t2 = time.perf_counter()
     y = np.asarray(sol.x, float)[:m] / prog.scale
-    X, svrs = prog.complete(np.asarray(sol.z, float), d)
+    X, svrs, completion = complete_auto(prog, np.asarray(sol.z, float), d)
     primal = float(Q.multiply(X).sum()) if X is not None else float("nan")
     status = _sdp_status(sol.status)
     res = SDPResult(status=status, solver="clarabel-cliques", d=d, X=X, y=y, primal_cost=primal,
                     dual_cost=float(np.dot(b, y)), solve_time_s=t2 - t1, setup_time_s=t1 - t0,
                     iterations=int(sol.iterations), clique_log_svr=svrs or None,
-                    cliques=prog.cliques if svrs else None)
+                    cliques=prog.cliques if svrs else None, completion=completion)
     return finish(res)
 
 

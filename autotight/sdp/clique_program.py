@@ -26,7 +26,8 @@ import scipy.sparse as sp
 
 from ..svec import SQRT2, position_to_ij, svec_columns, triu_indices
 from .chordal import clique_tree, home_cliques, maximal, support_matrix
-from .result import log_svr, rank_d_factor
+from ..svec import smat
+from .result import DENSE_X_MAX, log_svr, rank_d_factor
 
 
 @dataclass
@@ -69,6 +70,37 @@ class CliqueProgram:
         z is unusable."""
         Xp = self.pattern_matrix(z)
         return (None, []) if Xp is None else complete_from_cliques(Xp, self.cliques, d)
+
+
+def complete_sparse(prog: "CliqueProgram", z: np.ndarray, d: int
+                    ) -> tuple[sp.csr_array | None, list[float], np.ndarray | None]:
+    """``CliqueProgram.complete`` without N×N arrays: (X on the cliques' pattern as a symmetric csr_array,
+    per-block log SVR, the completion factor Θ (d×N)); (None, [], None) when z is unusable."""
+    if z.size != prog.pos.size or not np.all(np.isfinite(z)):
+        return None, [], None
+    N = prog.N
+    upos, first = np.unique(prog.pos[::-1], return_index=True)  # the last block's value of a shared entry
+    zv = z[::-1][first]
+    gi, gj = position_to_ij(upos)
+    v = np.where(gi == gj, zv, zv / SQRT2)
+    off = gi != gj
+    X = sp.csr_array((np.concatenate([v, v[off]]), (np.concatenate([gi, gj[off]]), np.concatenate([gj, gi[off]]))),
+                     shape=(N, N))
+    Theta = np.zeros((d, N))
+    svrs = []
+    for k, C in enumerate(prog.cliques):
+        w, Th = rank_d_factor(smat(z[prog.start[k]:prog.start[k + 1]], len(C)), d)
+        svrs.append(log_svr(w, d))
+        Theta[:, C] = Th
+    return X, svrs, Theta
+
+
+def complete_auto(prog: "CliqueProgram", z: np.ndarray, d: int) -> tuple[object, list[float], np.ndarray | None]:
+    """Dense completion (``complete``) up to ``DENSE_X_MAX`` columns, else ``complete_sparse``."""
+    if prog.N <= DENSE_X_MAX:
+        X, svrs = prog.complete(z, d)
+        return X, svrs, None
+    return complete_sparse(prog, z, d)
 
 
 def complete_from_cliques(Xp: np.ndarray, cliques: Sequence[np.ndarray], d: int) -> tuple[np.ndarray, list[float]]:
@@ -150,16 +182,21 @@ def clique_program(Q: sp.csr_array, As: Sequence[sp.csr_array], b: np.ndarray,
     own = np.flatnonzero(par_row < 0)  # the top clique's row of each entry (one per entry)
     moved = np.flatnonzero(par_row >= 0)
     t = m + np.arange(moved.size)  # transfer variables, one per entry shared with the parent
-    data = svec_columns([Q, *As], N).tocsr()  # column 0: Q
-    outside = np.setdiff1d(np.unique(data.nonzero()[0]), pos)
+    # COO throughout: a CSR copy of the svec data would hold an index array of N(N+1)/2 + 1 entries
+    # (2.3 GB at N = 24 000), the one quadratic array of the decomposition
+    data = svec_columns([Q, *As], N).tocoo()  # column 0: Q
+    outside = np.setdiff1d(np.unique(data.row), pos)
     if outside.size:
         raise ValueError(f"{outside.size} entries of the cost or constraints lie outside every clique")
-    G = sp.coo_array(data[:, 1:])
+    isq = data.col == 0
+    G = sp.coo_array((data.data[~isq], (data.row[~isq], data.col[~isq] - 1)), shape=(data.shape[0], m))
     g_row = _home_rows(G, cliques, pos, start, own, N)
     F = sp.csc_matrix((np.concatenate([G.data, np.ones(moved.size), -np.ones(moved.size)]),
                        (np.concatenate([g_row, moved, par_row[moved]]), np.concatenate([G.col, t, t]))),
                       shape=(nrow, m + moved.size))
     c = np.zeros(nrow)
-    c[own] = data[pos[own]][:, [0]].toarray().ravel() * scale
+    own_order = np.argsort(pos[own])
+    at = np.searchsorted(pos[own][own_order], data.row[isq])
+    c[own[own_order[at]]] = data.data[isq] * scale
     g = np.concatenate([np.asarray(b, float), np.zeros(moved.size)])
     return CliqueProgram(cliques, F, c, g, start, pos, m, N, scale)

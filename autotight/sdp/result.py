@@ -5,6 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+import scipy.sparse as sp
 
 from .config import SolverConfig, SolverOptions  # noqa: F401  (SolverOptions: the deprecated name)
 
@@ -16,7 +17,10 @@ class SDPResult:
     """Solution of min ⟨Q,X⟩ s.t. ⟨A_i,X⟩ = b_i, X ⪰ 0.
 
     status: the solver's own status string ("Solved", "AlmostSolved", "NumericalError", …).
-    X: the N×N solution (assembled from clique blocks when the solve was decomposed).
+    X: the N×N solution (assembled from clique blocks when the solve was decomposed): a dense array,
+    or, for a decomposed solve of more than ``DENSE_X_MAX`` columns, a sparse csr_array holding X on the
+    cliques' pattern only (memory ∝ Σ|C_k|², not N²); ``completion`` (d×N) then gives the entries off the
+    pattern as ΘᵀΘ (the completion from the blocks' rank-d factors).
     y: the multipliers of the constraints, in the order given.
     eigvals: eigenvalues of X, descending (a decomposed solve of more than FULL_EIG_MAX columns: the
     top d + 1 only).  log_svr = log10(λ_d / λ_{d+1}) (for cliques: the
@@ -44,6 +48,7 @@ class SDPResult:
     cost_scale: float = 0.0  # Σ|Q_ij X_ij|: the magnitude of the terms that the cost sums
     n_calls: int = 1
     cliques: list[np.ndarray] | None = None
+    completion: np.ndarray | None = None
 
     @property
     def solved(self) -> bool:
@@ -52,7 +57,7 @@ class SDPResult:
     @property
     def usable(self) -> bool:
         """A solution was returned (Solved or AlmostSolved) and X is finite."""
-        return self.X is not None and self.status in (SOLVED, "AlmostSolved") and bool(np.all(np.isfinite(self.X)))
+        return self.X is not None and self.status in (SOLVED, "AlmostSolved") and finite(self.X)
 
     @property
     def cost(self) -> float:
@@ -61,6 +66,15 @@ class SDPResult:
     def summary(self) -> str:
         return (f"status={self.status} cost={self.primal_cost:.8g} dual={self.dual_cost:.8g} "
                 f"log_svr={self.log_svr:.2f} time={self.solve_time_s:.3f}s")
+
+
+#: a decomposed solve with more columns keeps X sparse on its cliques' pattern (see ``SDPResult``)
+DENSE_X_MAX = 3000
+
+
+def finite(X) -> bool:
+    """Every stored entry of X (dense or sparse) is finite."""
+    return bool(np.all(np.isfinite(X.data if sp.issparse(X) else X)))
 
 
 def log_svr(eigvals: np.ndarray, d: int = 1) -> float:
@@ -100,6 +114,11 @@ def rank_d_factor(X: np.ndarray, d: int, top_only: bool = False) -> tuple[np.nda
     if w is None:
         w, V = np.linalg.eigh(Xs)
         w, V = w[::-1], V[:, ::-1]
+    return w, _normalise(V, w, d)
+
+
+def _normalise(V: np.ndarray, w: np.ndarray, d: int) -> np.ndarray:
+    """Θ = √λ Vᵀ of the top d eigenpairs with its h block made I_d where possible (see ``rank_d_factor``)."""
     Theta = (V[:, :d] * np.sqrt(np.maximum(w[:d], 0.0))).T
     Th = Theta[:, :d]
     if d == 1:
@@ -108,13 +127,40 @@ def rank_d_factor(X: np.ndarray, d: int, top_only: bool = False) -> tuple[np.nda
     else:
         U, _, Vt = np.linalg.svd(Th)
         Theta = (U @ Vt).T @ Theta  # nearest rotation that maps Θ_h to a symmetric PSD block
-    return w, Theta
+    return Theta
+
+
+def completed_top(X: sp.sparray, completion: np.ndarray, d: int) -> tuple[np.ndarray, np.ndarray] | None:
+    """Top d + 1 eigenvalues and the rank-d factor of the completed X (X on the pattern, ΘᵀΘ off it)
+    by Lanczos on the operator v ↦ Xv + Θᵀ(Θv) − (ΘᵀΘ on the pattern)v: no N×N array.  None when
+    Lanczos does not converge."""
+    from scipy.sparse.linalg import ArpackNoConvergence, LinearOperator, eigsh
+
+    X = sp.csr_array(X)
+    C = X.tocoo()
+    Th = np.asarray(completion, float)
+    M = sp.csr_array((np.einsum("dk,dk->k", Th[:, C.row], Th[:, C.col]), (C.row, C.col)), shape=X.shape)
+    N = X.shape[0]
+    op = LinearOperator((N, N), matvec=lambda v: X @ v + Th.T @ (Th @ v) - M @ v, dtype=float)
+    try:
+        w, V = eigsh(op, k=d + 1, which="LA", v0=np.ones(N))
+    except ArpackNoConvergence:
+        return None
+    order = np.argsort(w)[::-1]
+    w, V = w[order], V[:, order]
+    return w, _normalise(V, w, d)
 
 
 def finish(res: SDPResult) -> SDPResult:
     """Fill eigvals, log SVR and Θ from res.X (when X is available); with per-clique log SVRs
     (a decomposed solve), log SVR is their minimum."""
-    if res.X is None or not np.all(np.isfinite(res.X)):
+    if res.X is None or not finite(res.X):
+        return res
+    if sp.issparse(res.X):
+        top = completed_top(res.X, res.completion, res.d) if res.completion is not None else None
+        w, Theta = top if top is not None else (np.zeros(0), res.completion)
+        res.eigvals, res.Theta = w, Theta
+        res.log_svr = float(np.min(res.clique_log_svr)) if res.clique_log_svr else log_svr(w, res.d)
         return res
     w, Theta = rank_d_factor(res.X, res.d, top_only=bool(res.clique_log_svr) and res.X.shape[0] > FULL_EIG_MAX)
     res.eigvals, res.Theta = w, Theta

@@ -48,7 +48,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from ..svec import SQRT2, triu_indices
-from .clique_program import clique_program
+from .clique_program import clique_program, complete_auto
 from .config import SolverConfig, SolverConfigError
 from .result import SDPResult, finish
 
@@ -444,12 +444,12 @@ def solve_ipm(Q: sp.csr_array, As: Sequence[sp.csr_array], b: np.ndarray, d: int
     t1 = time.perf_counter()
     sol = solve_blocks(prog.F, prog.c, prog.g, prog.sizes, tol=max(opts.tol, IPM_MIN_TOL),
                        max_iter=opts.max_iter, time_limit=opts.time_limit, verbose=opts.verbose)
-    X, svrs = prog.complete(sol.z, d)
+    X, svrs, completion = complete_auto(prog, sol.z, d)
     y = sol.y[:prog.m] / prog.scale
     res = SDPResult(status=sol.status, solver="autotight-ipm", d=d, X=X, y=y,
                     primal_cost=float(Q.multiply(X).sum()) if X is not None else float("nan"),
                     dual_cost=float(np.dot(b, y)), solve_time_s=sol.time_s, setup_time_s=t1 - t0,
-                    iterations=sol.iterations, clique_log_svr=svrs or None, cliques=prog.cliques if svrs else None,
+                    iterations=sol.iterations, clique_log_svr=svrs or None, cliques=prog.cliques if svrs else None, completion=completion,
                     message=(f"{sol.message}; " if sol.message else "")
                     + f"relative gap {sol.gap:.1e}, pinf {sol.pinf:.1e}, dinf {sol.dinf:.1e}")
     return finish(res)

@@ -1,0 +1,390 @@
+"""Templates: learned constraints whose coefficients are polynomials in a factor's measurement entries.
+
+A learned ``(factor type, identity)`` pair is a basic solution of the nullspace of the factor's
+monomial data, normalised to coefficient 1 on its free monomial.  Its coefficient vector p(δ) is a
+deterministic function of the factor's measurement entries δ = ``Factor.data``.  When p is a polynomial
+of low degree in δ, one least-squares fit
+
+    p(δ) = W ᵀ φ_g(δ),   φ_g(δ) = [1, δ_i, δ_i δ_j (i ≤ j)]  (all monomials of δ up to degree g)
+
+over factors of many instances (fresh seeds: fresh measurements and fresh states) gives a template.
+Applying it to an instance is one matrix product Φ W for all factors of the type: no sampling and no
+nullspace.  Every template is checked before it is kept on instances that took no part in the fit:
+(a) its coefficients equal those re-learned there to ``FIT_RTOL`` (relative to each factor's largest
+coefficient) and (b) its constraints hold on fresh feasible states of those instances to
+``LearnOptions.heldout_tol`` (relative violation, as for learning).  The degree is the smallest of
+(0, 1, 2) that passes; a factor type that passes none is reported and learned per factor instead
+(``fallback``).
+
+Coefficient layout: for a factor with local columns c_0 … c_{n−1} (its blocks in order, h first), the
+monomials are θ_{c_i}ᵀθ_{c_j}, i ≤ j, in svec order (column-major upper triangle, no √2; see
+``autotight.svec``).  A type's k identities are stacked into one vector of length k·m
+(m = n(n+1)/2); ``support`` lists the positions that are not zero for every factor.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Any, Sequence
+
+import numpy as np
+
+from ..errors import AutotightError, LearningError
+from ..model import Constraint, Model, canonical_coo
+from ..problem import Instance, Problem
+from ..svec import as_theta, triu_indices
+from .learn import LearnOptions
+
+#: a template's coefficients must equal re-learned ones to this relative accuracy (max-norm, relative
+#: to each factor's largest coefficient) on the instances used for fitting and checking
+FIT_RTOL = 1e-9
+#: polynomial degrees tried, lowest first
+DEGREES = (0, 1, 2)
+#: fresh instances (never used in the fit) on which every template is checked before it is saved
+CHECK_INSTANCES = 2
+#: most instances generated to collect samples of one factor type
+MAX_INSTANCES = 60
+#: samples kept aside (from the fitting instances) to validate a fit before collecting more
+VALIDATE = 8
+
+
+def features(D: np.ndarray, degree: int) -> np.ndarray:
+    """φ_g of each row of D (n, p): 1, then δ_i, then δ_i δ_j (i ≤ j, svec order) → (n, F)."""
+    D = np.atleast_2d(np.asarray(D, dtype=float))
+    cols = [np.ones((D.shape[0], 1))]
+    if degree >= 1:
+        cols.append(D)
+    if degree >= 2:
+        i, j = triu_indices(D.shape[1])
+        cols.append(D[:, i] * D[:, j])
+    return np.concatenate(cols, axis=1)
+
+
+def n_features(p: int, degree: int) -> int:
+    return 1 + (p if degree >= 1 else 0) + (p * (p + 1) // 2 if degree >= 2 else 0)
+
+
+def relative_error(pred: np.ndarray, Y: np.ndarray) -> np.ndarray:
+    """Per row: max |pred − Y| / max |Y|."""
+    return np.max(np.abs(pred - Y), axis=1) / np.maximum(np.max(np.abs(Y), axis=1), 1e-300)
+
+
+@dataclass
+class TypeTemplate:
+    """The templates of one factor type: coefficients = features(data, degree) @ W on ``support``."""
+
+    factor_type: str
+    identities: list[str]
+    roles: list[str]
+    block_sizes: list[int]
+    n_data: int
+    degree: int
+    support: np.ndarray
+    W: np.ndarray
+    check: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def n_cols(self) -> int:
+        return int(sum(self.block_sizes))
+
+    @property
+    def n_monomials(self) -> int:
+        return self.n_cols * (self.n_cols + 1) // 2
+
+    def coefficients(self, D: np.ndarray) -> np.ndarray:
+        """Coefficients on ``support`` for factors with data D (n_f, n_data) → (n_f, |support|)."""
+        return features(D, self.degree) @ self.W
+
+    def dense(self, D: np.ndarray) -> np.ndarray:
+        """Full coefficient vectors (n_f, k, m), as learning returns them (``LearnedGroup.coeffs``ᵀ)."""
+        out = np.zeros((D.shape[0], len(self.identities) * self.n_monomials))
+        out[:, self.support] = self.coefficients(D)
+        return out.reshape(D.shape[0], len(self.identities), self.n_monomials)
+
+    def record(self) -> dict[str, Any]:
+        return {"factor_type": self.factor_type, "identities": self.identities, "roles": self.roles,
+                "block_sizes": self.block_sizes, "n_data": self.n_data, "degree": self.degree,
+                "support": self.support.tolist(), "W": self.W.tolist(), "check": self.check}
+
+    @classmethod
+    def from_record(cls, r: dict[str, Any]) -> "TypeTemplate":
+        return cls(r["factor_type"], list(r["identities"]), list(r["roles"]), [int(s) for s in r["block_sizes"]],
+                   int(r["n_data"]), int(r["degree"]), np.asarray(r["support"], dtype=np.int64),
+                   np.asarray(r["W"], dtype=float).reshape(n_features(int(r["n_data"]), int(r["degree"])), -1),
+                   dict(r.get("check", {})))
+
+
+@dataclass
+class TemplateSet:
+    """Templates per factor type, and the types that fall back to per-factor learning (with the reason)."""
+
+    templates: dict[str, TypeTemplate]
+    fallback: dict[str, str]
+    times: dict[str, float] = field(default_factory=dict)
+
+    def record(self) -> dict[str, Any]:
+        return {"templates": [t.record() for t in self.templates.values()], "fallback": self.fallback,
+                "template_times": self.times}
+
+    @classmethod
+    def from_record(cls, obj: dict[str, Any]) -> "TemplateSet":
+        ts = [TypeTemplate.from_record(r) for r in obj.get("templates", [])]
+        return cls({t.factor_type: t for t in ts}, dict(obj.get("fallback", {})), dict(obj.get("template_times", {})))
+
+
+# ----------------------------------------------------------------------------- learning
+
+
+def _factor_samples(problem: Problem, inst: Instance, model: Model, wanted: dict[str, list[str]],
+                    rng: np.random.Generator, opts: LearnOptions) -> tuple[dict[str, list], list[str]]:
+    """Per type: (data, stacked coefficient vector) of every factor of ``inst``; and issues."""
+    from .catalog import learn
+
+    cat = learn(problem, inst, model, rng, "factors", opts, types=sorted(wanted))
+    out: dict[str, list] = {t: [] for t in wanted}
+    issues: list[str] = []
+    for g in cat.groups:
+        t = g.group.type
+        have = {ident: j for j, ident in enumerate(g.identities)}
+        miss = [i for i in wanted[t] if i not in have]
+        if miss:
+            issues.append(f"identity {t}:{miss[0]} not found on factor {g.group.name}")
+            continue
+        f = model.factor(g.group.name)
+        data = np.zeros(0) if f.data is None else f.data
+        out[t].append((data, g.coeffs[:, [have[i] for i in wanted[t]]].T.ravel()))
+    return out, issues
+
+
+def _fit(D: np.ndarray, Y: np.ndarray, degree: int) -> np.ndarray:
+    Phi = features(D, degree)
+    W, *_ = np.linalg.lstsq(Phi, Y, rcond=None)
+    return W
+
+
+def learn_templates(problem: Problem, params: dict[str, Any], pairs: Sequence[tuple[str, str]], seed: int,
+                    opts: LearnOptions = LearnOptions(), progress=None) -> TemplateSet:
+    """Fit a template per factor type of ``pairs`` from instances with seeds ``seed + 1000 + i``.
+
+    Instances are generated until, for every type, some degree fits the collected factors and predicts
+    ``VALIDATE`` further ones to ``FIT_RTOL``, or the most features (degree 2) are exhausted.  Every kept
+    template is then checked on ``CHECK_INSTANCES`` fresh instances (``check_template``)."""
+    t0 = time.perf_counter()
+    wanted: dict[str, list[str]] = {}
+    for t, i in pairs:
+        wanted.setdefault(t, [])
+        if i not in wanted[t]:
+            wanted[t].append(i)
+    for t in wanted:
+        wanted[t].sort()
+    samples: dict[str, list] = {t: [] for t in wanted}
+    fitted: dict[str, tuple[int, np.ndarray, np.ndarray]] = {}
+    fallback: dict[str, str] = {}
+    layout: dict[str, tuple[list[str], list[int]]] = {}
+    open_types = set(wanted)
+    k = 0
+    while open_types and k < MAX_INSTANCES:
+        rng = np.random.default_rng([seed, 1000 + k])
+        inst = problem.generate(params, np.random.default_rng(seed + 1000 + k))
+        model = problem.build(inst)
+        k += 1
+        for t in list(open_types):
+            fs = [f for f in model.factors if f.type == t]
+            if not fs:
+                fallback[t] = f"factor type {t!r} has no factor on an instance with params {params}"
+                open_types.discard(t)
+            else:
+                layout[t] = (list(fs[0].roles), [model.variables.sizes[b] for b in fs[0].blocks])
+        got, issues = _factor_samples(problem, inst, model, {t: wanted[t] for t in open_types}, rng, opts)
+        for t in list(open_types):
+            samples[t] += got[t]
+            bad = [s for s in issues if s.startswith(f"identity {t}:")]
+            if bad:
+                fallback[t] = f"{bad[0]}: the identity is not a basic solution on every factor, so it has no template"
+                open_types.discard(t)
+                continue
+            n_data = {d.size for d, _ in samples[t]}
+            if len(n_data) != 1:
+                fallback[t] = f"factors of type {t!r} have measurement data of different lengths {sorted(n_data)}"
+                open_types.discard(t)
+                continue
+            D = np.array([d for d, _ in samples[t]]).reshape(len(samples[t]), -1)
+            Y = np.array([y for _, y in samples[t]])
+            p = D.shape[1]
+            n_fit = len(Y) - VALIDATE
+            for g in DEGREES:
+                if (g > 0 and p == 0) or n_fit < 3:
+                    break
+                W = _fit(D[:n_fit], Y[:n_fit], g)
+                if relative_error(features(D, g) @ W, Y).max() <= FIT_RTOL:  # the last VALIDATE factors decide
+                    fitted[t] = (g, _fit(D, Y, g), np.flatnonzero(np.any(Y != 0, axis=0)))
+                    open_types.discard(t)
+                    break
+            if t in open_types and len(Y) - VALIDATE >= n_features(p, max(DEGREES)) + VALIDATE:
+                errs = [relative_error(features(D, g) @ _fit(D[:-VALIDATE], Y[:-VALIDATE], g), Y).max()
+                        for g in DEGREES if g == 0 or p > 0]
+                fallback[t] = (f"the coefficients of factor type {t!r} are not a polynomial of degree ≤ "
+                               f"{max(DEGREES)} in its {p} measurement entries (smallest relative error on "
+                               f"validation factors {min(errs):.1e} > {FIT_RTOL:g}); learned per factor instead")
+                open_types.discard(t)
+        if progress is not None:
+            progress(f"template instance {k}: {sorted(open_types)} open")
+    for t in open_types:
+        fallback[t] = (f"factor type {t!r}: no template of degree ≤ {max(DEGREES)} fitted within {MAX_INSTANCES} "
+                       "instances; learned per factor instead")
+    t1 = time.perf_counter()
+    templates: dict[str, TypeTemplate] = {}
+    for t, (g, W, support) in fitted.items():
+        D0 = samples[t][0][0]
+        templates[t] = TypeTemplate(t, wanted[t], *layout[t], int(D0.size), g, support, W[:, support],
+                                    {"n_fit_factors": len(samples[t]), "fit_instances": k})
+    t2 = time.perf_counter()
+    for c in range(CHECK_INSTANCES):
+        if not templates:
+            break
+        inst = problem.generate(params, np.random.default_rng(seed + 2000 + c))
+        model = problem.build(inst)
+        rng = np.random.default_rng([seed, 2000 + c])
+        got, _ = _factor_samples(problem, inst, model, {t: wanted[t] for t in templates}, rng, opts)
+        for t in list(templates):
+            tpl = templates[t]
+            err = 0.0
+            if got[t]:
+                D = np.array([d for d, _ in got[t]]).reshape(len(got[t]), -1)
+                Y = np.array([y for _, y in got[t]])
+                err = float(relative_error(tpl.dense(D).reshape(len(Y), -1), Y).max())
+            viol = check_template(problem, inst, model, tpl, rng, opts)
+            worst = max(viol.values()) if viol else 0.0
+            tpl.check["relearn_rel_error"] = max(tpl.check.get("relearn_rel_error", 0.0), err)
+            tpl.check["heldout_violation"] = max(tpl.check.get("heldout_violation", 0.0), worst)
+            if err > FIT_RTOL or worst > opts.heldout_tol:
+                fallback[t] = (f"the template of factor type {t!r} failed its check on a fresh instance "
+                               f"(coefficients off by {err:.1e} relative, violation {worst:.1e}); learned per "
+                               "factor instead")
+                del templates[t]
+    for tpl in templates.values():
+        tpl.check |= {"check_instances": CHECK_INSTANCES, "fit_rtol": FIT_RTOL, "heldout_tol": opts.heldout_tol}
+    return TemplateSet(templates, fallback, {"fit_s": t1 - t0, "check_s": time.perf_counter() - t2})
+
+
+# ----------------------------------------------------------------------------- applying
+
+
+def factor_columns(model: Model, tpl: TypeTemplate) -> tuple[list, np.ndarray, np.ndarray]:
+    """(factors of the type, their local columns (n_f, n), their data (n_f, n_data)); AutotightError when
+    the block layout or the data length does not fit the template."""
+    fs = [f for f in model.factors if f.type == tpl.factor_type]
+    V = model.variables
+    for f in fs:
+        sizes = [V.sizes[b] for b in f.blocks]
+        if sizes != tpl.block_sizes:
+            raise AutotightError(f"factor {f.name} of type {tpl.factor_type!r} has block sizes {sizes}; the "
+                                 f"constraint set's template expects {tpl.block_sizes}")
+        n = 0 if f.data is None else f.data.size
+        if n != tpl.n_data:
+            raise AutotightError(f"factor {f.name} has {n} measurement entries; the template of type "
+                                 f"{tpl.factor_type!r} expects {tpl.n_data}")
+    if not fs:
+        return fs, np.zeros((0, tpl.n_cols), np.int64), np.zeros((0, tpl.n_data))
+    cols = np.array([np.concatenate([np.arange(V.offsets[b], V.offsets[b] + V.sizes[b]) for b in f.blocks])
+                     for f in fs], dtype=np.int64)
+    D = np.array([np.zeros(0) if f.data is None else f.data for f in fs]).reshape(len(fs), tpl.n_data)
+    return fs, cols, D
+
+
+def violations(tpl: TypeTemplate, cols: np.ndarray, coeffs: np.ndarray, thetas: np.ndarray) -> np.ndarray:
+    """Largest relative violation |Σ p θ_iᵀθ_j| / Σ |p| ‖θ_i‖‖θ_j‖ over the samples, per (factor, identity)
+    → (n_f, k).  thetas: (S, d, N)."""
+    m = tpl.n_monomials
+    q, mono = tpl.support // m, tpl.support % m
+    ii, jj = triu_indices(tpl.n_cols)
+    gi, gj = cols[:, ii[mono]], cols[:, jj[mono]]  # (n_f, s)
+    k = len(tpl.identities)
+    out = np.zeros((cols.shape[0], k))
+    norms = np.linalg.norm(thetas, axis=1)  # (S, N)
+    for T, nr in zip(thetas, norms):
+        prod = np.einsum("dfs,dfs->fs", T[:, gi], T[:, gj]) * coeffs
+        mag = nr[gi] * nr[gj] * np.abs(coeffs)
+        val = np.zeros((cols.shape[0], k))
+        den = np.zeros((cols.shape[0], k))
+        for a in range(k):
+            sel = q == a
+            val[:, a] = prod[:, sel].sum(axis=1)
+            den[:, a] = mag[:, sel].sum(axis=1)
+        out = np.maximum(out, np.abs(val) / np.maximum(den, 1e-300))
+    return out
+
+
+def check_template(problem: Problem, inst: Instance, model: Model, tpl: TypeTemplate, rng: np.random.Generator,
+                   opts: LearnOptions, n_samples: int | None = None) -> dict[str, float]:
+    """Largest relative violation of the template's constraints on fresh feasible states of ``inst``, per
+    factor name."""
+    fs, cols, D = factor_columns(model, tpl)
+    if not fs:
+        return {}
+    from .samples import draw
+
+    bank = draw(problem, inst, n_samples or max(4, opts.heldout // 10), rng, opts.spread)
+    v = violations(tpl, cols, tpl.coefficients(D), bank.thetas).max(axis=1)
+    return {f.name: float(x) for f, x in zip(fs, v)}
+
+
+def apply_template(model: Model, tpl: TypeTemplate) -> list[Constraint]:
+    """The template's constraints on every factor of its type in ``model`` (evaluation only)."""
+    fs, cols, D = factor_columns(model, tpl)
+    if not fs:
+        return []
+    coeffs = tpl.coefficients(D)
+    m = tpl.n_monomials
+    q, mono = tpl.support // m, tpl.support % m
+    ii, jj = triu_indices(tpl.n_cols)
+    N = model.variables.N
+    out: list[Constraint] = []
+    for a, ident in enumerate(tpl.identities):
+        sel = np.flatnonzero(q == a)
+        li, lj = ii[mono[sel]], jj[mono[sel]]
+        off = li != lj
+        for r, f in enumerate(fs):
+            p = coeffs[r, sel]
+            gi, gj = cols[r, li], cols[r, lj]
+            rows = np.concatenate([gi, gj[off]])
+            cc = np.concatenate([gj, gi[off]])
+            vals = np.concatenate([np.where(off, p / 2, p), p[off] / 2])
+            out.append(Constraint(canonical_coo(rows, cc, vals, N), 0.0, name=f"{f.name}:{ident}", family="learned",
+                                  factor=f.name, identity=f"{tpl.factor_type}:{ident}"))
+    return out
+
+
+def apply_templates(problem: Problem, inst: Instance, model: Model, ts: TemplateSet, rng: np.random.Generator,
+                    opts: LearnOptions, skip_invalid: bool = False, n_check: int = 2) -> tuple[list[Constraint], list[str]]:
+    """Every template's constraints on ``inst``, each checked on ``n_check`` fresh feasible states of ``inst``.
+
+    A factor whose constraints violate the check (relative violation > ``opts.heldout_tol``) is a one-line
+    AutotightError naming it, unless ``skip_invalid`` (its constraints are then left out and listed)."""
+    out: list[Constraint] = []
+    skipped: list[str] = []
+    thetas = None
+    for tpl in ts.templates.values():
+        fs, cols, D = factor_columns(model, tpl)
+        if not fs:
+            continue
+        if thetas is None:
+            from .samples import draw
+
+            thetas = draw(problem, inst, n_check, rng, opts.spread).thetas
+        viol = violations(tpl, cols, tpl.coefficients(D), thetas)
+        bad = np.argwhere(viol > opts.heldout_tol)
+        cons = apply_template(model, tpl)
+        if bad.size:
+            r, a = bad[0]
+            msg = (f"template {tpl.factor_type}:{tpl.identities[a]} fails its check on factor {fs[r].name} "
+                   f"(relative violation {viol[r, a]:.1e} > {opts.heldout_tol:g}; {len(bad)} factor identities fail)")
+            if not skip_invalid:
+                raise AutotightError(msg + "; pass --skip-invalid (skip_invalid=True) to leave them out")
+            drop = {(fs[r].name, tpl.identities[a]) for r, a in bad}
+            skipped += [f"{f}:{i}" for f, i in sorted(drop)]
+            k = len(tpl.identities)
+            cons = [c for n, c in enumerate(cons) if (fs[n % len(fs)].name, tpl.identities[n // len(fs)]) not in drop]
+        out += cons
+    return out, skipped

@@ -1,0 +1,156 @@
+"""Carried constraint sets at scale: discrete trajectory K = 10 … 1000 with a set learned at K = 5.
+
+Every (K, route) runs in a fresh subprocess (so that its peak RSS is its own) and reports build, apply,
+SDP and total wall time, peak RSS (``resource.getrusage``, max resident set), SDP status, log SVR and the
+verdict.  Routes: "template" (the set's templates evaluated: ``ConstraintSet.apply``) and "relearn" (the
+pairs re-learned on every factor: ``DiscoveredSet.instantiate``, today's route before templates), the
+latter at K ≤ 100.  Growth exponents are log(v(1000)/v(100))/log(10) for the template route.  The SDP
+uses our IPM (``--solver ipm``); local search: from the ground truth only (n_random = 0).
+
+    nice -n 19 python benchmarks/scale.py [--set FILE] [--sizes 10,30,100,300,1000] [--relearn 10,30,100]
+
+Without --set (or when the file is missing) the set is discovered at K = 5, seed 0, and saved there.
+Writes benchmarks/results/scale.json with the versions and the load average around every run.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import resource
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent
+ROOT = HERE.parent
+DEFAULT_SET = HERE / "results" / "scale_set_discrete_K5.json"
+
+
+def one(K: int, route: str, set_path: str, seed: int) -> dict:
+    """One run in this process (called in a fresh subprocess)."""
+    import numpy as np
+
+    from autotight.constraint_set import ConstraintSet
+    from autotight.pipeline import solve_instance
+    from autotight.problem import load
+    from autotight.sdp.config import SolverConfig
+
+    rss0 = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    t0 = time.perf_counter()
+    prob = load("discrete_trajectory")
+    cs = ConstraintSet.load(set_path)
+    inst = prob.generate(prob.parse_params({"K": K}), np.random.default_rng(seed))
+    inst.seed = seed
+    t1 = time.perf_counter()
+    model = prob.build(inst)
+    t2 = time.perf_counter()
+    rng = np.random.default_rng([seed, 2])
+    if route == "template":
+        cons = cs.apply(prob, inst, model, rng)
+    elif route == "paper":  # the hand-derived families: the same pipeline on a relaxation that is tight
+        cons = model.paper_constraints()
+    else:
+        cons = cs.discovered.instantiate(prob, inst, rng, model=model)
+    t3 = time.perf_counter()
+    out = solve_instance(prob, inst, cons, config=SolverConfig(backend="ipm"), model=model, n_random=0)
+    t4 = time.perf_counter()
+    return {"K": K, "route": route, "seed": seed, "N": model.variables.N, "n_constraints": out.n_constraints,
+            "n_set_constraints": len(cons), "generate_s": t1 - t0, "build_s": t2 - t1, "apply_s": t3 - t2,
+            "sdp_s": out.times["sdp_total_s"], "sdp_solve_s": out.times["sdp_solve_s"],
+            "local_s": out.times["local_s"], "refine_s": out.times["refine_s"], "total_s": t4 - t0,
+            "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
+            "import_rss_mb": rss0 / 1024, "status": out.sdp.status, "log_svr": out.log_svr,
+            "outcome": out.outcome, "tight": out.tight, "verdict": out.verdict.reason}
+
+
+def run_child(K: int, route: str, set_path: str, seed: int, timeout: float) -> dict:
+    load0 = os.getloadavg()
+    t0 = time.perf_counter()
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    try:
+        p = subprocess.run([sys.executable, __file__, "--one", str(K), "--route", route, "--set", set_path,
+                            "--seed", str(seed)], capture_output=True, text=True, env=env, timeout=timeout)
+    except subprocess.TimeoutExpired:
+        return {"K": K, "route": route, "seed": seed, "error": f"timeout after {timeout:g} s"}
+    wall = time.perf_counter() - t0
+    if p.returncode != 0:
+        rec = {"K": K, "route": route, "seed": seed, "error": (p.stderr.strip().splitlines() or ["?"])[-1]}
+    else:
+        rec = json.loads(p.stdout.strip().splitlines()[-1])
+    return rec | {"process_wall_s": wall, "loadavg_before": load0, "loadavg_after": os.getloadavg()}
+
+
+def exponent(rows: list[dict], key: str, a: int = 100, b: int = 1000) -> float | None:
+    import math
+
+    va = next((r.get(key) for r in rows if r["K"] == a and key in r), None)
+    vb = next((r.get(key) for r in rows if r["K"] == b and key in r), None)
+    if not va or not vb:
+        return None
+    return math.log(vb / va) / math.log(b / a)
+
+
+def ensure_set(path: Path) -> None:
+    if path.exists():
+        return
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    subprocess.run([sys.executable, "-m", "autotight.cli", "discover", "discrete_trajectory", "-p", "K=5",
+                    "--no-progress", "--out", str(path)], check=True, env=env, stdout=subprocess.DEVNULL)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--set", default=str(DEFAULT_SET))
+    ap.add_argument("--sizes", default="10,30,100,300,1000")
+    ap.add_argument("--relearn", default="10,30,100")
+    ap.add_argument("--paper", default="", help="sizes also run with the paper families (a tight relaxation)")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--timeout", type=float, default=1800.0)
+    ap.add_argument("--out", default=str(HERE / "results" / "scale.json"))
+    ap.add_argument("--one", type=int, default=None, help=argparse.SUPPRESS)
+    ap.add_argument("--route", default="template", help=argparse.SUPPRESS)
+    args = ap.parse_args()
+    if args.one is not None:
+        print(json.dumps(one(args.one, args.route, args.set, args.seed)))
+        return
+    from autotight.io import versions
+
+    ensure_set(Path(args.set))
+    rows = []
+    jobs = [(int(k), "template") for k in args.sizes.split(",") if k]
+    jobs += [(int(k), "relearn") for k in args.relearn.split(",") if k]
+    jobs += [(int(k), "paper") for k in args.paper.split(",") if k]
+    print(f"{'K':>5} {'route':>8} {'build':>7} {'apply':>8} {'SDP':>8} {'total':>8} {'RSS MB':>7} "
+          f"{'status':>12} {'logSVR':>7} {'outcome':>10}  load")
+    for K, route in jobs:
+        r = run_child(K, route, args.set, args.seed, args.timeout)
+        rows.append(r)
+        if "error" in r:
+            print(f"{K:>5} {route:>8}  error: {r['error']}")
+        else:
+            print(f"{K:>5} {route:>8} {r['build_s']:7.2f} {r['apply_s']:8.3f} {r['sdp_s']:8.2f} {r['total_s']:8.2f} "
+                  f"{r['peak_rss_mb']:7.0f} {r['status']:>12} {r['log_svr']:7.2f} {r['outcome']:>10}  "
+                  f"{r['loadavg_before'][0]:.1f}", flush=True)
+    growth = {}
+    for route in ("template", "paper"):
+        sel = [r for r in rows if r["route"] == route and "error" not in r]
+        for r in sel:
+            r["rss_over_import_mb"] = r["peak_rss_mb"] - r["import_rss_mb"]
+        growth[route] = {k: exponent(sel, k) for k in ("total_s", "sdp_s", "build_s", "apply_s", "peak_rss_mb",
+                                                        "rss_over_import_mb")}
+        print(f"growth exponents K = 100 → 1000 ({route} route):",
+              {k: (None if v is None else round(v, 3)) for k, v in growth[route].items()})
+    obj = {"benchmark": "scale", "problem": "discrete_trajectory", "set": Path(args.set).name,
+           "learned_at": {"K": 5}, "solver": "ipm", "n_random": 0, "seed": args.seed, "rows": rows,
+           "growth_exponents_100_1000": growth, "targets": {"time": 1.15, "memory": 1.1},
+           "versions": versions(), "cpu_count": os.cpu_count(), "loadavg_end": os.getloadavg()}
+    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
+    Path(args.out).write_text(json.dumps(obj, indent=1, default=str), encoding="utf-8")
+    print(f"wrote {args.out}")
+
+
+if __name__ == "__main__":
+    main()

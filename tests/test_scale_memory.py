@@ -1,0 +1,77 @@
+"""Memory proportional to nonzeros: constraint storage, build, the clique program and a sparse X."""
+
+from __future__ import annotations
+
+import tracemalloc
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+
+import autotight.sdp.clique_program as cp
+from autotight.model import Constraint
+from autotight.pipeline import solve_instance
+from autotight.problem import load
+from autotight.sdp.clique_program import clique_program
+from autotight.sdp.config import SolverConfig
+
+
+def _model(K: int):
+    prob = load("discrete_trajectory")
+    inst = prob.generate(prob.parse_params({"K": K}), np.random.default_rng(0))
+    return prob, inst, prob.build(inst)
+
+
+def _bytes(c: Constraint) -> int:
+    A = c.A
+    return A.data.nbytes + A.row.nbytes + A.col.nbytes
+
+
+def test_constraints_are_stored_in_space_proportional_to_nonzeros():
+    sizes = {}
+    for K in (20, 40):
+        _, _, model = _model(K)
+        cons = model.all_constraints()
+        assert all(isinstance(c.A, sp.coo_array) for c in cons)
+        assert all(c.A.row.size == c.A.nnz and c.A.col.size == c.A.nnz for c in cons)  # no N + 1 array
+        sizes[K] = sum(_bytes(c) for c in cons)
+    assert 1.8 < sizes[40] / sizes[20] < 2.2, sizes
+
+
+def _peak(fn) -> int:
+    tracemalloc.start()
+    try:
+        fn()
+        return tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+
+
+def test_build_and_clique_program_memory_grow_linearly():
+    peaks_build, peaks_prog = {}, {}
+    for K in (30, 60):
+        prob, inst, _ = _model(K)
+        peaks_build[K] = _peak(lambda: prob.build(inst))
+        model = prob.build(inst)
+        cons = model.primary() + model.paper_constraints()
+        peaks_prog[K] = _peak(lambda: clique_program(model.Q, [c.A for c in cons], np.array([c.b for c in cons]),
+                                                     model.clique_indices()))
+    assert peaks_build[60] / peaks_build[30] < 2.4, peaks_build
+    assert peaks_prog[60] / peaks_prog[30] < 2.4, peaks_prog
+
+
+@pytest.mark.parametrize("backend", ["ipm", "clarabel"])
+def test_sparse_solution_matches_dense(monkeypatch, backend):
+    prob, inst, model = _model(6)
+    inst.seed = 0
+    cfg = SolverConfig(backend=backend, decompose=True)
+    dense = solve_instance(prob, inst, "paper", config=cfg, model=model, n_random=0)
+    monkeypatch.setattr(cp, "DENSE_X_MAX", 10)
+    sparse = solve_instance(prob, inst, "paper", config=cfg, model=model, n_random=0)
+    assert isinstance(dense.sdp.X, np.ndarray) and sp.issparse(sparse.sdp.X)
+    assert sparse.sdp.X.nnz < 0.5 * model.variables.N ** 2
+    assert sparse.tight and dense.tight
+    assert abs(sparse.sdp.primal_cost - dense.sdp.primal_cost) <= 1e-9 * abs(dense.sdp.primal_cost)
+    assert abs(sparse.log_svr - dense.log_svr) < 1e-6
+    assert np.allclose(sparse.sdp.Theta, dense.sdp.Theta, rtol=1e-6, atol=1e-8)
+    assert abs(sparse.sdp.eigvals[0] - dense.sdp.eigvals[0]) <= 1e-8 * dense.sdp.eigvals[0]

@@ -1,0 +1,142 @@
+"""Templates: learned once, evaluated on fresh measurements, saved in format 2, applied by solve."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from autotight.cli import main
+from autotight.constraint_set import ConstraintSet
+from autotight.discovery.catalog import learn
+from autotight.discovery.discovered import FORMAT, FORMAT_V1, DiscoveredSet
+from autotight.discovery.learn import LearnOptions
+from autotight.discovery.templates import FIT_RTOL, TemplateSet, apply_templates, learn_templates, relative_error
+from autotight.errors import AutotightError
+from autotight.pipeline import solve_instance
+from autotight.problem import load
+
+#: the factor types of the shipped problems with templates, and one learned identity of each
+#: (the relation that discovery keeps on both problems, resembling the paper's R2)
+TYPES = {"discrete_trajectory": ("K", "pose_meas", "r[2]·rho[2]"),
+         "pose_averaging": ("M", "pose_meas", "r[2]·rho[2]")}
+
+
+@pytest.fixture(scope="module", params=sorted(TYPES))
+def learned(request):
+    name = request.param
+    size, ftype, ident = TYPES[name]
+    prob = load(name)
+    params = prob.parse_params({size: 5})
+    ts = learn_templates(prob, params, [(ftype, ident)], seed=0)
+    return prob, params, ts, (ftype, ident)
+
+
+def test_template_equals_relearning_on_fresh_measurements(learned):
+    prob, params, ts, (ftype, ident) = learned
+    assert ts.fallback == {} and ftype in ts.templates
+    tpl = ts.templates[ftype]
+    assert tpl.degree == 2  # the R2-like relation holds ‖r̃‖² and C̃ᵀr̃ terms
+    # a fresh instance (fresh measurements, never seen by the fit), larger than the learning one
+    size = "K" if "K" in params else "M"
+    inst = prob.generate(prob.parse_params({size: 7}), np.random.default_rng(987))
+    model = prob.build(inst)
+    cat = learn(prob, inst, model, np.random.default_rng(3), "factors", LearnOptions(), types=[ftype])
+    D, Y = [], []
+    for g in cat.groups:
+        D.append(model.factor(g.group.name).data)
+        Y.append(g.coeffs[:, g.identities.index(ident)])
+    D, Y = np.array(D), np.array(Y)
+    err = relative_error(tpl.dense(D)[:, 0, :], Y)
+    assert len(err) == 7 and err.max() <= FIT_RTOL, err.max()
+    assert tpl.check["relearn_rel_error"] <= FIT_RTOL and tpl.check["heldout_violation"] <= 1e-8
+
+
+def test_applied_constraints_hold_and_skip_invalid(learned):
+    prob, params, ts, (ftype, ident) = learned
+    size = "K" if "K" in params else "M"
+    inst = prob.generate(prob.parse_params({size: 12}), np.random.default_rng(5))
+    model = prob.build(inst)
+    cons, skipped = apply_templates(prob, inst, model, ts, np.random.default_rng(1), LearnOptions())
+    assert len(cons) == 12 and not skipped
+    assert all(c.identity == f"{ftype}:{ident}" and c.A.nnz > 0 for c in cons)
+    theta = np.atleast_2d(prob.lift(inst, inst.truth))
+    X = theta.T @ theta
+    assert max(abs(c.value(X)) for c in cons) < 1e-9 * max(1.0, np.abs(X).max())
+    # a broken template: a one-line error naming the factor, or the factor left out with skip_invalid
+    bad = TemplateSet.from_record(json.loads(json.dumps(ts.record())))
+    bad.templates[ftype].W[0] += 0.5
+    with pytest.raises(AutotightError, match=r"fails its check on factor meas_\d+"):
+        apply_templates(prob, inst, model, bad, np.random.default_rng(1), LearnOptions())
+    kept, skipped = apply_templates(prob, inst, model, bad, np.random.default_rng(1), LearnOptions(),
+                                    skip_invalid=True)
+    assert len(kept) + len(skipped) == 12 and skipped
+
+
+def _saved(tmp_path, prob, params, ts, pair) -> str:
+    ds = DiscoveredSet(prob.name, params, 0, [pair], templates=ts)
+    inst = prob.generate(params, np.random.default_rng(0))
+    model = prob.build(inst)
+    path = tmp_path / f"{prob.name}.json"
+    ds.save(path, model, [])
+    return str(path)
+
+
+def test_format2_file_is_self_contained(learned, tmp_path):
+    prob, params, ts, pair = learned
+    obj = json.loads(open(_saved(tmp_path, prob, params, ts, pair), encoding="utf-8").read())
+    assert obj["format"] == FORMAT and obj["problem"] == prob.name and obj["params"] == params
+    assert obj["templates"][0]["factor_type"] == pair[0] and obj["templates"][0]["degree"] == 2
+    assert obj["variables"][0]["block"] == "h" and {"svec", "template", "constraint"} <= set(obj["convention"])
+    fams = {r["family"] for r in obj["learning_instance"]["constraints"]}
+    assert {"homogenisation", "primary"} <= fams
+
+
+def test_wrong_problem_and_layout_are_one_line_errors(learned, tmp_path, capsys):
+    prob, params, ts, pair = learned
+    path = _saved(tmp_path, prob, params, ts, pair)
+    other = "pose_averaging" if prob.name == "discrete_trajectory" else "discrete_trajectory"
+    assert main(["solve", other, "--set", path]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and f"is for '{prob.name}'" in err
+    cs = ConstraintSet.load(path)
+    cs.discovered.templates.templates[pair[0]].block_sizes[1] += 1
+    inst = prob.generate(params, np.random.default_rng(1))
+    with pytest.raises(AutotightError, match="block sizes"):
+        cs.apply(prob, inst, prob.build(inst), np.random.default_rng(0))
+
+
+def test_v1_file_loads(learned, tmp_path):
+    prob, params, ts, pair = learned
+    v1 = {"format": FORMAT_V1, "problem": prob.name, "params": params, "seed": 0, "learn_options": {},
+          "groups": "factors", "pairs": [{"factor_type": pair[0], "identity": pair[1]}], "info": {}}
+    path = tmp_path / "v1.json"
+    path.write_text(json.dumps(v1), encoding="utf-8")
+    cs = ConstraintSet.load(path)
+    assert cs.problem == prob.name and cs.pairs == [pair] and cs.discovered.templates is None
+    cs.discovered.templates = ts  # (learned on first use otherwise)
+    size = "K" if "K" in params else "M"
+    inst = prob.generate(prob.parse_params({size: 6}), np.random.default_rng(2))
+    assert len(cs.apply(prob, inst, prob.build(inst), np.random.default_rng(0))) == 6
+
+
+def test_set_from_size5_applied_at_size50(learned):
+    """Pose averaging: tight at M = 50 on two seeds.  Discrete trajectory: the K = 5 set (one R2-like pair)
+    is applied at K = 50 (50 valid constraints); it is not tight there (README "Constraint-set files")."""
+    prob, params, ts, pair = learned
+    cs = ConstraintSet(DiscoveredSet(prob.name, params, 0, [pair], templates=ts))
+    size = "K" if "K" in params else "M"
+    for seed in (0, 1):
+        inst = prob.generate(prob.parse_params({size: 50}), np.random.default_rng(seed))
+        inst.seed = seed
+        model = prob.build(inst)
+        if prob.name == "pose_averaging":
+            out = solve_instance(prob, inst, cs, n_random=0, model=model)
+            assert out.tight, out.verdict.reason
+            assert out.n_constraints == len(model.primary()) + 50
+        else:
+            cons = cs.apply(prob, inst, model, np.random.default_rng(seed))
+            theta = np.atleast_2d(prob.lift(inst, inst.truth))
+            assert len(cons) == 50
+            assert max(abs(c.value(theta.T @ theta)) for c in cons) < 1e-8
