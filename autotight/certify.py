@@ -1,178 +1,257 @@
 """Certify a local solution x̂ without solving the full SDP.
 
 x̂ (lifted: Θ̂, d×N) is globally optimal for the relaxation iff some y gives H(y) = Q − Σ yᵢAᵢ ⪰ 0 with
-H(y)Θ̂ᵀ = 0.  With redundant constraints such y are not unique, so finding one is a convex problem; ours:
+H(y)Θ̂ᵀ = 0.  With redundant constraints such y are not unique (the stationarity system has a
+nullspace of dimension 100 at pose averaging M = 10, 371 at discrete K = 20), so finding one is a
+convex feasibility problem.  Ours, on a clique tree of the data (``sdp.clique_program``):
 
-1. Least squares.  y₀ = argmin ‖H(y)Θ̂ᵀ‖ (sparse LSQR on the N·d × m system Σ yᵢAᵢΘ̂ᵀ = QΘ̂ᵀ).  When every
-   clique block of H(y₀) is PSD (a necessary test, dense and cheap) and the full certificate below holds,
-   we are done.
-2. A margin program on the clique tree.  By Agler's theorem every H ⪰ 0 with the chordal pattern is
-   Σ_k E_kᵀ S_k E_k with S_k ⪰ 0, and Θ̂ H Θ̂ᵀ = 0 forces S_k Θ̂_kᵀ = 0 in every clique.  With Π_k the
-   projector onto the complement of Θ̂_k's rows we solve
+1. Chordal form.  By Agler's theorem every H ⪰ 0 with the chordal pattern is Σ_k E_kᵀ S_k E_k with
+   S_k ⪰ 0, S_k = C_k − F_k w affine in w = (y, the transfers t on the clique overlaps).  Θ̂HΘ̂ᵀ = 0
+   forces S_kΘ̂_kᵀ = 0 in every clique: linear equalities L w = l.  With U_k an orthonormal basis of
+   Θ̂_k's rows, on {Lw = l}:  S_k ⪰ λ on the complement of U_k  ⟺  S̃_k = S_k + α U_kU_kᵀ − λI ⪰ 0
+   (α = 1 on the cost scaled to max|Q_ij| = 1, for 0 ≤ λ ≤ α).
+2. A phase-I barrier method.  Starting from the least-squares w₀ of L w = l and λ₀ below every
+   block's smallest eigenvalue, damped Newton steps on  −τλ − Σ_k log det S̃_k(w, λ)  subject to
+   L Δw = 0.  Each step assembles the Hessian Σ_k F_kᵀ(S̃_k⁻¹ ⊗ S̃_k⁻¹)F_k (sparse: variables that share
+   a clique; ``schur_ipm._Schur``), factors the quasi-definite KKT matrix [[H + ρI, Lᵀ], [L, −δI]]
+   once (qdldl) and borders λ.  The step is affine in τ, Δ = Δ₀ + τΔ₁, so τ is chosen after the
+   factorisation: the largest of τ·{1000, 100, 30, 10, 3, 1} whose full step stays inside every block.
+   Stop "feasible" when λ ≥ ``target`` (every S_k is PSD with a margin on the complement of Θ̂_k);
+   stop "infeasible" after a full step with λ + ν/τ < 0 (ν = Σ|C_k|: on the central path the best
+   margin is then negative, no certificate exists); or after ``max_iter`` steps.  At tight instances
+   the margin is large (λ* ≈ 0.04 of max|Q| at discrete K = 20) and 2–8 steps suffice; the full
+   SDP's interior-point method needs 15–30 iterations of the same cost, on both X and y.
+3. Check.  The y part of w goes to the exact certificate of ``autotight.certificate`` (sparse
+   certified λ_min(H) by LDLᵀ inertia, the trace bound, the suboptimality bound), which decides.  The
+   barrier only proposes y, so no speed trick can produce a false "certified".
 
-       max λ  s.t.  ‖(S_k(y, t) Θ̂_kᵀ)_k‖ ≤ ε,  S_k(y, t) ⪰ λ Π_k,  λ ≤ cap,
-
-   over y, the clique program's transfers t (``sdp.clique_program``) and λ, with Clarabel.  ε (10× the
-   least-squares residual of step 1) replaces "= 0": x̂ is stationary only to its local solver's
-   accuracy, and the exact system is then inconsistent.  The program is strictly feasible whenever the
-   relaxation is tight with a margin; no X is completed or factored.  It is as large as the full SDP's
-   dual (same cones, plus one second-order cone), so it is not much cheaper to solve (see
-   benchmarks/certify.py).
-3. Polish and check.  y is moved onto {y : H(y)Θ̂ᵀ = 0} (LSQR on the residual) and the certificate of
-   ``autotight.certificate`` (sparse λ_min(H), trace bound, suboptimality bound) decides.
-
-A λ* clearly below 0 means no certificate exists for x̂ (it is not a global minimiser of a tight
+A negative final margin means no certificate exists for x̂ (it is not a global minimiser of a tight
 relaxation); the returned Certificate then carries the bound that the best y found still proves.
 """
 
 from __future__ import annotations
 
 import time
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from typing import Sequence
 
 import numpy as np
 import scipy.sparse as sp
+import scipy.sparse.linalg as spla
 
-from .certificate import Certificate, certificate, stack
+from .certificate import Certificate, certificate, entries, stack
 from .model import Constraint, Model
-from .svec import SQRT2, triu_indices
+
+#: candidate growth factors of τ per Newton step (the largest whose full step is feasible is taken)
+TAU_FACTORS = (1000.0, 300.0, 100.0, 30.0, 10.0, 5.0, 3.0, 2.0, 1.5, 1.0)
+#: … among those whose step to the boundary is at least this long (then damped by STEP_FRACTION)
+MIN_STEP = 0.5
+#: weight of the stationarity penalty, relative to the mean diagonal of the barrier's Hessian
+PENALTY = 1e6
+#: fraction of the distance to the cone's boundary a damped step may cover
+STEP_FRACTION = 0.95
 
 
 def stationarity_system(Q: sp.sparray, As: Sequence[sp.sparray], Th: np.ndarray) -> tuple[sp.csr_array, np.ndarray]:
-    """(G, g) with G y = g ⟺ H(y)Θ̂ᵀ = 0: column i of G is vec(AᵢΘ̂ᵀ) (N·d rows)."""
-    cols = [sp.csc_array((A @ Th.T).reshape(-1, 1)) for A in As]
-    return sp.hstack(cols, format="csr"), np.asarray(Q @ Th.T).ravel()
-
-
-def _lsqr(G: sp.csr_array, r: np.ndarray) -> np.ndarray:
-    from scipy.sparse.linalg import lsqr
-
-    return lsqr(G, r, atol=1e-15, btol=1e-15, iter_lim=20 * G.shape[1])[0]
-
-
-def _svec_to_vec(n: int) -> sp.csr_array:
-    """D (n² × svec(n)) with vec(S) = D svec(S) (row-major vec of the symmetric S)."""
-    i, j = triu_indices(n)
-    p = np.arange(i.size)
-    off = i != j
-    rows = np.concatenate([i * n + j, (j * n + i)[off]])
-    cols = np.concatenate([p, p[off]])
-    vals = np.concatenate([np.where(off, 1 / SQRT2, 1.0), np.full(off.sum(), 1 / SQRT2)])
-    return sp.csr_array((vals, (rows, cols)), shape=(n * n, i.size))
-
-
-def _vec_to_svec(n: int) -> sp.csr_array:
-    """svec(S) = E vec(S) for a symmetric S."""
-    i, j = triu_indices(n)
-    return sp.csr_array((np.where(i == j, 1.0, SQRT2), (np.arange(i.size), i * n + j)), shape=(i.size, n * n))
-
-
-def clique_blocks_psd(H: sp.sparray, cliques: Sequence[np.ndarray], tol: float) -> bool:
-    """Every principal clique block of H has λ_min ≥ −tol (necessary for H ⪰ 0)."""
-    H = sp.csr_array(H)
-    return all(np.linalg.eigvalsh(H[C][:, C].toarray())[0] >= -tol for C in cliques)
-
-
-def _margin_program(Q: sp.csr_array, As: Sequence[sp.csr_array], b: np.ndarray, Th: np.ndarray,
-                    cliques: Sequence[np.ndarray], tol: float, max_iter: int, cap: float, eps: float
-                    ) -> tuple[np.ndarray | None, float, str, int]:
-    """Step 2 of the module docstring: (y or None, λ* (scaled by 1/max|Q|), Clarabel status, iterations)."""
-    import clarabel
-
-    from .sdp.clique_program import clique_program
-
-    prog = clique_program(Q, As, b, cliques)
-    F = sp.csr_array(prog.F)
-    nx = F.shape[1] + 1  # [y; t; λ]
-    zero_A, zero_b, margin, cones_psd = [], [], [], []
-    for k, C in enumerate(prog.cliques):
-        n = len(C)
-        rows = slice(prog.start[k], prog.start[k + 1])
-        Tk = Th[:, C]  # d × n
-        Mk = sp.csr_array(sp.kron(sp.identity(n), sp.csr_array(Tk)) @ _svec_to_vec(n))  # svec(S) → vec(S Θ̂ᵀ)
-        zero_A.append(Mk @ F[rows])
-        zero_b.append(Mk @ prog.c[rows])
-        U = np.linalg.svd(Tk.T, full_matrices=True)[0][:, np.linalg.matrix_rank(Tk):]
-        margin.append(_vec_to_svec(n) @ (U @ U.T).ravel())  # svec of the projector onto Θ̂_k's complement
-        cones_psd.append(clarabel.PSDTriangleConeT(n))
-    # s = c − F[y; t] − λ·svec(Π_k) ∈ PSD per clique: S_k ⪰ λΠ_k, with S_kΘ̂_kᵀ = 0 ⟺ P_kᵀS_kP_k ⪰ λI
-    psd_A = sp.hstack([F, sp.csr_array(np.concatenate(margin)[:, None])])
-    psd_b = [prog.c]
-    zero_A = [sp.hstack([sp.vstack(zero_A), sp.csr_array((sum(z.shape[0] for z in zero_b), 1))])]
-    psd_A = [psd_A]
-    cap_row = sp.csr_array(([1.0], ([0], [nx - 1])), shape=(1, nx))
-    # ‖S_kΘ̂_kᵀ‖ ≤ eps (all k) rather than = 0: x̂ is stationary only to its local solver's accuracy
-    Z = zero_A[0]
-    A = sp.vstack([cap_row, sp.csr_array((1, nx)), Z] + psd_A, format="csc")
-    bb = np.concatenate([[cap, eps * prog.scale]] + zero_b + psd_b)
-    cones = [clarabel.NonnegativeConeT(1), clarabel.SecondOrderConeT(Z.shape[0] + 1)] + cones_psd
-    q = np.zeros(nx)
-    q[-1] = -1.0
-    s = clarabel.DefaultSettings()
-    s.verbose = False
-    s.max_iter = max_iter
-    s.tol_gap_abs = s.tol_gap_rel = s.tol_feas = tol
-    s.tol_ktratio = max(tol, 1e-8)
-    s.max_threads = 1
-    s.chordal_decomposition_enable = False
-    sol = clarabel.DefaultSolver(sp.csc_matrix((nx, nx)), q, sp.csc_matrix(A), bb, cones, s).solve()
-    x = np.asarray(sol.x, float)
-    if x.size != nx or not np.all(np.isfinite(x)):
-        return None, -np.inf, str(sol.status), int(sol.iterations)
-    return x[:prog.m] / prog.scale, float(x[-1]), str(sol.status), int(sol.iterations)
+    """(G, g) with G y = g ⟺ H(y)Θ̂ᵀ = 0: column i of G is vec(AᵢΘ̂ᵀ) (N·d rows, row-major)."""
+    d, N = Th.shape
+    r, c, v, owner = entries(As)
+    rows = (r[:, None] * d + np.arange(d)[None, :]).ravel()
+    vals = (v[:, None] * Th[:, c].T).ravel()
+    G = sp.csr_array((vals, (rows, np.repeat(owner, d))), shape=(N * d, len(As)))
+    return G, np.asarray(sp.csr_array(Q) @ Th.T).ravel()
 
 
 def default_cliques(Q: sp.sparray, As: Sequence[sp.sparray], d: int) -> list[np.ndarray]:
-    """A chordal clique cover of the data's pattern (h in every clique), as the SDP layer builds it."""
+    """A chordal clique cover of the data's pattern (h in every clique), merged up to 32 columns."""
     from .sdp.chordal import column_cliques, merge_small
 
-    return merge_small(column_cliques(Q.shape[0], [Q, *As], always=range(d)), 20)
+    return merge_small(column_cliques(Q.shape[0], [Q, *As], always=range(d)), 32)
+
+
+@dataclass
+class PhaseOne:
+    """What the barrier method of step 2 found: w = (y scaled, t), the margin λ (scaled cost), why it
+    stopped ("feasible" | "infeasible" | "max_iter" | "breakdown: …") and the Newton steps taken."""
+
+    w: np.ndarray
+    margin: float
+    status: str
+    iterations: int
+
+
+class _Newton:
+    """The Newton matrix in (w, λ): the barrier's Hessian (the Schur pattern of ``schur_ipm._Schur`` and
+    a dense λ row, last) plus the penalty β·LᵀD²L on the stationarity equalities (D: L's inverse row
+    norms; LᵀL lies on the Schur pattern, since each row of L touches one clique).  Positive definite
+    (plus ρ = 1e-12 on the equilibrated diagonal), factored by sparse LDLᵀ (qdldl: ordering once, a
+    numeric refactorisation per step), equilibrated by its diagonal."""
+
+    def __init__(self, schur, L: sp.csr_array):
+        self.schur = schur
+        M = schur.M
+        self.M = M
+        nr = np.sqrt(np.asarray(L.multiply(L).sum(axis=1)).ravel())
+        self.DL = sp.csr_array(sp.diags_array(np.where(nr > 0, 1.0 / np.where(nr > 0, nr, 1.0), 0.0)) @ L)
+        LtL = sp.coo_array(self.DL.T @ self.DL)
+        keys = schur.rows * M + schur.cols
+        at = np.searchsorted(keys, LtL.row * M + LtL.col)
+        if not np.array_equal(keys[np.minimum(at, keys.size - 1)], LtL.row * M + LtL.col):
+            raise ValueError("the stationarity rows leave the Schur pattern")
+        self.ltl = np.bincount(at, weights=LtL.data, minlength=keys.size)
+        up = schur.cols >= schur.rows
+        self.hsel = np.flatnonzero(up)
+        r = np.concatenate([schur.rows[up], np.arange(M + 1)])
+        c = np.concatenate([schur.cols[up], np.full(M + 1, M)])
+        self.r, self.c = r, c
+        self.order = np.lexsort((r, c))
+        self.indices = r[self.order].astype(np.int32)
+        self.indptr = np.concatenate([[0], np.cumsum(np.bincount(c, minlength=M + 1))]).astype(np.int32)
+        self.diag_pos = np.flatnonzero(r == c)
+        self.solver = None
+
+    def factor(self, hvals: np.ndarray, h: np.ndarray, hll: float, beta: float):
+        """A solver for the Newton matrix with barrier Hessian (hvals on the Schur pattern, h the λ
+        column, hll its corner) and penalty weight β."""
+        import qdldl
+
+        M = self.M
+        vals = hvals + beta * self.ltl
+        dh = np.append(vals[self.schur.diag], hll)
+        dw = np.where(dh > 0, 1.0 / np.sqrt(np.where(dh > 0, dh, 1.0)), 1.0)
+        v = np.concatenate([vals[self.hsel], h, [hll]]) * dw[self.r] * dw[self.c]
+        v[self.diag_pos] += 1e-12
+        A = sp.csc_matrix((v[self.order], self.indices, self.indptr), shape=(M + 1, M + 1))
+        if self.solver is None:
+            self.solver = qdldl.Solver(A, upper=True)
+        else:
+            self.solver.update(A, upper=True)
+        if not np.all(self.solver.factors()[1] > 0):
+            raise ValueError("the Newton matrix is not positive definite")
+        U = A
+        solver = self.solver
+
+        def solve(rhs: np.ndarray) -> np.ndarray:
+            b = dw * rhs
+            x = solver.solve(b)
+            x = x + solver.solve(b - (U @ x + U.T @ x - U.diagonal() * x))
+            return dw * x
+
+        return solve
+
+
+def phase_one(prog, Th: np.ndarray, *, alpha: float = 1.0, target: float = 1e-6, max_iter: int = 50) -> PhaseOne:
+    """Step 2 of the module docstring on the clique program ``prog`` for the candidate Θ̂ (d × N)."""
+    from .sdp.schur_ipm import _Blocks, _Schur, _sym, svec_to_vec
+
+    sizes = prog.sizes
+    P = svec_to_vec(sizes)
+    Gv = sp.csr_array(P @ prog.F)
+    GvT = sp.csr_array(Gv.T)
+    cv = P @ prog.c
+    blocks = _Blocks(sizes)
+    schur = _Schur(Gv, blocks)
+    M = Gv.shape[1]
+    Ks, UU = [], np.zeros(blocks.voff[-1])
+    for k, C in enumerate(prog.cliques):
+        U = np.linalg.qr(Th[:, C].T)[0]  # n_k × d, orthonormal
+        Ks.append(sp.kron(sp.identity(len(C)), sp.csr_array(U.T)))  # vec(S) → vec(S U)
+        UU[blocks.voff[k]:blocks.voff[k + 1]] = (U @ U.T).ravel()
+    K = sp.block_diag(Ks, format="csr")
+    L = sp.csr_array(K @ Gv)
+    newton = _Newton(schur, L)
+    w = spla.lsqr(L, K @ cv, atol=1e-14, btol=1e-14, iter_lim=10 * M)[0]
+    Dl = newton.DL @ w  # the penalty's target: the least-squares point's own residual stays
+    eye = blocks.join(blocks.identity(1.0))
+    base = cv + alpha * UU
+    nu = float(sum(sizes))
+    S = blocks.split(base - Gv @ w)
+    lam = min(min(float(np.linalg.eigvalsh(Sg)[:, 0].min()) for Sg in S) - 1e-3, -1e-3)
+    tau = nu / abs(lam)
+    status, it = "max_iter", 0
+    for it in range(1, max_iter + 1):
+        S = blocks.split(base - Gv @ w - lam * eye)
+        try:
+            chol = [np.linalg.cholesky(Sg) for Sg in S]
+        except np.linalg.LinAlgError:
+            status = "breakdown: a block left the cone"
+            break
+        Linv = [np.linalg.inv(c) for c in chol]
+        Sinv = [np.swapaxes(Li, -1, -2) @ Li for Li in Linv]
+        # gradient and Hessian of −Σ log det S̃ + β/2‖D(Lw − l)‖² in (w, λ): the λ row is the last one
+        hvals = schur.assemble(Sinv, Sinv)
+        beta = PENALTY * float(np.mean(hvals[schur.diag]))
+        g = np.append(GvT @ blocks.join(Sinv) + beta * (newton.DL.T @ (newton.DL @ w - Dl)),
+                      sum(float(np.trace(Si, axis1=1, axis2=2).sum()) for Si in Sinv))
+        h = GvT @ blocks.join([Si @ Si for Si in Sinv])
+        try:
+            solve = newton.factor(hvals, h, sum(float(np.sum(Si * Si)) for Si in Sinv), beta)
+        except (RuntimeError, ValueError) as e:
+            status = f"breakdown: {e}"
+            break
+        # Newton direction for −τλ − Σ log det S̃ with L Δw = 0:  Δ = Δ₀ + τ Δ₁
+        e = np.zeros(M + 1)
+        e[-1] = 1.0
+        d1, d0 = solve(e), solve(-g)
+        dw1, dl1, dw0, dl0 = d1[:M], d1[M], d0[:M], d0[M]
+        if not dl1 > 0:
+            status = "breakdown: the Newton system is not positive definite"
+            break
+        A1 = [Li @ Dg @ np.swapaxes(Li, -1, -2) for Li, Dg in zip(Linv, blocks.split(-(Gv @ dw1) - dl1 * eye))]
+        A0 = [Li @ Dg @ np.swapaxes(Li, -1, -2) for Li, Dg in zip(Linv, blocks.split(-(Gv @ dw0) - dl0 * eye))]
+
+        def max_step(t: float) -> float:
+            low = min(float(np.linalg.eigvalsh(_sym(x0 + t * x1))[:, 0].min()) for x0, x1 in zip(A0, A1))
+            return np.inf if low >= 0 else -1.0 / low
+
+        for f in TAU_FACTORS:
+            step_max = max_step(tau * f)
+            if step_max * STEP_FRACTION >= MIN_STEP:
+                break
+        tau *= f
+        step = min(1.0, STEP_FRACTION * step_max)
+        w = w + step * (dw0 + tau * dw1)
+        lam = lam + step * (dl0 + tau * dl1)
+        if lam >= target:
+            status = "feasible"
+            break
+        if step == 1.0 and lam + nu / tau < 0:
+            status = "infeasible"
+            break
+    return PhaseOne(w, lam, status, it)
 
 
 def certify(Q: sp.sparray, constraints: Sequence[Constraint], theta_hat: np.ndarray, *, d: int = 1,
-            cliques: Sequence[np.ndarray] | None = None, tol: float = 1e-5, solver_tol: float = 1e-8,
-            max_iter: int = 100, trace: float | None = None) -> Certificate:
+            cliques: Sequence[np.ndarray] | None = None, tol: float = 1e-5, max_iter: int = 50,
+            trace: float | None = None) -> Certificate:
     """Certify x̂ (Θ̂ = ``theta_hat``) for min ⟨Q,X⟩ s.t. ``constraints``, X ⪰ 0 (module docstring).
 
     certified: the certified suboptimality bound f(x̂) − p* is ≤ tol relative to f(x̂)
     (``certificate.certificate``; the default is ``Criteria.gap_tol``, so that certify and the bracket
-    test of a full SDP decide with the same relative gap).  cliques: a chordal cover containing the pattern of Q and every Aᵢ,
-    each with the h columns (default: ``default_cliques``).  solver_tol: Clarabel's tolerance for the
-    margin program (its y is polished and checked exactly afterwards, so it need not be tight).
-    trace: a known bound on tr(X) (default: derived from the constraints).
+    test of a full SDP decide with the same relative gap).  cliques: a chordal cover containing the
+    pattern of Q and every Aᵢ, each with the h columns (default: ``default_cliques``).  max_iter: Newton
+    steps of the barrier method.  trace: a known bound on tr(X) (default: derived from the constraints).
     """
+    from .sdp.clique_program import clique_program
+
     t0 = time.perf_counter()
     Q = sp.csr_array(Q)
     As, b = stack(constraints)
     Th = np.asarray(theta_hat, dtype=float).reshape(d, -1)
-    G, g = stationarity_system(Q, As, Th)
-    y0 = _lsqr(G, g)
     if cliques is None:
         cliques = default_cliques(Q, As, d)
-    cliques = [np.asarray(C) for C in cliques]
-    from .certificate import dual_matrix
-
-    qscale = float(abs(Q).max()) if Q.nnz else 1.0
-    if clique_blocks_psd(dual_matrix(Q, As, y0), cliques, 1e-12 * qscale):
-        cert = certificate(Q, constraints, y0, Th, d=d, tol=tol, trace=trace, method="least squares")
-        if cert.certified:
-            return replace(cert, time_s=time.perf_counter() - t0)
-    y, lam, status, iters = _margin_program(Q, As, b, Th, cliques, solver_tol, max_iter, cap=1e-3,
-                                             eps=10 * float(np.linalg.norm(G @ y0 - g)) + 1e-9 * qscale * float(np.linalg.norm(Th)))
-    if y is None:
-        y = y0
-    y = y + _lsqr(G, g - G @ y)  # onto H(y)Θ̂ᵀ = 0
+    prog = clique_program(Q, As, b, [np.asarray(C) for C in cliques])
+    ph = phase_one(prog, Th, max_iter=max_iter)
+    y = ph.w[:prog.m] / prog.scale
+    if ph.margin > 0:  # onto H(y)Θ̂ᵀ = 0 (least squares): the penalty leaves a small residual
+        G, g = stationarity_system(Q, As, Th)
+        y = y + spla.lsqr(G, g - G @ y, atol=1e-14, btol=1e-14, iter_lim=10 * G.shape[1])[0]
     cert = certificate(Q, constraints, y, Th, d=d, tol=tol, trace=trace,
-                       method=f"clique margin program (Clarabel {status}, {iters} it, margin {lam:.2e})")
+                       method=f"clique barrier ({ph.status}, {ph.iterations} Newton steps, margin "
+                              f"{ph.margin:.2e} of max|Q|, {len(prog.cliques)} cliques ≤ {max(prog.sizes)})")
     return replace(cert, time_s=time.perf_counter() - t0)
 
 
-def certify_model(model: Model, constraints: Sequence[Constraint], theta_hat: np.ndarray, *,
-                  cliques: Sequence[np.ndarray] | None = None, **kw) -> Certificate:
-    """``certify`` on a model's cost, with the clique cover the SDP layer would choose for Clarabel."""
-    if cliques is None:
-        from .sdp import model_cover
-
-        cliques = model_cover(model, constraints, "clarabel")
-    return certify(model.Q, constraints, theta_hat, d=model.d, cliques=cliques, **kw)
+def certify_model(model: Model, constraints: Sequence[Constraint], theta_hat: np.ndarray, **kw) -> Certificate:
+    """``certify`` on a model's cost (keywords as ``certify``)."""
+    return certify(model.Q, constraints, theta_hat, d=model.d, **kw)
