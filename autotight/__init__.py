@@ -12,7 +12,8 @@ The public API (see README, "Python"):
 
 __version__ = "0.1.0"
 
-from .api import discover, load_problem, solve
+from . import certify as _certify_module  # noqa: F401  (loaded first: the name `certify` is the API function)
+from .api import certify, discover, load_problem, solve
 from .constraint_set import ConstraintSet
 from .errors import AutotightError
 from .model import Constraint, Factor, Model, QuadForm, Variables
@@ -21,6 +22,6 @@ from .problem import Instance, LocalResult, Param, Problem
 from .sdp.result import SolverOptions
 from .tightness import Criteria, Verdict
 
-__all__ = ["__version__", "load_problem", "solve", "discover", "ConstraintSet", "SolveResult", "Criteria",
+__all__ = ["__version__", "load_problem", "solve", "discover", "certify", "ConstraintSet", "SolveResult", "Criteria",
            "Verdict", "SolverOptions", "AutotightError", "Problem", "Param", "Instance", "LocalResult", "Model",
            "Variables", "Factor", "QuadForm", "Constraint"]

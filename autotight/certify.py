@@ -222,13 +222,14 @@ def phase_one(prog, Th: np.ndarray, *, alpha: float = 1.0, target: float = 1e-6,
 
 
 def certify(Q: sp.sparray, constraints: Sequence[Constraint], theta_hat: np.ndarray, *, d: int = 1,
-            cliques: Sequence[np.ndarray] | None = None, tol: float = 1e-5, max_iter: int = 50,
-            trace: float | None = None) -> Certificate:
+            cliques: Sequence[np.ndarray] | None = None, tol: float = 1e-5, floor: float = 1e-12,
+            max_iter: int = 50, trace: float | None = None) -> Certificate:
     """Certify x̂ (Θ̂ = ``theta_hat``) for min ⟨Q,X⟩ s.t. ``constraints``, X ⪰ 0 (module docstring).
 
     certified: the certified suboptimality bound f(x̂) − p* is ≤ tol relative to f(x̂)
     (``certificate.certificate``; the default is ``Criteria.gap_tol``, so that certify and the bracket
-    test of a full SDP decide with the same relative gap).  cliques: a chordal cover containing the
+    test of a full SDP decide with the same relative gap); floor: the absolute tolerance of a zero-cost
+    candidate (``certificate.certificate``).  cliques: a chordal cover containing the
     pattern of Q and every Aᵢ, each with the h columns (default: ``default_cliques``).  max_iter: Newton
     steps of the barrier method.  trace: a known bound on tr(X) (default: derived from the constraints).
     """
@@ -246,7 +247,7 @@ def certify(Q: sp.sparray, constraints: Sequence[Constraint], theta_hat: np.ndar
     if ph.margin > 0:  # onto H(y)Θ̂ᵀ = 0 (least squares): the penalty leaves a small residual
         G, g = stationarity_system(Q, As, Th)
         y = y + spla.lsqr(G, g - G @ y, atol=1e-14, btol=1e-14, iter_lim=10 * G.shape[1])[0]
-    cert = certificate(Q, constraints, y, Th, d=d, tol=tol, trace=trace,
+    cert = certificate(Q, constraints, y, Th, d=d, tol=tol, floor=floor, trace=trace,
                        method=f"clique barrier ({ph.status}, {ph.iterations} Newton steps, margin "
                               f"{ph.margin:.2e} of max|Q|, {len(prog.cliques)} cliques ≤ {max(prog.sizes)})")
     return replace(cert, time_s=time.perf_counter() - t0)
@@ -255,3 +256,56 @@ def certify(Q: sp.sparray, constraints: Sequence[Constraint], theta_hat: np.ndar
 def certify_model(model: Model, constraints: Sequence[Constraint], theta_hat: np.ndarray, **kw) -> Certificate:
     """``certify`` on a model's cost (keywords as ``certify``)."""
     return certify(model.Q, constraints, theta_hat, d=model.d, **kw)
+
+
+@dataclass
+class CertifyRun:
+    """One ``certify_instance``: the instance, its constraint set's name and constraints, the local solve that was certified
+    (``start``: "truth", "random" or "given") and the certificate."""
+
+    instance: object
+    constraint_set: str
+    constraints: list
+    start: str
+    local: object
+    certificate: Certificate
+
+
+def certify_instance(problem, inst, constraints=None, *, start="truth", criteria=None,
+                     max_iter: int = 50) -> CertifyRun:
+    """Run the local solver on ``inst`` from ``start`` ("truth", "random": the first random start of
+    ``autotight.solve`` for this seed, or a state dict), lift its solution and ``certify`` it with the
+    constraints of ``constraints`` (as ``autotight.solve``) and the tolerances of ``criteria`` (those
+    of the full SDP's bracket test: gap_tol, and cost_atol for zero-cost candidates)."""
+    from .constraint_set import resolve, set_name
+    from .errors import ParameterError
+    from .pipeline import seeds
+    from .tightness import Criteria
+
+    criteria = Criteria() if criteria is None else criteria
+    s = seeds(inst.seed if inst.seed is not None else 0)
+    model = problem.build(inst)
+    cons = resolve(constraints, problem, inst, model, s.constraints())
+    if isinstance(start, str):
+        if start == "truth":
+            init = inst.truth
+        elif start == "random":
+            init = problem.random_state(inst, s.local())
+        else:
+            raise ParameterError(f"start must be 'truth', 'random' or a state, got {start!r}")
+        label = start
+    elif isinstance(start, dict):
+        missing = sorted(set(inst.truth) - set(start))
+        if missing:
+            raise ParameterError(f"the start state lacks {', '.join(missing)}")
+        try:
+            init = {k: np.asarray(start[k], dtype=float).reshape(np.shape(inst.truth[k])) for k in inst.truth}
+        except (TypeError, ValueError) as e:
+            raise ParameterError(f"the start state does not fit this instance: {e}") from e
+        label = "given"
+    else:
+        raise ParameterError(f"start must be 'truth', 'random' or a state dict, got {type(start).__name__}")
+    local = problem.local_solve(inst, init)
+    cert = certify_model(model, cons, problem.lift(inst, local.state), tol=criteria.gap_tol,
+                         floor=criteria.cost_atol / criteria.gap_tol, max_iter=max_iter)
+    return CertifyRun(inst, set_name(constraints, model), cons, label, local, cert)
