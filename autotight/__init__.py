@@ -12,7 +12,6 @@ The public API (see README, "Python"):
 
 __version__ = "0.1.0"
 
-from . import certify as _certify_module  # noqa: F401  (loaded first: the name `certify` is the API function)
 from .api import certify, discover, load_problem, solve
 from .constraint_set import ConstraintSet
 from .errors import AutotightError

@@ -73,7 +73,7 @@ def certify(problem: str | ModuleType | Problem, params: dict[str, Any] | None =
     relative gap as the full SDP's verdict.  solver: None, or a ``SolverConfig`` whose ``max_iter``
     caps the Newton steps of the certificate's barrier method (no SDP is solved).
     """
-    from .certify import certify_instance
+    from .certifier import certify_instance
 
     prob = _problem(problem)
     inst = prob.generate(params, _seed(seed))

@@ -36,7 +36,7 @@ def start_arg(value: str) -> Any:
 
 
 def cmd_certify(args: argparse.Namespace) -> int:
-    from .certify import certify_instance
+    from .certifier import certify_instance
     from .cli import constraints_arg
     from .io import jsonable, versions
     from .problem import load, parse_assignments

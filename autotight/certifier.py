@@ -17,10 +17,17 @@ convex feasibility problem.  Ours, on a clique tree of the data (``sdp.clique_pr
    once (qdldl) and borders λ.  The step is affine in τ, Δ = Δ₀ + τΔ₁, so τ is chosen after the
    factorisation: the largest of τ·{1000, 100, 30, 10, 3, 1} whose full step stays inside every block.
    Stop "feasible" when λ ≥ ``target`` (every S_k is PSD with a margin on the complement of Θ̂_k);
-   stop "infeasible" after a full step with λ + ν/τ < 0 (ν = Σ|C_k|: on the central path the best
-   margin is then negative, no certificate exists); or after ``max_iter`` steps.  At tight instances
-   the margin is large (λ* ≈ 0.04 of max|Q| at discrete K = 20) and 2–8 steps suffice; the full
-   SDP's interior-point method needs 15–30 iterations of the same cost, on both X and y.
+   stop "infeasible" after a full step from near the centre of τ (Newton decrement ≤ 1/2) with
+   λ + 2ν/τ < 0 (ν = Σ|C_k|: near the central path the best margin λ* ≤ λ + ν/τ is then negative, no
+   certificate exists); or after ``max_iter`` steps.  At tight instances the margin is large
+   (λ* ≈ 0.03 of max|Q| at discrete K = 10–20) and 1–7 steps suffice; the full SDP's interior-point
+   method needs 15–30 iterations of the same cost, on both X and y.  The equalities are kept by the
+   penalty β/2‖D(Lw − Lw₀)‖² (β = ``PENALTY`` × the Hessian's mean diagonal; LᵀL lies on the
+   Hessian's pattern, so the Newton matrix stays sparse and positive definite) rather than by a
+   KKT system: the KKT matrix is singular (L has dependent rows) and its LDLᵀ without pivoting
+   broke down.  Long steps can jam near the boundary far from the central path (discrete K = 10,
+   seeds 4 and 6: a fake optimum at λ = −0.08); a run that does not end "feasible" is repeated with
+   τ growing only from near-centred points (Newton decrement² ≤ ``CENTRED_DECREMENT``; 25–45 steps).
 3. Check.  The y part of w goes to the exact certificate of ``autotight.certificate`` (sparse
    certified λ_min(H) by LDLᵀ inertia, the trace bound, the suboptimality bound), which decides.  The
    barrier only proposes y, so no speed trick can produce a false "certified".
@@ -47,7 +54,10 @@ TAU_FACTORS = (1000.0, 300.0, 100.0, 30.0, 10.0, 5.0, 3.0, 2.0, 1.5, 1.0)
 #: … among those whose step to the boundary is at least this long (then damped by STEP_FRACTION)
 MIN_STEP = 0.5
 #: weight of the stationarity penalty, relative to the mean diagonal of the barrier's Hessian
+#: weight of the stationarity penalty, relative to the mean diagonal of the barrier's Hessian
 PENALTY = 1e6
+#: the retry's centring: τ grows only from points with Newton decrement² ≤ this
+CENTRED_DECREMENT = 1.0
 #: fraction of the distance to the cone's boundary a damped step may cover
 STEP_FRACTION = 0.95
 
@@ -140,8 +150,10 @@ class _Newton:
         return solve
 
 
-def phase_one(prog, Th: np.ndarray, *, alpha: float = 1.0, target: float = 1e-6, max_iter: int = 50) -> PhaseOne:
-    """Step 2 of the module docstring on the clique program ``prog`` for the candidate Θ̂ (d × N)."""
+def phase_one(prog, Th: np.ndarray, *, alpha: float = 1.0, target: float = 1e-6, max_iter: int = 50,
+              dec_max: float = np.inf) -> PhaseOne:
+    """Step 2 of the module docstring on the clique program ``prog`` for the candidate Θ̂ (d × N).
+    dec_max: τ grows only from points whose Newton decrement² is at most this (∞: always)."""
     from .sdp.schur_ipm import _Blocks, _Schur, _sym, svec_to_vec
 
     sizes = prog.sizes
@@ -204,18 +216,22 @@ def phase_one(prog, Th: np.ndarray, *, alpha: float = 1.0, target: float = 1e-6,
             low = min(float(np.linalg.eigvalsh(_sym(x0 + t * x1))[:, 0].min()) for x0, x1 in zip(A0, A1))
             return np.inf if low >= 0 else -1.0 / low
 
-        for f in TAU_FACTORS:
+        dec_now = -(g[:M] @ (dw0 + tau * dw1) + (g[M] - tau) * (dl0 + tau * dl1))
+        for f in (TAU_FACTORS if dec_now <= dec_max else (1.0,)):
             step_max = max_step(tau * f)
             if step_max * STEP_FRACTION >= MIN_STEP:
                 break
         tau *= f
         step = min(1.0, STEP_FRACTION * step_max)
-        w = w + step * (dw0 + tau * dw1)
-        lam = lam + step * (dl0 + tau * dl1)
+        dw, dl = dw0 + tau * dw1, dl0 + tau * dl1
+        decrement2 = -(g[:M] @ dw + (g[M] - tau) * dl)  # Newton decrement² at τ: distance to the centre
+        w = w + step * dw
+        lam = lam + step * dl
         if lam >= target:
             status = "feasible"
             break
-        if step == 1.0 and lam + nu / tau < 0:
+        # near the centre of τ (decrement ≤ 1/2 before a full step), λ* ≤ λ + ν/τ (+ a margin of ν/τ)
+        if step == 1.0 and decrement2 <= 0.25 and lam + 2 * nu / tau < 0:
             status = "infeasible"
             break
     return PhaseOne(w, lam, status, it)
@@ -243,12 +259,17 @@ def certify(Q: sp.sparray, constraints: Sequence[Constraint], theta_hat: np.ndar
         cliques = default_cliques(Q, As, d)
     prog = clique_program(Q, As, b, [np.asarray(C) for C in cliques])
     ph = phase_one(prog, Th, max_iter=max_iter)
+    how = "long steps"
+    if ph.status != "feasible":  # long steps can jam near the boundary: once more, centred first
+        ph2 = phase_one(prog, Th, max_iter=max_iter, dec_max=CENTRED_DECREMENT)
+        if ph2.margin > ph.margin:
+            ph, how = PhaseOne(ph2.w, ph2.margin, ph2.status, ph.iterations + ph2.iterations), "centred retry"
     y = ph.w[:prog.m] / prog.scale
     if ph.margin > 0:  # onto H(y)Θ̂ᵀ = 0 (least squares): the penalty leaves a small residual
         G, g = stationarity_system(Q, As, Th)
         y = y + spla.lsqr(G, g - G @ y, atol=1e-14, btol=1e-14, iter_lim=10 * G.shape[1])[0]
     cert = certificate(Q, constraints, y, Th, d=d, tol=tol, floor=floor, trace=trace,
-                       method=f"clique barrier ({ph.status}, {ph.iterations} Newton steps, margin "
+                       method=f"clique barrier ({ph.status}, {how}, {ph.iterations} Newton steps, margin "
                               f"{ph.margin:.2e} of max|Q|, {len(prog.cliques)} cliques ≤ {max(prog.sizes)})")
     return replace(cert, time_s=time.perf_counter() - t0)
 
