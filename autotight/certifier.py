@@ -10,24 +10,27 @@ convex feasibility problem.  Ours, on a clique tree of the data (``sdp.clique_pr
    forces S_kΘ̂_kᵀ = 0 in every clique: linear equalities L w = l.  With U_k an orthonormal basis of
    Θ̂_k's rows, on {Lw = l}:  S_k ⪰ λ on the complement of U_k  ⟺  S̃_k = S_k + α U_kU_kᵀ − λI ⪰ 0
    (α = 1 on the cost scaled to max|Q_ij| = 1, for 0 ≤ λ ≤ α).
-2. A phase-I barrier method.  Starting from the least-squares w₀ of L w = l and λ₀ below every
-   block's smallest eigenvalue, damped Newton steps on  −τλ − Σ_k log det S̃_k(w, λ)  subject to
-   L Δw = 0.  Each step assembles the Hessian Σ_k F_kᵀ(S̃_k⁻¹ ⊗ S̃_k⁻¹)F_k (sparse: variables that share
-   a clique; ``schur_ipm._Schur``), factors the quasi-definite KKT matrix [[H + ρI, Lᵀ], [L, −δI]]
-   once (qdldl) and borders λ.  The step is affine in τ, Δ = Δ₀ + τΔ₁, so τ is chosen after the
-   factorisation: the largest of τ·{1000, 100, 30, 10, 3, 1} whose full step stays inside every block.
+2. A phase-I barrier method (``phase_one``).  Starting from the least-squares w₀ of L w = l (LSQR)
+   and λ₀ below every block's smallest eigenvalue, damped Newton steps on
+       −τλ − Σ_k log det S̃_k(w, λ) + β/2 ‖D(Lw − Lw₀)‖²
+   (D: L's inverse row norms).  The equalities are kept by this penalty (β = ``PENALTY`` × the
+   barrier Hessian's mean diagonal) rather than by a KKT system: L has dependent rows, and the
+   quasi-definite KKT matrix broke down in LDLᵀ without pivoting.  LᵀL lies on the barrier Hessian's
+   pattern, so each step assembles one sparse positive definite matrix, Σ_k F_kᵀ(S̃_k⁻¹ ⊗ S̃_k⁻¹)F_k
+   + βLᵀD²L bordered by the dense λ row (the Schur-complement assembly of ``schur_ipm._Schur``), and
+   factors it once (qdldl: ordering once, a numeric refactorisation per step).  The Newton step is
+   affine in τ, Δ = Δ₀ + τΔ₁, so τ is chosen after the factorisation: the largest of τ·``TAU_FACTORS``
+   whose step to the boundary of every block is ≥ ``MIN_STEP`` (then damped by ``STEP_FRACTION``).
    Stop "feasible" when λ ≥ ``target`` (every S_k is PSD with a margin on the complement of Θ̂_k);
    stop "infeasible" after a full step from near the centre of τ (Newton decrement ≤ 1/2) with
    λ + 2ν/τ < 0 (ν = Σ|C_k|: near the central path the best margin λ* ≤ λ + ν/τ is then negative, no
-   certificate exists); or after ``max_iter`` steps.  At tight instances the margin is large
-   (λ* ≈ 0.03 of max|Q| at discrete K = 10–20) and 1–7 steps suffice; the full SDP's interior-point
-   method needs 15–30 iterations of the same cost, on both X and y.  The equalities are kept by the
-   penalty β/2‖D(Lw − Lw₀)‖² (β = ``PENALTY`` × the Hessian's mean diagonal; LᵀL lies on the
-   Hessian's pattern, so the Newton matrix stays sparse and positive definite) rather than by a
-   KKT system: the KKT matrix is singular (L has dependent rows) and its LDLᵀ without pivoting
-   broke down.  Long steps can jam near the boundary far from the central path (discrete K = 10,
-   seeds 4 and 6: a fake optimum at λ = −0.08); a run that does not end "feasible" is repeated with
-   τ growing only from near-centred points (Newton decrement² ≤ ``CENTRED_DECREMENT``; 25–45 steps).
+   certificate exists); or after ``max_iter`` steps.  Long steps can jam near the boundary far from
+   the central path (discrete K = 10, seeds 4 and 6: a fake optimum at λ = −0.08 on the default
+   cover); a run that does not end "feasible" is repeated with τ growing only from near-centred
+   points (Newton decrement² ≤ ``CENTRED_DECREMENT``; 25–45 steps there).  At tight instances the
+   margin is large (λ* ≈ 0.03 of max|Q| at discrete K = 10) and 1–7 long steps suffice, where the
+   full SDP's interior-point method needs 15–30 iterations of similar cost, on X and y
+   (benchmarks/certify.py).
 3. Check.  The y part of w goes to the exact certificate of ``autotight.certificate`` (sparse
    certified λ_min(H) by LDLᵀ inertia, the trace bound, the suboptimality bound), which decides.  The
    barrier only proposes y, so no speed trick can produce a false "certified".
@@ -49,11 +52,10 @@ import scipy.sparse.linalg as spla
 from .certificate import Certificate, certificate, entries, stack
 from .model import Constraint, Model
 
-#: candidate growth factors of τ per Newton step (the largest whose full step is feasible is taken)
+#: candidate growth factors of τ per Newton step (the largest whose step is long enough is taken)
 TAU_FACTORS = (1000.0, 300.0, 100.0, 30.0, 10.0, 5.0, 3.0, 2.0, 1.5, 1.0)
 #: … among those whose step to the boundary is at least this long (then damped by STEP_FRACTION)
 MIN_STEP = 0.5
-#: weight of the stationarity penalty, relative to the mean diagonal of the barrier's Hessian
 #: weight of the stationarity penalty, relative to the mean diagonal of the barrier's Hessian
 PENALTY = 1e6
 #: the retry's centring: τ grows only from points with Newton decrement² ≤ this
@@ -190,7 +192,7 @@ def phase_one(prog, Th: np.ndarray, *, alpha: float = 1.0, target: float = 1e-6,
             break
         Linv = [np.linalg.inv(c) for c in chol]
         Sinv = [np.swapaxes(Li, -1, -2) @ Li for Li in Linv]
-        # gradient and Hessian of −Σ log det S̃ + β/2‖D(Lw − l)‖² in (w, λ): the λ row is the last one
+        # gradient and Hessian of −Σ log det S̃ + β/2‖D(Lw − Lw₀)‖² in (w, λ): the λ row is the last one
         hvals = schur.assemble(Sinv, Sinv)
         beta = PENALTY * float(np.mean(hvals[schur.diag]))
         g = np.append(GvT @ blocks.join(Sinv) + beta * (newton.DL.T @ (newton.DL @ w - Dl)),
@@ -201,7 +203,7 @@ def phase_one(prog, Th: np.ndarray, *, alpha: float = 1.0, target: float = 1e-6,
         except (RuntimeError, ValueError) as e:
             status = f"breakdown: {e}"
             break
-        # Newton direction for −τλ − Σ log det S̃ with L Δw = 0:  Δ = Δ₀ + τ Δ₁
+        # Newton direction for −τλ − Σ log det S̃ + penalty:  Δ = Δ₀ + τ Δ₁ (affine in τ)
         e = np.zeros(M + 1)
         e[-1] = 1.0
         d1, d0 = solve(e), solve(-g)
