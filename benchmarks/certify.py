@@ -8,7 +8,8 @@ Per instance (same run, interleaved: certify first on even instances, the SDPs f
 - ``sdp``: ``sdp.solve_model`` with the default backend (Clarabel, its chordal decomposition), wall time
   of the whole call, judged by ``tightness.judge`` with the data (the verdict certify must agree with);
 - ``sdp_ipm``: ``sdp.solve_model with SolverConfig(backend="ipm")`` (our clique IPM, the fastest full solve we have), wall.
-Verdicts agree when (certified) == (the full SDP's verdict is "tight"), for both full solves.  Target
+Settings: pose averaging M = 10 with the paper set and with the primary set only (not tight: the
+negative case), discrete K = 20 and K = 100 with the paper set.  Verdicts agree when (certified) == (the full SDP's verdict is "tight"), for both full solves.  Target
 (issue 14): certify ≤ 1/5 of the full SDP's time at discrete K = 20 and K = 100.  The machine is
 shared, so ratios are reported on CPU time (process time; every solve is single-threaded) as well as
 on wall time, with the load average before and after each instance.
@@ -43,11 +44,11 @@ def timed(fn):
     return out, time.perf_counter() - w, time.process_time() - c
 
 
-def one(problem: str, params: dict, seed: int, certify_first: bool) -> dict:
+def one(problem: str, params: dict, seed: int, certify_first: bool, set_name: str = "paper") -> dict:
     p = load(problem)
     inst = p.generate(params, seed=seed)
     model = p.build(inst)
-    cons = constraint_set(model, "paper")
+    cons = constraint_set(model, set_name)
     loc = p.local_solve(inst, inst.truth)
     x = p.lift(inst, loc.state)
     runs = {}
@@ -69,7 +70,8 @@ def one(problem: str, params: dict, seed: int, certify_first: bool) -> dict:
     res_ipm, ti, ci = runs["sdp_ipm"]
     v = judge(res, loc.cost, Criteria(), Q=model.Q, constraints=cons)
     v_ipm = judge(res_ipm, loc.cost, Criteria(), Q=model.Q, constraints=cons)
-    return {"problem": problem, "params": params, "seed": seed, "N": model.variables.N, "m": len(cons),
+    return {"problem": problem, "params": params, "constraint_set": set_name, "seed": seed, "N": model.variables.N,
+            "m": len(cons),
             "local_cost": loc.cost, "certified": cert.certified, "certify_bound": cert.bound,
             "certify_rel_bound": cert.rel_bound, "certify_lambda_min": cert.lambda_min, "certify_method": cert.method,
             "certify_wall_s": tc, "certify_cpu_s": cc,
@@ -86,25 +88,27 @@ def main() -> None:
     ap.add_argument("--seeds-k100", type=int, default=2, help="instances at K = 100")
     ap.add_argument("--out", default=str(Path(__file__).parent / "results" / "certify.json"))
     args = ap.parse_args()
-    settings = [("pose_averaging", {"M": 10}, args.seeds), ("discrete_trajectory", {"K": 20}, args.seeds),
-                ("discrete_trajectory", {"K": 100}, args.seeds_k100)]
+    settings = [("pose_averaging", {"M": 10}, args.seeds, "paper"), ("pose_averaging", {"M": 10}, args.seeds, "primary"),
+                ("discrete_trajectory", {"K": 20}, args.seeds, "paper"),
+                ("discrete_trajectory", {"K": 100}, args.seeds_k100, "paper")]
     rows, i = [], 0
     load_start = os.getloadavg()
-    for problem, params, n in settings:
+    for problem, params, n, set_name in settings:
         for seed in range(n):
-            r = one(problem, params, seed, certify_first=i % 2 == 0)
+            r = one(problem, params, seed, certify_first=i % 2 == 0, set_name=set_name)
             i += 1
             rows.append(r)
-            print(f"{problem} {params} seed {seed}: certify cpu {r['certify_cpu_s']:.2f} s ({r['certified']}, "
+            print(f"{problem} {params} {set_name} seed {seed}: certify cpu {r['certify_cpu_s']:.2f} s ({r['certified']}, "
                   f"bound {r['certify_rel_bound']:.1e}) | SDP {r['sdp_cpu_s']:.2f} s ({r['sdp_verdict']}) "
                   f"| IPM {r['sdp_ipm_cpu_s']:.2f} s ({r['sdp_ipm_verdict']}) | cpu ratio {r['ratio_cpu']:.3f} "
                   f"(vs IPM {r['ratio_cpu_ipm']:.3f}) wall ratio {r['ratio_wall']:.3f} agree={r['agree']} "
                   f"load {r['load_before']:.1f}", flush=True)
     summary = {}
-    for problem, params, _ in settings:
-        sel = [r for r in rows if r["problem"] == problem and r["params"] == params]
-        key = f"{problem} {json.dumps(params)}"
+    for problem, params, _, set_name in settings:
+        sel = [r for r in rows if r["problem"] == problem and r["params"] == params and r["constraint_set"] == set_name]
+        key = f"{problem} {json.dumps(params)} {set_name}"
         summary[key] = {"n": len(sel), "all_agree": all(r["agree"] for r in sel),
+                        "certified": sum(r["certified"] for r in sel),
                         "median_certify_s": statistics.median(r["certify_wall_s"] for r in sel),
                         "median_sdp_s": statistics.median(r["sdp_wall_s"] for r in sel),
                         "median_sdp_ipm_s": statistics.median(r["sdp_ipm_wall_s"] for r in sel),
@@ -121,7 +125,8 @@ def main() -> None:
            "method": "autotight.certify: phase-I barrier Newton on the clique blocks (see its docstring)",
            "compared_against": {"sdp": "sdp.solve_model default (Clarabel, chordal decomposition), judged by tightness.judge",
                                 "sdp_ipm": "sdp.solve_model with SolverConfig(backend='ipm')"},
-           "constraint_set": "paper", "local_solution": "local_solve from the ground truth", "seeds": "0 … n−1",
+           "constraint_sets": "paper (tight) and, at pose averaging, primary (not tight: both must say so)",
+           "local_solution": "local_solve from the ground truth", "seeds": "0 … n−1",
            "summary": summary, "rows": rows,
            "versions": {"python": platform.python_version(), "numpy": np.__version__, "scipy": scipy.__version__,
                         "clarabel": getattr(clarabel, "__version__", "?")},
