@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from autotight.certificate import certificate, lambda_min, trace_bound, stack
-from autotight.certify import certify_model
+from autotight.certifier import certify_model
 from autotight.problem import load
 from autotight.constraint_set import named as constraint_set
 from autotight.sdp import SolverConfig, solve_model
@@ -37,7 +37,8 @@ def test_pose_averaging_certified():
 
 
 def test_discrete_trajectory_certified_small():
-    _certify_tight("discrete_trajectory", {"K": 10}, "paper", range(2))
+    """Seeds 4 and 6 jam the barrier's long steps (a fake optimum at λ < 0): the centred retry certifies."""
+    _certify_tight("discrete_trajectory", {"K": 10}, "paper", (0, 4, 6))
 
 
 @pytest.mark.slow
