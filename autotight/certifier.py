@@ -283,8 +283,8 @@ def certify_model(model: Model, constraints: Sequence[Constraint], theta_hat: np
 
 @dataclass
 class CertifyRun:
-    """One ``certify_instance``: the instance, its constraint set's name and constraints, the local solve that was certified
-    (``start``: "truth", "random" or "given") and the certificate."""
+    """One ``certify_instance``: the instance, its constraint set's name and constraints, the local solve that was
+    certified (``start``: "truth", "random" or "given") and the certificate."""
 
     instance: object
     constraint_set: str

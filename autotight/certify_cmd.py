@@ -10,7 +10,6 @@ import json
 from pathlib import Path
 from typing import Any, Callable
 
-import numpy as np
 
 
 def start_arg(value: str) -> Any:

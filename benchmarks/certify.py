@@ -7,9 +7,11 @@ Per instance (same run, interleaved: certify first on even instances, the SDPs f
   sparse certified λ_min, trace bound);
 - ``sdp``: ``sdp.solve_model`` with the default backend (Clarabel, its chordal decomposition), wall time
   of the whole call, judged by ``tightness.judge`` with the data (the verdict certify must agree with);
-- ``sdp_ipm``: ``sdp.solve_model with SolverConfig(backend="ipm")`` (our clique IPM, the fastest full solve we have), wall.
+- ``sdp_ipm``: ``sdp.solve_model with SolverConfig(backend="ipm")`` (our clique IPM, the fastest full solve we have),
+wall.
 Settings: pose averaging M = 10 with the paper set and with the primary set only (not tight: the
-negative case), discrete K = 20 and K = 100 with the paper set.  Verdicts agree when (certified) == (the full SDP's verdict is "tight"), for both full solves.  Target
+negative case), discrete K = 20 and K = 100 with the paper set.  Verdicts agree when (certified) == (the full SDP's
+verdict is "tight"), for both full solves.  Target
 (issue 14): certify ≤ 1/5 of the full SDP's time at discrete K = 20 and K = 100.  The machine is
 shared, so ratios are reported on CPU time (process time; every solve is single-threaded) as well as
 on wall time, with the load average before and after each instance.
@@ -88,7 +90,8 @@ def main() -> None:
     ap.add_argument("--seeds-k100", type=int, default=2, help="instances at K = 100")
     ap.add_argument("--out", default=str(Path(__file__).parent / "results" / "certify.json"))
     args = ap.parse_args()
-    settings = [("pose_averaging", {"M": 10}, args.seeds, "paper"), ("pose_averaging", {"M": 10}, args.seeds, "primary"),
+    settings = [("pose_averaging", {"M": 10}, args.seeds, "paper"),
+                ("pose_averaging", {"M": 10}, args.seeds, "primary"),
                 ("discrete_trajectory", {"K": 20}, args.seeds, "paper"),
                 ("discrete_trajectory", {"K": 100}, args.seeds_k100, "paper")]
     rows, i = [], 0
@@ -98,7 +101,8 @@ def main() -> None:
             r = one(problem, params, seed, certify_first=i % 2 == 0, set_name=set_name)
             i += 1
             rows.append(r)
-            print(f"{problem} {params} {set_name} seed {seed}: certify cpu {r['certify_cpu_s']:.2f} s ({r['certified']}, "
+            print(f"{problem} {params} {set_name} seed {seed}: "
+                  f"certify cpu {r['certify_cpu_s']:.2f} s ({r['certified']}, "
                   f"bound {r['certify_rel_bound']:.1e}) | SDP {r['sdp_cpu_s']:.2f} s ({r['sdp_verdict']}) "
                   f"| IPM {r['sdp_ipm_cpu_s']:.2f} s ({r['sdp_ipm_verdict']}) | cpu ratio {r['ratio_cpu']:.3f} "
                   f"(vs IPM {r['ratio_cpu_ipm']:.3f}) wall ratio {r['ratio_wall']:.3f} agree={r['agree']} "
@@ -121,9 +125,12 @@ def main() -> None:
                         "max_ratio_cpu": max(r["ratio_cpu"] for r in sel),
                         "median_ratio_cpu_vs_ipm": statistics.median(r["ratio_cpu_ipm"] for r in sel)}
         print(key, summary[key])
-    out = {"benchmark": "certify vs full SDP", "target": "certify time ≤ 1/5 of the full SDP's at discrete K = 20 and K = 100, same verdict on every instance",
+    out = {"benchmark": "certify vs full SDP",
+           "target": "certify time ≤ 1/5 of the full SDP's at discrete K = 20 and K = 100, "
+                     "same verdict on every instance",
            "method": "autotight.certify: phase-I barrier Newton on the clique blocks (see its docstring)",
-           "compared_against": {"sdp": "sdp.solve_model default (Clarabel, chordal decomposition), judged by tightness.judge",
+           "compared_against": {"sdp": "sdp.solve_model default (Clarabel, chordal decomposition), "
+                                       "judged by tightness.judge",
                                 "sdp_ipm": "sdp.solve_model with SolverConfig(backend='ipm')"},
            "constraint_sets": "paper (tight) and, at pose averaging, primary (not tight: both must say so)",
            "local_solution": "local_solve from the ground truth", "seeds": "0 … n−1",

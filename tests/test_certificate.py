@@ -7,7 +7,7 @@ from autotight.certificate import certificate, lambda_min, trace_bound, stack
 from autotight.certifier import certify_model
 from autotight.problem import load
 from autotight.constraint_set import named as constraint_set
-from autotight.sdp import SolverConfig, solve_model
+from autotight.sdp import solve_model
 import scipy.sparse as sp
 
 
@@ -89,7 +89,7 @@ def test_bound_is_valid_for_the_sdp_dual():
 def test_lambda_min_sparse_matches_dense():
     rng = np.random.default_rng(3)
     n = 400
-    A = sp.random(n, n, density=0.01, random_state=4)
+    A = sp.random(n, n, density=0.01, random_state=rng)
     H = sp.csc_array(A + A.T + sp.identity(n) * 0.5)
     w = np.linalg.eigvalsh(H.toarray())[0]
     lam, low, method = lambda_min(H)
