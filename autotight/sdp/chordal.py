@@ -40,7 +40,11 @@ def _tree(cliques: Sequence[np.ndarray]) -> tuple[np.ndarray, np.ndarray, bool]:
     B = incidence(cliques)
     W = (B @ B.T).toarray()
     np.fill_diagonal(W, 0)
-    T = minimum_spanning_tree(sp.csr_array(np.where(W > 0, W.max() + 1 - W, 0))).tocoo()  # max of W
+    # max of W; among equal overlaps the nearest clique index (a penalty |i − j|/p² < 1/p per edge, < 1 per
+    # tree): cliques that all share one separator (pose averaging: {h, C, r}) then form a chain, not a star
+    # whose root block every transfer couples to (a dense Schur complement: 21 GB at M = 300)
+    i, j = np.indices(W.shape)
+    T = minimum_spanning_tree(sp.csr_array(np.where(W > 0, W.max() + 1 - W + np.abs(i - j) / p ** 2, 0))).tocoo()
     if T.nnz != p - 1:
         raise ValueError("the cliques are not connected: no clique tree")
     order, pred = breadth_first_order(sp.csr_array((np.ones(T.nnz), (T.row, T.col)), shape=(p, p)), 0,
