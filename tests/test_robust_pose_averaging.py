@@ -98,3 +98,17 @@ def test_greedy_bounds_the_unbounded_blocks_first():
     assert bounding_pairs(oracle, added, tr.primary_unbounded) == added
     # ... and within 4 rounds the relaxation is bounded
     assert not is_unbounded(tr.sdp) and n_unb < 4
+
+
+def test_solve_with_primary_constraints_names_the_unbounded_blocks(capsys):
+    from autotight import solve
+    from autotight.cli import main
+    from autotight.unbounded import UnboundedRelaxation
+
+    with pytest.raises(UnboundedRelaxation) as e:
+        solve("robust_pose_averaging", {"M": 3}, seed=0, constraints="primary")
+    assert {"zrho_0", "zphi_1", "zrho_2"} <= set(e.value.blocks) and "c1" not in e.value.blocks
+    code = main(["solve", "robust_pose_averaging", "-p", "M=3", "--set", "primary"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1
+    assert err[0].startswith("autotight: error: the relaxation is unbounded") and "zrho_* (3)" in err[0]
