@@ -121,6 +121,7 @@ class DiscoveryResult:
             "irreducible": bool(self.reduction and self.reduction.irreducible),
             "n_reduce_solves": None if self.reduction is None else self.reduction.n_solves,
             "n_verify_solves": None if self.reduction is None else self.reduction.n_verify_solves,
+            "irreducibility_proof": None if self.reduction is None else self.reduction.proof,
             "heldout_tight_fraction": self.heldout.fraction, "heldout_instances": len(self.heldout.seeds),
             "heldout_primary_tight_fraction": self.heldout.primary_fraction,
             "paper_tight": self.paper_tight,
@@ -161,7 +162,7 @@ def heldout_check(problem: Problem, params: dict[str, Any], seeds_: Sequence[int
 def discover(problem: Problem | str, params: dict[str, Any] | None = None, seed: int = 0, *,
              groups: str | Sequence[Sequence[str]] | None = None, learn_options: LearnOptions = LearnOptions(),
              criteria: Criteria = Criteria(), solver: SolverConfig | None = None, n_heldout: int = 10,
-             n_random: int = 2, verify: bool = True, compare: bool = True,
+             n_random: int = 2, verify: bool = False, compare: bool = True,
              progress: Callable[[str, str], None] | None = None) -> DiscoveryResult:
     """Discover an irreducible set of redundant constraints for ``problem`` at ``params``.
 
