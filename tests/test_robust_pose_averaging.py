@@ -27,8 +27,10 @@ def test_structure_counts_and_outliers():
     model = PROB.build(inst)
     assert model.variables.N == 13 + 13 * 6
     types = model.factor_types()
-    assert len(types["robust_meas"]) == 6 and len(types["so3"]) == 1
+    assert len(types["robust_meas"]) == 6 and len(types["so3"]) == 1 and len(types["robust_pair"]) == 5
     assert all(len(f.constraints) == 12 + 7 for f in types["robust_meas"])
+    assert all(not f.constraints and f.cost is None and len(f.blocks) == 11 for f in types["robust_pair"])
+    assert [len(model.variables.index(c)) for c in rpa.cliques(6)] == [1 + 12 + 26] * 5
     assert model.paper == {}
     assert (inst.truth["w"] == -1).sum() == 1  # round(M/6) outliers by default
     assert (_instance(0, outlier_rate=0.5).truth["w"] == -1).sum() == 3

@@ -192,9 +192,10 @@ def discover(problem: Problem | str, params: dict[str, Any] | None = None, seed:
     times["nullspace_s"] = cat.times["nullspace_s"]
     pairs = cat.by_pair()
     oracle = Oracle(model, pairs, loc.best.cost, criteria, config,
-                    best_theta=prob.lift(inst, loc.best.state))
+                    best_theta=prob.lift(inst, loc.best.state), scaled=True)
     t = time.perf_counter()
-    tr = tighten(oracle, progress=lambda s: say("tighten", s))
+    start = getattr(prob.module, "DEFAULT_TIGHTEN", "greedy")  # the module's tightening start (tighten.tighten)
+    tr = tighten(oracle, progress=lambda s: say("tighten", s), start=start)
     times["tighten_s"] = time.perf_counter() - t
     if tr.unbounded:
         raise UnboundedRelaxation(tr.message, tr.unbounded)

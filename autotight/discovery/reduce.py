@@ -119,3 +119,24 @@ def shortest_tight_prefix(oracle: Oracle, chosen: list[Pair], tight_res: SDPResu
         if oracle.ok(v):
             return order[:k], oracle.n_solves - start
     return order, oracle.n_solves - start
+
+
+def shortest_tight_prefix_bisect(oracle: Oracle, chosen: list[Pair], tight_res: SDPResult) -> tuple[list[Pair], int]:
+    """The same prefix as ``shortest_tight_prefix`` (tightness is monotone in the prefix length), found
+    by bisection on the length: about log2(len(chosen)) solves instead of one per prefix.  Returns the
+    prefix and the number of solves."""
+    start = oracle.n_solves
+    imp = oracle.importance(tight_res, chosen)
+    order = sorted(chosen, key=lambda p: -imp[p])
+    lo, hi = 0, len(order)  # prefix hi is tight (the whole set); lo − 1 … : not known
+    v, _ = oracle.solve([], stage="prefix")
+    if oracle.ok(v):
+        return [], oracle.n_solves - start
+    while hi - lo > 1:  # invariant: prefix lo is not tight, prefix hi is tight
+        mid = (lo + hi) // 2
+        v, _ = oracle.solve(order[:mid], stage="prefix")
+        if oracle.ok(v):
+            hi = mid
+        else:
+            lo = mid
+    return order[:hi], oracle.n_solves - start
