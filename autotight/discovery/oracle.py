@@ -71,7 +71,7 @@ class Oracle:
         calls = int(getattr(res, "n_calls", 1) or 1)
         self.n_solves += calls
         self.solve_time_s += res.solve_time_s + res.setup_time_s
-        if D is not None and not res.usable:  # the scaling did not help: the plain data
+        if D is not None and not res.usable and not is_unbounded(res):  # the scaling did not help: the plain data
             plain = sdp.solve_model(self.model, cons, self.options)
             n = int(getattr(plain, "n_calls", 1) or 1)
             self.n_solves += n

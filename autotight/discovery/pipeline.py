@@ -192,7 +192,7 @@ def discover(problem: Problem | str, params: dict[str, Any] | None = None, seed:
     times["nullspace_s"] = cat.times["nullspace_s"]
     pairs = cat.by_pair()
     oracle = Oracle(model, pairs, loc.best.cost, criteria, config,
-                    best_theta=prob.lift(inst, loc.best.state), scaled=True)
+                    best_theta=prob.lift(inst, loc.best.state))
     t = time.perf_counter()
     start = getattr(prob.module, "DEFAULT_TIGHTEN", "greedy")  # the module's tightening start (tighten.tighten)
     tr = tighten(oracle, progress=lambda s: say("tighten", s), start=start)
