@@ -87,8 +87,11 @@ def tighten(oracle: Oracle, min_violation: float = 1e-7, progress=None, max_roun
                 return TightenResult(chosen, True, v, res, v0, f"tight ({oracle.accept}) with every candidate "
                                      f"(after {t} rounds)", [], prim_unb)
             unb = unbounded_blocks(oracle.model, res) if is_unbounded(res) else []
-            why = (f"solver failed with every candidate ({res.status}): tightness undecided" if not res.usable else
-                   "not tightenable with this lifting: not tight with every learned candidate")
+            if not res.usable or getattr(v, "undecided", False):
+                why = (f"undecided with every learned candidate ({res.status}; relative gap {v.rel_gap:.1e}): "
+                       "the solver's accuracy does not decide the bracket")
+            else:
+                why = "not tightenable with this lifting: not tight with every learned candidate"
             return TightenResult(chosen, False, v, res, v0, why, unb, prim_unb)
         if res.X is None:
             return TightenResult(chosen, False, v, res, v0, f"solver failed ({res.status}); cannot rank candidates",
