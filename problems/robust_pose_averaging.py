@@ -66,11 +66,15 @@ Measured (M = 6, 1 outlier, σ = 0.05, seed 0; load 10-14 on 2 cores):
   constraints), one Clarabel solve (scaled, third attempt with clique_graph merging) reached the
   brute-force optimum to a relative gap of 2.8e-7 (log SVR 2.0: cost-tight, not rank-tight);
 - with ``DEFAULT_GROUPS`` (181 candidate pairs, 944 constraints; the robust_pair identities carried to
-  all five pairs) every Clarabel and IPM solve with all candidates stalls (InsufficientProgress /
-  NumericalError, also at tol 1e-6, unscaled, or with the 8 exactly dependent rows removed), and the
-  stalled multipliers do not certify the optimum: ``discover --accept cost`` ends "undecided", with
-  no reduction and no held-out check.  The likely cause is a relaxation without a strictly feasible
-  point (facial reduction would be needed); not resolved.
+  all five pairs) the solve with every candidate ends AlmostSolved at best (|U − D| ≈ 2e-5 relative,
+  accuracy 1e-4; which status depends on the constraint order) or stalls (InsufficientProgress /
+  NumericalError, also at tol 1e-6, scaled, with the 8 exactly dependent rows removed, or with the
+  IPM); the multipliers do not certify the optimum (λ_min(H) < 0 and no trace bound: nothing bounds
+  ξ_m and r in the certificate's sense).  ``discover --accept cost`` therefore ends "undecided", with
+  no reduction and no held-out check.  Greedy tightening instead (``DEFAULT_TIGHTEN = "greedy"``)
+  reaches a bracket gap of 1.3e-10 with 167 pairs (AlmostSolved, certificate still failing) after
+  32 solver calls, 558 s wall / 116 s CPU.  The likely cause of the stalls is a relaxation without
+  a strictly feasible point (facial reduction would be needed); not resolved.
 
 
 Sampling discrete variables: ``sample`` must cover every value of each discrete variable and their
