@@ -175,7 +175,9 @@ def discover(problem: Problem | str, params: dict[str, Any] | None = None, seed:
     The learning instance is ``generate(params, seed)``; held-out instances use seeds
     seed + 1 … seed + n_heldout (generators from ``autotight.pipeline.seeds``).  ``solver`` (a
     ``SolverConfig``) is used for every SDP solve, tightening and held-out check alike.  groups: the
-    learning groups (None: the module's ``DEFAULT_GROUPS``, else "factors").  ``criteria.accept``
+    learning groups (None: the module's ``DEFAULT_GROUPS``, else "factors"); the tightening starts as the
+    module's ``DEFAULT_TIGHTEN`` says ("greedy" by default, or "all": ``tighten.tighten``).  The reduction's
+    irreducibility proof is monotonicity; ``verify`` re-solves to check it numerically.  ``criteria.accept``
     decides what counts as tight (rank and cost, cost only, or certified) for tightening, reduction
     and the held-out check.  Raises UnboundedRelaxation when the SDP stays unbounded and no learned
     candidate bounds its unbounded blocks.  progress(stage, text) is called as work proceeds.
