@@ -24,7 +24,6 @@ import os
 import time
 from pathlib import Path
 
-import numpy as np
 
 from autotight.discovery import discover
 from autotight.discovery.oracle import Oracle
