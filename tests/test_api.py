@@ -25,6 +25,7 @@ def test_a_valueerror_in_build_raises_with_its_traceback(tmp_path):
     assert frames[-1].name == "build" and frames[-1].filename == str(path)  # the module's own line
 
 
+@pytest.mark.slow
 def test_pose_averaging_paper_set_at_low_noise_is_tight_on_10_seeds():
     """σ = 0.001 (issue 14): the paper's R1 + R2 are tight (or certified) on ≥ 98 % of instances, and
     no instance is judged "not tight" (undecided verdicts are allowed and reported)."""
