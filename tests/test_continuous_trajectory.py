@@ -249,7 +249,7 @@ def _assert_tight(inst) -> None:
     np.testing.assert_allclose(est["w"], local.state["w"], atol=1e-3)
 
 
-@pytest.mark.parametrize("seed", [0, 1, 2])
+@pytest.mark.parametrize("seed", [0, pytest.param(1, marks=pytest.mark.slow), pytest.param(2, marks=pytest.mark.slow)])
 def test_paper_families_tight_long_horizon_small_k(seed):
     _assert_tight(_instance(seed, K=FAST_TIGHT_K))
 

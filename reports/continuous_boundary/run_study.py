@@ -8,9 +8,14 @@ already holds, so an interrupted run resumes):
             rad (motion scales the whole twist, so also the per-step translation motion·Δt m), prior
             stiffness 1/q_c (Q_c = q_c I).
   plots     heatmaps (fraction tight per cell) → horizon.png, motion.png, and results/*.csv.
+  gap       for a set saved by ``autotight discover … --out FILE`` (--set-file) and --seeds: the SDP
+            with primary + R1–R8 and with primary + the discovered set (instantiated per seed) on the
+            set's own params (ϖ marginalised, Clarabel), its primal P and dual D against the best local
+            cost U → results/discovery/<stem>_gap.jsonl.  U − D > 0 well beyond the solver's accuracy
+            (|P − D|) is a relaxation gap that the dual certifies, not a solver artefact.
 
 Every cell: the ϖ-kept SDP with primary + R1–R8 solved by ``benchmarks/continuous_k21.solve_fast``
-(our IPM on its cover after the block scaling, Clarabel re-solving when the IPM ends unusable), and
+(our IPM on its cover after the block scaling, tolerance 1e-6; Clarabel re-solves when the IPM ends unusable), and
 local solves from the truth and from the SDP's estimate; U = the lower of the two costs.
 A trial is tight when log SVR on the marginalised X ≥ 5 and (U − P)/U ≤ 1e-4 (P the SDP cost): the
 paper's rank test and a cost check well above the solver's accuracy (|P − U| ≤ 1e-5 U on every tight
@@ -97,14 +102,51 @@ def run_grid(part: str, seeds: list[int]) -> None:
                       f"sdp {r['sdp_cpu_s']:.1f} s cpu", flush=True)
 
 
+@single_blas_thread
+def gap_trial(set_file: Path, seed: int) -> list[dict]:
+    from autotight.discovery.discovered import DiscoveredSet
+    from autotight.run import solve_sdp
+
+    ds = DiscoveredSet.load(set_file)
+    inst = PROB.generate(ds.params, seed)
+    model = PROB.build(inst)
+    sets = {"paper": model.paper_constraints(),
+            "discovered": ds.instantiate(PROB, inst, np.random.default_rng(1000 + seed), model)}
+    local = PROB.local_solve(inst, inst.truth)
+    out = []
+    for name, extra in sets.items():
+        res = solve_sdp(model, model.primary() + extra)
+        U = local.cost
+        if res.usable:
+            ref = PROB.local_solve(inst, PROB.recover(inst, res.Theta))
+            U = min(U, ref.cost)
+        out.append({"set_file": set_file.name, "params": inst.params, "seed": seed, "set": name,
+                    "n_constraints": len(model.primary()) + len(extra), "status": res.status, "solver": res.solver,
+                    "sdp_cost": res.primal_cost, "sdp_dual_cost": res.dual_cost, "best_local_cost": U,
+                    "rel_gap": (U - res.primal_cost) / abs(U), "rel_dual_gap": (U - res.dual_cost) / abs(U),
+                    "solver_accuracy": abs(res.primal_cost - res.dual_cost) / abs(U), "log_svr": res.log_svr,
+                    "versions": versions()})
+        print(seed, name, res.status, f"P {res.primal_cost:.6g} D {res.dual_cost:.6g} U {U:.6g}",
+              f"gap {out[-1]['rel_gap']:.2e} log SVR {res.log_svr:.2f}", flush=True)
+    return out
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
-    ap.add_argument("--part", choices=[*GRIDS, "plots"], required=True)
+    ap.add_argument("--part", choices=[*GRIDS, "plots", "gap"], required=True)
     ap.add_argument("--seeds", default="0,1,2")
+    ap.add_argument("--set-file", help="--part gap: a set saved by autotight discover --out")
     a = ap.parse_args()
     RESULTS.mkdir(exist_ok=True)
     if a.part in GRIDS:
         run_grid(a.part, [int(s) for s in a.seeds.split(",")])
+    elif a.part == "gap":
+        f = Path(a.set_file)
+        out = RESULTS / "discovery" / f"{f.stem.removesuffix('_set')}_gap.jsonl"
+        for seed in [int(s) for s in a.seeds.split(",")]:
+            with out.open("a") as fh:
+                for r in gap_trial(f, seed):
+                    fh.write(json.dumps(jsonable(r)) + "\n")
     else:
         from plots import plot_all
         plot_all(HERE, GRIDS)
