@@ -13,6 +13,17 @@ constraints and R1–R6): 22 instead of 23 iterations, and its Gram–Schmidt co
 Times: wall (the machine is shared, so also CPU time of the process, which with one BLAS thread is
 what the solve costs on an idle core).  Log SVR on the marginalised X (``marginal_log_svr``).
 
+Measured (results/continuous_k21.json; load 8–13, so CPU seconds): σ = 0.1, seeds 0–1, median CPU
+marginalised 73.4 s, kept-clarabel 9.1 s, kept-ipm 3.5 s (AlmostSolved), kept-ipm-scaled 3.2 s
+(AlmostSolved), kept-ipm-fast 2.5 s (Solved, 22–23 iterations); every one tight on both seeds.
+On an idle machine (load 0.2, before the studies) kept-ipm took 2.4 s wall.  The σ sweep (seeds 0–4):
+the fast path's IPM finishes at σ = 0.1 (4/5) and on 2 of 5 at σ = 0.0316, 0.316 and 1, never at
+σ ≤ 0.01 (it stalls at a relative gap of 4e-5 … 1e-3: the WNOA terms that cancel in ⟨Q, X⟩ are
+1e4–1e5 × the optimal cost there, beyond the IPM's accuracy); Clarabel's re-solve then makes it
+11–16 s.  At ``--tol 1e-5`` the IPM finishes all 20 solves with σ ≥ 0.0316 in 1.8–3.2 s with the
+same verdicts (``sweep_fastest_tol_1e-05``), its log SVR 0.5–2 decades lower than at 1e-6 (interior-point
+iterates stopped earlier carry more rank) but above 5 wherever the 1e-6 path was tight.
+
     python benchmarks/continuous_k21.py [--seeds 0,1,2] [--methods …] [--sigmas 0.1] [--time-limit 120]
     python benchmarks/continuous_k21.py --sweep --seeds 0,1,2,3,4     # σ sweep, fastest path only
 Writes benchmarks/results/continuous_k21.json.
@@ -142,7 +153,7 @@ def _record(inst: Instance, model: Model, res: SDPResult, cliques, cost: float, 
 
 
 @single_blas_thread
-def run_method(method: str, params: dict, seed: int) -> dict:
+def run_method(method: str, params: dict, seed: int, fast_tol: float = FAST_TOL) -> dict:
     """One solve of the paper's families (primary + R1–R8) by ``method``; times cover the whole
     SDP step (cover choice, scaling, solve) and not the build or the local solve."""
     from autotight.sdp.chordal import column_cliques
@@ -151,7 +162,7 @@ def run_method(method: str, params: dict, seed: int) -> dict:
     model = PROB.build(inst)
     cons = model.primary() + model.paper_constraints()
     if method in ("kept-ipm-scaled", "kept-ipm-fast"):
-        fs = solve_fast(inst, model, cons, options=SolverOptions() if method == "kept-ipm-scaled" else None)
+        fs = solve_fast(inst, model, cons, options=SolverOptions(tol=1e-7 if method == "kept-ipm-scaled" else fast_tol))
         return _record(inst, model, fs.res, fs.cliques, fs.cost, fs.wall_s, fs.cpu_s)
     t, c0 = time.perf_counter(), time.process_time()
     if method == "marginalised":
@@ -166,15 +177,15 @@ def run_method(method: str, params: dict, seed: int) -> dict:
     return _record(inst, model, res, cl, res.primal_cost, wall, cpu)
 
 
-def _child(q, method: str, params: dict, seed: int) -> None:
-    q.put(run_method(method, params, seed))
+def _child(q, method: str, params: dict, seed: int, fast_tol: float) -> None:
+    q.put(run_method(method, params, seed, fast_tol))
 
 
-def bounded(method: str, params: dict, seed: int, time_limit: float) -> dict:
+def bounded(method: str, params: dict, seed: int, time_limit: float, fast_tol: float = FAST_TOL) -> dict:
     """run_method in a child process, killed after time_limit wall seconds."""
     ctx = mp.get_context("fork")
     q = ctx.Queue()
-    proc = ctx.Process(target=_child, args=(q, method, params, seed))
+    proc = ctx.Process(target=_child, args=(q, method, params, seed, fast_tol))
     proc.start()
     try:
         out = q.get(timeout=time_limit)
@@ -204,6 +215,7 @@ def main() -> None:
     ap.add_argument("--sigmas", default="0.1")
     ap.add_argument("--sweep", action="store_true", help="the fastest path only, over --sigmas (default: the paper's 7)")
     ap.add_argument("--time-limit", type=float, default=150.0)
+    ap.add_argument("--tol", type=float, default=FAST_TOL, help="the IPM's tolerance on the fastest path")
     ap.add_argument("--out", default=str(Path(__file__).parent / "results" / "continuous_k21.json"))
     a = ap.parse_args()
     seeds = [int(x) for x in a.seeds.split(",")]
@@ -222,14 +234,15 @@ def main() -> None:
         sigmas = [0.001, 0.00316, 0.01, 0.0316, 0.1, 0.316, 1.0] if a.sigmas == "0.1" else \
             [float(x) for x in a.sigmas.split(",")]
         runs_by: dict[str, list[dict]] = {str(sig): [] for sig in sigmas}
-        res["sweep_fastest"] = {"method": "kept-ipm-fast", "seeds": seeds, "by_sigma": {}}
+        key = "sweep_fastest" if a.tol == FAST_TOL else f"sweep_fastest_tol_{a.tol:g}"
+        res[key] = {"method": "kept-ipm-fast", "ipm_tol": a.tol, "seeds": seeds, "by_sigma": {}}
         for s in seeds:  # seed-major: an interrupted sweep still covers every σ
             for sig in sigmas:
-                runs_by[str(sig)].append(bounded("kept-ipm-fast", {"K": 21, "sigma": sig}, s, a.time_limit))
+                runs_by[str(sig)].append(bounded("kept-ipm-fast", {"K": 21, "sigma": sig}, s, a.time_limit, a.tol))
                 r = runs_by[str(sig)][-1]
                 print("sweep σ", sig, s, r["status"], r.get("solver"), f"cpu {r.get('cpu_s', float('nan')):.2f}",
                       f"svr {r.get('log_svr_marginal', float('nan')):.2f} gap {r.get('rel_gap', float('nan')):.1e}", flush=True)
-                res["sweep_fastest"]["by_sigma"] = {k: dict(_summary(v), runs=v) for k, v in runs_by.items() if v}
+                res[key]["by_sigma"] = {k: dict(_summary(v), runs=v) for k, v in runs_by.items() if v}
                 save()
     else:
         methods = a.methods.split(",")

@@ -46,9 +46,12 @@ twist (ϖ̌₁, Q₁).  What we chose, and why:
   of R1–R8 at K = 21 is decided by the motion per step against the prior's stiffness, not by Δt
   itself (Δt = 0.1 with Q_c = I is exactly Δt = 1 with Q_c = 0.001 I, the twist × 0.1 and Q₁ × 0.01).
   Measured in issue 18 (random-walk twist, σ = 0.1): tight on 0/5 seeds at Δt = 1, 2/3 at 0.5, 3/3
-  at 0.25, 8/8 at 0.1 (and 5/5 at σ = 0.316, 10/10 at σ = 1).  Here (arc, K = 21, σ = 0.1, ϖ kept,
-  our IPM): seeds 0–2 tight, log SVR on the marginalised X 8.0–9.8, SDP cost within 4e-7 of the local
-  optimum.  Where the map ends: reports/continuous_boundary/README.md.
+  at 0.25, 8/8 at 0.1 (and 5/5 at σ = 0.316, 10/10 at σ = 1).  With this preset at K = 21
+  (benchmarks/results/continuous_k21.json, seeds 0–4 per σ): tight 5/5 at every σ from 0.001 to 0.1
+  and 4/5 at σ = 0.316 and at σ = 1, log SVR on the marginalised X 7.7–10.8 on the tight trials.  On
+  the boundary map (reports/continuous_boundary) Δt = 0.1 is the only time step tight at σ = 1 (Δt ≥
+  0.25 gives gaps of 11–25 % there, Δt = 1 fails from σ = 0.316), while per-step rotations up to
+  0.6 rad and q_c from 0.01 to 10 stay tight at σ ≤ 0.316: Δt = 0.1 is the choice the map supports.
 - ``preset=long_horizon``: issue 4's setting, Δt = 1 s (a 20 s horizon at K = 21, about 6 rad of yaw)
   and a twist that wanders as a random walk (TWIST_WANDER) with a random start rotation, a new
   geometry per seed.  R1–R8 are not tight there at K = 21 (and at K ≥ 17 on most seeds).

@@ -7,6 +7,7 @@ already holds, so an interrupted run resumes):
   motion    K = 21, arc geometry, Δt = 0.1, σ = 0.1, over (per-step rotation θ, q_c): θ = 0.3·motion·Δt
             rad (motion scales the whole twist, so also the per-step translation motion·Δt m), prior
             stiffness 1/q_c (Q_c = q_c I).
+  motion316 the same at σ = 0.316 (at σ = 0.1 every cell of ``motion`` is tight).
   plots     heatmaps (fraction tight per cell) → horizon.png, motion.png, and results/*.csv.
   gap       for a set saved by ``autotight discover … --out FILE`` (--set-file) and --seeds: the SDP
             with primary + R1–R8 and with primary + the discovered set (instantiated per seed) on the
@@ -54,6 +55,8 @@ GRIDS = {
                 "fixed": {"K": 21, "geometry": "arc", "marginalize": False}},
     "motion": {"x": ("motion", [1.0, 10 / 3, 10.0, 20.0]), "y": ("qc", [0.01, 0.1, 1.0, 10.0]),
                "fixed": {"K": 21, "geometry": "arc", "dt": 0.1, "sigma": 0.1, "marginalize": False}},
+    "motion316": {"x": ("motion", [1.0, 10 / 3, 10.0, 20.0]), "y": ("qc", [0.01, 0.1, 1.0, 10.0]),
+                  "fixed": {"K": 21, "geometry": "arc", "dt": 0.1, "sigma": 0.316, "marginalize": False}},
 }
 
 
