@@ -66,8 +66,9 @@ The minimum over clique blocks reads lower (issue 18: 6.21 against 6.84 on one i
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 import scipy.sparse as sp
@@ -81,9 +82,26 @@ from autotight.model import Constraint, Factor, Model, QuadForm, Variables
 from autotight.problem import Instance, LocalResult, Param
 from autotight.sdp.result import log_svr
 
-from ._pose import (POSE_ROLES, XI_ROLES, binary_cayley, declare_pose, declare_xi, pose_blocks, pose_from_x,
-                    pose_orthonormality, pose_values, r1_unary, r2_unary, r3_binary, rot_blocks, trans_block,
-                    unary_cayley, weighted_cost, xi_blocks, xi_values)
+from ._pose import (
+    POSE_ROLES,
+    XI_ROLES,
+    binary_cayley,
+    declare_pose,
+    declare_xi,
+    pose_blocks,
+    pose_from_x,
+    pose_orthonormality,
+    pose_values,
+    r1_unary,
+    r2_unary,
+    r3_binary,
+    rot_blocks,
+    trans_block,
+    unary_cayley,
+    weighted_cost,
+    xi_blocks,
+    xi_values,
+)
 
 GEOMETRIES = ("arc", "random_walk")
 

@@ -30,7 +30,6 @@ K = 21 solve measured) and well below the gaps where it fails (≥ 1e-3).
 from __future__ import annotations
 
 import argparse
-import csv
 import json
 import sys
 import time
@@ -43,9 +42,10 @@ ROOT = HERE.parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
+from continuous_k21 import PROB, solve_fast  # noqa: E402
+
 from autotight.io import jsonable, versions  # noqa: E402
 from autotight.threads import single_blas_thread  # noqa: E402
-from continuous_k21 import PROB, solve_fast  # noqa: E402
 
 RESULTS = HERE / "results"
 LOG_SVR_TIGHT = 5.0
