@@ -51,8 +51,7 @@ from autotight import sdp  # noqa: E402
 from autotight.io import jsonable, versions  # noqa: E402
 from autotight.model import Constraint, Model  # noqa: E402
 from autotight.problem import Instance, load  # noqa: E402
-from autotight.run import CliqueCovers, solve_sdp  # noqa: E402
-from autotight.sdp import SDPResult, SolverOptions  # noqa: E402
+from autotight.sdp import SDPResult, SolverConfig, model_cover  # noqa: E402
 from autotight.sdp.schur_ipm import solve_ipm  # noqa: E402
 from autotight.threads import single_blas_thread  # noqa: E402
 from problems import continuous_trajectory as ct  # noqa: E402
@@ -111,23 +110,22 @@ FAST_TOL = 1e-6
 
 
 def solve_fast(inst: Instance, model: Model, constraints: Sequence[Constraint], *, scale: bool = True,
-               drop_dependent: bool = False, options: SolverOptions | None = None) -> FastSolve:
+               drop_dependent: bool = False, options: SolverConfig | None = None) -> FastSolve:
     """The IPM on the ϖ-kept model (instance with marginalize=False), on its own cover, optionally after
     the congruence X = D X′ D (D = ``ct.block_scale``) and without linearly dependent constraints.
     When the IPM ends unusable, Clarabel re-solves (its default tolerance, Clarabel's cover; counted)."""
     t, c0 = time.perf_counter(), time.process_time()
     cons = independent(constraints) if drop_dependent else list(constraints)
-    covers = CliqueCovers(model, cons)
-    cl, fallback = covers.choose("ipm"), covers.choose("clarabel")
+    cl, fallback = model_cover(model, cons, "ipm"), model_cover(model, cons, "clarabel")
     D = ct.block_scale(inst) if scale else np.ones(model.variables.N)
     Dm = sp.diags(D)
     Q = sp.csr_array(Dm @ model.Q @ Dm)
     cs = [Constraint(sp.csr_array(Dm @ c.A @ Dm), c.b, name=c.name, family=c.family) for c in cons]
-    res = solve_ipm(Q, [c.A for c in cs], np.array([c.b for c in cs]), 1, cl, options or SolverOptions(tol=FAST_TOL))
+    res = solve_ipm(Q, [c.A for c in cs], np.array([c.b for c in cs]), 1, cl, options or SolverConfig(tol=FAST_TOL))
     if not res.usable:  # as sdp.solve does, but Clarabel at its own default tolerance, not the IPM's
         first = f"ipm: {res.status} ({res.message.strip()}, {res.solve_time_s:.2f} s, counted in solve_time_s)"
         spent = res.solve_time_s + res.setup_time_s
-        res = sdp.solve(Q, cs, cliques=fallback)
+        res = sdp.solve(Q, cs, cliques=fallback, config=SolverConfig(decompose=True, scale="none"))
         res.message, res.solve_time_s = f"{first}; solved again by {res.solver}: {res.status}", res.solve_time_s + spent
     used = cl if res.solver.endswith("ipm") else fallback
     cost = float("nan")
@@ -147,7 +145,8 @@ def _record(inst: Instance, model: Model, res: SDPResult, cliques, cost: float, 
     msvr = ct.marginal_log_svr(inst, res.X, cliques) if res.usable else float("nan")
     return {"status": res.status, "solver": res.solver, "iterations": res.iterations, "wall_s": wall, "cpu_s": cpu,
             "sdp_cost": cost, "sdp_dual_cost": res.dual_cost, "local_cost": local.cost,
-            "rel_gap": (local.cost - cost) / abs(local.cost), "dual_gap": (local.cost - res.dual_cost) / abs(local.cost),
+            "rel_gap": (local.cost - cost) / abs(local.cost),
+            "dual_gap": (local.cost - res.dual_cost) / abs(local.cost),
             "log_svr_cliques": res.log_svr, "log_svr_marginal": msvr, "N": model.variables.N,
             "message": res.message}
 
@@ -162,17 +161,16 @@ def run_method(method: str, params: dict, seed: int, fast_tol: float = FAST_TOL)
     model = PROB.build(inst)
     cons = model.primary() + model.paper_constraints()
     if method in ("kept-ipm-scaled", "kept-ipm-fast"):
-        fs = solve_fast(inst, model, cons, options=SolverOptions(tol=1e-7 if method == "kept-ipm-scaled" else fast_tol))
+        fs = solve_fast(inst, model, cons, options=SolverConfig(tol=1e-7 if method == "kept-ipm-scaled" else fast_tol))
         return _record(inst, model, fs.res, fs.cliques, fs.cost, fs.wall_s, fs.cpu_s)
     t, c0 = time.perf_counter(), time.process_time()
     if method == "marginalised":
-        res = solve_sdp(model, cons)
+        res = sdp.solve_model(model, cons, SolverConfig(scale="none"))
         cl = column_cliques(model.variables.N, [model.Q, *[c.A for c in cons]], always=[0])
     else:
         solver = "ipm" if method == "kept-ipm" else "clarabel"
-        res = solve_sdp(model, cons, solver=solver, decompose=True)
-        covers = CliqueCovers(model, cons)
-        cl = covers.choose("ipm" if res.solver.endswith("ipm") else "clarabel")
+        res = sdp.solve_model(model, cons, SolverConfig(backend=solver, decompose=True, scale="none"))
+        cl = res.cliques
     wall, cpu = time.perf_counter() - t, time.process_time() - c0
     return _record(inst, model, res, cl, res.primal_cost, wall, cpu)
 
@@ -213,7 +211,8 @@ def main() -> None:
     ap.add_argument("--seeds", default="0,1,2")
     ap.add_argument("--methods", default=",".join(METHODS))
     ap.add_argument("--sigmas", default="0.1")
-    ap.add_argument("--sweep", action="store_true", help="the fastest path only, over --sigmas (default: the paper's 7)")
+    ap.add_argument("--sweep", action="store_true",
+                    help="the fastest path only, over --sigmas (default: the paper's 7)")
     ap.add_argument("--time-limit", type=float, default=150.0)
     ap.add_argument("--tol", type=float, default=FAST_TOL, help="the IPM's tolerance on the fastest path")
     ap.add_argument("--out", default=str(Path(__file__).parent / "results" / "continuous_k21.json"))
@@ -221,7 +220,8 @@ def main() -> None:
     seeds = [int(x) for x in a.seeds.split(",")]
     out_path = Path(a.out)
     res = json.loads(out_path.read_text()) if out_path.is_file() else {}
-    res.update({"benchmark": "continuous_k21", "problem": "continuous_trajectory", "params": {"K": 21, "preset": "paper"},
+    res.update({"benchmark": "continuous_k21", "problem": "continuous_trajectory",
+                "params": {"K": 21, "preset": "paper"},
                 "constraints": "primary + R1–R8", "versions": versions(), "load_avg_start": os.getloadavg(),
                 "note": "cpu_s: CPU time of the solving process (one BLAS thread), what the solve costs on an idle "
                         "core; wall_s on a machine shared with other jobs"})
@@ -241,7 +241,8 @@ def main() -> None:
                 runs_by[str(sig)].append(bounded("kept-ipm-fast", {"K": 21, "sigma": sig}, s, a.time_limit, a.tol))
                 r = runs_by[str(sig)][-1]
                 print("sweep σ", sig, s, r["status"], r.get("solver"), f"cpu {r.get('cpu_s', float('nan')):.2f}",
-                      f"svr {r.get('log_svr_marginal', float('nan')):.2f} gap {r.get('rel_gap', float('nan')):.1e}", flush=True)
+                      f"svr {r.get('log_svr_marginal', float('nan')):.2f} "
+                      f"gap {r.get('rel_gap', float('nan')):.1e}", flush=True)
                 res[key]["by_sigma"] = {k: dict(_summary(v), runs=v) for k, v in runs_by.items() if v}
                 save()
     else:

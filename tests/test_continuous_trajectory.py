@@ -428,7 +428,6 @@ def _marginal_svrs(seed: int, with_paper: bool, **params) -> tuple[float, float,
     """(marginal log SVR, cost) for the marginalised SDP (Clarabel's chordal decomposition, judged on
     its column cover) and for the ϖ-kept SDP on our clique cover."""
     from autotight import sdp
-    from autotight.run import cliques_for
     from autotight.sdp.chordal import column_cliques
 
     out = []
@@ -436,11 +435,10 @@ def _marginal_svrs(seed: int, with_paper: bool, **params) -> tuple[float, float,
         inst = PROB.generate({"K": 6, "marginalize": marginalize, **params}, seed)
         model = PROB.build(inst)
         cons = model.primary() + (model.paper_constraints() if with_paper else [])
-        cl = None if marginalize else cliques_for(model, cons)
-        res = sdp.solve(model.Q, cons, cliques=cl)
+        res = sdp.solve_model(model, cons, sdp.SolverConfig(decompose=not marginalize, scale="none"))
         assert res.status == "Solved", res.summary()
-        if marginalize:
-            cl = column_cliques(model.variables.N, [model.Q, *[c.A for c in cons]], always=[0])
+        cl = column_cliques(model.variables.N, [model.Q, *[c.A for c in cons]], always=[0]) if marginalize \
+            else res.cliques
         out += [ct.marginal_log_svr(inst, res.X, cl), res.primal_cost]
     return tuple(out)
 
@@ -471,13 +469,11 @@ def test_paper_default_k21_is_tight(seed):
     assert (inst.params["K"], inst.params["dt"], inst.params["geometry"]) == (21, 0.1, "arc")
     model = PROB.build(inst)
     cons = model.primary() + model.paper_constraints()
-    from autotight.run import CliqueCovers
-
-    cl = CliqueCovers(model, cons).choose("ipm")
     from autotight import sdp
 
-    res = sdp.solve(model.Q, cons, solver="ipm", cliques=cl)
+    res = sdp.solve_model(model, cons, sdp.SolverConfig(backend="ipm"))
     assert res.solver == "autotight-ipm" and res.usable, res.summary()
+    cl = res.cliques
     local = PROB.local_solve(inst, inst.truth)
     assert ct.marginal_log_svr(inst, res.X, cl) > 5.0
     assert abs(relative_gap(res.primal_cost, local.cost)) < TIGHT_COST_RTOL, (res.primal_cost, local.cost)

@@ -108,7 +108,7 @@ def run_grid(part: str, seeds: list[int]) -> None:
 @single_blas_thread
 def gap_trial(set_file: Path, seed: int) -> list[dict]:
     from autotight.discovery.discovered import DiscoveredSet
-    from autotight.run import solve_sdp
+    from autotight.sdp import solve_model as solve_sdp
 
     ds = DiscoveredSet.load(set_file)
     inst = PROB.generate(ds.params, seed)
