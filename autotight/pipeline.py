@@ -86,6 +86,8 @@ class SolveResult:
     upper: U, the best feasible cost found (local solves, the SDP's estimate and its refinement);
     refined: the local solve started at the SDP's estimate (None when X was unusable);
     certificate: what the SDP's multipliers prove about the point of cost U (``certified``, ``bound``);
+    log_svr_marginal: log SVR of the problem's own reduced X (a module's optional ``marginal_log_svr``,
+    e.g. continuous time's marginalised X whichever formulation was solved), else None;
     attempts: every SDP solve made (a second one when the first verdict was undecided).
     """
 
@@ -102,6 +104,7 @@ class SolveResult:
     errors_sdp: dict[str, float]
     errors_local: dict[str, float]
     certificate: Certificate | None = None
+    log_svr_marginal: float | None = None
     attempts: list[dict[str, Any]] = field(default_factory=list)
     times: dict[str, float] = field(default_factory=dict)
 
@@ -144,6 +147,7 @@ class SolveResult:
             "sdp_beats_local": self.sdp_beats_local, "solve_time_s": self.sdp.solve_time_s,
             "undecided": v.undecided, "bracket": {"lower": v.lower, "primal": v.primal, "upper": v.upper,
                                                   "accuracy": v.accuracy, "tolerance": v.tolerance},
+            "log_svr_marginal": self.log_svr_marginal,
             "certified": None if self.certificate is None else self.certificate.certified,
             "certificate": None if self.certificate is None else self.certificate.record(),
             "errors_sdp": self.errors_sdp, "errors_local": self.errors_local, "attempts": self.attempts,
@@ -155,6 +159,13 @@ def _attempt(res: SDPResult, verdict: Verdict | None) -> dict[str, Any]:
     return {"status": res.status, "primal_cost": res.primal_cost, "dual_cost": res.dual_cost,
             "log_svr": res.log_svr, "solve_time_s": res.solve_time_s, "outcome": getattr(verdict, "outcome", None),
             "message": res.message}
+
+
+def marginal_svr(problem: Problem, inst: Instance, res: SDPResult) -> float | None:
+    """The module's ``marginal_log_svr(instance, X, cliques)`` when it defines one and X is usable."""
+    if not hasattr(problem.module, "marginal_log_svr") or not res.usable or res.X is None:
+        return None
+    return float(problem.call("marginal_log_svr", inst, res.X, res.cliques))
 
 
 def dual_certificate(problem: Problem, inst: Instance, model: Model, cons: list, res: SDPResult,
@@ -247,4 +258,5 @@ def solve_instance(problem: Problem, inst: Instance, constraints: ConstraintsLik
              "refine_s": t4 - t3, "local_truth_s": local.from_truth.time_s}
     return SolveResult(problem.name, inst, set_name(constraints, model), len(cons), res, verdict, local, estimate,
                        refined, upper, problem.errors(inst, estimate) if estimate is not None else {},
-                       problem.errors(inst, local.from_truth.state), cert, attempts, times)
+                       problem.errors(inst, local.from_truth.state), cert, marginal_svr(problem, inst, res), attempts,
+                       times)
