@@ -30,10 +30,10 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from ..errors import AutotightError, LearningError
+from ..errors import AutotightError
 from ..model import Constraint, Model, canonical_coo
 from ..problem import Instance, Problem
-from ..svec import as_theta, triu_indices
+from ..svec import triu_indices
 from .learn import LearnOptions
 
 #: a template's coefficients must equal re-learned ones to this relative accuracy (max-norm, relative
@@ -142,7 +142,8 @@ def _factor_samples(problem: Problem, inst: Instance, model: Model, wanted: dict
     from .catalog import learn
 
     # the fit is checked separately (fresh instances): a few held-out samples suffice here
-    cat = learn(problem, inst, model, rng, "factors", replace(opts, heldout=min(opts.heldout, 6)), types=sorted(wanted))
+    cat = learn(problem, inst, model, rng, "factors", replace(opts, heldout=min(opts.heldout, 6)),
+                types=sorted(wanted))
     out: dict[str, list] = {t: [] for t in wanted}
     issues: list[str] = []
     for g in cat.groups:
@@ -358,7 +359,8 @@ def apply_template(model: Model, tpl: TypeTemplate) -> list[Constraint]:
 
 
 def apply_templates(problem: Problem, inst: Instance, model: Model, ts: TemplateSet, rng: np.random.Generator,
-                    opts: LearnOptions, skip_invalid: bool = False, n_check: int = 2) -> tuple[list[Constraint], list[str]]:
+                    opts: LearnOptions, skip_invalid: bool = False,
+                    n_check: int = 2) -> tuple[list[Constraint], list[str]]:
     """Every template's constraints on ``inst``, each checked on ``n_check`` fresh feasible states of ``inst``.
 
     A factor whose constraints violate the check (relative violation > ``opts.heldout_tol``) is a one-line
@@ -385,7 +387,6 @@ def apply_templates(problem: Problem, inst: Instance, model: Model, ts: Template
                 raise AutotightError(msg + "; pass --skip-invalid (skip_invalid=True) to leave them out")
             drop = {(fs[r].name, tpl.identities[a]) for r, a in bad}
             skipped += [f"{f}:{i}" for f, i in sorted(drop)]
-            k = len(tpl.identities)
             cons = [c for n, c in enumerate(cons) if (fs[n % len(fs)].name, tpl.identities[n // len(fs)]) not in drop]
         out += cons
     return out, skipped

@@ -449,8 +449,8 @@ def solve_ipm(Q: sp.csr_array, As: Sequence[sp.csr_array], b: np.ndarray, d: int
     res = SDPResult(status=sol.status, solver="autotight-ipm", d=d, X=X, y=y,
                     primal_cost=float(Q.multiply(X).sum()) if X is not None else float("nan"),
                     dual_cost=float(np.dot(b, y)), solve_time_s=sol.time_s, setup_time_s=t1 - t0,
-                    iterations=sol.iterations, clique_log_svr=svrs or None, cliques=prog.cliques if svrs else None, completion=completion,
-                    message=(f"{sol.message}; " if sol.message else "")
+                    iterations=sol.iterations, clique_log_svr=svrs or None, cliques=prog.cliques if svrs else None,
+                    completion=completion, message=(f"{sol.message}; " if sol.message else "")
                     + f"relative gap {sol.gap:.1e}, pinf {sol.pinf:.1e}, dinf {sol.dinf:.1e}")
     return finish(res)
 
