@@ -12,7 +12,7 @@ The public API (see README, "Python"):
 
 __version__ = "0.1.0"
 
-from .api import discover, load_problem, solve
+from .api import certify, discover, load_problem, solve
 from .check import check_sufficient
 from .checks import check_problem
 from .constraint_set import ConstraintSet
@@ -23,6 +23,7 @@ from .problem import Instance, LocalResult, Param, Problem
 from .sdp.config import SolverConfig, SolverOptions
 from .tightness import Criteria, Verdict
 
-__all__ = ["__version__", "load_problem", "solve", "discover", "check_problem", "check_sufficient", "ConstraintSet", "SolveResult", "Criteria",
-           "Verdict", "SolverConfig", "SolverOptions", "AutotightError", "Problem", "Param", "Instance", "LocalResult", "Model",
+__all__ = ["__version__", "load_problem", "solve", "discover", "certify", "check_problem", "check_sufficient",
+           "ConstraintSet", "SolveResult", "Criteria", "Verdict", "SolverConfig", "SolverOptions", "AutotightError",
+           "Problem", "Param", "Instance", "LocalResult", "Model",
            "Variables", "Factor", "QuadForm", "Constraint"]

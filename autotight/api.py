@@ -1,5 +1,5 @@
-"""The public Python API: ``load_problem``, ``solve``, ``discover`` (``check_problem`` is in
-``autotight.checks``, ``check_sufficient`` in ``autotight.check``).
+"""The public Python API: ``load_problem``, ``solve``, ``discover``, ``certify`` (``check_problem`` is
+in ``autotight.checks``, ``check_sufficient`` in ``autotight.check``).
 
 Each function validates its input at the boundary and returns a result with plain attributes;
 the CLI, the report sweep and discovery all run through the same per-instance pipeline
@@ -69,3 +69,22 @@ def discover(problem: str | ModuleType | Problem, params: dict[str, Any] | None 
                               solver=solver or SolverConfig(), **options)
 
     return _discover(_problem(problem), params, _seed(seed), solver=solver or SolverConfig(), **options)
+
+
+def certify(problem: str | ModuleType | Problem, params: dict[str, Any] | None = None, seed: int = 0, *,
+            constraints: ConstraintsLike = None, start: Any = "truth", solver: Any = None):
+    """Certify a local solution of the instance ``(params, seed)`` without solving the full SDP.
+
+    Runs the local solver from ``start`` ("truth"; "random": the first random start of ``solve``; or a
+    state dict), lifts its solution and looks for dual multipliers that prove it globally optimal for
+    the relaxation with ``constraints`` (as in ``solve``; method: ``autotight.certify``).  Returns a
+    ``Certificate`` (``certified``, ``bound``, ``rel_bound``, ``time_s``, …), decided with the same
+    relative gap as the full SDP's verdict.  solver: None, or a ``SolverConfig`` whose ``max_iter``
+    caps the Newton steps of the certificate's barrier method (no SDP is solved).
+    """
+    from .certifier import certify_instance
+
+    prob = _problem(problem)
+    inst = prob.generate(params, _seed(seed))
+    max_iter = 50 if solver is None else int(getattr(solver, "max_iter", 50))
+    return certify_instance(prob, inst, constraints, start=start, max_iter=max_iter).certificate

@@ -73,17 +73,27 @@ def stack(constraints: Sequence[Constraint]) -> tuple[list[sp.coo_array], np.nda
             np.array([c.b for c in constraints], dtype=float))
 
 
-def dual_matrix(Q: sp.sparray, As: Sequence[sp.sparray], y: np.ndarray) -> sp.csc_array:
-    """H = Q − Σ yᵢAᵢ, sparse (one sum over the stacked entries)."""
+def entries(As: Sequence[sp.sparray]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """All entries of the Aᵢ in one pass: (row, col, value, i) arrays (i: the matrix holding the entry)."""
+    rows, cols, vals, owner = [], [], [], []
+    for i, A in enumerate(As):
+        A = A if isinstance(A, (sp.csr_array, sp.csr_matrix)) else sp.csr_array(A)
+        rows.append(np.repeat(np.arange(A.shape[0]), np.diff(A.indptr)))
+        cols.append(A.indices)
+        vals.append(A.data)
+        owner.append(np.full(A.indices.size, i))
+    if not rows:
+        z = np.zeros(0, dtype=np.int64)
+        return z, z, np.zeros(0), z
+    return np.concatenate(rows), np.concatenate(cols), np.concatenate(vals).astype(float), np.concatenate(owner)
+
+
+def dual_matrix(Q: sp.sparray, As: Sequence[sp.sparray], y: np.ndarray, *, stacked=None) -> sp.csc_array:
+    """H = Q − Σ yᵢAᵢ, sparse (one sum over the stacked entries; ``stacked``: ``entries(As)`` when known)."""
     Q = sp.coo_array(Q)
-    rows, cols, vals = [Q.row], [Q.col], [Q.data]
-    for yi, A in zip(y, As):
-        if yi != 0.0:
-            c = sp.coo_array(A)
-            rows.append(c.row)
-            cols.append(c.col)
-            vals.append(-yi * c.data)
-    H = sp.coo_array((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=Q.shape).tocsc()
+    r, c, v, i = entries(As) if stacked is None else stacked
+    H = sp.coo_array((np.concatenate([Q.data, -np.asarray(y, float)[i] * v]),
+                      (np.concatenate([Q.row, r]), np.concatenate([Q.col, c]))), shape=Q.shape).tocsc()
     H.sum_duplicates()
     return H
 
@@ -147,21 +157,15 @@ def trace_bound(Q: sp.sparray, As: Sequence[sp.sparray], b: np.ndarray, f_bar: f
     n = Q.shape[0]
     bound_of = np.full(n, -1, dtype=np.int64)  # the group that bounds each column (−1: none yet)
     groups: list[float] = []
-    items = [(sp.csr_array(Q), f_bar, True)] + [(sp.coo_array(A), float(bi), False) for A, bi in zip(As, b)]
-    dense = []  # per item: (support columns, the dense block on them); COO items need no N + 1 index array
-    for k, (A, rhs, is_cost) in enumerate(items):
-        if isinstance(A, sp.coo_array):
-            sup = np.unique(A.row) if A.nnz else np.zeros(0, dtype=np.int64)
-            if sup.size > 60:
-                items[k] = (sp.csr_array(A), rhs, is_cost)
-                dense.append((sup, None))
-                continue
-            D = np.zeros((sup.size, sup.size))
-            np.add.at(D, (np.searchsorted(sup, A.row), np.searchsorted(sup, A.col)), A.data)
-            dense.append((sup, D))
-            continue
-        sup = np.unique(A.indices) if A.nnz else np.zeros(0, dtype=np.int64)
-        dense.append((sup, None if sup.size > 60 else A[sup][:, sup].toarray()))
+    # the items as given (COO: no N + 1 index array per constraint); CSR only for the few large ones below
+    items = [(Q, f_bar, True)] + [(A, float(bi), False) for A, bi in zip(As, b)]
+    dense = [_item_block(items[0][0])]  # per item: (support columns, the dense block on them or None)
+    r, c, v, owner = entries(As)
+    order = np.argsort(owner, kind="stable")
+    cuts = np.searchsorted(owner[order], np.arange(len(As) + 1))
+    for i in range(len(As)):
+        sel = order[cuts[i]:cuts[i + 1]]
+        dense.append(_item_block(None, r[sel], c[sel], v[sel]))
     for _ in range(max_passes):
         progress = False
         for (A, rhs, is_cost), (sup, D) in zip(items, dense):
@@ -177,6 +181,7 @@ def trace_bound(Q: sp.sparray, As: Sequence[sp.sparray], b: np.ndarray, f_bar: f
                 a = w[0] if is_cost else max(w[0], -w[-1])
                 n_ub, n_bb = np.linalg.norm(Aub), np.linalg.norm(Abb)
             else:  # a large item (the cost): its definite part from its connected components
+                A = sp.csr_array(A)
                 Auu = sp.csr_array(A[U][:, U])
                 a = _lambda_min_blocks(Auu)
                 if not is_cost:
@@ -197,6 +202,20 @@ def trace_bound(Q: sp.sparray, As: Sequence[sp.sparray], b: np.ndarray, f_bar: f
         if not progress:
             return None
     return None
+
+
+def _item_block(A: sp.csr_array | None, r: np.ndarray | None = None, c: np.ndarray | None = None,
+                v: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray | None]:
+    """(support columns, the dense block of the item on them; None above 60 columns)."""
+    if A is not None:
+        A = sp.coo_array(A)
+        r, c, v = A.row, A.col, A.data
+    sup = np.unique(np.concatenate([r, c]))
+    if sup.size > 60:
+        return sup, None
+    D = np.zeros((sup.size, sup.size))
+    np.add.at(D, (np.searchsorted(sup, r), np.searchsorted(sup, c)), v)
+    return sup, D
 
 
 def _lambda_min_blocks(A: sp.csr_array) -> float:
@@ -227,12 +246,13 @@ def certificate(Q: sp.sparray, constraints: Sequence[Constraint], y: np.ndarray,
     Q = sp.csr_array(Q)
     Th = np.asarray(theta_hat, dtype=float).reshape(d, -1)
     y = np.asarray(y, dtype=float)
-    H = dual_matrix(Q, As, y)
+    r, c, v, owner = stacked = entries(As)
+    H = dual_matrix(Q, As, y, stacked=stacked)
     HT = H @ Th.T
     QT = Q @ Th.T
     Xhat_tr = float(np.sum(Th * Th))
     f_hat = float(np.sum(Th.T * QT))
-    res_A = np.array([float(np.sum(Th.T * (A @ Th.T))) for A in As]) - b
+    res_A = np.bincount(owner, weights=v * np.sum(Th[:, r] * Th[:, c], axis=0), minlength=len(As)) - b
     scale = float(abs(Q).max()) if Q.nnz else 1.0
     residual = float(np.linalg.norm(HT) / (np.linalg.norm(QT) + float(abs(H).max()) * np.sqrt(Xhat_tr) + 1e-300))
     lam, lam_lo, how = lambda_min(H)

@@ -86,7 +86,8 @@ class PointResult:
                 "n_constraints": sorted(set(self.n_constraints)), "statuses": self.statuses,
                 "rel_gap": self.rel_gap,
                 "failing": [{"seed": s, "reason": r, "log_svr": v} for s, r, v in self.with_outcome("not tight")],
-                "undecided_seeds": [{"seed": s, "reason": r, "log_svr": v} for s, r, v in self.with_outcome("undecided")],
+                "undecided_seeds": [{"seed": s, "reason": r, "log_svr": v}
+                                    for s, r, v in self.with_outcome("undecided")],
                 "seeds": self.seeds, "outcomes": self.outcomes, "log_svr": self.log_svr}
 
 
@@ -130,7 +131,8 @@ class SufficiencyReport:
                  f"{'point':<22}{'constraints':>12}{'tight':>7}{'undecided':>11}{'not tight':>11}"
                  f"{'fraction':>10}  {'':<5} failing seeds"]
         for p in self.points:
-            label = ", ".join(f"{k}={v:g}" if isinstance(v, float) else f"{k}={v}" for k, v in p.varied.items()) or "(params above)"
+            label = ", ".join(f"{k}={v:g}" if isinstance(v, float) else f"{k}={v}"
+                              for k, v in p.varied.items()) or "(params above)"
             ncons = "/".join(str(n) for n in sorted(set(p.n_constraints))) or "—"
             bad = " ".join(str(s) for s, _, _ in p.with_outcome("not tight"))
             und = " ".join(str(s) for s, _, _ in p.with_outcome("undecided"))
@@ -144,7 +146,8 @@ class SufficiencyReport:
         if bad is not None:
             ps = " ".join(f"-p {k}={v}" for k, v in bad.params.items())
             cs = self.constraint_set if self.constraint_set in ("paper", "primary") else "FILE"
-            lines.append(f"re-run one: autotight solve {self.problem} {ps} --seed {bad.with_outcome('not tight')[0][0]} "
+            seed = bad.with_outcome('not tight')[0][0]
+            lines.append(f"re-run one: autotight solve {self.problem} {ps} --seed {seed} "
                          f"--set {cs}")
         return "\n".join(lines)
 
@@ -187,7 +190,8 @@ def parse_over(problem: Problem, over: Mapping[str, Sequence[Any]] | None) -> di
     return out
 
 
-def points_of(problem: Problem, params: Mapping[str, Any] | None, over: Mapping[str, Sequence[Any]]) -> list[tuple[dict, dict]]:
+def points_of(problem: Problem, params: Mapping[str, Any] | None,
+              over: Mapping[str, Sequence[Any]]) -> list[tuple[dict, dict]]:
     """(full params, varied values) for every point of the product of ``over``, in order."""
     fixed = dict(params or {})
     clash = [k for k in over if k in fixed]
@@ -279,8 +283,9 @@ def check_sufficient(problem: str | Problem, constraints: ConstraintsLike = "pap
     points = points_of(prob, params, over_)
     t0 = time.perf_counter()
     name = "set" if isinstance(constraints, ConstraintSet) else (constraints or "default")
-    res, n = solve_points(prob, {name: constraints}, points, int(instances), int(seed), min_fraction=float(min_fraction),
-                          solver=solver, criteria=criteria, n_random=n_random, on_result=on_result)
+    res, n = solve_points(prob, {name: constraints}, points, int(instances), int(seed),
+                          min_fraction=float(min_fraction), solver=solver, criteria=criteria, n_random=n_random,
+                          on_result=on_result)
     label = next((p.set_label for p in res[name] if p.set_label), set_name(constraints, None))  # type: ignore[arg-type]
     return SufficiencyReport(prob.name, label, {k: v for k, v in points[0][0].items() if k not in over_}, over_,
                              int(instances), float(min_fraction), int(seed), res[name], n,

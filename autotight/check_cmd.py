@@ -46,7 +46,8 @@ def add_range_args(p: argparse.ArgumentParser) -> None:
 
 
 def register(sub: argparse._SubParsersAction, add_problem_args: Callable) -> None:
-    p = sub.add_parser("check", help="does a constraint set suffice? N fresh instances per point; exit 0 if so, 1 if not")
+    p = sub.add_parser("check", help="does a constraint set suffice? N fresh instances per point; "
+                                     "exit 0 if so, 1 if not")
     add_problem_args(p)
     p.add_argument("--set", default=None, metavar="paper|primary|FILE",
                    help="paper, primary, or a saved set's JSON (default: paper if the problem has paper families)")

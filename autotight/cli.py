@@ -150,12 +150,13 @@ def build_parser() -> argparse.ArgumentParser:
     add_solver_args(p)
     p.add_argument("--random-starts", type=nonneg_int, default=1, help="random-start local solves (default 1)")
     p.set_defaults(func=cmd_solve)
+    from .certify_cmd import register as register_certify
     from .check_cli import register as register_check_module
     from .check_cmd import register as register_check
     from .discovery.cli import register as register_discover
     from .report.cli import register as register_report
 
-    for register in (register_discover, register_report, register_check, register_check_module):
+    for register in (register_discover, register_report, register_check, register_check_module, register_certify):
         register(sub, _add_problem_args)
     return ap
 

@@ -30,6 +30,7 @@ from .sdp.result import SDPResult
 from .sdp.scaling import block_scale
 from .threads import single_blas_thread
 from .tightness import Criteria, Verdict, judge
+from .unbounded import UnboundedRelaxation, is_unbounded, unbounded_blocks, unbounded_message
 from .validate import check_instance
 
 #: relative cost excess over U above which a local solve counts as trapped in a worse minimum
@@ -181,7 +182,8 @@ def solve_instance(problem: Problem, inst: Instance, constraints: ConstraintsLik
                    config: SolverConfig | None = None, criteria: Criteria = Criteria(), n_random: int = 1,
                    model: Model | None = None, local: LocalSearch | None = None,
                    rng_local: np.random.Generator | None = None,
-                   rng_constraints: np.random.Generator | None = None) -> SolveResult:
+                   rng_constraints: np.random.Generator | None = None,
+                   raise_unbounded: bool = True) -> SolveResult:
     """Solve ``inst`` with ``constraints`` (see ``autotight.constraint_set``) and judge tightness.
 
     ``model`` and ``local`` may be given to share them between several constraint sets of one
@@ -189,7 +191,10 @@ def solve_instance(problem: Problem, inst: Instance, constraints: ConstraintsLik
     solved in the variables X' of X = D X' D with D from the best local solution's lifting
     (``block_scale_at``): every block of X' is then O(1), which the solver's relative accuracy needs
     when residual blocks are O(σ).  A verdict left undecided by the solver's accuracy is solved once
-    more at a 100× tighter tolerance; ``attempts`` records both.
+    more at a 100× tighter tolerance; ``attempts`` records both.  An unbounded SDP (DualInfeasible:
+    nothing bounds some blocks) raises ``UnboundedRelaxation`` naming those blocks in one line, unless
+    ``raise_unbounded`` is False (then it is judged not tight, as discovery's held-out check needs for
+    the primary constraints of a problem such as robust pose averaging).
     """
     config = SolverConfig() if config is None else config
     s = seeds(inst.seed if inst.seed is not None else 0)
@@ -207,6 +212,10 @@ def solve_instance(problem: Problem, inst: Instance, constraints: ConstraintsLik
         unscaled = sdp.solve_model(model, cons, config, None)
         if unscaled.usable:
             res, unscaled = unscaled, res
+    ray = next((r for r in (res, unscaled) if r is not None and is_unbounded(r)), None)
+    if raise_unbounded and ray is not None:  # a ray proves unboundedness whichever data it was found with
+        blocks = unbounded_blocks(model, ray)
+        raise UnboundedRelaxation(unbounded_message(model, ray, blocks), blocks)
     t3 = time.perf_counter()
     estimate = refined = None
     best = local.best

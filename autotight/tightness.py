@@ -151,7 +151,8 @@ def judge(res: SDPResult, upper: float, criteria: Criteria = Criteria(), certifi
     """Tightness of one SDP solution against the best feasible cost ``upper`` (module docstring).
 
     certificate: an ``autotight.certificate.Certificate`` for the local solution from this solve's y
-    (optional; needed for accept="certified"; its λ_min bound is reused for the accuracy).  Q, constraints: the SDP's data, for the residual-based accuracy.
+    (optional; needed for accept="certified"; its λ_min bound is reused for the accuracy).  Q, constraints: the SDP's
+    data, for the residual-based accuracy.
     """
     acc = accuracy(res, Q, constraints, None if certificate is None else certificate.lambda_lower)
     cost_outcome, L, tol, why = bracket(res, upper, criteria, acc)

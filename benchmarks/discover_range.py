@@ -79,7 +79,8 @@ def main() -> None:
     path = Path(a.out)
     old = json.loads(path.read_text()) if path.exists() and a.keep_other_runs else {}
     out = {"benchmark": "discover over a noise range vs the paper's families",
-           "target": "held-out tight fraction within 2 pp of the paper's at every σ, no more constraints than the paper's",
+           "target": "held-out tight fraction within 2 pp of the paper's at every σ, "
+                     "no more constraints than the paper's",
            "runs": {**old.get("runs", {}), **runs}}
     print(json.dumps(jsonable({k: {kk: v[kk] for kk in ("n_pairs", "n_constraints", "n_paper_constraints", "n_solves",
                                                          "wall_s", "meets_target")}

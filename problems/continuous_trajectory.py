@@ -32,11 +32,43 @@ Cayley rows of (I − ½ξ_k^∧) T_k = (I + ½ξ_k^∧) T̃_k), "motion" {h, po
 (the 12 rows of (I − ½ξ^∧) T_{k+1} = (I + ½ξ^∧) T_k, i.e. the discrete-time relation with C̃ = I,
 r̃ = 0).  Paper families (notes §4): R1, R2, R4, R5, R7 per measured k; R3, R6, R8 per k < K−1.
 R7 uses c_ℓ × c_m = c_n, so it holds on SO(3) only, not on O(3).
+
+Settings (``preset``).  The paper (§5, Figs. 10–11) states K = 21, pose measurements at the start,
+middle and end, W_k = I/σ² and the σ range, and that every trial at a noise level uses "the geometry
+of the trajectory as in the left example of Figure 10".  It does **not** state the time step Δt, the
+power spectral density Q_c, the trajectory itself (Fig. 10 is a picture), or the prior on the first
+twist (ϖ̌₁, Q₁).  What we chose, and why:
+
+- ``preset=paper`` (the default): Δt = 0.1 s, Q_c = I, Q₁ = 0.1² I with ϖ̌₀ ~ N(ϖ₀, Q₁) per seed,
+  and one fixed smooth arc ("arc": constant body twist 1 m/s forward and 0.3 rad/s of yaw, a fixed
+  start rotation), so K = 21 spans 2 s, 2 m and 0.6 rad, 0.03 rad per step; a seed changes only the
+  measurement noise and ϖ̌₀, as in the paper's 100 trials on one geometry.  Why Δt = 0.1: tightness
+  of R1–R8 at K = 21 is decided by the motion per step against the prior's stiffness, not by Δt
+  itself (Δt = 0.1 with Q_c = I is exactly Δt = 1 with Q_c = 0.001 I, the twist × 0.1 and Q₁ × 0.01).
+  Measured in issue 18 (random-walk twist, σ = 0.1): tight on 0/5 seeds at Δt = 1, 2/3 at 0.5, 3/3
+  at 0.25, 8/8 at 0.1 (and 5/5 at σ = 0.316, 10/10 at σ = 1).  With this preset at K = 21
+  (benchmarks/results/continuous_k21.json, seeds 0–4 per σ): tight 5/5 at every σ from 0.001 to 0.1
+  and 4/5 at σ = 0.316 and at σ = 1, log SVR on the marginalised X 7.7–10.8 on the tight trials.  On
+  the boundary map (reports/continuous_boundary) Δt = 0.1 is the only time step tight at σ = 1 (Δt ≥
+  0.25 gives gaps of 11–25 % there, Δt = 1 fails from σ = 0.316), while per-step rotations up to
+  0.6 rad and q_c from 0.01 to 10 stay tight at σ ≤ 0.316: Δt = 0.1 is the choice the map supports.
+- ``preset=long_horizon``: issue 4's setting, Δt = 1 s (a 20 s horizon at K = 21, about 6 rad of yaw)
+  and a twist that wanders as a random walk (TWIST_WANDER) with a random start rotation, a new
+  geometry per seed.  R1–R8 are not tight there at K = 21 (and at K ≥ 17 on most seeds).
+A preset fills dt, geometry, qc, prior_sigma and motion; any of them given explicitly wins.
+
+Log SVR as the paper reports it, on the marginalised X, whichever formulation was solved:
+``marginal_log_svr(instance, X, cliques)`` (``marginal_X``: the x-block of the ϖ-kept X, by the
+Schur-complement argument above; a clique-decomposed X is first completed from its clique blocks by
+the maximum-determinant completion, ``complete_psd``, not by rank-1 factors, which would hide rank).
+The minimum over clique blocks reads lower (issue 18: 6.21 against 6.84 on one instance).
 """
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import scipy.sparse as sp
@@ -48,23 +80,72 @@ from autotight.errors import ParameterError, ProblemDefinitionError, SolverError
 from autotight.gauss_newton import gauss_newton
 from autotight.model import Constraint, Factor, Model, QuadForm, Variables
 from autotight.problem import Instance, LocalResult, Param
+from autotight.sdp.result import log_svr
 
-from ._pose import (POSE_ROLES, XI_ROLES, binary_cayley, declare_pose, declare_xi, pose_blocks, pose_from_x,
-                    pose_orthonormality, pose_values, r1_unary, r2_unary, r3_binary, rot_blocks, trans_block,
-                    unary_cayley, weighted_cost, xi_blocks, xi_values)
+from ._pose import (
+    POSE_ROLES,
+    XI_ROLES,
+    binary_cayley,
+    declare_pose,
+    declare_xi,
+    pose_blocks,
+    pose_from_x,
+    pose_orthonormality,
+    pose_values,
+    r1_unary,
+    r2_unary,
+    r3_binary,
+    rot_blocks,
+    trans_block,
+    unary_cayley,
+    weighted_cost,
+    xi_blocks,
+    xi_values,
+)
+
+GEOMETRIES = ("arc", "random_walk")
 
 NAME = "continuous_trajectory"
 DESCRIPTION = "Continuous-time (WNOA prior) SE(3) trajectory from sparse pose measurements (paper §5)."
+
+
+@dataclass(frozen=True)
+class PresetParam(Param):
+    """A parameter whose default comes from the chosen ``preset`` (default None = "from the preset").
+    ``kind`` is its type; bounds and choices are checked as for ``Param`` when a value is given."""
+
+    kind: type = float
+
+    def parse(self, name: str, value: Any) -> Any:
+        if value is None:
+            return None
+        return Param(self.kind(), self.help, self.low, self.high, self.low_open, self.choices).parse(name, value)
+
+
+#: named settings: each fills the preset parameters (PresetParam) that the caller did not give
+PRESETS: dict[str, dict[str, Any]] = {
+    # the paper's Fig. 11: K = 21 states over a 2 s horizon, one fixed smooth arc (see the module docstring)
+    "paper": {"dt": 0.1, "geometry": "arc", "qc": 1.0, "prior_sigma": 0.1, "motion": 1.0},
+    # issue 4's setting: a 20 s horizon (about 6 rad of yaw over K = 21) and a new random-walk twist per seed
+    "long_horizon": {"dt": 1.0, "geometry": "random_walk", "qc": 1.0, "prior_sigma": 0.1, "motion": 1.0},
+}
+
 PARAMS = {
+    "preset": Param("paper", "named setting that fills dt, geometry, qc, prior_sigma and motion unless given",
+                    choices=tuple(PRESETS)),
     "K": Param(21, "number of states {T_k, ϖ_k}", low=2),
     "sigma": Param(0.1, "pose measurement noise std per ξ component (W_k = I/σ²)", low=0.0, low_open=True),
-    "dt": Param(1.0, "time step Δt between states (used when `times` is empty)", low=0.0, low_open=True),
-    "qc": Param(1.0, "power spectral density scale: Q_c = qc · diag(qc_diag)", low=0.0, low_open=True),
+    "dt": PresetParam(None, "time step Δt between states (used when `times` is empty; preset paper: 0.1)",
+                      low=0.0, low_open=True),
+    "geometry": PresetParam(None, "true trajectory: 'arc' (constant twist, fixed start: the same for every seed) "
+                            "or 'random_walk' (random start rotation, twist wanders; preset paper: arc)",
+                            choices=GEOMETRIES, kind=str),
+    "qc": PresetParam(None, "power spectral density scale: Q_c = qc · diag(qc_diag) (preset paper: 1)",
+                      low=0.0, low_open=True),
     "qc_diag": Param((), "6 diagonal entries of Q_c/qc (empty: all ones)"),
-    "prior_sigma": Param(0.1, "std of the prior on the first twist ϖ₀ (Q₁ = prior_sigma² I)", low=0.0,
-                         low_open=True),
-    "motion": Param(1.0, "twist scale: the true body twist is about motion·(1 m/s forward, 0.3 rad/s yaw)",
-                    low=0.0),
+    "prior_sigma": PresetParam(None, "std of the prior on the first twist ϖ₀ (Q₁ = prior_sigma² I; preset paper: 0.1)",
+                               low=0.0, low_open=True),
+    "motion": PresetParam(None, "twist scale: the true body twist is motion·BASE_TWIST (preset paper: 1)", low=0.0),
     "measured": Param((), "indices of the measured states, 0-based (empty: start, middle, end)"),
     "times": Param((), "K increasing timestamps (empty: t_k = k·dt)"),
     "marginalize": Param(True, "remove ϖ from the lifting by the Schur complement (paper); else keep it"),
@@ -72,8 +153,17 @@ PARAMS = {
 
 #: the true body twist [ρ̇; φ̇] per unit of `motion`: 1 m/s forward, 0.3 rad/s about the body z axis
 BASE_TWIST = np.array([1.0, 0.0, 0.0, 0.0, 0.0, 0.3])
-#: the true twist wanders as a random walk with this std per component and √s, per unit of `motion`
+#: random_walk geometry: the true twist wanders with this std per component and √s, per unit of `motion`
 TWIST_WANDER = 0.05
+#: arc geometry: the fixed start rotation (world-to-body), the same for every seed
+ARC_START_ROTVEC = np.array([0.3, -0.2, 0.5])
+
+
+def resolve(params: dict) -> dict:
+    """params with every preset parameter that is None replaced by the preset's value."""
+    preset = PRESETS[params.get("preset", "paper")]
+    return {k: (preset[k] if v is None and k in preset else v) for k, v in params.items()} | \
+        {k: v for k, v in preset.items() if k not in params}
 
 #: roles of a motion factor: pose k, pose k+1 (primed), ξ_{k+1,k} (as discrete_trajectory's odometry factor)
 MOTION_ROLES = ("h", *POSE_ROLES, *(f"{r}'" for r in POSE_ROLES), *XI_ROLES)
@@ -128,8 +218,11 @@ def _check_pd(M: np.ndarray, name: str) -> None:
 
 
 def generate(params: dict, rng: np.random.Generator) -> Instance:
-    """Truth: C₀ random, T_{k+1} = cay((Δt_k ϖ_k)^∧) T_k, ϖ_k = motion·(BASE_TWIST + random walk);
-    T_k is world-to-body, the world origin at the centroid of the positions.  T̃_k = cay(ν_k^∧) T_k."""
+    """Truth: T_{k+1} = cay((Δt_k ϖ_k)^∧) T_k with (``geometry``) "arc": ϖ_k = motion·BASE_TWIST and
+    C₀ = exp(ARC_START_ROTVEC^∧), the same for every seed, or "random_walk": C₀ random and
+    ϖ_k = motion·(BASE_TWIST + random walk); T_k is world-to-body, the world origin at the centroid of
+    the positions.  Per seed: T̃_k = cay(ν_k^∧) T_k and the prior mean ϖ̌₀ ~ N(ϖ₀, Q₁)."""
+    params = resolve(params)
     K = int(params["K"])
     if K < 2:
         raise ParameterError(f"K must be ≥ 2, got {K}")
@@ -137,11 +230,16 @@ def generate(params: dict, rng: np.random.Generator) -> Instance:
     s, sig = float(params["motion"]), float(params["sigma"])
     dts = np.diff(t)
     w = np.empty((K, 6))
-    w[0] = s * (BASE_TWIST + TWIST_WANDER * rng.standard_normal(6))
-    for k in range(K - 1):
-        w[k + 1] = w[k] + s * TWIST_WANDER * np.sqrt(dts[k]) * rng.standard_normal(6)
+    if params["geometry"] == "arc":
+        w[:] = s * BASE_TWIST
+        C0 = lie.exp_so3(ARC_START_ROTVEC)
+    else:
+        w[0] = s * (BASE_TWIST + TWIST_WANDER * rng.standard_normal(6))
+        for k in range(K - 1):
+            w[k + 1] = w[k] + s * TWIST_WANDER * np.sqrt(dts[k]) * rng.standard_normal(6)
+        C0 = lie.random_rotation(rng)
     T = np.empty((K, 4, 4))
-    T[0] = lie.make_pose(lie.random_rotation(rng), np.zeros(3))
+    T[0] = lie.make_pose(C0, np.zeros(3))
     for k in range(K - 1):
         T[k + 1] = lie.cay_se3(dts[k] * w[k]) @ T[k]
     # world origin at the centroid of the vehicle positions p_k = −C_kᵀ r_k: T_k ← T_k T_w.  The
@@ -153,7 +251,7 @@ def generate(params: dict, rng: np.random.Generator) -> Instance:
     w_prior = rng.multivariate_normal(w[0], Q1)
     meas = {"times": t, "measured": idx, "T_meas": T_meas, "W": np.repeat(np.eye(6)[None] / sig**2, idx.size, 0),
             "Qc": Qc, "Q1": Q1, "w_prior": w_prior}
-    return Instance(NAME, dict(params), meas, {"T": T, "w": w})
+    return Instance(NAME, params, meas, {"T": T, "w": w})
 
 
 @dataclass(frozen=True)
@@ -282,6 +380,105 @@ def marginal(inst: Instance) -> Marginal:
     S = sp.csr_array(Qxx - corr)
     S = sp.csr_array((S + S.T) / 2)
     return Marginal(Vx, Vf, Q, sp.csr_array(Qxw), lu, S)
+
+
+def block_scale(inst: Instance) -> np.ndarray:
+    """A diagonal congruence X = D X′ D for the SDP (sdp.solve(…, scale=D)), D per column from the
+    typical magnitude of its block, read off the measurements and the noise parameters only: h, c: 1;
+    r_k: the RMS measured translation entry; ξ_k: σ (its noise); ξ_{k+1,k}: Δt_k × the RMS prior
+    twist entry (ρ and φ apart), at least the process-noise std √(Δt³/3 · q_c); ϖ_k: the RMS prior
+    twist entry, at least the prior std.  Without it the ξ_k blocks are σ² smaller than the rest and
+    the solver resolves them poorly at small σ (issue 14)."""
+    d = _data(inst)
+    V = _variables(d, not d.marginalize)
+    D = np.ones(V.N)
+    rms = lambda a: float(np.sqrt(np.mean(np.square(a))))  # noqa: E731
+    q = float(np.mean(np.diag(d.Qc)))
+    r_typ = max(rms(d.T_meas[:, :3, 3]), 1e-3)
+    sig = float(np.sqrt(np.mean([1.0 / np.mean(np.diag(W)) for W in d.W])))
+    w_lin, w_ang = rms(d.w_prior[:3]), rms(d.w_prior[3:])
+    w_floor = float(np.sqrt(np.mean(np.diag(d.Q1))))
+    for k in range(d.K):
+        D[V.slice(trans_block(pose_prefix(k)))] = r_typ
+    for k in d.measured:
+        for b in xi_blocks(meas_xi(int(k))):
+            D[V.slice(b)] = sig
+    for k, dt in enumerate(np.diff(d.times)):
+        floor = np.sqrt(dt**3 / 3 * q)
+        rho, phi = xi_blocks(motion_xi(k))
+        D[V.slice(rho)], D[V.slice(phi)] = max(dt * w_lin, floor), max(dt * w_ang, floor)
+    if not d.marginalize:
+        for k in range(d.K):
+            D[V.slice(twist_block(k))] = max(rms(d.w_prior), w_floor)
+    return D
+
+
+def complete_psd(X: np.ndarray, cliques: Sequence[np.ndarray], rtol: float = 1e-12) -> np.ndarray:
+    """The maximum-determinant PSD completion of X known on the union of the ``cliques``' blocks (a
+    chordal pattern: the cover of a decomposed solve is a clique tree); entries off it are ignored.
+
+    Vertices are taken in maximum-cardinality-search order; each new vertex v with earlier neighbours
+    S (a clique, the pattern being chordal) and other earlier vertices R gets X[v, R] =
+    X[v, S] X[S, S]⁺ X[S, R]: the conditional-independence (Gaussian) completion, which is PSD when
+    every clique block is, and has rank 1 when every clique block has rank 1.  It is computed on the
+    correlation matrix X_ij / √(X_ii X_jj), so the pseudo-inverse's cut-off (eigenvalues below rtol ×
+    the largest) does not depend on the scale of the blocks.
+    """
+    X = (np.asarray(X, dtype=float) + np.asarray(X, dtype=float).T) / 2
+    N = X.shape[0]
+    known = np.eye(N, dtype=bool)
+    for C in cliques:
+        known[np.ix_(C, C)] = True
+    if known.all():
+        return X
+    dg = np.sqrt(np.maximum(np.diag(X), 0.0))
+    dg[dg == 0] = 1.0
+    Y = X / np.outer(dg, dg)
+    weight, done, order = np.zeros(N), np.zeros(N, bool), []
+    for _ in range(N):  # maximum cardinality search
+        v = int(np.argmax(np.where(done, -1.0, weight)))
+        order.append(v)
+        done[v] = True
+        weight += known[v]
+    for i in range(1, N):
+        v, prev = order[i], np.array(order[:i])
+        S, R = prev[known[v, prev]], prev[~known[v, prev]]
+        if R.size == 0:
+            continue
+        if S.size == 0:
+            Y[v, R] = Y[R, v] = 0.0
+            continue
+        w, U = np.linalg.eigh(Y[np.ix_(S, S)])
+        keep = w > rtol * max(w[-1], 0.0)
+        a = (Y[v, S] @ U[:, keep]) / w[keep]
+        Y[v, R] = Y[R, v] = a @ (U[:, keep].T @ Y[np.ix_(S, R)])
+    return Y * np.outer(dg, dg)
+
+
+def marginal_X(inst: Instance, X: np.ndarray, cliques: Sequence[np.ndarray] | None = None) -> np.ndarray:
+    """The marginalised SDP's solution from X (N × N) of either formulation: X itself when ϖ was
+    marginalised, else X's x-block.  ``cliques``: the cover (column indices) of a decomposed solve,
+    whose X is known on the clique blocks only (``sdp.solve`` fills the rest from the blocks' rank-1
+    factors, which would hide any higher rank): X is then first replaced by its maximum-determinant
+    completion from those blocks (``complete_psd``), which is as rank-deficient as the data allows
+    and no more.  Why the x-block: with Q_ww ≻ 0, min over the ϖ rows and columns of ⟨Q_full, X⟩
+    s.t. X ⪰ 0 is ⟨S, X_xx⟩ (module docstring), so the x-block of an optimum of the ϖ-kept SDP is an
+    optimum of the marginalised one, with the same constraints on it."""
+    d = _data(inst)
+    X = np.asarray(X, dtype=float) if cliques is None else complete_psd(X, cliques)
+    if d.marginalize:
+        return X
+    Vf, Vx = _variables(d, True), _variables(d, False)
+    if X.shape != (Vf.N, Vf.N):
+        raise ProblemDefinitionError(f"X is {X.shape}, the ϖ-kept lifting has {Vf.N} columns")
+    ix = Vf.index(Vx.names)
+    return X[np.ix_(ix, ix)]
+
+
+def marginal_log_svr(inst: Instance, X: np.ndarray, cliques: Sequence[np.ndarray] | None = None) -> float:
+    """log10(λ₁/λ₂) of the marginalised X (``marginal_X``), the quantity the paper's Fig. 11 plots,
+    whichever formulation was solved (``cliques``: the cover of a decomposed solve, else None)."""
+    return log_svr(np.linalg.eigvalsh(marginal_X(inst, X, cliques))[::-1])
 
 
 # ----------------------------------------------------------------------------- paper families R4–R8

@@ -141,7 +141,8 @@ def build(inst: Instance) -> Model:
         p, s, name = pose_prefix(k), unary_name(k), f"meas_{k}"
         pose = pose_blocks(p)
         factors.append(Factor(f"rotation_{k}", "so3", ("h", *pose[:3]),
-                              constraints=pose_orthonormality(V, p, factor=f"rotation_{k}"), roles=("h", "c1", "c2", "c3")))
+                              constraints=pose_orthonormality(V, p, factor=f"rotation_{k}"),
+                              roles=("h", "c1", "c2", "c3")))
         factors.append(Factor(name, "pose_meas", ("h", *pose, *xi_blocks(s)), cost=weighted_cost(V, s, m["W"][k]),
                               constraints=unary_cayley(V, p, m["T_meas"][k], s, name),
                               roles=("h", *POSE_ROLES, *XI_ROLES), data=m["T_meas"][k][:3, :]))

@@ -8,8 +8,8 @@ So every cost here is σ² times the paper's.
 
 Lifting  x = [h, c₁, c₂, c₃, r, ρ₁, φ₁, …, ρ_M, φ_M]  (n = 13 + 6M),  cost  Σ ξ_mᵀ W_m ξ_m, ξ_m = [ρ_m; φ_m].
 Factors: "so3" (h, c₁, c₂, c₃) with c_iᵀc_j = δ_ij; per m "pose_meas" (h, c₁, c₂, c₃, r, ρ_m, φ_m) with
-the 12 Cayley rows of ξ_m = cay⁻¹(T T̃_m⁻¹); its ``Factor.data`` is [C̃_m r̃_m] (12 entries, row-major).
-Paper families: R1 (3 per m), R2 (1 per m).
+the 12 Cayley rows of ξ_m = cay⁻¹(T T̃_m⁻¹); its ``Factor.data`` is [C̃_m r̃_m] (12 entries, row-major).  Paper
+families: R1 (3 per m), R2 (1 per m).
 Cliques: the "pose_meas" block sets (size 19), used when the SDP is decomposed (large M).
 """
 

@@ -34,20 +34,48 @@ z_m (w_m c_i − w_m c̃_i h − ½ zφ_m × (c_i + c̃_i h) = 0).  With the pri
 bounds the z blocks: the cross term ξ_mᵀW_m z_m is unbounded below and the SDP is unbounded
 (discovery reports this and first adds the relations that bound z, e.g. z_mᵀz_m = ξ_mᵀξ_m).
 
-Factors: "so3" (h, c₁, c₂, c₃); per m "robust_meas" (h, C, r, ρ_m, φ_m, w_m, zρ_m, zφ_m; 26 columns).
+Why per-measurement relations are not enough.  The cost monomials w_m ξ_{m,k} ξ_{m,l} appear only in
+the entries z_m ξ_mᵀ of X, and no quadratic relation within one measurement ties them to anything but
+z_mᵀz_m = ξ_mᵀξ_m and the symmetry of z_m ξ_mᵀ: ξ_m is a rational function of T (Cayley), so no
+quadratic relation in (h, T, ξ_m) has ξ_m ξ_mᵀ terms that w_m could turn into z_m ξ_mᵀ.  The relaxation
+then "reflects" z_m against ξ_m (z_m − E z_m = −(ξ_m − E ξ_m)), which removes the spread of ξ_m from
+the inlier cost; a spread-out T then lowers the bound (5.4 % below the optimum with the per-measurement
+relations alone, M = 6, seed 0).  Relations between two measurements tie those spreads: the relation
+between ξ_m and ξ_l through the shared pose, (I − ½ξ_l^∧)(I + ½ξ_m^∧)T̃_m = (I + ½ξ_l^∧)(I − ½ξ_m^∧)T̃_l,
+is quadratic, and so are its products with w_m, w_l and w_m w_l once written with z_m, z_l (terms
+z_m ξ_l, ξ_m z_l, z_m z_l).
+
+Factors: "so3" (h, c₁, c₂, c₃); per m "robust_meas" (h, C, r, ρ_m, φ_m, w_m, zρ_m, zφ_m; 26 columns);
+per consecutive pair (m, m+1) "robust_pair" (h, ξ_m, w_m, z_m, ξ_{m+1}, w_{m+1}, z_{m+1}; 27 columns),
+with no cost and no primary constraint: a learning group (so that ``factors`` learns the relations
+between two measurements, and a learned set carries to any M) whose relations join cliques m and m+1.
+The clique cover is the path {h, C, r, ξ_m, w_m, z_m, ξ_{m+1}, w_{m+1}, z_{m+1}}, m = 0 … M−2.
 No paper families.  Rank 1 is generally not reached by quadratic constraints on this lifting
 (as for AutoTight's rPPR, which is cost-tight, not rank-tight): use ``--accept cost``.
 
-Discovery: ``DEFAULT_GROUPS`` (the per-factor groups, "factors") is what ``autotight discover``
-uses for this problem unless ``--groups`` is given.  Measured (M = 6, 1 outlier, σ = 0.05, seed 0):
-per factor, 111 candidate pairs (596 constraints); the greedy step bounds the relaxation in 4 rounds
-but ends 5.4 % below the brute-force optimum with no candidate left that cuts X: NOT cost-tight.
-Relations between two measurements are needed, e.g. w_m times the relation between ξ_m and ξ_l
-((I − ½ξ_l^∧)(I + ½ξ_m^∧)T̃_m = (I + ½ξ_l^∧)(I − ½ξ_m^∧)T̃_l, quadratic once multiplied by w_m and
-written with z_m).  Pairwise groups without the shared pose,
-``--groups 'factors,adjacent:robust_meas+robust_meas/rho/phi/w/zrho/zphi'`` (27 columns per pair,
-M(M−1)/2 pairs), hold them; the full unions ``adjacent:robust_meas+robust_meas`` (39 columns) hit an
-ill-conditioned free-monomial basis on some pairs.
+Discovery: ``DEFAULT_GROUPS`` ("factors": so3, robust_meas and robust_pair) is what ``autotight
+discover`` uses for this problem unless ``--groups`` is given.  Pairs of consecutive measurements
+suffice: all pairs (``adjacent:robust_meas+robust_meas/rho/phi/w/zrho/zphi``, 15 pairs at M = 6) are also
+cost-tight, but they couple every measurement with every other, so the SDP has no sparsity left
+(one 250 s solve at load 10, against about 40 s on the path cover).
+
+Measured (M = 6, 1 outlier, σ = 0.05, seed 0; load 10-14 on 2 cores):
+- per-measurement relations alone (so3, robust_meas: 111 candidate pairs, 596 constraints): bounded,
+  5.4 % below the brute-force optimum: not cost-tight, as argued above;
+- with the relations of consecutive pairs learned as separate groups (block lists, 609 more
+  constraints), one Clarabel solve (scaled, third attempt with clique_graph merging) reached the
+  brute-force optimum to a relative gap of 2.8e-7 (log SVR 2.0: cost-tight, not rank-tight);
+- with ``DEFAULT_GROUPS`` (181 candidate pairs, 944 constraints; the robust_pair identities carried to
+  all five pairs) the solve with every candidate ends AlmostSolved at best (|U − D| ≈ 2e-5 relative,
+  accuracy 1e-4; which status depends on the constraint order) or stalls (InsufficientProgress /
+  NumericalError, also at tol 1e-6, scaled, with the 8 exactly dependent rows removed, or with the
+  IPM); the multipliers do not certify the optimum (λ_min(H) < 0 and no trace bound: nothing bounds
+  ξ_m and r in the certificate's sense).  ``discover --accept cost`` therefore ends "undecided", with
+  no reduction and no held-out check.  Greedy tightening instead (``DEFAULT_TIGHTEN = "greedy"``)
+  reaches a bracket gap of 1.3e-10 with 167 pairs (AlmostSolved, certificate still failing) after
+  32 solver calls, 558 s wall / 116 s CPU.  The likely cause of the stalls is a relaxation without
+  a strictly feasible point (facial reduction would be needed); not resolved.
+
 
 Sampling discrete variables: ``sample`` must cover every value of each discrete variable and their
 combinations that the monomials can see.  Here w_m = ±1 independently with probability ½ each, so
@@ -76,7 +104,7 @@ from autotight.model import Constraint, Factor, Model, QuadForm, Variables
 from autotight.problem import Instance, LocalResult, Param
 
 from ._cayley import draw_valid
-from ._pose import (POSE_ROLES, XI_ROLES, declare_pose, pose_blocks, pose_from_x, pose_orthonormality, pose_values,
+from ._pose import (POSE_ROLES, XI_ROLES, pose_blocks, pose_from_x, pose_orthonormality, pose_values,
                     unary_cayley, unary_residuals, xi_blocks)
 
 NAME = "robust_pose_averaging"
@@ -92,10 +120,14 @@ PARAMS = {
 
 #: the learning groups discovery uses by default for this problem (see the module docstring)
 DEFAULT_GROUPS = "factors"
+#: discovery's tightening starts from every candidate once bounded (``discovery.tighten``): the violation
+#: ranking is not selective here (the greedy rounds add every pair, one solve per doubling)
+DEFAULT_TIGHTEN = "all"
 #: the brute-force local solver enumerates 2^M labellings: refused above this M
 MAX_BRUTE_FORCE = 12
 
 MEAS_ROLES = ("h", *POSE_ROLES, *XI_ROLES, "w", "zrho", "zphi")
+PAIR_ROLES = ("h", *(f"{k}.{r}" for k in (1, 2) for r in (*XI_ROLES, "w", "zrho", "zphi")))
 
 
 def n_outliers(params: dict) -> int:
@@ -183,12 +215,23 @@ def build(inst: Instance) -> Model:
         cons = unary_cayley(V, "", T_meas[m], s, name) + binary_constraints(V, m, name)
         factors.append(Factor(name, "robust_meas", ("h", *meas_blocks(m)), cost=meas_cost(V, m, Ws[m], beta),
                               constraints=cons, roles=MEAS_ROLES))
+    for m in range(M - 1):  # learning groups only: no cost, no primary constraints
+        factors.append(Factor(f"pair_{m}_{m + 1}", "robust_pair", ("h", *label_blocks(m), *label_blocks(m + 1)),
+                              roles=PAIR_ROLES))
     return Model(V, factors, paper={}, cliques=cliques(M))
 
 
+def label_blocks(m: int) -> list[str]:
+    """ξ_m, w_m, z_m: measurement m's blocks without the pose."""
+    return [*xi_blocks(str(m)), w_block(m), *z_blocks(m)]
+
+
 def cliques(M: int) -> list[tuple[str, ...]]:
-    """{h, C, r, ξ_m, w_m, z_m} per m: a star-shaped clique tree sharing {h, C, r}."""
-    return [("h", *meas_blocks(m)) for m in range(M)]
+    """{h, C, r, ξ_m, w_m, z_m, ξ_{m+1}, w_{m+1}, z_{m+1}} for m = 0 … M−2 (a path: the intersection of
+    cliques m and m+2, {h, C, r}, lies in clique m+1); {h, C, r, ξ_0, w_0, z_0} when M = 1."""
+    if M == 1:
+        return [("h", *meas_blocks(0))]
+    return [("h", *meas_blocks(m), *label_blocks(m + 1)) for m in range(M - 1)]
 
 
 def _pose(state: dict) -> np.ndarray:

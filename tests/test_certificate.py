@@ -4,10 +4,10 @@ import numpy as np
 import pytest
 
 from autotight.certificate import certificate, lambda_min, trace_bound, stack
-from autotight.certify import certify_model
+from autotight.certifier import certify_model
 from autotight.problem import load
 from autotight.constraint_set import named as constraint_set
-from autotight.sdp import SolverConfig, solve_model
+from autotight.sdp import solve_model
 import scipy.sparse as sp
 
 
@@ -37,7 +37,8 @@ def test_pose_averaging_certified():
 
 
 def test_discrete_trajectory_certified_small():
-    _certify_tight("discrete_trajectory", {"K": 10}, "paper", range(2))
+    """Seeds 4 and 6 jam the barrier's long steps (a fake optimum at λ < 0): the centred retry certifies."""
+    _certify_tight("discrete_trajectory", {"K": 10}, "paper", (0, 4, 6))
 
 
 @pytest.mark.slow
@@ -88,7 +89,7 @@ def test_bound_is_valid_for_the_sdp_dual():
 def test_lambda_min_sparse_matches_dense():
     rng = np.random.default_rng(3)
     n = 400
-    A = sp.random(n, n, density=0.01, random_state=4)
+    A = sp.random(n, n, density=0.01, random_state=rng)
     H = sp.csc_array(A + A.T + sp.identity(n) * 0.5)
     w = np.linalg.eigvalsh(H.toarray())[0]
     lam, low, method = lambda_min(H)

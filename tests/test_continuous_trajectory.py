@@ -26,16 +26,18 @@ COST_RTOL = 1e-9
 #: a tolerance of 1e-10 gets ≤ 1.3e-6 but often ends AlmostSolved.  A relaxation gap where the
 #: families fail is ≥ 1e-3 (K = 17: 2.5e-3 … 3.6e-2), so 1e-5 separates the two cleanly.
 TIGHT_COST_RTOL = 1e-5
-#: the largest K at which the paper's families are tight for every seed tried (0–4), default setting;
-#: at K = 17 only seed 0 of 0–4 is tight (see the slow tests)
+#: preset long_horizon: the largest K at which the paper's families are tight for every seed tried
+#: (0–4); at K = 17 only seed 0 of 0–4 is tight (see the slow tests)
 TIGHT_K = 15
-#: a K at which they are tight for every seed and which solves in a few seconds (default run)
+#: preset long_horizon: a K at which they are tight for every seed and which solves in a few seconds
 FAST_TIGHT_K = 11
 LOOSE_K = 17
 
 
 def _instance(seed: int, **params):
-    return PROB.generate(params, seed)
+    """An instance of issue 4's setting (preset long_horizon: Δt = 1, random-walk twist), on which
+    the structural tests and the tightness boundary below were measured, unless params say otherwise."""
+    return PROB.generate({"preset": "long_horizon", **params}, seed)
 
 
 def _relative_violations(model, x: np.ndarray) -> np.ndarray:
@@ -246,11 +248,12 @@ def _assert_tight(inst) -> None:
     np.testing.assert_allclose(est["w"], local.state["w"], atol=1e-3)
 
 
-@pytest.mark.parametrize("seed", [0, 1, 2])
-def test_paper_families_tight_default_setting_small_k(seed):
+@pytest.mark.parametrize("seed", [0, pytest.param(1, marks=pytest.mark.slow), pytest.param(2, marks=pytest.mark.slow)])
+def test_paper_families_tight_long_horizon_small_k(seed):
     _assert_tight(_instance(seed, K=FAST_TIGHT_K))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_paper_families_tight_at_the_largest_tight_k(seed):
     _assert_tight(_instance(seed, K=TIGHT_K))
@@ -268,14 +271,16 @@ def test_boundary_not_tight_at_high_noise():
     _assert_not_tight(_instance(1, K=7, sigma=1.0), 1e-2)
 
 
+@pytest.mark.slow
 def test_boundary_not_tight_beyond_the_largest_tight_k():
     """K = 17, seed 1: measured log SVR 1.5, SDP 1.6 % below the local optimum."""
     _assert_not_tight(_instance(1, K=LOOSE_K), 1e-3)
 
 
 @pytest.mark.slow
-def test_boundary_not_tight_at_the_paper_k21():
-    """K = 21 (the paper's size), seed 0: measured log SVR ≈ 1–2, Clarabel stops at AlmostSolved."""
+def test_boundary_not_tight_at_the_paper_k21_long_horizon():
+    """K = 21 (the paper's size) over a 20 s horizon, seed 0: measured log SVR ≈ 1–2, Clarabel stops at
+    AlmostSolved."""
     res = _solve(_instance(0, K=21))
     assert not (res.status == "Solved" and res.log_svr > 5.0), res.summary()
     assert res.log_svr < 3.0, res.summary()
@@ -352,3 +357,127 @@ def test_keeping_the_twists_gives_the_marginalised_sdp_optimum():
     assert abs(k_res.primal_cost - m_res.primal_cost) <= 1e-6 * m_res.primal_cost
     ix = k_model.variables.index(m_model.variables.names)
     assert np.abs(k_res.X[np.ix_(ix, ix)] - m_res.X).max() <= 1e-4 * np.abs(m_res.X).max()
+
+
+# ----------------------------------------------------------------------------- presets and the paper default
+
+
+def test_default_preset_is_the_paper_setting_and_explicit_params_win():
+    inst = PROB.generate({"K": 5}, 0)
+    assert inst.params["preset"] == "paper"
+    assert {k: inst.params[k] for k in ct.PRESETS["paper"]} == ct.PRESETS["paper"]
+    np.testing.assert_allclose(inst.measurements["times"], 0.1 * np.arange(5))
+    long = PROB.generate({"K": 5, "preset": "long_horizon"}, 0)
+    assert {k: long.params[k] for k in ct.PRESETS["long_horizon"]} == ct.PRESETS["long_horizon"]
+    np.testing.assert_allclose(long.measurements["times"], np.arange(5.0))
+    mixed = PROB.generate({"K": 5, "preset": "long_horizon", "dt": 0.3, "geometry": "arc"}, 0)
+    assert (mixed.params["dt"], mixed.params["geometry"], mixed.params["qc"]) == (0.3, "arc", 1.0)
+    np.testing.assert_allclose(mixed.measurements["times"], 0.3 * np.arange(5))
+    with pytest.raises(ParameterError, match="preset"):
+        PROB.generate({"preset": "fig10"}, 0)
+    with pytest.raises(ParameterError, match="geometry"):
+        PROB.generate({"geometry": "spiral"}, 0)
+    with pytest.raises(ParameterError, match="dt"):
+        PROB.generate({"dt": -0.1}, 0)
+
+
+def test_arc_geometry_is_the_same_for_every_seed_and_only_the_noise_changes():
+    a, b = PROB.generate({"K": 7}, 0), PROB.generate({"K": 7}, 1)
+    np.testing.assert_array_equal(a.truth["T"], b.truth["T"])
+    np.testing.assert_array_equal(a.truth["w"], np.tile(ct.BASE_TWIST, (7, 1)))
+    assert np.abs(a.measurements["T_meas"] - b.measurements["T_meas"]).max() > 1e-3
+    assert np.abs(a.measurements["w_prior"] - b.measurements["w_prior"]).max() > 1e-3
+    r1, r2 = (PROB.generate({"K": 7, "preset": "long_horizon"}, s).truth["T"] for s in (0, 1))
+    assert np.abs(r1 - r2).max() > 1e-2  # the random walk draws a new geometry per seed
+
+
+def _chain_rank1(N: int = 30, width: int = 8, step: int = 5, rank: int = 1, seed: int = 0):
+    rng = np.random.default_rng(seed)
+    F = rng.standard_normal((rank, N))
+    cliques = [np.r_[0, np.arange(s, min(s + width, N))] for s in range(1, N - 1, step)]
+    return F.T @ F, cliques
+
+
+def test_psd_completion_recovers_low_rank_data_and_stays_psd():
+    X, cliques = _chain_rank1()
+    on = np.zeros_like(X, dtype=bool)
+    for c in cliques:
+        on[np.ix_(c, c)] = True
+    assert not on.all()
+    partial = np.where(on, X, 123.0)  # entries off the cover are ignored, whatever they hold
+    np.testing.assert_allclose(ct.complete_psd(partial, cliques), X, atol=1e-10 * np.abs(X).max())
+    X2, _ = _chain_rank1(rank=3, seed=1)
+    Y = ct.complete_psd(np.where(on, X2, 0.0), cliques)
+    np.testing.assert_allclose(Y[on], X2[on], atol=1e-12 * np.abs(X2).max())
+    assert np.linalg.eigvalsh(Y)[0] > -1e-10 * np.abs(X2).max()
+    # every separator (h and 3 shared columns) has the data's rank 3: the completion is unique, X2 itself
+    np.testing.assert_allclose(Y, X2, atol=1e-8 * np.abs(X2).max())
+    # separators {h} only: rank adds up over the cliques (max-det adds no correlation beyond h)
+    X3, narrow = _chain_rank1(rank=3, width=5, step=5, seed=2)
+    Z = ct.complete_psd(X3, narrow)
+    assert np.linalg.matrix_rank(Z, tol=1e-8 * np.abs(Z).max()) > 3
+
+
+#: |log SVR (ϖ kept, marginal, from the clique blocks) − log SVR (marginalised SDP)| on tight K = 6, 8
+#: instances: two solvers stopping at different points of the same optimum; measured ≤ 0.9 decades
+#: (σ = 0.01 … 1, seeds 0–1), against the 5 decades that separate rank 1 from not
+MARGINAL_SVR_ATOL = 1.5
+
+
+def _marginal_svrs(seed: int, with_paper: bool, **params) -> tuple[float, float, float, float]:
+    """(marginal log SVR, cost) for the marginalised SDP (Clarabel's chordal decomposition, judged on
+    its column cover) and for the ϖ-kept SDP on our clique cover."""
+    from autotight import sdp
+    from autotight.run import cliques_for
+    from autotight.sdp.chordal import column_cliques
+
+    out = []
+    for marginalize in (True, False):
+        inst = PROB.generate({"K": 6, "marginalize": marginalize, **params}, seed)
+        model = PROB.build(inst)
+        cons = model.primary() + (model.paper_constraints() if with_paper else [])
+        cl = None if marginalize else cliques_for(model, cons)
+        res = sdp.solve(model.Q, cons, cliques=cl)
+        assert res.status == "Solved", res.summary()
+        if marginalize:
+            cl = column_cliques(model.variables.N, [model.Q, *[c.A for c in cons]], always=[0])
+        out += [ct.marginal_log_svr(inst, res.X, cl), res.primal_cost]
+    return tuple(out)
+
+
+@pytest.mark.parametrize("seed, sigma", [(0, 0.1), (1, 0.01)])
+def test_marginal_log_svr_of_the_kept_solve_matches_the_marginalised_sdp(seed, sigma):
+    marg, marg_cost, kept, kept_cost = _marginal_svrs(seed, True, sigma=sigma)
+    assert marg > 5 and kept > 5, (marg, kept)
+    assert abs(kept - marg) <= MARGINAL_SVR_ATOL, (marg, kept)
+    # unscaled solves at σ = 0.01 agree to 1.4e-5 only (ξ_k blocks are σ² below the rest: issue 14)
+    assert abs(kept_cost - marg_cost) <= 5e-5 * marg_cost
+
+
+def test_marginal_log_svr_is_low_where_the_relaxation_is_not_tight():
+    """Primary constraints only (K = 6, seed 0): measured 0.02 (marginalised) and 0.09 (ϖ kept), where
+    the minimum over the kept solve's clique blocks reads 0.01 and the rank-1-filled X reads 3.2."""
+    marg, _, kept, _ = _marginal_svrs(0, False)
+    assert marg < 1.0 and kept < 1.0, (marg, kept)
+
+
+#: the paper's K = 21 at the default (preset paper), seeds 0–2: log SVR on the marginalised X measured
+#: 7.7–9.8 on the paths of benchmarks/continuous_k21.py, SDP within 3e-5 of the local optimum.
+#: Slow: 13–19 s per seed on a loaded machine (our IPM on the ϖ-kept SDP, 2–3 s CPU each).
+@pytest.mark.slow
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_paper_default_k21_is_tight(seed):
+    inst = PROB.generate({"marginalize": False}, seed)
+    assert (inst.params["K"], inst.params["dt"], inst.params["geometry"]) == (21, 0.1, "arc")
+    model = PROB.build(inst)
+    cons = model.primary() + model.paper_constraints()
+    from autotight.run import CliqueCovers
+
+    cl = CliqueCovers(model, cons).choose("ipm")
+    from autotight import sdp
+
+    res = sdp.solve(model.Q, cons, solver="ipm", cliques=cl)
+    assert res.solver == "autotight-ipm" and res.usable, res.summary()
+    local = PROB.local_solve(inst, inst.truth)
+    assert ct.marginal_log_svr(inst, res.X, cl) > 5.0
+    assert abs(relative_gap(res.primal_cost, local.cost)) < TIGHT_COST_RTOL, (res.primal_cost, local.cost)

@@ -11,7 +11,7 @@ from autotight.problem import load
 from autotight.check import check_sufficient
 from autotight.sdp import SolverConfig, solve_model
 from autotight.testing import assert_sufficient
-from autotight.tightness import Criteria, relative_gap
+from autotight.tightness import Criteria
 from problems import pose_averaging as pa
 
 PROB = load("pose_averaging")

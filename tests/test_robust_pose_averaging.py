@@ -27,8 +27,10 @@ def test_structure_counts_and_outliers():
     model = PROB.build(inst)
     assert model.variables.N == 13 + 13 * 6
     types = model.factor_types()
-    assert len(types["robust_meas"]) == 6 and len(types["so3"]) == 1
+    assert len(types["robust_meas"]) == 6 and len(types["so3"]) == 1 and len(types["robust_pair"]) == 5
     assert all(len(f.constraints) == 12 + 7 for f in types["robust_meas"])
+    assert all(not f.constraints and f.cost is None and len(f.blocks) == 11 for f in types["robust_pair"])
+    assert [len(model.variables.index(c)) for c in rpa.cliques(6)] == [1 + 12 + 26] * 5
     assert model.paper == {}
     assert (inst.truth["w"] == -1).sum() == 1  # round(M/6) outliers by default
     assert (_instance(0, outlier_rate=0.5).truth["w"] == -1).sum() == 3
@@ -98,3 +100,31 @@ def test_greedy_bounds_the_unbounded_blocks_first():
     assert bounding_pairs(oracle, added, tr.primary_unbounded) == added
     # ... and within 4 rounds the relaxation is bounded
     assert not is_unbounded(tr.sdp) and n_unb < 4
+
+
+def test_solve_with_primary_constraints_names_the_unbounded_blocks(capsys):
+    from autotight import solve
+    from autotight.cli import main
+    from autotight.unbounded import UnboundedRelaxation
+
+    with pytest.raises(UnboundedRelaxation) as e:
+        solve("robust_pose_averaging", {"M": 3}, seed=0, constraints="primary")
+    assert {"zrho_0", "zphi_1", "zrho_2"} <= set(e.value.blocks) and "c1" not in e.value.blocks
+    code = main(["solve", "robust_pose_averaging", "-p", "M=3", "--set", "primary"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1
+    assert err[0].startswith("autotight: error: the relaxation is unbounded") and "zrho_* (3)" in err[0]
+
+
+@pytest.mark.slow
+def test_per_measurement_relations_leave_a_gap_to_the_brute_force_optimum():
+    """Every relation learned within one measurement (and the rotation): bounded, but the bound stays
+    percent below the brute-force optimum (the z_m ξ_mᵀ entries are untied; see the module docstring)."""
+    inst = _instance(0)
+    model = PROB.build(inst)
+    loc = local_search(PROB, inst, np.random.default_rng([0, 1]), 2)
+    cat = learn(PROB, inst, model, np.random.default_rng([0, 2]), "factors", types=["so3", "robust_meas"])
+    oracle = Oracle(model, cat.by_pair(), loc.best.cost, Criteria(accept="cost"))
+    v, res = oracle.solve(list(oracle.pairs))
+    assert not is_unbounded(res) and res.usable
+    assert not v.tight and 0.02 < v.rel_gap < 0.2  # 5.4 % at seed 0

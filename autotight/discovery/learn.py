@@ -63,8 +63,9 @@ def adjacent_groups(model: Model, type_a: str, type_b: str, keep: Sequence[str] 
     if keep is not None:
         for f in fs:
             if f.type in (type_a, type_b) and not set(keep) <= set(f.roles or f.blocks):
-                raise ProblemDefinitionError(f"factor type {f.type!r} has no role(s) "
-                                             f"{sorted(set(keep) - set(f.roles or f.blocks))}; roles are {list(f.roles)}")
+                missing = sorted(set(keep) - set(f.roles or f.blocks))
+                raise ProblemDefinitionError(f"factor type {f.type!r} has no role(s) {missing}; "
+                                             f"roles are {list(f.roles)}")
     for i, fa in enumerate(fs):
         if fa.type != type_a:
             continue

@@ -4,8 +4,13 @@ The oracle counts its solves: ``n_solves`` counts solver calls (``SDPResult.n_ca
 layer reports retries and re-solves, else 1 per solve) and ``solve_time_s`` their time; every solve's
 status is kept (a failed solve is "not tight", with its status in ``log``).  What counts as tight is
 ``criteria.accept`` (applied by ``tightness.judge``): "rank" (rank d and cost), "cost" (the cost
-bracket only) or "certified" (a dual certificate of the best local solution from each solve's y).
-Clarabel has no warm start: each solve starts cold.
+bracket, with the dual certificate of the best local solution from the solve's y: as in the
+per-instance pipeline, a certificate decides a bracket the solver's accuracy leaves undecided) or
+"certified" (the certificate alone).
+Clarabel has no warm start: each solve starts cold.  As in the per-instance pipeline
+(``autotight.pipeline.solve_instance``), each solve runs in X = D X' D with D from the lifted best local
+solution (``sdp.scaling.block_scale``) when ``scaled`` and the configuration allows it, and falls back
+to the plain data when the scaled solve is unusable; both calls are counted.
 """
 
 from __future__ import annotations
@@ -19,6 +24,7 @@ from .. import sdp
 from ..model import Constraint, Model
 from ..sdp.config import SolverConfig
 from ..sdp.result import SDPResult
+from ..sdp.scaling import block_scale
 from ..certificate import certificate
 from ..tightness import Criteria, Verdict, judge
 from ..unbounded import is_unbounded
@@ -35,6 +41,7 @@ class Oracle:
     solve_time_s: float = 0.0
     log: list[dict] = field(default_factory=list)
     best_theta: np.ndarray | None = None  # the lifted best local solution (certificates, accept="certified")
+    scaled: bool = False  # solve in X = D X' D, D from best_theta (see the module docstring)
 
     @property
     def accept(self) -> str:
@@ -57,12 +64,23 @@ class Oracle:
         return self._solve(self.model.primary() + list(extra), stage, 0)
 
     def _solve(self, cons: list[Constraint], stage: str, n_pairs: int) -> tuple[Verdict, SDPResult]:
-        res = sdp.solve_model(self.model, cons, self.options)
+        D = None
+        if self.scaled and self.best_theta is not None and self.options.scale != "none":
+            D = block_scale(self.model.variables, [self.best_theta])
+        res = sdp.solve_model(self.model, cons, self.options, D)
         calls = int(getattr(res, "n_calls", 1) or 1)
         self.n_solves += calls
         self.solve_time_s += res.solve_time_s + res.setup_time_s
+        if D is not None and not res.usable and not is_unbounded(res):  # the scaling did not help: the plain data
+            plain = sdp.solve_model(self.model, cons, self.options)
+            n = int(getattr(plain, "n_calls", 1) or 1)
+            self.n_solves += n
+            calls += n
+            self.solve_time_s += plain.solve_time_s + plain.setup_time_s
+            if plain.usable:
+                res = plain
         cert = None
-        if self.accept == "certified" and self.best_theta is not None and res.y is not None:
+        if self.accept != "rank" and self.best_theta is not None and res.y is not None:
             cert = certificate(self.model.Q, cons, res.y, self.best_theta, d=self.model.d, tol=self.criteria.gap_tol,
                                floor=self.criteria.cost_atol / self.criteria.gap_tol)
         v = judge(res, self.best_local, self.criteria, cert, Q=self.model.Q, constraints=cons)

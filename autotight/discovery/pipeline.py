@@ -122,6 +122,7 @@ class DiscoveryResult:
             "irreducible": bool(self.reduction and self.reduction.irreducible),
             "n_reduce_solves": None if self.reduction is None else self.reduction.n_solves,
             "n_verify_solves": None if self.reduction is None else self.reduction.n_verify_solves,
+            "irreducibility_proof": None if self.reduction is None else self.reduction.proof,
             "heldout_tight_fraction": self.heldout.fraction, "heldout_instances": len(self.heldout.seeds),
             "heldout_primary_tight_fraction": self.heldout.primary_fraction,
             "paper_tight": self.paper_tight,
@@ -149,7 +150,8 @@ def heldout_check(problem: Problem, params: dict[str, Any], seeds_: Sequence[int
         loc = local_search(problem, inst, seeds(s).local(), n_random)
         for name, make in sets.items():
             cons, issues = make(inst, model, seeds(s).constraints())
-            r = solve_instance(problem, inst, cons, config=config, criteria=criteria, model=model, local=loc)
+            r = solve_instance(problem, inst, cons, config=config, criteria=criteria, model=model, local=loc,
+                               raise_unbounded=False)
             h = out[name]
             h.issues += [f"seed {s}: {i}" for i in issues]
             h.seeds.append(int(s)); h.tight.append(r.tight); h.log_svr.append(r.log_svr)
@@ -166,14 +168,16 @@ def default_groups(problem: Problem, groups: str | Sequence[Sequence[str]] | Non
 def discover(problem: Problem | str, params: dict[str, Any] | None = None, seed: int = 0, *,
              groups: str | Sequence[Sequence[str]] | None = None, learn_options: LearnOptions = LearnOptions(),
              criteria: Criteria = Criteria(), solver: SolverConfig | None = None, n_heldout: int = 10,
-             n_random: int = 2, verify: bool = True, compare: bool = True,
+             n_random: int = 2, verify: bool = False, compare: bool = True,
              progress: Callable[[str, str], None] | None = None) -> DiscoveryResult:
     """Discover an irreducible set of redundant constraints for ``problem`` at ``params``.
 
     The learning instance is ``generate(params, seed)``; held-out instances use seeds
     seed + 1 … seed + n_heldout (generators from ``autotight.pipeline.seeds``).  ``solver`` (a
     ``SolverConfig``) is used for every SDP solve, tightening and held-out check alike.  groups: the
-    learning groups (None: the module's ``DEFAULT_GROUPS``, else "factors").  ``criteria.accept``
+    learning groups (None: the module's ``DEFAULT_GROUPS``, else "factors"); the tightening starts as the
+    module's ``DEFAULT_TIGHTEN`` says ("greedy" by default, or "all": ``tighten.tighten``).  The reduction's
+    irreducibility proof is monotonicity; ``verify`` re-solves to check it numerically.  ``criteria.accept``
     decides what counts as tight (rank and cost, cost only, or certified) for tightening, reduction
     and the held-out check.  Raises UnboundedRelaxation when the SDP stays unbounded and no learned
     candidate bounds its unbounded blocks.  progress(stage, text) is called as work proceeds.
@@ -198,7 +202,8 @@ def discover(problem: Problem | str, params: dict[str, Any] | None = None, seed:
     oracle = Oracle(model, pairs, loc.best.cost, criteria, config,
                     best_theta=prob.lift(inst, loc.best.state))
     t = time.perf_counter()
-    tr = tighten(oracle, progress=lambda s: say("tighten", s))
+    start = getattr(prob.module, "DEFAULT_TIGHTEN", "greedy")  # the module's tightening start (tighten.tighten)
+    tr = tighten(oracle, progress=lambda s: say("tighten", s), start=start)
     times["tighten_s"] = time.perf_counter() - t
     if tr.unbounded:
         raise UnboundedRelaxation(tr.message, tr.unbounded)

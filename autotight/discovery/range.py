@@ -186,7 +186,8 @@ class RangeDiscoveryResult:
     def summary(self) -> dict[str, Any]:
         return {"problem": self.problem, "params": self.params, "over": self.over, "train_params": self.train_params,
                 "n_train": self.n_train, "seed": self.seed, "tight": self.tight,
-                "n_candidate_pairs": len(self.candidates), "not_learned_everywhere": [f"{t}:{i}" for t, i in self.not_everywhere],
+                "n_candidate_pairs": len(self.candidates),
+                "not_learned_everywhere": [f"{t}:{i}" for t, i in self.not_everywhere],
                 "n_greedy_pairs": len(self.greedy), "validation_rounds": self.validation, "n_pairs": len(self.pairs),
                 "pairs": [f"{t}:{i}" for t, i in self.pairs], "irreducible": self.irreducible,
                 "dropped_in_verification": [f"{t}:{i}" for t, i in self.dropped_in_verification],
@@ -321,7 +322,8 @@ def _tighten(run: _Run, trainers: list[Trainer], candidates: list[Pair], min_vio
         for tr in loose:
             X = tr.last.sdp.X if tr.last is not None else None
             if X is None or not tr.last.sdp.usable:
-                tr.reached, tr.message = False, f"solver status {tr.last.sdp.status if tr.last else '?'}: cannot rank candidates"
+                status = tr.last.sdp.status if tr.last else "?"
+                tr.reached, tr.message = False, f"solver status {status}: cannot rank candidates"
                 continue
             v = {p: tr.violation(X, p) for p in remaining}
             if not v or max(v.values()) <= min_violation:
@@ -436,7 +438,8 @@ def discover_range(problem: Problem | str, params: Mapping[str, Any] | None, ove
         return out
 
     common = (int(seed), groups, learn_options, n_random, say)
-    trainers = timed("learn_s", _learn_trainers, prob, points, range(len(points)), tparams, range(int(n_train)), *common)
+    trainers = timed("learn_s", _learn_trainers, prob, points, range(len(points)), tparams, range(int(n_train)),
+                     *common)
     candidates, not_everywhere = _candidates(trainers, tparams)
     run = _Run(prob, config, criteria)
     greedy = timed("tighten_s", _tighten, run, trainers, candidates, min_violation, say)
@@ -446,7 +449,8 @@ def discover_range(problem: Problem | str, params: Mapping[str, Any] | None, ove
     next_t = int(n_train)
     while n_validate and reached and len(rounds) < max_rounds:
         which = sorted({tr.point for tr in reached})
-        new = timed("learn_s", _learn_trainers, prob, points, which, tparams, range(next_t, next_t + n_validate), *common)
+        new = timed("learn_s", _learn_trainers, prob, points, which, tparams, range(next_t, next_t + n_validate),
+                    *common)
         next_t += n_validate
         trainers += new
         candidates, not_everywhere = _candidates(trainers, tparams)

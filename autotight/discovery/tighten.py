@@ -13,6 +13,13 @@ the ray violates (a pair the ray satisfies cannot cut it), most violated first, 
 no such pair the result says which blocks nothing bounds (``unbounded_blocks``).
 
 What counts as tight is the oracle's acceptance (``Oracle.ok``: rank, or cost only).
+
+``start="all"`` (a problem module's ``DEFAULT_TIGHTEN``): once the relaxation is bounded, solve with
+every candidate first.  Tightness is monotone in the constraint set, so that one solve decides
+whether any subset can be tight (if all candidates are not, "not tightenable with this lifting"),
+and its multipliers order the reduction (AutoTight's start).  Worth it when the violation ranking
+is not selective (robust pose averaging: the greedy rounds end up adding every pair, one solve
+per doubling).
 """
 
 from __future__ import annotations
@@ -56,8 +63,12 @@ def bounding_pairs(oracle: Oracle, pairs: list[Pair], blocks: list[str]) -> list
     return out
 
 
-def tighten(oracle: Oracle, min_violation: float = 1e-7, progress=None, max_rounds: int | None = None) -> TightenResult:
-    """Greedy rounds until tight (``oracle.ok``), no candidate cuts X, or ``max_rounds`` rounds."""
+def tighten(oracle: Oracle, min_violation: float = 1e-7, progress=None, max_rounds: int | None = None,
+            start: str = "greedy") -> TightenResult:
+    """Greedy rounds until tight (``oracle.ok``), no candidate cuts X, or ``max_rounds`` rounds;
+    ``start="all"``: every candidate in one solve once bounded (see the module docstring)."""
+    if start not in ("greedy", "all"):
+        raise ValueError(f"start must be 'greedy' or 'all', got {start!r}")
     v0, res = oracle.solve([], stage="primary")
     prim_unb = unbounded_blocks(oracle.model, res) if is_unbounded(res) else []
     if oracle.ok(v0):
@@ -66,6 +77,22 @@ def tighten(oracle: Oracle, min_violation: float = 1e-7, progress=None, max_roun
     remaining = list(oracle.pairs)
     v, t = v0, 0
     while True:
+        if start == "all" and res.X is not None and not is_unbounded(res) and remaining:
+            chosen, remaining = chosen + remaining, []
+            t += 1
+            v, res = oracle.solve(chosen, stage="tighten")
+            if progress is not None:
+                progress(f"{len(chosen)} pairs (all), log SVR {res.log_svr:.1f}")
+            if oracle.ok(v):
+                return TightenResult(chosen, True, v, res, v0, f"tight ({oracle.accept}) with every candidate "
+                                     f"(after {t} rounds)", [], prim_unb)
+            unb = unbounded_blocks(oracle.model, res) if is_unbounded(res) else []
+            if not res.usable or getattr(v, "undecided", False):
+                why = (f"undecided with every learned candidate ({res.status}; relative gap {v.rel_gap:.1e}): "
+                       "the solver's accuracy does not decide the bracket")
+            else:
+                why = "not tightenable with this lifting: not tight with every learned candidate"
+            return TightenResult(chosen, False, v, res, v0, why, unb, prim_unb)
         if res.X is None:
             return TightenResult(chosen, False, v, res, v0, f"solver failed ({res.status}); cannot rank candidates",
                                  primary_unbounded=prim_unb)

@@ -147,7 +147,7 @@ def tight(df: pd.DataFrame, sigmas: Sequence[float], sets: Sequence[str], path: 
     _sigma_axis(ax, sigmas)
     ax.set_ylim(-0.03, 1.03)
     ax.set_ylabel("fraction of SDP solves tight")
-    ax.set_title("Tight: rank d and SDP cost = best local cost", fontsize=9)
+    ax.set_title("Tight: rank d and the cost bracket [dual cost, best feasible cost] closed", fontsize=9)
     ax.legend(fontsize=8, loc="best")
     return _save(fig, path)
 

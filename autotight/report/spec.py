@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from pathlib import Path
 from dataclasses import asdict, dataclass, field
 from typing import Any, Sequence
 
@@ -39,6 +40,8 @@ class SweepSpec:
     solver: str = "clarabel"
     discovered: str | None = None
     """A discovered-set JSON file, or None (run discovery when ``sets`` asks for it)."""
+    files: tuple[tuple[str, str], ...] = ()
+    """Saved constraint sets given as ``file:PATH`` in ``--sets``: (set name = the file's stem, PATH)."""
     source: str = ""
     """What ``autotight.problem.load`` takes (a name or a .py path); defaults to ``problem``."""
 
@@ -63,7 +66,9 @@ class SweepSpec:
         parts += [f"--param {k}={_fmt(v)}" for k, v in self.params.items() if v != defaults.get(k)]
         if self.sigmas != default_sigmas(problem):
             parts.append(f"--sigmas {_fmt(self.sigmas)}")
-        parts += [f"--trials {self.trials}", f"--sets {','.join(self.sets)}", f"--seed {self.seed}"]
+        paths = dict(self.files)
+        sets = [f"file:{paths[s]}" if s in paths else s for s in self.sets]
+        parts += [f"--trials {self.trials}", f"--sets {','.join(sets)}", f"--seed {self.seed}"]
         if self.discovered:
             parts.append(f"--discovered {self.discovered}")
         if self.solver != "clarabel":
@@ -122,9 +127,10 @@ def require_sigma(problem: Problem):
     return problem.params["sigma"]
 
 
-def parse_sets(text: str | Sequence[str]) -> tuple[str, ...]:
+def parse_sets(text: str | Sequence[str], files: Sequence[str] = ()) -> tuple[str, ...]:
+    """The set names of ``--sets``: a subset of ``SETS`` and the names of saved sets ``files``."""
     names = [s.strip() for s in (text.split(",") if isinstance(text, str) else text) if s.strip()]
-    bad = [s for s in names if s not in SETS]
+    bad = [s for s in names if s not in SETS and s not in files]
     if bad or not names:
         raise ReportError(f"--sets {','.join(names) or text!r}: use a comma-separated subset of {','.join(SETS)}")
     if len(set(names)) != len(names):
@@ -132,15 +138,24 @@ def parse_sets(text: str | Sequence[str]) -> tuple[str, ...]:
     return tuple(names)
 
 
-def file_sets(sets: str | Sequence[str], discovered: str | None) -> tuple[list[str], str | None]:
-    """``file:PATH`` in ``sets``: the saved constraint set at PATH as the "discovered" set."""
-    names = [x.strip() for x in (sets.split(",") if isinstance(sets, str) else sets) if x.strip()]
-    files = [x[5:] for x in names if x.startswith("file:")]
-    if not files:
-        return names, discovered
-    if len(files) > 1 or (discovered and discovered != files[0]):
-        raise ReportError(f"--sets: one saved set per sweep (file:PATH or --discovered), got {files}")
-    return [("discovered" if x.startswith("file:") else x) for x in names], files[0]
+def file_sets(sets: str | Sequence[str]) -> tuple[list[str], tuple[tuple[str, str], ...]]:
+    """``file:PATH`` entries of ``--sets``: each a saved constraint set named by its file's stem (e.g.
+    ``file:reports/pose_averaging/range_set.json`` → "range_set"); the names must be distinct and
+    must not be primary, paper or discovered."""
+    names, files = [], []
+    for x in (sets.split(",") if isinstance(sets, str) else sets):
+        x = x.strip()
+        if x.startswith("file:"):
+            path = x[5:]
+            name = Path(path).stem
+            if not path or name in SETS or name in dict(files):
+                raise ReportError(f"--sets {x}: a saved set needs a file whose name is not primary, paper, "
+                                  "discovered or another set's")
+            files.append((name, path))
+            x = name
+        if x:
+            names.append(x)
+    return names, tuple(files)
 
 
 def make_spec(problem: Problem, source: str, params: dict[str, Any] | None = None, *,
@@ -168,12 +183,12 @@ def make_spec(problem: Problem, source: str, params: dict[str, Any] | None = Non
     paper = has_paper(problem, full)
     if sets is None:
         sets = ("primary", "paper") if paper else ("primary",)
-    sets, discovered = file_sets(sets, discovered)
-    sets = parse_sets(sets)
+    sets, files = file_sets(sets)
+    sets = parse_sets(sets, [n for n, _ in files])
     if "paper" in sets and not paper:
         raise ReportError(f"--sets paper: problem {problem.name} has no paper families")
     return SweepSpec(problem.name, full, parse_sigmas(problem, sigmas), int(trials), sets, int(seed),
-                     discovered=discovered, source=str(source), **kw)
+                     discovered=discovered, files=files, source=str(source), **kw)
 
 
 def has_paper(problem: Problem, params: dict[str, Any]) -> bool:

@@ -62,7 +62,11 @@ def run_sweep(spec: SweepSpec, out: str | Path, *, jobs: int = 1, scheduler: Any
         with connect(scheduler) as client, folder_lock(out):
             problem = spec.load()
             discovered, disc_id = prepare_discovered(spec, problem, out, log)
-            done = store.open(dict(spec.identity(), discovered=disc_id), columns(error_keys(problem, spec)),
+            saved_sets, files_id = prepare_files(spec, problem)
+            if discovered is not None:
+                saved_sets["discovered"] = discovered
+            identity = dict(spec.identity(), discovered=disc_id) | ({"files": files_id} if files_id else {})
+            done = store.open(identity, columns(error_keys(problem, spec)),
                               spec.sets, spec.trials, info={"description": problem.description, "source": spec.source},
                               run_info={"backend": backend, "jobs": jobs, "command": f"{spec.command()} --out {out}"},
                               redo=redo)
@@ -78,7 +82,7 @@ def run_sweep(spec: SweepSpec, out: str | Path, *, jobs: int = 1, scheduler: Any
             computed = failed = 0
             with tqdm(total=len(tasks), initial=before, disable=None if progress else True, unit="trial",
                       desc=problem.name, dynamic_ncols=True) as bar:
-                calls = [(spec, i, t, discovered) for i, t in pending]
+                calls = [(spec, i, t, saved_sets) for i, t in pending]
                 for res in execute(run_trial, calls, jobs=jobs, scheduler=client):
                     store.append(res.rows)
                     computed += 1
@@ -123,6 +127,27 @@ def _remove_new_folder(out: Path) -> None:
 
 def _sha256(path: Path) -> str:
     return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def load_set(path: Path, problem: Problem, what: str) -> ConstraintSet:
+    """A saved constraint set for ``problem`` (one-line errors for a missing or foreign file)."""
+    if not path.is_file():
+        raise ReportError(f"no constraint-set file {path}")
+    check_set_file(path, what)
+    cs = ConstraintSet.load(path)
+    if cs.problem != problem.name:
+        raise ReportError(f"{path} is a constraint set for {cs.problem}, not {problem.name}")
+    return cs
+
+
+def prepare_files(spec: SweepSpec, problem: Problem) -> tuple[dict[str, ConstraintSet], dict[str, Any]]:
+    """The saved sets of ``file:PATH`` in ``--sets`` by name, and their identities (file, sha256)."""
+    sets, ids = {}, {}
+    for name, p in spec.files:
+        path = Path(p)
+        sets[name] = load_set(path, problem, f"--sets file:{p}")
+        ids[name] = {"file": path.name, "sha256": _sha256(path)}
+    return sets, ids
 
 
 def prepare_discovered(spec: SweepSpec, problem: Problem, out: Path,

@@ -51,7 +51,8 @@ class TrialResult:
 
 
 def run_trial(spec: SweepSpec, sigma_index: int, trial: int, discovered: Any = None) -> TrialResult:
-    """Trial ``(sigma_index, trial)`` of ``spec``, BLAS limited to one thread; failures become rows."""
+    """Trial ``(sigma_index, trial)`` of ``spec``, BLAS limited to one thread; failures become rows.
+    ``discovered``: the learned and saved constraint sets by set name (``sweep.prepare_files``)."""
     with threadpool_limits(limits=1):
         t0 = time.perf_counter()
         problem = spec.load()
@@ -95,7 +96,7 @@ def _solve(problem: Problem, spec: SweepSpec, i: int, t: int, discovered: Any) -
     config = SolverConfig(backend=spec.solver, threads=1)
     rows, uppers = [], []
     for name in spec.sets:
-        constraints = discovered if name == "discovered" else name
+        constraints = discovered[name] if discovered and name in discovered else name
         out = solve_instance(problem, inst, constraints, config=config, criteria=spec.criteria, model=model,
                              local=loc, rng_constraints=rng_disc)
         res, verdict = out.sdp, out.verdict

@@ -10,7 +10,8 @@ model's own clique cover (a hint) and a scaling vector:
   blocks, small cliques merged, and the hint, ranked by the backend's cost model);
 - retries: a result is solved again with each of the backend's ``retries`` configs in turn whose
   statuses include its status (Clarabel: default regularisation on a stalled solve, or an
-  AlmostSolved one of at most 100 columns, then clique-graph merging on a stalled one); the retry replaces the result when it is
+  AlmostSolved one of at most 100 columns, then clique-graph merging on a stalled one); the retry replaces the result
+  when it is
   Solved or the result is unusable;
 - fallback: an unusable result of a backend with a ``fallback`` (the IPM) is solved again by that
   backend on its own cover (Clarabel's), with its retries;
@@ -175,7 +176,8 @@ def _solve(Q: sp.spmatrix | sp.sparray, constraints: Sequence[Constraint], d: in
     res = _with_retries(backend, "", Qs, As_s, b, d, _cover(backend, decompose, covers), config, log)
     if not res.usable and fb is not None:
         # the backend's attainable accuracy was not enough: the fallback on its own cover
-        res = _with_retries(fb, f"solved again by {fb.name}", Qs, As_s, b, d, _cover(fb, decompose, covers), config, log)
+        fb_cover = _cover(fb, decompose, covers)
+        res = _with_retries(fb, f"solved again by {fb.name}", Qs, As_s, b, d, fb_cover, config, log)
     message = "; ".join(a.describe(k + 1) for k, a in enumerate(log))  # before res (one of them) is changed
     solve_s, setup_s = sum(a.res.solve_time_s for a in log), sum(a.res.setup_time_s for a in log)
     res.n_calls, res.solve_time_s, res.setup_time_s, res.message = len(log), solve_s, setup_s, message

@@ -21,7 +21,7 @@ import scipy.sparse as sp
 
 from ..svec import smat, svec_columns, svec_dim
 from .clique_program import clique_program, complete_auto, complete_from_cliques, cost_scale
-from .config import SolverConfig, SolverConfigError
+from .config import Retries, SolverConfig, SolverConfigError
 from .result import SDPResult, finish
 
 
@@ -88,7 +88,8 @@ def solve_dense(Q: sp.csr_array, As: Sequence[sp.csr_array], b: np.ndarray, d: i
 
         cliques = column_cliques(N, [Q, *As], always=range(d))
         X, svrs = complete_from_cliques(X, cliques, d)
-    res = SDPResult(status=status, solver="clarabel-chordal" if opts.clarabel_chordal else "clarabel", d=d, X=X, y=y, primal_cost=primal, dual_cost=dual,
+    res = SDPResult(status=status, solver="clarabel-chordal" if opts.clarabel_chordal else "clarabel", d=d, X=X, y=y,
+                    primal_cost=primal, dual_cost=dual,
                     solve_time_s=t2 - t1, setup_time_s=t1 - t0, iterations=int(sol.iterations),
                     clique_log_svr=svrs, cliques=cliques)
     return finish(res)
@@ -156,7 +157,7 @@ class ClarabelBackend:
             return solve_cliques(Q, As, b, d, cliques, config)
         return solve_dense(Q, As, b, d, config)  # one clique: the dense path
 
-    def retries(self, config: SolverConfig, decomposed: bool, N: int) -> list[tuple[str, SolverConfig, tuple[str, ...]]]:
+    def retries(self, config: SolverConfig, decomposed: bool, N: int) -> Retries:
         out = []
         if config.regularization == "small":
             out.append(("default regularisation", replace(config, regularization="default"),

@@ -76,7 +76,8 @@ class SolverConfig:
             raise SolverConfigError(f"time_limit must be > 0 seconds (inf: none), got {self.time_limit!r}")
         if not (isinstance(self.threads, int) and self.threads >= 0):
             raise SolverConfigError(f"threads must be an integer ≥ 0 (0: the solver's default), got {self.threads!r}")
-        for field, value, allowed in (("scale", self.scale, SCALES), ("regularization", self.regularization, REGULARIZATIONS),
+        for field, value, allowed in (("scale", self.scale, SCALES),
+                                      ("regularization", self.regularization, REGULARIZATIONS),
                                       ("chordal_merge", self.chordal_merge, CHORDAL_MERGES)):
             if value not in allowed:
                 raise SolverConfigError(f"unknown {field} {value!r}; use " + " or ".join(map(repr, allowed)))
@@ -108,3 +109,7 @@ class SolverConfig:
 
 #: the old name of SolverConfig (deprecated; the same class, so every old field still works)
 SolverOptions = SolverConfig
+
+
+#: a backend's retry plan: (why, the config to retry with, the statuses that trigger it)
+Retries = list[tuple[str, SolverConfig, tuple[str, ...]]]

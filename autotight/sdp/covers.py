@@ -80,5 +80,6 @@ def _check_cover(cover: list[np.ndarray], N: int, rows: np.ndarray, cols: np.nda
     inc = incidence(cover, N).astype(bool)
     held = np.asarray((inc[:, rows].multiply(inc[:, cols])).sum(axis=0)).ravel() > 0
     if not np.all(held):
-        raise ValueError(f"the clique cover hint misses {int((~held).sum())} nonzero entries of the cost or constraints")
+        raise ValueError(f"the clique cover hint misses {int((~held).sum())} nonzero entries of the cost or "
+                         "constraints")
     clique_tree(cover)  # ValueError unless the cliques form a clique tree

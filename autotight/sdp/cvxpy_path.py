@@ -8,7 +8,7 @@ from typing import Sequence
 import numpy as np
 import scipy.sparse as sp
 
-from .config import SolverConfig, SolverConfigError
+from .config import Retries, SolverConfig, SolverConfigError
 from .result import SDPResult, finish
 
 
@@ -74,5 +74,5 @@ class CvxpyBackend:
               cliques: Sequence[np.ndarray] | None, config: SolverConfig) -> SDPResult:
         return solve_cvxpy(Q, As, b, d, config.backend_arg or DEFAULT_SOLVER, config)
 
-    def retries(self, config: SolverConfig, decomposed: bool, N: int) -> list[tuple[str, SolverConfig, tuple[str, ...]]]:
+    def retries(self, config: SolverConfig, decomposed: bool, N: int) -> Retries:
         return []

@@ -19,7 +19,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from .clarabel_direct import ClarabelBackend
-from .config import SolverConfig
+from .config import Retries, SolverConfig
 from .cvxpy_path import CvxpyBackend
 from .result import SDPResult
 from .schur_ipm import IPMBackend
@@ -37,7 +37,7 @@ class Backend(Protocol):
     def solve(self, Q: sp.csr_array, As: Sequence[sp.csr_array], b: np.ndarray, d: int,
               cliques: Sequence[np.ndarray] | None, config: SolverConfig) -> SDPResult: ...
 
-    def retries(self, config: SolverConfig, decomposed: bool, N: int) -> list[tuple[str, SolverConfig, tuple[str, ...]]]: ...
+    def retries(self, config: SolverConfig, decomposed: bool, N: int) -> Retries: ...
 
 
 #: name → backend; adding a backend is one module and one line here

@@ -49,7 +49,7 @@ import scipy.sparse.linalg as spla
 
 from ..svec import SQRT2, triu_indices
 from .clique_program import clique_program, complete_auto
-from .config import SolverConfig, SolverConfigError
+from .config import Retries, SolverConfig, SolverConfigError
 from .result import SDPResult, finish
 
 #: a solve that stops early (iteration or time limit, stalled steps) with every relative residual
@@ -450,7 +450,8 @@ def solve_ipm(Q: sp.csr_array, As: Sequence[sp.csr_array], b: np.ndarray, d: int
                     primal_cost=float(Q.multiply(X).sum()) if X is not None else float("nan"),
                     dual_cost=float(np.dot(b, y)), solve_time_s=sol.time_s, setup_time_s=t1 - t0,
                     iterations=sol.iterations, clique_log_svr=svrs or None, cliques=prog.cliques if svrs else None,
-                    completion=completion, message=(f"{sol.message}; " if sol.message else "")
+                    completion=completion,
+                    message=(f"{sol.message}; " if sol.message else "")
                     + f"relative gap {sol.gap:.1e}, pinf {sol.pinf:.1e}, dinf {sol.dinf:.1e}")
     return finish(res)
 
@@ -473,5 +474,5 @@ class IPMBackend:
               cliques: Sequence[np.ndarray] | None, config: SolverConfig) -> SDPResult:
         return solve_ipm(Q, As, b, d, cliques, config)
 
-    def retries(self, config: SolverConfig, decomposed: bool, N: int) -> list[tuple[str, SolverConfig, tuple[str, ...]]]:
+    def retries(self, config: SolverConfig, decomposed: bool, N: int) -> Retries:
         return []
