@@ -8,6 +8,7 @@ latter at K ≤ 100.  Growth exponents are log(v(1000)/v(100))/log(10) for the t
 uses our IPM (``--solver ipm``); local search: from the ground truth only (n_random = 0).
 
     nice -n 19 python benchmarks/scale.py [--set FILE] [--sizes 10,30,100,300,1000] [--relearn 10,30,100]
+                                          [--paper 100,300,1000]
 
 Without --set (or when the file is missing) the set is discovered at K = 5, seed 0, and saved there.
 Writes benchmarks/results/scale.json with the versions and the load average around every run.
@@ -116,8 +117,6 @@ def main() -> None:
     if args.one is not None:
         print(json.dumps(one(args.one, args.route, args.set, args.seed)))
         return
-    from autotight.io import versions
-
     ensure_set(Path(args.set))
     rows = []
     jobs = [(int(k), "template") for k in args.sizes.split(",") if k]
@@ -134,6 +133,11 @@ def main() -> None:
             print(f"{K:>5} {route:>8} {r['build_s']:7.2f} {r['apply_s']:8.3f} {r['sdp_s']:8.2f} {r['total_s']:8.2f} "
                   f"{r['peak_rss_mb']:7.0f} {r['status']:>12} {r['log_svr']:7.2f} {r['outcome']:>10}  "
                   f"{r['loadavg_before'][0]:.1f}", flush=True)
+        write(args, rows, {})  # after every run: a partial table survives an interrupted benchmark
+    write(args, rows, growth_of(rows))
+
+
+def growth_of(rows: list[dict]) -> dict:
     growth = {}
     for route in ("template", "paper"):
         sel = [r for r in rows if r["route"] == route and "error" not in r]
@@ -143,13 +147,20 @@ def main() -> None:
                                                         "rss_over_import_mb")}
         print(f"growth exponents K = 100 → 1000 ({route} route):",
               {k: (None if v is None else round(v, 3)) for k, v in growth[route].items()})
+    return growth
+
+
+def write(args: argparse.Namespace, rows: list[dict], growth: dict) -> None:
+    from autotight.io import versions
+
     obj = {"benchmark": "scale", "problem": "discrete_trajectory", "set": Path(args.set).name,
            "learned_at": {"K": 5}, "solver": "ipm", "n_random": 0, "seed": args.seed, "rows": rows,
            "growth_exponents_100_1000": growth, "targets": {"time": 1.15, "memory": 1.1},
            "versions": versions(), "cpu_count": os.cpu_count(), "loadavg_end": os.getloadavg()}
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
     Path(args.out).write_text(json.dumps(obj, indent=1, default=str), encoding="utf-8")
-    print(f"wrote {args.out}")
+    if growth:
+        print(f"wrote {args.out}")
 
 
 if __name__ == "__main__":

@@ -142,7 +142,8 @@ def _factor_samples(problem: Problem, inst: Instance, model: Model, wanted: dict
     from .catalog import learn
 
     # the fit is checked separately (fresh instances): a few held-out samples suffice here
-    cat = learn(problem, inst, model, rng, "factors", replace(opts, heldout=min(opts.heldout, 6)), types=sorted(wanted))
+    cat = learn(problem, inst, model, rng, "factors", replace(opts, heldout=min(opts.heldout, 6)),
+                types=sorted(wanted))
     out: dict[str, list] = {t: [] for t in wanted}
     issues: list[str] = []
     for g in cat.groups:

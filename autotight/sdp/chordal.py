@@ -37,21 +37,47 @@ def _tree(cliques: Sequence[np.ndarray]) -> tuple[np.ndarray, np.ndarray, bool]:
     parent = np.full(p, -1, dtype=np.int64)
     if p <= 1:
         return parent, np.arange(p), True
-    B = incidence(cliques)
-    W = (B @ B.T).toarray()
-    np.fill_diagonal(W, 0)
-    # max of W; among equal overlaps the nearest clique index (a penalty |i − j|/p² < 1/p per edge, < 1 per
-    # tree): cliques that all share one separator (pose averaging: {h, C, r}) then form a chain, not a star
-    # whose root block every transfer couples to (a dense Schur complement: 21 GB at M = 300)
-    i, j = np.indices(W.shape)
-    T = minimum_spanning_tree(sp.csr_array(np.where(W > 0, W.max() + 1 - W + np.abs(i - j) / p ** 2, 0))).tocoo()
-    if T.nnz != p - 1:
+    B = sp.csr_array(incidence(cliques))
+    count = np.asarray(B.sum(axis=0)).ravel()
+    every = count == p  # columns in every clique (h): a constant overlap of every pair, left out of the graph
+    n_every = int(every.sum())
+    Bs = B[:, np.flatnonzero(~every)] if n_every else B
+    # sparse overlap graph (pairs sharing a column beyond the common ones): memory ∝ its edges, not p²
+    W = sp.triu(sp.csr_array(Bs @ Bs.T), k=1).tocoo()
+    big = float(W.data.max()) + 1 if W.nnz else 1.0
+    # max overlap; among equal overlaps the nearest clique index (penalty |i − j|/p² < 1/p per edge): cliques
+    # sharing only one separator (pose averaging's {h, C, r}) form a chain, not a star whose root block every
+    # transfer couples to (a dense Schur complement in the IPM: 21 GB at M = 300)
+    i, j, w = W.row, W.col, W.data.astype(float)
+    ci, cj = np.arange(p - 1), np.arange(1, p)  # neighbours by index: the common columns only (weight 0)
+    i, j = np.concatenate([i, ci]), np.concatenate([j, cj])
+    w = np.concatenate([w, np.zeros(p - 1)])
+    cost = big + 1 - w + np.abs(i - j) / p ** 2
+    T = minimum_spanning_tree(_min_duplicates(i, j, cost, p)).tocoo()
+    if T.nnz != p - 1 or (n_every == 0 and not _connected_by_overlap(W, p)):
         raise ValueError("the cliques are not connected: no clique tree")
     order, pred = breadth_first_order(sp.csr_array((np.ones(T.nnz), (T.row, T.col)), shape=(p, p)), 0,
                                       directed=False)
     parent[1:] = pred[1:]
-    union = int((B.sum(axis=0) > 0).sum())
-    return parent, order, int(W[T.row, T.col].sum()) == B.nnz - union
+    overlap = np.rint(big + 1 - T.data + 0.0).astype(np.int64)  # w of each tree edge (penalty < 1 rounds away)
+    weight = int(overlap.sum()) + n_every * (p - 1)
+    union = int((count > 0).sum())
+    return parent, order, weight == B.nnz - union
+
+
+def _min_duplicates(i: np.ndarray, j: np.ndarray, cost: np.ndarray, p: int) -> sp.csr_array:
+    """The p×p graph with the smallest cost of each (i, j) pair (COO→CSR would sum duplicates)."""
+    key = i * p + j
+    order = np.lexsort((cost, key))
+    key, cost = key[order], cost[order]
+    first = np.concatenate([[True], key[1:] != key[:-1]])
+    return sp.csr_array((cost[first], (key[first] // p, key[first] % p)), shape=(p, p))
+
+
+def _connected_by_overlap(W: sp.coo_array, p: int) -> bool:
+    from scipy.sparse.csgraph import connected_components
+
+    return connected_components(sp.csr_array((np.ones(W.nnz), (W.row, W.col)), shape=(p, p)), directed=False)[0] == 1
 
 
 def has_running_intersection(cliques: Sequence[np.ndarray]) -> bool:
