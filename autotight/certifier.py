@@ -256,7 +256,7 @@ def phase_one(prog, Th: np.ndarray, *, alpha: float = 1.0, target: float = 1e-6,
 
 def certify(Q: sp.sparray, constraints: Sequence[Constraint], theta_hat: np.ndarray, *, d: int = 1,
             cliques: Sequence[np.ndarray] | None = None, tol: float = 1e-5, floor: float = 1e-12,
-            max_iter: int = 50, trace: float | None = None) -> Certificate:
+            max_iter: int = 50, trace: float | None = None, scale: np.ndarray | None = None) -> Certificate:
     """Certify x̂ (Θ̂ = ``theta_hat``) for min ⟨Q,X⟩ s.t. ``constraints``, X ⪰ 0 (module docstring).
 
     certified: the certified suboptimality bound f(x̂) − p* is ≤ tol relative to f(x̂)
@@ -265,6 +265,7 @@ def certify(Q: sp.sparray, constraints: Sequence[Constraint], theta_hat: np.ndar
     candidate (``certificate.certificate``).  cliques: a chordal cover containing the
     pattern of Q and every Aᵢ, each with the h columns (default: ``default_cliques``).  max_iter: Newton
     steps of the barrier method.  trace: a known bound on tr(X) (default: derived from the constraints).
+    scale: the diagonal scaling D of the full SDP's fallback (``sdp.solve``; None: unscaled).
     """
     from .sdp.clique_program import clique_program
 
@@ -279,7 +280,7 @@ def certify(Q: sp.sparray, constraints: Sequence[Constraint], theta_hat: np.ndar
     if load > NEWTON_MAX_ENTRIES:  # the Newton matrix would not fit: the full SDP's y, certified alike
         from . import sdp
 
-        res = sdp.solve(Q, constraints, d=d)
+        res = sdp.solve(Q, constraints, d=d, scale=scale)
         y = res.y if res.y is not None else np.zeros(len(As))
         cert = certificate(Q, constraints, y, Th, d=d, tol=tol, floor=floor, trace=trace,
                            method=f"full SDP ({res.solver} {res.status}): the Newton matrix would have "
@@ -302,7 +303,11 @@ def certify(Q: sp.sparray, constraints: Sequence[Constraint], theta_hat: np.ndar
 
 
 def certify_model(model: Model, constraints: Sequence[Constraint], theta_hat: np.ndarray, **kw) -> Certificate:
-    """``certify`` on a model's cost (keywords as ``certify``)."""
+    """``certify`` on a model's cost (keywords as ``certify``); the full SDP's fallback is scaled by
+    blocks from x̂ (``sdp.scaling.block_scale``, as the pipeline scales its solves)."""
+    from .sdp.scaling import block_scale
+
+    kw.setdefault("scale", block_scale(model.variables, [np.asarray(theta_hat, dtype=float).reshape(model.d, -1)]))
     return certify(model.Q, constraints, theta_hat, d=model.d, **kw)
 
 
