@@ -35,6 +35,11 @@ convex feasibility problem.  Ours, on a clique tree of the data (``sdp.clique_pr
    certified λ_min(H) by LDLᵀ inertia, the trace bound, the suboptimality bound), which decides.  The
    barrier only proposes y, so no speed trick can produce a false "certified".
 
+Scope.  The Newton matrix has about Σ_k m_k² entries (m_k: the variables touching block k).  Where
+that exceeds ``NEWTON_MAX_ENTRIES`` (continuous time, whose cliques of up to 67 columns share
+thousands of transfers), certify solves the full SDP instead and certifies its y the same way:
+the verdict stays right, without the speed-up.
+
 A negative final margin means no certificate exists for x̂ (it is not a global minimiser of a tight
 relaxation); the returned Certificate then carries the bound that the best y found still proves.
 """
@@ -60,6 +65,9 @@ MIN_STEP = 0.5
 PENALTY = 1e6
 #: the retry's centring: τ grows only from points with Newton decrement² ≤ this
 CENTRED_DECREMENT = 1.0
+#: above this many entries (``newton_size``) in the Newton matrix, certify falls back to the full SDP's y
+#: (discrete K = 100: 1.2e6; continuous time K = 11 on the default cover: 3.3e8)
+NEWTON_MAX_ENTRIES = 10_000_000
 #: fraction of the distance to the cone's boundary a damped step may cover
 STEP_FRACTION = 0.95
 
@@ -79,6 +87,13 @@ def default_cliques(Q: sp.sparray, As: Sequence[sp.sparray], d: int) -> list[np.
     from .sdp.chordal import column_cliques, merge_small
 
     return merge_small(column_cliques(Q.shape[0], [Q, *As], always=range(d)), 32)
+
+
+def newton_size(prog) -> int:
+    """Σ_k m_k², m_k the variables touching block k: about the entries of the Newton matrix."""
+    F = sp.csr_array(prog.F)
+    return int(sum(np.unique(F.indices[F.indptr[prog.start[k]]:F.indptr[prog.start[k + 1]]]).size ** 2
+                   for k in range(len(prog.cliques))))
 
 
 @dataclass
@@ -241,7 +256,7 @@ def phase_one(prog, Th: np.ndarray, *, alpha: float = 1.0, target: float = 1e-6,
 
 def certify(Q: sp.sparray, constraints: Sequence[Constraint], theta_hat: np.ndarray, *, d: int = 1,
             cliques: Sequence[np.ndarray] | None = None, tol: float = 1e-5, floor: float = 1e-12,
-            max_iter: int = 50, trace: float | None = None) -> Certificate:
+            max_iter: int = 50, trace: float | None = None, scale: np.ndarray | None = None) -> Certificate:
     """Certify x̂ (Θ̂ = ``theta_hat``) for min ⟨Q,X⟩ s.t. ``constraints``, X ⪰ 0 (module docstring).
 
     certified: the certified suboptimality bound f(x̂) − p* is ≤ tol relative to f(x̂)
@@ -250,6 +265,7 @@ def certify(Q: sp.sparray, constraints: Sequence[Constraint], theta_hat: np.ndar
     candidate (``certificate.certificate``).  cliques: a chordal cover containing the
     pattern of Q and every Aᵢ, each with the h columns (default: ``default_cliques``).  max_iter: Newton
     steps of the barrier method.  trace: a known bound on tr(X) (default: derived from the constraints).
+    scale: the diagonal scaling D of the full SDP's fallback (``sdp.solve``; None: unscaled).
     """
     from .sdp.clique_program import clique_program
 
@@ -260,6 +276,16 @@ def certify(Q: sp.sparray, constraints: Sequence[Constraint], theta_hat: np.ndar
     if cliques is None:
         cliques = default_cliques(Q, As, d)
     prog = clique_program(Q, As, b, [np.asarray(C) for C in cliques])
+    load = newton_size(prog)
+    if load > NEWTON_MAX_ENTRIES:  # the Newton matrix would not fit: the full SDP's y, certified alike
+        from . import sdp
+
+        res = sdp.solve(Q, constraints, d=d, scale=scale)
+        y = res.y if res.y is not None else np.zeros(len(As))
+        cert = certificate(Q, constraints, y, Th, d=d, tol=tol, floor=floor, trace=trace,
+                           method=f"full SDP ({res.solver} {res.status}): the Newton matrix would have "
+                                  f"~{load:.1e} entries (> {NEWTON_MAX_ENTRIES:.0e})")
+        return replace(cert, time_s=time.perf_counter() - t0)
     ph = phase_one(prog, Th, max_iter=max_iter)
     how = "long steps"
     if ph.status != "feasible":  # long steps can jam near the boundary: once more, centred first
@@ -277,7 +303,11 @@ def certify(Q: sp.sparray, constraints: Sequence[Constraint], theta_hat: np.ndar
 
 
 def certify_model(model: Model, constraints: Sequence[Constraint], theta_hat: np.ndarray, **kw) -> Certificate:
-    """``certify`` on a model's cost (keywords as ``certify``)."""
+    """``certify`` on a model's cost (keywords as ``certify``); the full SDP's fallback is scaled by
+    blocks from x̂ (``sdp.scaling.block_scale``, as the pipeline scales its solves)."""
+    from .sdp.scaling import block_scale
+
+    kw.setdefault("scale", block_scale(model.variables, [np.asarray(theta_hat, dtype=float).reshape(model.d, -1)]))
     return certify(model.Q, constraints, theta_hat, d=model.d, **kw)
 
 
