@@ -77,11 +77,15 @@ def entries(As: Sequence[sp.sparray]) -> tuple[np.ndarray, np.ndarray, np.ndarra
     """All entries of the Aᵢ in one pass: (row, col, value, i) arrays (i: the matrix holding the entry)."""
     rows, cols, vals, owner = [], [], [], []
     for i, A in enumerate(As):
-        A = A if isinstance(A, (sp.csr_array, sp.csr_matrix)) else sp.csr_array(A)
-        rows.append(np.repeat(np.arange(A.shape[0]), np.diff(A.indptr)))
-        cols.append(A.indices)
+        if isinstance(A, (sp.csr_array, sp.csr_matrix)):
+            r, c = np.repeat(np.arange(A.shape[0]), np.diff(A.indptr)), A.indices
+        else:  # COO (the stored form) as it is: no N + 1 index array per matrix
+            A = A if isinstance(A, (sp.coo_array, sp.coo_matrix)) else sp.coo_array(A)
+            r, c = A.row, A.col
+        rows.append(r)
+        cols.append(c)
         vals.append(A.data)
-        owner.append(np.full(A.indices.size, i))
+        owner.append(np.full(A.data.size, i))
     if not rows:
         z = np.zeros(0, dtype=np.int64)
         return z, z, np.zeros(0), z

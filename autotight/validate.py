@@ -47,12 +47,14 @@ def check_data(problem: Any, inst: Any, model: Any) -> None:
         bad = _nonfinite(arr)
         if bad:
             raise InstanceError(f"{problem.name}: measurement {key!r} has non-finite entries ({bad})")
-    Q = sp.csr_array(model.Q)
-    bad = _nonfinite(Q.data)
+    bad = _nonfinite(model.Q.data)
     if bad:
         raise InstanceError(f"{problem.name}: the cost matrix Q has non-finite entries ({bad})")
-    for c in model.primary():
-        bad = _nonfinite(np.append(sp.csr_array(c.A).data, c.b))
+    cons = model.primary()
+    if np.all(np.isfinite(np.concatenate([c.A.data for c in cons] + [[c.b for c in cons]]))):
+        return  # one pass over the stored entries (no per-constraint copies)
+    for c in cons:
+        bad = _nonfinite(np.append(c.A.data, c.b))
         if bad:
             raise InstanceError(f"{problem.name}: constraint {c.name or c.family!r} has non-finite entries ({bad})")
 
