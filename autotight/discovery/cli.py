@@ -3,8 +3,9 @@
 from __future__ import annotations
 
 import argparse
+from contextlib import contextmanager
 import json
-from typing import Callable
+from typing import Callable, Iterator
 
 from ..cli import add_solver_args, solver_config
 from ..cli_checks import nonneg_float, nonneg_int, pos_float
@@ -51,6 +52,27 @@ def _groups(spec: str | None):
     return [tuple(x.strip() for x in g.split(",") if x.strip()) for g in spec.split(";") if g.strip()]
 
 
+@contextmanager
+def progress_bar(args: argparse.Namespace) -> Iterator[Callable[[str, str], None]]:
+    """A progress callback ``progress(stage, text)`` drawing a bar unless --json or --no-progress."""
+    bar = None
+    if not args.json and not args.no_progress:
+        from tqdm import tqdm
+
+        bar = tqdm(desc="discover", unit="step", leave=False)
+
+    def progress(stage: str, text: str) -> None:
+        if bar is not None:
+            bar.set_description(f"{stage} {text}"[:60])
+            bar.update(1)
+
+    try:
+        yield progress
+    finally:
+        if bar is not None:
+            bar.close()
+
+
 def cmd_discover(args: argparse.Namespace) -> int:
     from ..tightness import Criteria
 
@@ -65,25 +87,11 @@ def cmd_discover(args: argparse.Namespace) -> int:
     params = prob.parse_params(parse_assignments(args.param))
     check_size(prob, params)
     check_count(prob, params, f"--heldout {args.heldout}", args.heldout, per_item=3, what="held-out instances")
-    bar = None
-    if not args.json and not args.no_progress:
-        from tqdm import tqdm
-
-        bar = tqdm(desc="discover", unit="step", leave=False)
-
-    def progress(stage: str, text: str) -> None:
-        if bar is not None:
-            bar.set_description(f"{stage} {text}"[:60])
-            bar.update(1)
-
-    try:
+    with progress_bar(args) as progress:
         res = discover(prob, params, args.seed, groups=_groups(args.groups),
                        learn_options=LearnOptions(min_gap_decades=args.min_gap),
                        criteria=Criteria(gap_tol=args.gap_tol, accept=args.accept), n_heldout=args.heldout,
                        progress=progress, solver=config)
-    finally:
-        if bar is not None:
-            bar.close()
     if args.out:
         with writing(args.out):
             res.save(args.out)

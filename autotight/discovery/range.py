@@ -518,28 +518,16 @@ def cmd_discover_range(args: argparse.Namespace, groups: Any) -> int:
     from ..check_cmd import parse_range
     from ..cli import solver_config
 
+    from .cli import progress_bar
+
     prob = load(args.problem)
-    bar = None
-    if not args.json and not args.no_progress:
-        from tqdm import tqdm
-
-        bar = tqdm(desc="discover", unit="step", leave=False)
-
-    def progress(stage: str, text: str) -> None:
-        if bar is not None:
-            bar.set_description(f"{stage} {text}"[:60])
-            bar.update(1)
-
-    try:
+    with progress_bar(args) as progress:
         res = discover_range(prob, parse_assignments(args.param), parse_range(args.sigmas, args.range), args.seed,
                              n_train=args.train, train_params=parse_assignments(args.train_param),
                              n_heldout=args.heldout, n_validate=args.validate, groups=groups,
                              learn_options=LearnOptions(min_gap_decades=args.min_gap),
                              criteria=Criteria(gap_tol=args.gap_tol, accept=args.accept), progress=progress,
                              solver=solver_config(args))
-    finally:
-        if bar is not None:
-            bar.close()
     if args.out:
         res.save(args.out)
     if args.json:
