@@ -116,7 +116,7 @@ def _run_without_extras(code: str) -> subprocess.CompletedProcess:
 
 def test_core_works_without_the_optional_extras():
     out = _run_without_extras(r"""
-import autotight, autotight.cli, autotight.discovery, autotight.run, autotight.sdp
+import autotight, autotight.cli, autotight.discovery, autotight.sdp
 from autotight.problem import available, load
 for name in available():
     load(name)
