@@ -82,7 +82,8 @@ def test_undecided_is_reported_separately_and_never_fails(monkeypatch):
     def fake(problem, inst, constraints, **kw):
         out = "undecided" if inst.seed in undecided else "tight"
         return SimpleNamespace(outcome=out, log_svr=3.0 if out == "undecided" else 9.0, attempts=[{}, {}],
-                               verdict=SimpleNamespace(reason=f"bracket {out}"), n_constraints=7)
+                               verdict=SimpleNamespace(reason=f"bracket {out}", rel_gap=0.0), n_constraints=7,
+                               sdp=SimpleNamespace(status="Solved"))
 
     monkeypatch.setattr(check, "solve_instance", fake)
     rep = check_sufficient("pose_averaging", "paper", [0.01, 0.1], instances=3, params={"M": 2})
