@@ -82,7 +82,8 @@ def main() -> None:
            f"--heldout {a.heldout} --seed {a.seed} --train-k {a.train_k}")
     runs = {}
     for name in a.runs.split(","):
-        runs[name] = run(name, a.train, a.validate, a.heldout, a.seed, a.train_k) | {"command": cmd, "versions": versions()}
+        runs[name] = run(name, a.train, a.validate, a.heldout, a.seed, a.train_k) | {"command": cmd,
+                                                                                    "versions": versions()}
     path = Path(a.out)
     old = json.loads(path.read_text()) if path.exists() and a.keep_other_runs else {}
     out = {"benchmark": "discover over a noise range vs the paper's families",
