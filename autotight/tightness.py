@@ -138,6 +138,9 @@ def bracket(res: SDPResult, upper: float, criteria: Criteria, acc: Accuracy) -> 
     U, P, D = float(upper), res.primal_cost, res.dual_cost
     L = D - acc.dual_correction
     tol = criteria.gap_tol * abs(U) + criteria.cost_atol * acc.scale
+    if L - U > tol + acc.acc:  # a lower bound above a feasible point's cost: the solve is wrong, flag it
+        return UNDECIDED, L, tol, (f"inconsistent solve: its lower bound exceeds a feasible cost by {L - U:.3e} "
+                                   f"(> tolerance {tol:.2e} + accuracy {acc.acc:.2e})")
     if (acc.from_residuals and U - L <= tol) or (acc.acc <= tol and U - D <= tol + acc.acc):
         return TIGHT, L, tol, ""
     if U - P > tol + acc.acc:

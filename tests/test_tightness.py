@@ -32,6 +32,9 @@ def test_cost_slack_rule():
     assert v.accuracy == pytest.approx(5e-5, rel=1e-6) and v.tolerance == pytest.approx(1e-5, rel=1e-3)
     # a gap far outside the accuracy is decided
     assert judge(_res(0.5, 0.5 - 1e-6), U, c).outcome == "not tight"
+    # a lower bound above a feasible point's cost beyond the accuracy is flagged, never "tight" (issue 15)
+    v = judge(_res(1.2 + 1e-13, 1.2), U, c)
+    assert v.outcome == "undecided" and "inconsistent solve" in v.reason
     # low rank alone: not tight for accept="rank", tight for accept="cost"
     low = _res(1 - 1e-8, 1 - 1e-8 - 1e-13, log_svr=1.0)
     assert judge(low, U, c).outcome == "not tight"
