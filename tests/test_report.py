@@ -292,6 +292,29 @@ def test_a_sweep_with_our_ipm_records_it_and_agrees_with_clarabel(reference, tmp
     assert set(b["status"]) <= {"Solved", "AlmostSolved"}
 
 
+def test_decompose_is_a_sweep_setting_and_agrees_with_clarabel_chordal(reference, tmp_path, capsys):
+    """--decompose: Clarabel on our clique cover; in the settings (a resume without it is refused) and
+    the command, with the reference sweep's verdicts and costs (1e-6 relative)."""
+    out = tmp_path / "dec"
+    args = ["report", PROBLEM, "-p", "M=3", "--sigmas", "0.01,0.3", "--trials", "3", "--sets", "primary",
+            "--jobs", "1", "--out", str(out), "--no-progress"]
+    assert main([*args, "--decompose"]) == 0, capsys.readouterr().err
+    meta = Store(out).meta()
+    assert meta["decompose"] is True and meta["runs"][0]["command"].endswith(f"--decompose --out {out}")
+    a, b = deterministic(load_trials(reference)), deterministic(load_trials(out))
+    assert list(a["tight"]) == list(b["tight"])
+    assert np.allclose(a["sdp_cost"], b["sdp_cost"], rtol=1e-6)
+    capsys.readouterr()
+    assert main(args) == 2 and "decompose" in capsys.readouterr().err
+
+
+def test_a_module_with_marginal_log_svr_gets_its_column():
+    """Continuous time reports log SVR on the marginalised X beside the solved X's (``log_svr_marginal``)."""
+    cont, rot = load("continuous_trajectory"), load(PROBLEM)
+    assert "log_svr_marginal" in columns(["e"], trial_mod.has_marginal(cont))
+    assert "log_svr_marginal" not in columns(["e"], trial_mod.has_marginal(rot))
+
+
 @pytest.mark.parametrize("args, words", [
     (["--param", "sigma=0.1"], "sigma is swept"),
     (["--sigmas", "0,0.1"], "must be finite and > 0"),

@@ -38,6 +38,8 @@ class SweepSpec:
     trap_rtol: float = TRAP_RTOL
     criteria: Criteria = field(default_factory=Criteria)
     solver: str = "clarabel"
+    decompose: bool = False
+    """Solve on the SDP layer's own clique cover (``--decompose``; ``SolverConfig.decompose``)."""
     discovered: str | None = None
     """A discovered-set JSON file, or None (run discovery when ``sets`` asks for it)."""
     files: tuple[tuple[str, str], ...] = ()
@@ -50,9 +52,10 @@ class SweepSpec:
 
     def identity(self) -> dict[str, Any]:
         """What must match for results to be mixed in one folder (``trials`` may grow or shrink)."""
-        return {"problem": self.problem, "params": dict(self.params), "sigmas": list(self.sigmas),
+        ident = {"problem": self.problem, "params": dict(self.params), "sigmas": list(self.sigmas),
                 "sets": list(self.sets), "seed": self.seed, "trap_rtol": self.trap_rtol,
-                "criteria": asdict(self.criteria), "solver": self.solver}
+                "criteria": asdict(self.criteria), "solver": self.solver, "decompose": self.decompose}
+        return ident
 
     def tasks(self) -> list[tuple[int, int]]:
         """Every (σ index, trial), trial-major: a partial sweep (--limit, an interruption) covers every σ evenly."""
@@ -73,7 +76,15 @@ class SweepSpec:
             parts.append(f"--discovered {self.discovered}")
         if self.solver != "clarabel":
             parts.append(f"--solver {self.solver}")
+        if self.decompose:
+            parts.append("--decompose")
         return " ".join(parts)
+
+    def solver_config(self):
+        """The ``SolverConfig`` of every solve of the sweep (one solver thread per worker)."""
+        from ..sdp.config import SolverConfig
+
+        return SolverConfig(backend=self.solver, decompose=True if self.decompose else None, threads=1)
 
 
 def _fmt(v: Any) -> str:

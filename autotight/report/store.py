@@ -26,6 +26,8 @@ from .spec import ReportError
 
 CSV_NAME = "trials.csv"
 META_NAME = "meta.json"
+#: sweep settings added after the first reports were written, with the value they had implicitly
+SETTING_DEFAULTS: dict[str, Any] = {"decompose": False}
 #: files a report writes besides meta.json (a folder holding one of them without meta.json is refused)
 OUTPUTS = (CSV_NAME, "report.md", "report.html", "trapped.png", "log_svr.png", "tight.png", "times.png")
 REPORT_TITLE = "# Tightness report"
@@ -85,6 +87,7 @@ class Store:
         self._compare(meta, _norm(identity))
 
     def _compare(self, meta: dict[str, Any], ident: dict[str, Any]) -> None:
+        meta = {**SETTING_DEFAULTS, **meta}  # settings added later default for folders written before them
         diff = [k for k in ident if _norm(meta.get(k)) != ident[k]]
         if diff:
             k = diff[0]

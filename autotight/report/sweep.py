@@ -13,11 +13,10 @@ from ..cli_checks import check_set_file
 from ..constraint_set import ConstraintSet
 from ..problem import Problem
 from ..outpaths import LOCK_NAME, check_folder, folder_lock, writing
-from ..sdp.config import SolverConfig
 from .backends import connect, execute
 from .spec import ReportError, SweepSpec
 from .store import CSV_NAME, META_NAME, STATUSES, Store
-from .trial import columns, error_keys, run_trial
+from .trial import columns, error_keys, has_marginal, run_trial
 
 DISCOVERED_NAME = "discovered.json"
 
@@ -66,7 +65,7 @@ def run_sweep(spec: SweepSpec, out: str | Path, *, jobs: int = 1, scheduler: Any
             if discovered is not None:
                 saved_sets["discovered"] = discovered
             identity = dict(spec.identity(), discovered=disc_id) | ({"files": files_id} if files_id else {})
-            done = store.open(identity, columns(error_keys(problem, spec)),
+            done = store.open(identity, columns(error_keys(problem, spec), has_marginal(problem)),
                               spec.sets, spec.trials, info={"description": problem.description, "source": spec.source},
                               run_info={"backend": backend, "jobs": jobs, "command": f"{spec.command()} --out {out}"},
                               redo=redo)
@@ -170,7 +169,7 @@ def prepare_discovered(spec: SweepSpec, problem: Problem, out: Path,
         params = problem.parse_params(spec.params)  # σ at the problem's default
         log(f"running discovery for {problem.name} at {params} (seed {spec.seed}); saving it to {saved}")
         res = discover(problem, params, seed=spec.seed, criteria=spec.criteria,
-                       solver=SolverConfig(backend=spec.solver, threads=1))
+                       solver=spec.solver_config())
         with writing(saved):
             res.discovered.save(saved, res.model, res.constraints, {"summary": res.summary()})
     return ConstraintSet(DiscoveredSet.load(saved)), {"source": "discover", "seed": spec.seed, "sha256": _sha256(saved)}

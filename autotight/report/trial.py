@@ -15,7 +15,6 @@ from threadpoolctl import threadpool_limits
 from ..errors import AutotightError
 from ..pipeline import is_trapped, local_search, solve_instance
 from ..problem import Instance, Problem
-from ..sdp.config import SolverConfig
 from .spec import SweepSpec, trial_seeds
 
 KEY = ("sigma_index", "trial")
@@ -31,10 +30,18 @@ TAIL_COLUMNS = ("verdict",)
 ERROR_PREFIXES = ("err_sdp_", "err_truth_", "err_random_")
 
 
-def columns(error_keys: Sequence[str]) -> list[str]:
-    """CSV columns for a problem whose ``errors`` returns ``error_keys``."""
+def columns(error_keys: Sequence[str], marginal: bool = False) -> list[str]:
+    """CSV columns for a problem whose ``errors`` returns ``error_keys``; ``marginal``: the module
+    defines ``marginal_log_svr``, so each row also holds ``log_svr_marginal`` (log SVR of the
+    module's reduced X, e.g. continuous time's marginalised X, whatever formulation was solved)."""
     errs = [p + k for p in ERROR_PREFIXES for k in error_keys]
-    return [*BASE_COLUMNS, *errs, *TIME_COLUMNS, *TAIL_COLUMNS]
+    extra = ("log_svr_marginal",) if marginal else ()
+    return [*BASE_COLUMNS, *extra, *errs, *TIME_COLUMNS, *TAIL_COLUMNS]
+
+
+def has_marginal(problem: Problem) -> bool:
+    """Whether the problem module reports log SVR on a reduced X (``marginal_log_svr``)."""
+    return hasattr(problem.module, "marginal_log_svr")
 
 
 def error_keys(problem: Problem, spec: SweepSpec) -> list[str]:
@@ -93,7 +100,7 @@ def _solve(problem: Problem, spec: SweepSpec, i: int, t: int, discovered: Any) -
               "local_converged_truth": truth.converged, "local_converged_random": rand.converged,
               "local_truth_time_s": truth.time_s, "local_random_time_s": rand.time_s, "build_time_s": build_s,
               **_errors(problem, inst, truth.state, "err_truth_"), **_errors(problem, inst, rand.state, "err_random_")}
-    config = SolverConfig(backend=spec.solver, threads=1)
+    config = spec.solver_config()
     rows, uppers = [], []
     for name in spec.sets:
         constraints = discovered[name] if discovered and name in discovered else name
@@ -111,6 +118,7 @@ def _solve(problem: Problem, spec: SweepSpec, i: int, t: int, discovered: Any) -
                          certified=None if out.certificate is None else out.certificate.certified,
                          cert_rel_bound=None if out.certificate is None else out.certificate.rel_bound,
                          sdp_beats_local=out.sdp_beats_local,
+                         **({"log_svr_marginal": out.log_svr_marginal} if has_marginal(problem) else {}),
                          sdp_time_s=res.solve_time_s, sdp_setup_s=res.setup_time_s,
                          verdict=verdict.reason, **common, **errs))
     finite = [c for c in (truth.cost, rand.cost, *uppers) if np.isfinite(c)]
