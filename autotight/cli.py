@@ -68,10 +68,11 @@ def add_solver_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--solver", default="clarabel",
                    help="SDP backend: clarabel (default), ipm (our interior-point method on clique blocks) or "
                         "cvxpy:SCS, cvxpy:MOSEK, … (see autotight/sdp/registry.py)")
-    p.add_argument("--decompose", action="store_true",
+    p.add_argument("--decompose", action=argparse.BooleanOptionalAction, default=None,
                    help="Clarabel on our own clique cover (min-fill covers of the columns and of the variable "
-                        "blocks, autotight/sdp/covers.py) instead of its built-in chordal decomposition; "
-                        "faster on continuous time with marginalize=false. The IPM always uses our cover")
+                        "blocks, autotight/sdp/covers.py) instead of its built-in chordal decomposition "
+                        "(--no-decompose: never). Default: as the problem's model advises (continuous time: "
+                        "our cover), else Clarabel's own. The IPM always uses our cover")
 
 
 def solver_config(args: argparse.Namespace, **fields: Any):
@@ -81,7 +82,7 @@ def solver_config(args: argparse.Namespace, **fields: Any):
 
     if args.decompose and args.solver.startswith("cvxpy"):
         raise ParameterError(f"--decompose needs --solver clarabel or ipm, not {args.solver!r}")
-    return SolverConfig(backend=args.solver, decompose=True if args.decompose else None, **fields)
+    return SolverConfig(backend=args.solver, decompose=args.decompose, **fields)
 
 
 def cmd_solve(args: argparse.Namespace) -> int:

@@ -234,6 +234,9 @@ class Model:
     ``cost_offset`` is a constant added to ⟨Q, X⟩ to give the original cost.
     ``cliques``: block-name tuples of a chordal cover of the aggregate sparsity (each with h);
     when given, SDP solvers may decompose X ⪰ 0 into these clique blocks.
+    ``decompose``: the module's advice for a ``SolverConfig`` whose ``decompose`` is None (the user
+    did not choose): True solves on the SDP layer's clique cover where the backend takes one.  None:
+    the backend's default.
     """
 
     variables: Variables
@@ -243,6 +246,7 @@ class Model:
     cost: sp.csr_array | None = None
     cost_offset: float = 0.0
     cliques: list[tuple[str, ...]] | None = None
+    decompose: bool | None = None
 
     def __post_init__(self) -> None:
         names = [f.name for f in self.factors]

@@ -138,13 +138,14 @@ def test_solve_json_subprocess():
 
 
 def test_solve_decompose_uses_our_cliques_with_the_same_optimum(capsys):
-    """--decompose: Clarabel on our clique cover (continuous time, ϖ kept, K = 5); the SDP cost equals
+    """Clarabel on our clique cover (continuous time, ϖ kept, K = 5: the model advises it, and
+    --no-decompose overrides the advice); the SDP cost equals
     that of Clarabel's own chordal decomposition to 1e-5 relative (the verdict's gap tolerance; with the
     pipeline's block scaling each solve reaches the local optimum to 2–8e-6 here)."""
     argv = ["solve", "continuous_trajectory", "-p", "K=5", "-p", "marginalize=false", "--json"]
-    assert main(argv + ["--decompose"]) == 0
+    assert main(argv) == 0  # the model's advice: our cover
     ours = json.loads(capsys.readouterr().out)
-    assert main(argv) == 0
+    assert main(argv + ["--no-decompose"]) == 0
     ref = json.loads(capsys.readouterr().out)
     assert ours["solver"] == "clarabel-cliques" and ref["solver"] != "clarabel-cliques", (ours["solver"], ref["solver"])
     assert ours["status"] == "Solved" and ours["tight"]

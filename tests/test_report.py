@@ -502,3 +502,25 @@ def test_two_saved_sets_in_one_sweep_are_named_by_their_files(tmp_path):
     assert set(meta["files"]) == {"single", "again"} and len(meta["files"]["single"]["sha256"]) == 64
     with pytest.raises(ReportError, match="saved set"):
         make_spec(load("pose_averaging"), "pose_averaging", {"M": 3}, sets=f"primary,file:{tmp_path}/paper.json")
+
+
+def test_against_the_paper_table_reads_our_fractions_and_the_module_claim():
+    """The "Against the paper" rows: our tight and trapped fractions and the median log SVR on the
+    marginalised X for the claim's set, beside the claim's text for that σ (or its default)."""
+    from autotight.report.render import paper_table, tables
+
+    df = pd.DataFrame({"sigma_index": [0, 0, 1, 1], "trial": [0, 1, 0, 1], "constraint_set": ["paper"] * 4,
+                       "tight": [True, False, True, True], "trapped": [False, False, True, False],
+                       "log_svr": [9.0, 1.0, 8.0, 6.0], "log_svr_marginal": [7.0, 0.5, 6.5, 5.5],
+                       "status": ["Solved"] * 4, "n_constraints": [10] * 4})
+    claim = {"source": "Fig. 11", "set": "paper", "by_sigma": {0.001: "lower"}, "default": "above 5"}
+    t = paper_table(df, [0.001, 0.1], claim)
+    assert t.header[2] == "median log SVR (marginalised X)"
+    assert t.rows == [["0.001", "0.50", "3.8", "0.00", "lower"], ["0.1", "1.00", "6.0", "0.50", "above 5"]]
+    assert paper_table(df, [0.001, 0.1], dict(claim, set="other")) is None
+    svr = next(x for x in tables(df.assign(**{c: 0.0 for c in ("sdp_time_s", "local_truth_time_s",
+                                                                "local_random_time_s")},
+                                           outcome="tight", rank_tight=True, cost_tight=True, certified=True,
+                                           undecided=False, sdp_beats_local=False),
+                                 [0.001, 0.1], ["paper"]) if x.title == "Median log SVR")
+    assert svr.header == ["σ", "paper", "paper (marginalised X)"] and svr.rows[0] == ["0.001", "5.0", "3.8"]

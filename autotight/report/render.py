@@ -115,7 +115,15 @@ def tables(df: pd.DataFrame, sigmas: Sequence[float], sets: Sequence[str]) -> li
             rows_v.append([_sig(sg), s, *_verdicts(at, s)])
     out.append(Table("Verdicts per noise level", ["σ", "set", "rank-tight", "cost-tight", "certified", "undecided",
                                                    "SDP estimate beats local search"], rows_v, VERDICT_RULE))
-    out.append(Table("Median log SVR", ["σ", *sets], rows_s))
+    marginal = "log_svr_marginal" in df.columns and df["log_svr_marginal"].notna().any()
+    if marginal:  # the module's reduced X (continuous time: the marginalised X, as the paper plots it)
+        for i, row in enumerate(rows_s):
+            at = df[df["sigma_index"] == i]
+            row += [_median(at[at["constraint_set"] == s]["log_svr_marginal"], ".1f") for s in sets]
+    out.append(Table("Median log SVR", ["σ", *sets, *[f"{s} (marginalised X)" for s in sets if marginal]], rows_s,
+                     "Marginalised X: log SVR of the X with ϖ removed by the Schur complement, as the paper's "
+                     "figure plots it, whichever formulation was solved (the module's marginal_log_svr)."
+                     if marginal else ""))
     out.append(Table("Median times (s)", ["σ", *[f"SDP {s}" for s in sets], "local (truth)", "local (random)"],
                      rows_time))
     status = df.groupby("constraint_set")["status"].value_counts().unstack(fill_value=0)
@@ -124,6 +132,38 @@ def tables(df: pd.DataFrame, sigmas: Sequence[float], sets: Sequence[str]) -> li
         out.append(Table("Solver statuses", ["set", *cols],
                          [[s, *[str(int(status.loc[s, c])) for c in cols]] for s in sets if s in status.index]))
     return out
+
+
+def paper_table(df: pd.DataFrame, sigmas: Sequence[float], claim: dict[str, Any]) -> Table | None:
+    """"Against the paper": per σ, our fraction tight, median log SVR (on the marginalised X where the
+    module reports it) and trapped fraction for the paper's set, beside what the paper reports
+    (a module's ``PAPER_CLAIM``: source, set, by_sigma {σ: text}, default text)."""
+    name = claim.get("set", "paper")
+    at_set = df[df["constraint_set"] == name]
+    if at_set.empty:
+        return None
+    col = "log_svr_marginal" if "log_svr_marginal" in df.columns and df["log_svr_marginal"].notna().any() \
+        else "log_svr"
+    by_sigma = {float(k): v for k, v in claim.get("by_sigma", {}).items()}
+    rows = []
+    for i, sg in enumerate(sigmas):
+        at = at_set[at_set["sigma_index"] == i]
+        said = next((v for k, v in by_sigma.items() if np.isclose(k, sg, rtol=1e-2)), claim.get("default", "–"))
+        rows.append([_sig(sg), _frac(at["tight"]), _median(at[col], ".1f"), _frac(at["trapped"]), said])
+    what = "marginalised X" if col == "log_svr_marginal" else "X"
+    return Table("Against the paper", ["σ", f"tight: {name}", f"median log SVR ({what})", "trapped", "the paper"],
+                 rows, f"Our verdicts for the set '{name}' beside what the paper reports ({claim.get('source', '')}).")
+
+
+def _claim(meta: dict[str, Any]) -> dict[str, Any] | None:
+    """The problem module's ``PAPER_CLAIM``, or None (no such attribute, or the module no longer loads)."""
+    from ..errors import AutotightError
+    from ..problem import load
+
+    try:
+        return getattr(load(meta.get("source") or meta["problem"]).module, "PAPER_CLAIM", None)
+    except AutotightError:
+        return None
 
 
 def summarize(out: Path, meta: dict[str, Any]) -> Summary:
@@ -147,7 +187,12 @@ def summarize(out: Path, meta: dict[str, Any]) -> Summary:
              ("Generated", time.strftime("%Y-%m-%d %H:%M"))]
     figs = figures.make_all(df, sigmas, sets, out, trap_rtol=meta["trap_rtol"], rank_line=crit["min_log_svr"]) \
         if len(df) else {}
-    return Summary(f"Tightness report: {meta['problem']}", facts, tables(df, sigmas, sets), figs)
+    tabs = tables(df, sigmas, sets)
+    claim = _claim(meta)
+    versus = paper_table(df, sigmas, claim) if claim and len(df) else None
+    if versus is not None:
+        tabs.insert(1, versus)
+    return Summary(f"Tightness report: {meta['problem']}", facts, tabs, figs)
 
 
 def markdown(s: Summary) -> str:

@@ -43,7 +43,7 @@ and ``SolverConfig(backend="mysolver")`` selects it everywhere (API, CLI ``--sol
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Sequence
 
 import numpy as np
@@ -224,4 +224,7 @@ def solve_model(model: Model, constraints: Sequence[Constraint], config: SolverC
     for the block cover (``covers.CliqueCovers``)."""
     V = model.variables
     hint = model.clique_indices() if model.cliques else None
+    config = config or SolverConfig()
+    if config.decompose is None and model.decompose is not None and BACKENDS[config.backend_name].cover is not None:
+        config = replace(config, decompose=model.decompose)  # the module's advice, when the user left it open
     return _solve(model.Q, constraints, model.d, config, hint, scale, [V.sizes[n] for n in V.names])
