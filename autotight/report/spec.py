@@ -10,6 +10,7 @@ import numpy as np
 
 from ..errors import ParameterError
 from ..problem import Problem, load
+from ..sdp.config import SolverConfig
 from ..tightness import Criteria
 
 SETS = ("primary", "paper", "discovered")
@@ -52,10 +53,9 @@ class SweepSpec:
 
     def identity(self) -> dict[str, Any]:
         """What must match for results to be mixed in one folder (``trials`` may grow or shrink)."""
-        ident = {"problem": self.problem, "params": dict(self.params), "sigmas": list(self.sigmas),
+        return {"problem": self.problem, "params": dict(self.params), "sigmas": list(self.sigmas),
                 "sets": list(self.sets), "seed": self.seed, "trap_rtol": self.trap_rtol,
                 "criteria": asdict(self.criteria), "solver": self.solver, "decompose": self.decompose}
-        return ident
 
     def tasks(self) -> list[tuple[int, int]]:
         """Every (σ index, trial), trial-major: a partial sweep (--limit, an interruption) covers every σ evenly."""
@@ -80,10 +80,8 @@ class SweepSpec:
             parts.append("--decompose")
         return " ".join(parts)
 
-    def solver_config(self):
+    def solver_config(self) -> "SolverConfig":
         """The ``SolverConfig`` of every solve of the sweep (one solver thread per worker)."""
-        from ..sdp.config import SolverConfig
-
         return SolverConfig(backend=self.solver, decompose=True if self.decompose else None, threads=1)
 
 
