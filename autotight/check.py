@@ -105,6 +105,8 @@ class SufficiencyReport:
     points: list[PointResult]
     n_solves: int
     time_s: float
+    solver: str = "clarabel"
+    accept: str = "rank"
 
     @property
     def passed(self) -> bool:
@@ -118,7 +120,8 @@ class SufficiencyReport:
         """The JSON form (``autotight check --json``)."""
         return {"problem": self.problem, "constraint_set": self.constraint_set, "params": self.params,
                 "over": self.over, "instances": self.instances, "min_fraction": self.min_fraction,
-                "seed": self.seed, "seed_scheme": "instance t at point i: SeedSequence((seed, i, t))",
+                "seed": self.seed, "solver": self.solver, "accept": self.accept,
+                "seed_scheme": "instance t at point i: SeedSequence((seed, i, t))",
                 "fraction_rule": "tight / (instances - undecided) >= min_fraction",
                 "passed": self.passed, "points": [p.record() for p in self.points],
                 "n_solves": self.n_solves, "time_s": self.time_s, "versions": versions()}
@@ -289,4 +292,4 @@ def check_sufficient(problem: str | Problem, constraints: ConstraintsLike = "pap
     label = next((p.set_label for p in res[name] if p.set_label), set_name(constraints, None))  # type: ignore[arg-type]
     return SufficiencyReport(prob.name, label, {k: v for k, v in points[0][0].items() if k not in over_}, over_,
                              int(instances), float(min_fraction), int(seed), res[name], n,
-                             time.perf_counter() - t0)
+                             time.perf_counter() - t0, getattr(solver, "backend", "clarabel"), criteria.accept)

@@ -55,17 +55,24 @@ def register(sub: argparse._SubParsersAction, add_problem_args: Callable) -> Non
     p.add_argument("--instances", type=int, default=10, help="fresh instances per point (default 10)")
     p.add_argument("--min-fraction", type=float, default=1.0,
                    help="a point passes when tight / (instances − undecided) ≥ this (default 1)")
+    from .cli import add_accept_arg, add_solver_args
+
+    add_solver_args(p)
+    add_accept_arg(p)
     p.set_defaults(func=cmd_check)
 
 
 def cmd_check(args: argparse.Namespace) -> int:
     from .check import check_sufficient
-    from .cli import constraints_arg
+    from .cli import constraints_arg, solver_config
+    from .tightness import Criteria
 
+    config = solver_config(args)
     prob = load(args.problem)
     over: dict[str, Any] = parse_range(args.sigmas, args.range)
     rep = check_sufficient(prob, constraints_arg(args.set), None, args.instances, args.min_fraction,
-                           parse_assignments(args.param), args.seed, over=over)
+                           parse_assignments(args.param), args.seed, config, over=over,
+                           criteria=Criteria(accept=args.accept))
     if args.json:
         print(json.dumps(jsonable(rep.record()), ensure_ascii=False))
     else:

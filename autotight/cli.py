@@ -75,6 +75,13 @@ def add_solver_args(p: argparse.ArgumentParser) -> None:
                         "our cover), else Clarabel's own. The IPM always uses our cover")
 
 
+def add_accept_arg(p: argparse.ArgumentParser) -> None:
+    """``--accept rank|cost|certified``: what counts as tight (``tightness.Criteria.accept``)."""
+    p.add_argument("--accept", default="rank", choices=["rank", "cost", "certified"],
+                   help="what counts as tight: rank d and cost (default), the cost bracket only, or a dual "
+                        "certificate of the best local solution")
+
+
 def solver_config(args: argparse.Namespace, **fields: Any):
     """The ``SolverConfig`` of ``--solver``/``--decompose`` (validated before any work)."""
     from .errors import ParameterError
@@ -87,6 +94,7 @@ def solver_config(args: argparse.Namespace, **fields: Any):
 
 def cmd_solve(args: argparse.Namespace) -> int:
     from .api import solve
+    from .tightness import Criteria
     from .limits import check_count, check_size
 
     config = solver_config(args)
@@ -95,7 +103,7 @@ def cmd_solve(args: argparse.Namespace) -> int:
     check_size(prob, params)
     check_count(prob, params, f"--random-starts {args.random_starts}", args.random_starts, what="local solves")
     out = solve(prob, params, args.seed, constraints=constraints_arg(args.set, args.skip_invalid), solver=config,
-                n_random=args.random_starts)
+                n_random=args.random_starts, criteria=Criteria(accept=args.accept))
     inst = out.instance
     rec = out.record()
     if args.json:
@@ -149,6 +157,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="with --set FILE: leave out the constraints of factors whose template fails its check on "
                         "this instance (default: a one-line error naming the factor)")
     add_solver_args(p)
+    add_accept_arg(p)
     p.add_argument("--random-starts", type=nonneg_int, default=1, help="random-start local solves (default 1)")
     p.set_defaults(func=cmd_solve)
     from .certify_cmd import register as register_certify

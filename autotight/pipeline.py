@@ -138,7 +138,7 @@ class SolveResult:
             "problem": self.problem, "params": self.instance.params, "seed": self.instance.seed,
             "constraint_set": self.constraint_set, "n_constraints": self.n_constraints,
             "solver": self.sdp.solver, "status": self.sdp.status, "outcome": self.outcome, "tight": v.tight,
-            "rank_tight": v.rank_tight, "cost_tight": v.cost_tight, "verdict": v.reason,
+            "accept": v.accept, "rank_tight": v.rank_tight, "cost_tight": v.cost_tight, "verdict": v.reason,
             "log_svr": self.sdp.log_svr, "sdp_cost": self.sdp.primal_cost, "sdp_dual_cost": self.sdp.dual_cost,
             "local_cost": lt.cost, "local_cost_random": [r.cost for r in self.local.from_random],
             "best_local_cost": self.local.best.cost,

@@ -71,6 +71,7 @@ class Verdict:
     rank_tight, cost_tight: the two tests separately (cost_tight: the bracket says tight);
     cost_outcome: the bracket's own outcome.  lower, primal, upper: L, P, U; accuracy: acc;
     tolerance: the gap tested (module docstring).  certified: the certificate's verdict (None: none given).
+    accept: the rule that decided ``outcome`` (``Criteria.accept``).
     """
 
     tight: bool
@@ -88,6 +89,7 @@ class Verdict:
     accuracy: float = float("nan")
     tolerance: float = float("nan")
     certified: bool | None = None
+    accept: str = "rank"
 
     def record(self) -> dict:
         return {k: getattr(self, k) for k in self.__dataclass_fields__}
@@ -192,4 +194,4 @@ def judge(res: SDPResult, upper: float, criteria: Criteria = Criteria(), certifi
                    relative_gap(res.primal_cost, upper, criteria.cost_floor) if res.usable else float("nan"),
                    "; ".join(reasons) or "tight", undecided=outcome == UNDECIDED, outcome=outcome,
                    cost_outcome=cost_outcome, lower=float(L), primal=float(res.primal_cost), upper=float(upper),
-                   accuracy=float(acc.acc), tolerance=float(tol), certified=cert)
+                   accuracy=float(acc.acc), tolerance=float(tol), certified=cert, accept=criteria.accept)

@@ -111,3 +111,15 @@ def test_assert_sufficient_passes_and_fails_with_the_seeds():
 def test_a_list_of_constraints_is_refused():
     with pytest.raises(ParameterError, match="one instance"):
         check_sufficient("pose_averaging", [], instances=1)
+
+
+def test_check_takes_the_solver_and_accept_rule_and_records_them(capsys):
+    """`check --solver ipm --accept certified`: every solve goes to our IPM, the certificate decides,
+    and the JSON says which solver and rule were used (rotation averaging M = 5, primary: tight and
+    certified on both instances)."""
+    argv = ["check", "rotation_averaging", "-p", "M=5", "--set", "primary", "--instances", "2", "--sigmas", "0.1",
+            "--json"]
+    assert main([*argv, "--solver", "ipm", "--accept", "certified"]) == 0
+    rec = json.loads(capsys.readouterr().out)
+    assert (rec["solver"], rec["accept"]) == ("ipm", "certified")
+    assert rec["points"][0]["tight"] == 2 and set(rec["points"][0]["statuses"]) <= {"Solved", "AlmostSolved"}

@@ -257,3 +257,12 @@ def test_cayley_singularity_is_a_one_line_error(capsys, tmp_path, exact):
     name = f"ra_pi_{'exact' if exact else 'rounded'}"
     path = _write(tmp_path, name, PI_MEASUREMENT.format(name=name, exact=exact))
     _expect_error(capsys, ["solve", path, "-p", "M=4"], "Cayley map is singular", "≈ π")
+
+
+@pytest.mark.parametrize("accept", ["rank", "cost", "certified"])
+def test_solve_accept_rule_is_applied_and_recorded(capsys, accept):
+    """`solve --accept`: the verdict under that rule (rotation averaging M = 5 is tight and certified
+    under all three), recorded in the JSON."""
+    assert main(["solve", "rotation_averaging", "-p", "M=5", "--accept", accept, "--json"]) == 0
+    rec = json.loads(capsys.readouterr().out)
+    assert rec["accept"] == accept and rec["tight"] and rec["certified"]

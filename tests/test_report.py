@@ -306,6 +306,17 @@ def test_decompose_is_a_sweep_setting_and_agrees_with_clarabel_chordal(reference
     assert np.allclose(a["sdp_cost"], b["sdp_cost"], rtol=1e-6)
     capsys.readouterr()
     assert main(args) == 2 and "decompose" in capsys.readouterr().err
+    assert main([*args, "--decompose", "--accept", "cost"]) == 2 and "criteria" in capsys.readouterr().err
+
+
+def test_accept_is_a_sweep_setting_recorded_in_the_command(tmp_path, capsys):
+    out = tmp_path / "acc"
+    assert main(["report", PROBLEM, "-p", "M=3", "--sigmas", "0.1", "--trials", "1", "--sets", "primary",
+                 "--jobs", "1", "--out", str(out), "--no-progress", "--accept", "certified"]) == 0
+    meta = Store(out).meta()
+    assert meta["criteria"]["accept"] == "certified"
+    assert meta["runs"][0]["command"].endswith(f"--accept certified --out {out}")
+    assert load_trials(out)["tight"].tolist() == [True]
 
 
 def test_a_module_with_marginal_log_svr_gets_its_column():

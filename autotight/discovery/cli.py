@@ -7,7 +7,7 @@ from contextlib import contextmanager
 import json
 from typing import Callable, Iterator
 
-from ..cli import add_solver_args, solver_config
+from ..cli import add_accept_arg, add_solver_args, solver_config
 from ..cli_checks import nonneg_float, nonneg_int, pos_float
 from ..io import jsonable
 from ..limits import check_count, check_size
@@ -32,9 +32,7 @@ def register(sub: argparse._SubParsersAction, add_problem_args: Callable) -> Non
                    help="spectral gap in decades that decides the rank (default 6)")
     p.add_argument("--gap-tol", type=nonneg_float, default=1e-5,
                    help="relative cost gap counted as tight (default 1e-5)")
-    p.add_argument("--accept", default="rank", choices=["rank", "cost", "certified"],
-                   help="what counts as tight: rank d and cost (default), the cost bracket only, or a dual "
-                        "certificate of the best local solution")
+    add_accept_arg(p)
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     add_solver_args(p)
     from .range import add_range_args  # discovery over a range: --sigmas, --range, --train, --train-param

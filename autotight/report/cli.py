@@ -14,6 +14,7 @@ from ..cli_checks import check_solver, nonneg_int
 from ..io import jsonable
 from ..limits import check_count, check_size
 from ..problem import load, parse_assignments
+from ..tightness import Criteria
 from .spec import SETS, ReportError, make_spec
 
 
@@ -25,6 +26,8 @@ def _cores() -> int:
 
 
 def register(sub: Any, add_problem_args: Callable[[argparse.ArgumentParser], None]) -> None:
+    from ..cli import add_accept_arg
+
     p = sub.add_parser("report", help="noise sweep: tightness per constraint set, trapped local solves, figures",
                        description="Sweep the noise level σ: per σ and trial, a fresh instance, the SDP with each "
                                    "constraint set and the local solver from the truth and a random start. "
@@ -56,6 +59,7 @@ def register(sub: Any, add_problem_args: Callable[[argparse.ArgumentParser], Non
     p.add_argument("--solver", default="clarabel",
                    help="SDP backend: clarabel (default), ipm (our interior-point method on clique blocks) "
                         "or cvxpy:SCS, cvxpy:MOSEK, …; part of the sweep's settings (a resume must match)")
+    add_accept_arg(p)
     p.add_argument("--decompose", action="store_true",
                    help="Clarabel on our own clique cover instead of its built-in chordal decomposition "
                         "(faster on continuous time with marginalize=false); part of the sweep's settings")
@@ -77,7 +81,7 @@ def cmd_report(args: argparse.Namespace) -> int:
     check_size(prob, prob.parse_params(given))  # before make_spec builds an instance
     spec = make_spec(prob, args.problem, given, sigmas=args.sigmas, trials=args.trials,
                      sets=args.sets, seed=args.seed, discovered=args.discovered, solver=args.solver,
-                     decompose=args.decompose)
+                     decompose=args.decompose, criteria=Criteria(accept=args.accept))
     check_solver(spec.solver)
     if spec.decompose and spec.solver.startswith("cvxpy"):
         raise ReportError(f"--decompose needs --solver clarabel or ipm, not {spec.solver!r}")

@@ -78,6 +78,8 @@ class SweepSpec:
             parts.append(f"--solver {self.solver}")
         if self.decompose:
             parts.append("--decompose")
+        if self.criteria.accept != Criteria().accept:
+            parts.append(f"--accept {self.criteria.accept}")
         return " ".join(parts)
 
     def solver_config(self) -> "SolverConfig":
