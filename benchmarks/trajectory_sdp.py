@@ -42,7 +42,7 @@ from autotight.threads import single_blas_thread
 
 #: method → SolverConfig fields (the time limit is added per run)
 METHODS = {
-    "chordal-pc": dict(),
+    "chordal-pc": dict(decompose=False),  # explicit: a model may advise decomposing when left open
     "cliques": dict(decompose=True),
     "ipm": dict(backend="ipm"),
     "chordal-default": dict(decompose=False, clarabel_chordal=True, chordal_merge="clique_graph"),
