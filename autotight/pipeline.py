@@ -161,9 +161,14 @@ def _attempt(res: SDPResult, verdict: Verdict | None) -> dict[str, Any]:
             "message": res.message}
 
 
+def has_marginal(problem: Problem) -> bool:
+    """Whether the module reports log SVR on its own reduced X (an optional ``marginal_log_svr``)."""
+    return hasattr(problem.module, "marginal_log_svr")
+
+
 def marginal_svr(problem: Problem, inst: Instance, res: SDPResult) -> float | None:
     """The module's ``marginal_log_svr(instance, X, cliques)`` when it defines one and X is usable."""
-    if not hasattr(problem.module, "marginal_log_svr") or not res.usable or res.X is None:
+    if not has_marginal(problem) or not res.usable or res.X is None:
         return None
     return float(problem.call("marginal_log_svr", inst, res.X, res.cliques))
 

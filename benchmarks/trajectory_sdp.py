@@ -37,6 +37,7 @@ from pathlib import Path
 import numpy as np
 
 from autotight.io import jsonable, versions
+from autotight.pipeline import marginal_svr
 from autotight.problem import load
 from autotight.sdp import SolverConfig, solve_model
 from autotight.threads import single_blas_thread
@@ -69,8 +70,8 @@ def solve_once(problem: str, params: dict, method: str, time_limit: float, seed:
         res, extra = fs.res, {"log_svr_marginal": fs.log_svr_marginal, "solver": fs.res.solver}
     else:
         res = solve_model(model, cons, _method(method, time_limit))
-        if hasattr(prob.module, "marginal_log_svr") and res.usable:
-            extra = {"log_svr_marginal": float(prob.module.marginal_log_svr(inst, res.X, res.cliques))}
+        if (svr := marginal_svr(prob, inst, res)) is not None:
+            extra = {"log_svr_marginal": svr}
     wall, cpu = time.perf_counter() - t, time.process_time() - c0
     return {"status": res.status, "solve_s": res.solve_time_s, "wall_s": wall, "cpu_s": cpu, "log_svr": res.log_svr,
             "cost": res.primal_cost, "iterations": res.iterations, "N": model.variables.N, **extra}

@@ -115,7 +115,7 @@ def tables(df: pd.DataFrame, sigmas: Sequence[float], sets: Sequence[str]) -> li
             rows_v.append([_sig(sg), s, *_verdicts(at, s)])
     out.append(Table("Verdicts per noise level", ["σ", "set", "rank-tight", "cost-tight", "certified", "undecided",
                                                    "SDP estimate beats local search"], rows_v, VERDICT_RULE))
-    marginal = "log_svr_marginal" in df.columns and df["log_svr_marginal"].notna().any()
+    marginal = _has_marginal(df)
     if marginal:  # the module's reduced X (continuous time: the marginalised X, as the paper plots it)
         for i, row in enumerate(rows_s):
             at = df[df["sigma_index"] == i]
@@ -134,6 +134,11 @@ def tables(df: pd.DataFrame, sigmas: Sequence[float], sets: Sequence[str]) -> li
     return out
 
 
+def _has_marginal(df: pd.DataFrame) -> bool:
+    """Whether the trials hold log SVR on the module's reduced X (``log_svr_marginal``)."""
+    return "log_svr_marginal" in df.columns and bool(df["log_svr_marginal"].notna().any())
+
+
 def paper_table(df: pd.DataFrame, sigmas: Sequence[float], claim: dict[str, Any]) -> Table | None:
     """"Against the paper": per σ, our fraction tight, median log SVR (on the marginalised X where the
     module reports it) and trapped fraction for the paper's set, beside what the paper reports
@@ -142,8 +147,7 @@ def paper_table(df: pd.DataFrame, sigmas: Sequence[float], claim: dict[str, Any]
     at_set = df[df["constraint_set"] == name]
     if at_set.empty:
         return None
-    col = "log_svr_marginal" if "log_svr_marginal" in df.columns and df["log_svr_marginal"].notna().any() \
-        else "log_svr"
+    col = "log_svr_marginal" if _has_marginal(df) else "log_svr"
     by_sigma = {float(k): v for k, v in claim.get("by_sigma", {}).items()}
     rows = []
     for i, sg in enumerate(sigmas):

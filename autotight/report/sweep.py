@@ -16,7 +16,8 @@ from ..outpaths import LOCK_NAME, check_folder, folder_lock, writing
 from .backends import connect, execute
 from .spec import ReportError, SweepSpec
 from .store import CSV_NAME, META_NAME, STATUSES, Store
-from .trial import columns, error_keys, has_marginal, run_trial
+from ..pipeline import has_marginal
+from .trial import columns, error_keys, run_trial
 
 DISCOVERED_NAME = "discovered.json"
 

@@ -13,7 +13,7 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from ..errors import AutotightError
-from ..pipeline import is_trapped, local_search, solve_instance
+from ..pipeline import has_marginal, is_trapped, local_search, solve_instance
 from ..problem import Instance, Problem
 from .spec import SweepSpec, trial_seeds
 
@@ -38,10 +38,6 @@ def columns(error_keys: Sequence[str], marginal: bool = False) -> list[str]:
     extra = ("log_svr_marginal",) if marginal else ()
     return [*BASE_COLUMNS, *extra, *errs, *TIME_COLUMNS, *TAIL_COLUMNS]
 
-
-def has_marginal(problem: Problem) -> bool:
-    """Whether the problem module reports log SVR on a reduced X (``marginal_log_svr``)."""
-    return hasattr(problem.module, "marginal_log_svr")
 
 
 def error_keys(problem: Problem, spec: SweepSpec) -> list[str]:
