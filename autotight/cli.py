@@ -64,7 +64,7 @@ def constraints_arg(value: str | None, skip_invalid: bool = False):
 
 
 def add_solver_args(p: argparse.ArgumentParser) -> None:
-    """``--solver`` and ``--decompose``: the SDP backend of every solve of the command."""
+    """``--solver``, ``--decompose`` and ``--scale``: the SDP backend of every solve of the command."""
     p.add_argument("--solver", default="clarabel",
                    help="SDP backend: clarabel (default), ipm (our interior-point method on clique blocks) or "
                         "cvxpy:SCS, cvxpy:MOSEK, … (see autotight/sdp/registry.py)")
@@ -73,6 +73,11 @@ def add_solver_args(p: argparse.ArgumentParser) -> None:
                         "blocks, autotight/sdp/covers.py) instead of its built-in chordal decomposition "
                         "(--no-decompose: never). Default: as the problem's model advises (continuous time: "
                         "our cover), else Clarabel's own. The IPM always uses our cover")
+    p.add_argument("--scale", default="auto", choices=["auto", "none"],
+                   help="auto (default): solve for X' in X = D X' D, D the lifted blocks' magnitudes at the best "
+                        "local solution, so that O(σ) residual blocks are resolved at low noise "
+                        "(autotight/sdp/scaling.py); none: the data as built (fewer solver iterations where "
+                        "every block is O(1))")
 
 
 def add_accept_arg(p: argparse.ArgumentParser) -> None:
@@ -83,13 +88,13 @@ def add_accept_arg(p: argparse.ArgumentParser) -> None:
 
 
 def solver_config(args: argparse.Namespace, **fields: Any):
-    """The ``SolverConfig`` of ``--solver``/``--decompose`` (validated before any work)."""
+    """The ``SolverConfig`` of ``--solver``/``--decompose``/``--scale`` (validated before any work)."""
     from .errors import ParameterError
     from .sdp.config import SolverConfig
 
     if args.decompose and args.solver.startswith("cvxpy"):
         raise ParameterError(f"--decompose needs --solver clarabel or ipm, not {args.solver!r}")
-    return SolverConfig(backend=args.solver, decompose=args.decompose, **fields)
+    return SolverConfig(backend=args.solver, decompose=args.decompose, scale=getattr(args, "scale", "auto"), **fields)
 
 
 def cmd_solve(args: argparse.Namespace) -> int:
@@ -107,7 +112,7 @@ def cmd_solve(args: argparse.Namespace) -> int:
     inst = out.instance
     rec = out.record()
     if args.json:
-        rec |= {"measurements": inst.measurements, "truth": inst.truth, "estimate": out.estimate,
+        rec |= {"scale": config.scale, "measurements": inst.measurements, "truth": inst.truth, "estimate": out.estimate,
                 "versions": versions()}
         print(json.dumps(jsonable(rec), ensure_ascii=False))
         return _failed(out)

@@ -152,6 +152,37 @@ def test_solve_decompose_uses_our_cliques_with_the_same_optimum(capsys):
     assert abs(ours["sdp_cost"] - ref["sdp_cost"]) <= 1e-5 * abs(ref["sdp_cost"])
 
 
+def test_scale_flag_reaches_the_sdp_and_keeps_the_optimum(capsys, monkeypatch):
+    """--scale none solves the data as built (no D reaches the SDP layer), --scale auto (the default)
+    solves for X' with D from the local solution.  At σ = 0.001 the scaled solve's bracket [D, P] is
+    within 1e-8 relative of the local optimum U and at least 100× narrower than the unscaled one's."""
+    from autotight import pipeline
+
+    seen = []
+    solve_model = pipeline.sdp.solve_model
+
+    def spy(model, cons, config, scale):
+        seen.append((config.scale, scale))
+        return solve_model(model, cons, config, scale)
+
+    monkeypatch.setattr(pipeline.sdp, "solve_model", spy)
+    argv = ["solve", "rotation_averaging", "-p", "M=6", "-p", "sigma=0.001", "--json"]
+    assert main(argv + ["--scale", "none"]) == 0
+    plain = json.loads(capsys.readouterr().out)
+    assert seen == [("none", None)] and plain["scale"] == "none"
+    seen.clear()
+    assert main(argv) == 0
+    scaled = json.loads(capsys.readouterr().out)
+    assert len(seen) == 1 and seen[0][0] == "auto" and seen[0][1] is not None
+    D = seen[0][1]
+    assert D.max() / D.min() > 10  # O(σ) residual blocks against O(1) rotations
+    U = scaled["upper_bound"]
+    assert plain["upper_bound"] == pytest.approx(U, rel=1e-12)
+    width = {k: max(abs(r["sdp_cost"] - U), abs(r["sdp_dual_cost"] - U))
+             for k, r in (("plain", plain), ("scaled", scaled))}
+    assert width["scaled"] <= 1e-8 * U and width["scaled"] * 100 <= width["plain"], width
+
+
 def test_decompose_with_cvxpy_is_a_one_line_error(capsys):
     _expect_error(capsys, ["solve", "rotation_averaging", "--solver", "cvxpy:SCS", "--decompose"],
                   "--decompose needs --solver clarabel or ipm")
