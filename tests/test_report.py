@@ -228,6 +228,58 @@ def test_changed_package_versions_are_noted_on_resume(reference, tmp_path, monke
     assert [r["versions"]["numpy"] for r in runs[-2:]] == [np.__version__, "0.0.1"]
 
 
+def _drop_columns(out: Path, drop: tuple[str, ...]) -> pd.DataFrame:
+    """Make ``out`` look like a folder written before ``drop`` were columns; returns the full rows."""
+    full = pd.read_csv(out / CSV_NAME, keep_default_na=False)
+    full.drop(columns=list(drop)).to_csv(out / CSV_NAME, index=False)
+    meta = json.loads((out / "meta.json").read_text())
+    meta["columns"] = [c for c in meta["columns"] if c not in drop]
+    (out / "meta.json").write_text(json.dumps(meta))
+    return full
+
+
+def test_a_folder_written_before_new_columns_resumes_with_them_empty(reference, tmp_path):
+    """The bracket's lower end and accuracy were added after reports were committed: such a folder
+    resumes (nothing recomputed), its CSV gains the columns with empty cells and every other cell kept,
+    and it renders; a folder of another sweep is refused and left untouched."""
+    drop = ("sdp_lower_bound", "sdp_accuracy")
+    out = tmp_path / "old"
+    shutil.copytree(reference, out)
+    full = _drop_columns(out, drop)
+    notes: list[str] = []
+    s = run_sweep(_spec(), out, jobs=1, progress=False, log=notes.append)
+    assert s.computed == 0 and any("sdp_lower_bound, sdp_accuracy" in n for n in notes), notes
+    now = pd.read_csv(out / CSV_NAME, keep_default_na=False)
+    assert list(now.columns) == list(full.columns)
+    assert (now[list(drop)] == "").all().all()
+    keep = [c for c in full.columns if c not in drop]
+    assert now[keep].astype(str).equals(full[keep].astype(str))
+    assert json.loads((out / "meta.json").read_text())["runs"][-1]["added_columns"] == list(drop)
+    assert "Bracket against the best feasible cost" not in _render(out)["report.md"].read_text()
+    other = tmp_path / "other"
+    shutil.copytree(reference, other)
+    _drop_columns(other, drop)
+    before = (other / CSV_NAME).read_bytes()
+    with pytest.raises(ReportError, match="seed"):
+        run_sweep(_spec(seed=1), other, jobs=1, progress=False)
+    assert (other / CSV_NAME).read_bytes() == before
+
+
+def test_the_bracket_table_counts_inverted_brackets(reference):
+    """The report's bracket table: a solve whose P and D both exceed U by more than roundoff is
+    counted, and so is one whose corrected lower end L exceeds U; on the reference no L exceeds U."""
+    from autotight.report.render import bracket_table
+
+    df = load_trials(reference)
+    table = bracket_table(df, SIGMAS, ["primary"])
+    assert [r[5] for r in table.rows] == ["0", "0"]  # every corrected bracket [L, P] holds U
+    bad = df.copy()
+    U = bad.loc[0, "upper_bound"]
+    bad.loc[0, ["sdp_cost", "sdp_dual_cost", "sdp_lower_bound"]] = [U * (1 + 1e-6), U * (1 + 2e-6), U * (1 + 5e-7)]
+    row = bracket_table(bad, SIGMAS, ["primary"]).rows[0]
+    assert row[3] == "1" and row[5] == "1" and float(row[4]) == pytest.approx(1e-6, rel=1e-3)
+
+
 def test_dask_local_cluster_gives_the_same_results_as_joblib(reference, tmp_path):
     distributed = pytest.importorskip("distributed")
     with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=False,

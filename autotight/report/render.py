@@ -124,6 +124,9 @@ def tables(df: pd.DataFrame, sigmas: Sequence[float], sets: Sequence[str]) -> li
                      "Marginalised X: log SVR of the X with ϖ removed by the Schur complement, as the paper's "
                      "figure plots it, whichever formulation was solved (the module's marginal_log_svr)."
                      if marginal else ""))
+    brackets = bracket_table(df, sigmas, sets)
+    if brackets is not None:
+        out.append(brackets)
     out.append(Table("Median times (s)", ["σ", *[f"SDP {s}" for s in sets], "local (truth)", "local (random)"],
                      rows_time))
     status = df.groupby("constraint_set")["status"].value_counts().unstack(fill_value=0)
@@ -132,6 +135,44 @@ def tables(df: pd.DataFrame, sigmas: Sequence[float], sets: Sequence[str]) -> li
         out.append(Table("Solver statuses", ["set", *cols],
                          [[s, *[str(int(status.loc[s, c])) for c in cols]] for s in sets if s in status.index]))
     return out
+
+
+#: relative excess over U below which P > U or D > U is roundoff of summing the cost, not a solver error
+ROUNDOFF_RTOL = 1e-9
+
+BRACKET_NOTE = (
+    "Each solve's interval against the best feasible cost U (differences relative to |U|). D is the solver's dual cost "
+    "and P its primal cost; a raw D above U shows that the solver's multipliers are slightly infeasible, so D "
+    "alone is not a bound. L = D − max(−λ_min(H), 0)·tr X (H = Q − Σ yᵢAᵢ) is the lower end the verdict "
+    "uses: the dual cost corrected for that infeasibility. 'P and D above U' counts solves whose raw costs "
+    "both exceed U by more than 1e-9 relative (roundoff); 'L above U' counts solves whose corrected "
+    "interval [L, P] misses U by more than that roundoff (one whose L exceeds U by more than the "
+    "tolerance and its accuracy is judged undecided: the solve is wrong). acc: the accuracy of the solve "
+    "(see 'Verdicts per noise level').")
+
+
+def bracket_table(df: pd.DataFrame, sigmas: Sequence[float], sets: Sequence[str]) -> Table | None:
+    """Per σ and set: solves whose raw P and D both exceed U, solves whose corrected bracket [L, P] misses U,
+    the largest raw excess and the median (U − L)/|U| and acc/|U|; None for trials saved without L."""
+    if "sdp_lower_bound" not in df.columns or not df["sdp_lower_bound"].notna().any():
+        return None
+    ok = df[~df["status"].astype(str).str.startswith("Error") & df["sdp_lower_bound"].notna()]
+    rows = []
+    for i, sg in enumerate(sigmas):
+        for s in sets:
+            x = ok[(ok["sigma_index"] == i) & (ok["constraint_set"] == s)]
+            if x.empty:
+                continue
+            U = x["upper_bound"].to_numpy(float)
+            scale = np.maximum(np.abs(U), 1e-300)
+            raw = (np.minimum(x["sdp_cost"], x["sdp_dual_cost"]).to_numpy(float) - U) / scale
+            low = (x["sdp_lower_bound"].to_numpy(float) - U) / scale
+            rows.append([_sig(sg), s, str(len(x)), str(int(np.sum(raw > ROUNDOFF_RTOL))),
+                         f"{np.nanmax(raw):.1e}", str(int(np.sum(low > ROUNDOFF_RTOL))),
+                         f"{np.nanmedian(-low):.1e}", f"{np.nanmedian(x['sdp_accuracy'].to_numpy(float) / scale):.1e}"])
+    return Table("Bracket against the best feasible cost",
+                 ["σ", "set", "solves", "P and D above U", "max excess min(P, D) − U", "L above U",
+                  "median U − L", "median acc"], rows, BRACKET_NOTE)
 
 
 def _has_marginal(df: pd.DataFrame) -> bool:

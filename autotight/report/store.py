@@ -50,6 +50,12 @@ def _cell(v: Any) -> str:
     return str(v).replace("\r", " ").replace("\n", " ")
 
 
+def _subsequence(short: Sequence[str], long: Sequence[str]) -> bool:
+    """Whether ``short`` is ``long`` with some entries left out (order kept)."""
+    it = iter(long)
+    return all(any(c == x for x in it) for c in short)
+
+
 def _norm(obj: Any) -> Any:
     """JSON-normalised (tuples → lists, floats round-tripped) for comparing settings."""
     return json.loads(json.dumps(jsonable(obj)))
@@ -65,6 +71,7 @@ class Store:
         self.columns: list[str] = []
         self.sets: list[str] = []
         self.version_changes: list[str] = []
+        self.added_columns: list[str] = []
         self.dropped = 0
 
     # -- settings ---------------------------------------------------------------------------
@@ -114,6 +121,10 @@ class Store:
             meta = {"format": 1, **ident, "created": time.strftime("%Y-%m-%dT%H:%M:%S"), "runs": []}
             self._write_meta(meta)  # first: a folder with meta.json and no CSV resumes; the reverse is refused
         else:
+            self._compare(meta, {k: v for k, v in ident.items() if k != "columns"})  # another sweep: untouched
+            self.added_columns = self._add_columns(meta, self.columns)
+            if self.added_columns:
+                run_info = dict(run_info or {}, added_columns=self.added_columns)
             self._compare(meta, ident)
         rows = self._load_rows()
         self.dropped = 0
@@ -135,6 +146,27 @@ class Store:
                                                 "versions": meta["versions"], **(run_info or {})}]
         self._write_meta(meta)
         return self._keys(rows)
+
+    def _add_columns(self, meta: dict[str, Any], columns: list[str]) -> list[str]:
+        """Upgrade a folder written before ``columns`` gained entries: when its columns are the new ones
+        with some left out (order kept), the CSV is rewritten with the new header and empty cells for
+        the trials saved before (nothing else changes), and ``meta`` records the new columns.  Returns
+        the added column names ([] when there is nothing to upgrade)."""
+        old = meta.get("columns")
+        if not isinstance(old, list) or old == columns or not _subsequence(old, columns):
+            return []
+        if self.csv.exists() and self.csv.stat().st_size:
+            lines = self.csv.read_text(encoding="utf-8").split("\n")
+            if next(csv.reader([lines[0]])) != old:
+                return []  # not what meta.json says: left to the column check
+            at = [old.index(c) if c in old else -1 for c in columns]
+            body = [r for r in (next(csv.reader([ln]), []) for ln in lines[1:] if ln) if len(r) == len(old)]
+            with writing(self.csv):
+                atomic_write_text(self.csv, self._text([columns, *[[r[i] if i >= 0 else "" for i in at]
+                                                                    for r in body]]))
+        meta["columns"] = list(columns)
+        self._write_meta(meta)
+        return [c for c in columns if c not in old]
 
     def _write_meta(self, meta: dict[str, Any]) -> None:
         with writing(self.meta_path):

@@ -72,6 +72,9 @@ def run_sweep(spec: SweepSpec, out: str | Path, *, jobs: int = 1, scheduler: Any
                               redo=redo)
             if store.dropped:
                 log(f"re-running {store.dropped} saved trial(s) with status {', '.join(redo)}")
+            if store.added_columns:
+                log(f"note: columns added since the last run, empty for the trials saved before: "
+                    f"{', '.join(store.added_columns)}")
             if store.version_changes:
                 log(f"note: package versions changed since the last run ({', '.join(store.version_changes)}); "
                     f"each run's versions are in {store.meta_path}")
