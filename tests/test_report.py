@@ -242,13 +242,13 @@ def test_a_folder_written_before_new_columns_resumes_with_them_empty(reference, 
     """The bracket's lower end and accuracy were added after reports were committed: such a folder
     resumes (nothing recomputed), its CSV gains the columns with empty cells and every other cell kept,
     and it renders; a folder of another sweep is refused and left untouched."""
-    drop = ("sdp_lower_bound", "sdp_accuracy")
+    drop = ("sdp_lower_bound", "sdp_accuracy", "sdp_tolerance")
     out = tmp_path / "old"
     shutil.copytree(reference, out)
     full = _drop_columns(out, drop)
     notes: list[str] = []
     s = run_sweep(_spec(), out, jobs=1, progress=False, log=notes.append)
-    assert s.computed == 0 and any("sdp_lower_bound, sdp_accuracy" in n for n in notes), notes
+    assert s.computed == 0 and any("sdp_lower_bound, sdp_accuracy, sdp_tolerance" in n for n in notes), notes
     now = pd.read_csv(out / CSV_NAME, keep_default_na=False)
     assert list(now.columns) == list(full.columns)
     assert (now[list(drop)] == "").all().all()

@@ -147,8 +147,10 @@ BRACKET_NOTE = (
     "uses: the dual cost corrected for that infeasibility. 'P and D above U' counts solves whose raw costs "
     "both exceed U by more than 1e-9 relative (roundoff); 'L above U' counts solves whose corrected "
     "interval [L, P] misses U by more than that roundoff (one whose L exceeds U by more than the "
-    "tolerance and its accuracy is judged undecided: the solve is wrong). acc: the accuracy of the solve "
-    "(see 'Verdicts per noise level').")
+    "tolerance and its accuracy is judged undecided: the solve is wrong). acc: the accuracy of the solve and tol "
+    "the gap the verdict allows, gap_tol·|U| + cost_atol·‖Q‖_max·tr X (see 'Verdicts per noise level'); "
+    "where tol exceeds |U| the cost's own scale swamps it, the bracket cannot separate a tight from a loose "
+    "relaxation, and the verdict rests on the rank test.")
 
 
 def bracket_table(df: pd.DataFrame, sigmas: Sequence[float], sets: Sequence[str]) -> Table | None:
@@ -169,10 +171,11 @@ def bracket_table(df: pd.DataFrame, sigmas: Sequence[float], sets: Sequence[str]
             low = (x["sdp_lower_bound"].to_numpy(float) - U) / scale
             rows.append([_sig(sg), s, str(len(x)), str(int(np.sum(raw > ROUNDOFF_RTOL))),
                          f"{np.nanmax(raw):.1e}", str(int(np.sum(low > ROUNDOFF_RTOL))),
-                         f"{np.nanmedian(-low):.1e}", f"{np.nanmedian(x['sdp_accuracy'].to_numpy(float) / scale):.1e}"])
+                         f"{np.nanmedian(-low):.1e}", f"{np.nanmedian(x['sdp_accuracy'].to_numpy(float) / scale):.1e}",
+                         f"{np.nanmedian(x['sdp_tolerance'].to_numpy(float) / scale):.1e}"])
     return Table("Bracket against the best feasible cost",
                  ["σ", "set", "solves", "P and D above U", "max excess min(P, D) − U", "L above U",
-                  "median U − L", "median acc"], rows, BRACKET_NOTE)
+                  "median U − L", "median acc", "median tol"], rows, BRACKET_NOTE)
 
 
 def _has_marginal(df: pd.DataFrame) -> bool:

@@ -20,8 +20,8 @@ from .spec import SweepSpec, trial_seeds
 KEY = ("sigma_index", "trial")
 BASE_COLUMNS = ("problem", "sigma_index", "sigma", "trial", "seed", "constraint_set", "n_constraints", "status",
                 "outcome", "tight", "rank_tight", "cost_tight", "log_svr", "sdp_cost", "sdp_dual_cost",
-                "sdp_lower_bound", "sdp_accuracy", "rel_gap", "upper_bound", "refined_cost", "sdp_attempts",
-                "undecided", "certified", "cert_rel_bound", "sdp_beats_local",
+                "sdp_lower_bound", "sdp_accuracy", "sdp_tolerance", "rel_gap", "upper_bound", "refined_cost",
+                "sdp_attempts", "undecided", "certified", "cert_rel_bound", "sdp_beats_local",
                 "local_cost_truth", "local_cost_random", "local_converged_truth", "local_converged_random",
                 "global_cost", "trapped")
 TIME_COLUMNS = ("sdp_time_s", "sdp_setup_s", "local_truth_time_s", "local_random_time_s", "build_time_s",
@@ -109,6 +109,7 @@ def _solve(problem: Problem, spec: SweepSpec, i: int, t: int, discovered: Any) -
                          outcome=out.outcome, tight=verdict.tight, rank_tight=verdict.rank_tight,
                          cost_tight=verdict.cost_tight, log_svr=res.log_svr, sdp_cost=res.primal_cost,
                          sdp_dual_cost=res.dual_cost, sdp_lower_bound=verdict.lower, sdp_accuracy=verdict.accuracy,
+                         sdp_tolerance=verdict.tolerance,
                          rel_gap=verdict.rel_gap, upper_bound=out.upper,
                          refined_cost=None if out.refined is None else out.refined.cost,
                          sdp_attempts=len(out.attempts), undecided=verdict.undecided,
