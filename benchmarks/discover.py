@@ -10,10 +10,13 @@ reduction in dual-importance order with monotonicity as the irreducibility proof
 solver call (retries and fallbacks included); wall and CPU time and the load average are recorded
 (the machine is shared).  Robust pose averaging is compared with AutoTight's published rPPR row
 (1771 → 925, cost-tight, 148 s); it runs the held-out check when the set is tight.
+``--range pose,discrete`` adds the range runs of ``benchmarks/discover_range.py`` (discovery over σ,
+solves, time and set sizes against the paper's, ``--range-validate`` validation rounds).
 Prints and writes benchmarks/results/discover.json.
 
     python benchmarks/discover.py [--M 10] [--seed 0] [--robust-groups SPEC] [--skip-robust] [--skip-pose]
-                                  [--heldout 10]
+                                  [--heldout 10] [--range pose,discrete] [--range-validate 10]
+                                  [--range-train-k 5]
 """
 
 from __future__ import annotations
@@ -132,18 +135,28 @@ def main() -> None:
     ap.add_argument("--robust-groups", default=None, help="learning groups for robust pose averaging "
                     "(default: the module's DEFAULT_GROUPS)")
     ap.add_argument("--skip-robust", action="store_true")
-    ap.add_argument("--skip-pose", action="store_true", help="only the robust problem (keeps the pose averaging "
-                    "entry of an existing results file)")
+    ap.add_argument("--skip-pose", action="store_true", help="no pose averaging run (keeps the entries of an "
+                    "existing results file that are not run now)")
     ap.add_argument("--heldout", type=int, default=10, help="held-out instances of the robust discovery (default 10)")
+    ap.add_argument("--range", default="", help="range runs to add (pose, discrete: benchmarks/discover_range.py)")
+    ap.add_argument("--range-validate", type=int, default=10,
+                    help="validation rounds' instances per point (default 10)")
+    ap.add_argument("--range-train-k", type=int, default=5, help="K of the discrete range run's training (default 5)")
     a = ap.parse_args()
     load_start = list(os.getloadavg())
     if a.skip_pose and Path(a.out).exists():
-        out = {k: v for k, v in json.loads(Path(a.out).read_text()).items() if k != "robust_pose_averaging"}
+        out = json.loads(Path(a.out).read_text())  # the entries not run now are kept
     else:
         out = pose(a.M, a.seed)
     out["versions"] = versions()
     if not a.skip_robust:
         out["robust_pose_averaging"] = robust(a.seed, a.robust_groups, a.heldout)
+    if a.range:
+        from discover_range import run as range_run
+
+        out["range"] = {**out.get("range", {}), **{name: range_run(name, 2, a.range_validate, 10, a.seed,
+                                                                               a.range_train_k)
+                                                    for name in a.range.split(",")}}
     out["load_average"] = {"start": load_start, "end": list(os.getloadavg()), "cores": os.cpu_count()}
     print(json.dumps(jsonable(out), indent=1))
     Path(a.out).parent.mkdir(parents=True, exist_ok=True)

@@ -149,8 +149,9 @@ BRACKET_NOTE = (
     "interval [L, P] misses U by more than that roundoff (one whose L exceeds U by more than the "
     "tolerance and its accuracy is judged undecided: the solve is wrong). acc: the accuracy of the solve and tol "
     "the gap the verdict allows, gap_tol·|U| + cost_atol·‖Q‖_max·tr X (see 'Verdicts per noise level'); "
-    "where tol exceeds |U| the cost's own scale swamps it, the bracket cannot separate a tight from a loose "
-    "relaxation, and the verdict rests on the rank test.")
+    "where tol is not small against |U| (the cost_atol term: a cost far below the scale of its own terms), "
+    "the bracket cannot separate a tight from a loose relaxation by much less than tol, and the verdict "
+    "rests on the rank test.")
 
 
 def bracket_table(df: pd.DataFrame, sigmas: Sequence[float], sets: Sequence[str]) -> Table | None:
