@@ -141,7 +141,8 @@ def tables(df: pd.DataFrame, sigmas: Sequence[float], sets: Sequence[str]) -> li
 ROUNDOFF_RTOL = 1e-9
 
 BRACKET_NOTE = (
-    "Each solve's interval against the best feasible cost U (differences relative to |U|). D is the solver's dual cost "
+    "Each solve's interval against the best feasible cost U (differences relative to |U|, or to tol where that "
+    "is larger: a zero cost). D is the solver's dual cost "
     "and P its primal cost; a raw D above U shows that the solver's multipliers are slightly infeasible, so D "
     "alone is not a bound. L = D − max(−λ_min(H), 0)·tr X (H = Q − Σ yᵢAᵢ) is the lower end the verdict "
     "uses: the dual cost corrected for that infeasibility. 'P and D above U' counts solves whose raw costs "
@@ -156,7 +157,8 @@ BRACKET_NOTE = (
 
 def bracket_table(df: pd.DataFrame, sigmas: Sequence[float], sets: Sequence[str]) -> Table | None:
     """Per σ and set: solves whose raw P and D both exceed U, solves whose corrected bracket [L, P] misses U,
-    the largest raw excess and the median (U − L)/|U| and acc/|U|; None for trials saved without L."""
+    the largest raw excess and the medians of U − L, acc and tol, all relative to max(|U|, tol); None for
+    trials saved without L."""
     if "sdp_lower_bound" not in df.columns or not df["sdp_lower_bound"].notna().any():
         return None
     ok = df[~df["status"].astype(str).str.startswith("Error") & df["sdp_lower_bound"].notna()]
@@ -167,7 +169,7 @@ def bracket_table(df: pd.DataFrame, sigmas: Sequence[float], sets: Sequence[str]
             if x.empty:
                 continue
             U = x["upper_bound"].to_numpy(float)
-            scale = np.maximum(np.abs(U), 1e-300)
+            scale = np.maximum(np.abs(U), x["sdp_tolerance"].to_numpy(float))  # a zero cost: its absolute tolerance
             raw = (np.minimum(x["sdp_cost"], x["sdp_dual_cost"]).to_numpy(float) - U) / scale
             low = (x["sdp_lower_bound"].to_numpy(float) - U) / scale
             rows.append([_sig(sg), s, str(len(x)), str(int(np.sum(raw > ROUNDOFF_RTOL))),
