@@ -146,7 +146,8 @@ BRACKET_NOTE = (
     "and P its primal cost; a raw D above U shows that the solver's multipliers are slightly infeasible, so D "
     "alone is not a bound. L = D − max(−λ_min(H), 0)·tr X (H = Q − Σ yᵢAᵢ) is the lower end the verdict "
     "uses: the dual cost corrected for that infeasibility. 'P and D above U' counts solves whose raw costs "
-    "both exceed U by more than 1e-9 relative (roundoff); 'L above U' counts solves whose corrected "
+    "both exceed U by more than 1e-9 relative (roundoff), 'above U beyond acc' those where both exceed U by more "
+    "than the solve's own accuracy acc (a solve that had not converged); 'L above U' counts solves whose corrected "
     "interval [L, P] misses U by more than that roundoff (one whose L exceeds U by more than the "
     "tolerance and its accuracy is judged undecided: the solve is wrong). acc: the accuracy of the solve and tol "
     "the gap the verdict allows, gap_tol·|U| + cost_atol·‖Q‖_max·tr X (see 'Verdicts per noise level'); "
@@ -172,13 +173,14 @@ def bracket_table(df: pd.DataFrame, sigmas: Sequence[float], sets: Sequence[str]
             scale = np.maximum(np.abs(U), x["sdp_tolerance"].to_numpy(float))  # a zero cost: its absolute tolerance
             raw = (np.minimum(x["sdp_cost"], x["sdp_dual_cost"]).to_numpy(float) - U) / scale
             low = (x["sdp_lower_bound"].to_numpy(float) - U) / scale
-            rows.append([_sig(sg), s, str(len(x)), str(int(np.sum(raw > ROUNDOFF_RTOL))),
-                         f"{np.nanmax(raw):.1e}", str(int(np.sum(low > ROUNDOFF_RTOL))),
-                         f"{np.nanmedian(-low):.1e}", f"{np.nanmedian(x['sdp_accuracy'].to_numpy(float) / scale):.1e}",
+            acc = x["sdp_accuracy"].to_numpy(float) / scale
+            rows.append([_sig(sg), s, str(len(x)), str(int(np.sum(raw > ROUNDOFF_RTOL))), f"{np.nanmax(raw):.1e}",
+                         str(int(np.sum(raw > np.maximum(acc, ROUNDOFF_RTOL)))), str(int(np.sum(low > ROUNDOFF_RTOL))),
+                         f"{np.nanmedian(-low):.1e}", f"{np.nanmedian(acc):.1e}",
                          f"{np.nanmedian(x['sdp_tolerance'].to_numpy(float) / scale):.1e}"])
     return Table("Bracket against the best feasible cost",
-                 ["σ", "set", "solves", "P and D above U", "max excess min(P, D) − U", "L above U",
-                  "median U − L", "median acc", "median tol"], rows, BRACKET_NOTE)
+                 ["σ", "set", "solves", "P and D above U", "max excess min(P, D) − U", "above U beyond acc",
+                  "L above U", "median U − L", "median acc", "median tol"], rows, BRACKET_NOTE)
 
 
 def _has_marginal(df: pd.DataFrame) -> bool:
