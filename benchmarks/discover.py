@@ -154,10 +154,15 @@ def main() -> None:
     if a.range:
         from discover_range import run as range_run
 
-        out["range"] = {**out.get("range", {}), **{name: range_run(name, 2, a.range_validate, 10, a.seed,
-                                                                               a.range_train_k)
-                                                    for name in a.range.split(",")}}
-    out["load_average"] = {"start": load_start, "end": list(os.getloadavg()), "cores": os.cpu_count()}
+        runs = {name: range_run(name, 2, a.range_validate, 10, a.seed, a.range_train_k) | {"versions": versions()}
+                for name in a.range.split(",")}
+        out["range"] = {**out.get("range", {}), **runs}
+    load = {"start": load_start, "end": list(os.getloadavg()), "cores": os.cpu_count()}
+    if a.skip_pose and a.skip_robust:  # only range runs: their load, the other entries keep theirs
+        for name in a.range.split(","):
+            out["range"][name]["load_average"] = load
+    else:
+        out["load_average"] = load
     print(json.dumps(jsonable(out), indent=1))
     Path(a.out).parent.mkdir(parents=True, exist_ok=True)
     Path(a.out).write_text(json.dumps(jsonable(out), indent=1) + "\n")
