@@ -143,6 +143,7 @@ def main() -> None:
                     help="validation rounds' instances per point (default 10)")
     ap.add_argument("--range-train-k", type=int, default=5, help="K of the discrete range run's training (default 5)")
     a = ap.parse_args()
+    range_runs = [n for n in a.range.split(",") if n]
     load_start = list(os.getloadavg())
     if a.skip_pose and Path(a.out).exists():
         out = json.loads(Path(a.out).read_text())  # the entries not run now are kept
@@ -151,15 +152,15 @@ def main() -> None:
     out["versions"] = versions()
     if not a.skip_robust:
         out["robust_pose_averaging"] = robust(a.seed, a.robust_groups, a.heldout)
-    if a.range:
+    if range_runs:
         from discover_range import run as range_run
 
         runs = {name: range_run(name, 2, a.range_validate, 10, a.seed, a.range_train_k) | {"versions": versions()}
-                for name in a.range.split(",")}
+                for name in range_runs}
         out["range"] = {**out.get("range", {}), **runs}
     load = {"start": load_start, "end": list(os.getloadavg()), "cores": os.cpu_count()}
-    if a.skip_pose and a.skip_robust:  # only range runs: their load, the other entries keep theirs
-        for name in a.range.split(","):
+    if a.skip_pose and a.skip_robust:  # only range runs (if any): their load, the other entries keep theirs
+        for name in range_runs:
             out["range"][name]["load_average"] = load
     else:
         out["load_average"] = load

@@ -122,7 +122,7 @@ class Store:
             self._write_meta(meta)  # first: a folder with meta.json and no CSV resumes; the reverse is refused
         else:
             self._compare(meta, {k: v for k, v in ident.items() if k != "columns"})  # another sweep: untouched
-            self.added_columns = self._add_columns(meta, self.columns)
+            self.added_columns = self._add_columns(meta)
             if self.added_columns:
                 run_info = dict(run_info or {}, added_columns=self.added_columns)
             self._compare(meta, ident)
@@ -147,26 +147,24 @@ class Store:
         self._write_meta(meta)
         return self._keys(rows)
 
-    def _add_columns(self, meta: dict[str, Any], columns: list[str]) -> list[str]:
-        """Upgrade a folder written before ``columns`` gained entries: when its columns are the new ones
+    def _add_columns(self, meta: dict[str, Any]) -> list[str]:
+        """Upgrade a folder written before ``self.columns`` gained entries: when its columns are these
         with some left out (order kept), the CSV is rewritten with the new header and empty cells for
         the trials saved before (nothing else changes), and ``meta`` records the new columns.  Returns
         the added column names ([] when there is nothing to upgrade)."""
         old = meta.get("columns")
-        if not isinstance(old, list) or old == columns or not _subsequence(old, columns):
+        if not isinstance(old, list) or old == self.columns or not _subsequence(old, self.columns):
             return []
         if self.csv.exists() and self.csv.stat().st_size:
             lines = self.csv.read_text(encoding="utf-8").split("\n")
             if next(csv.reader([lines[0]])) != old:
                 return []  # not what meta.json says: left to the column check
-            at = [old.index(c) if c in old else -1 for c in columns]
+            at = [old.index(c) if c in old else -1 for c in self.columns]
             body = [r for r in (next(csv.reader([ln]), []) for ln in lines[1:] if ln) if len(r) == len(old)]
-            with writing(self.csv):
-                atomic_write_text(self.csv, self._text([columns, *[[r[i] if i >= 0 else "" for i in at]
-                                                                    for r in body]]))
-        meta["columns"] = list(columns)
+            self._rewrite([[r[i] if i >= 0 else "" for i in at] for r in body])
+        meta["columns"] = list(self.columns)
         self._write_meta(meta)
-        return [c for c in columns if c not in old]
+        return [c for c in self.columns if c not in old]
 
     def _write_meta(self, meta: dict[str, Any]) -> None:
         with writing(self.meta_path):
