@@ -30,6 +30,7 @@ from typing import Sequence
 
 import numpy as np
 import scipy.sparse as sp
+import scipy.sparse.linalg as spla
 
 from .model import Constraint
 
@@ -234,6 +235,27 @@ def _lambda_min_blocks(A: sp.csr_array) -> float:
             return -np.inf  # not worth it: no bound from this item
         out = min(out, float(np.linalg.eigvalsh(A[idx][:, idx].toarray())[0]))
     return out
+
+
+def stationarity_system(Q: sp.sparray, As: Sequence[sp.sparray], Th: np.ndarray) -> tuple[sp.csr_array, np.ndarray]:
+    """(G, g) with G y = g ⟺ H(y)Θ̂ᵀ = 0: column i of G is vec(AᵢΘ̂ᵀ) (N·d rows, row-major)."""
+    d, N = Th.shape
+    r, c, v, owner = entries(As)
+    rows = (r[:, None] * d + np.arange(d)[None, :]).ravel()
+    vals = (v[:, None] * Th[:, c].T).ravel()
+    G = sp.csr_array((vals, (rows, np.repeat(owner, d))), shape=(N * d, len(As)))
+    return G, np.asarray(sp.csr_array(Q) @ Th.T).ravel()
+
+
+def polish_dual(Q: sp.sparray, As: Sequence[sp.sparray], y: np.ndarray, theta_hat: np.ndarray) -> np.ndarray:
+    """y + δ, δ the least change (2-norm) that makes H(y + δ)Θ̂ᵀ = 0: the minimum-norm least-squares
+    solution of G δ = g − G y (``stationarity_system``, LSQR).  Θ̂: (d, N).  Where x̂ is stationary only
+    to the local solver's accuracy, the system is consistent only to that accuracy, and so is
+    H(y + δ)Θ̂ᵀ = 0.  Then bᵀ(y + δ) = f(x̂) − ⟨H, Θ̂ᵀΘ̂⟩ ≈ f(x̂), up to that and x̂'s constraint
+    residual; whether y + δ proves anything is λ_min's to say."""
+    G, g = stationarity_system(Q, As, np.atleast_2d(np.asarray(theta_hat, dtype=float)))
+    y = np.asarray(y, dtype=float)
+    return y + spla.lsqr(G, g - G @ y, atol=1e-14, btol=1e-14, iter_lim=10 * G.shape[1])[0]
 
 
 def certificate(Q: sp.sparray, constraints: Sequence[Constraint], y: np.ndarray, theta_hat: np.ndarray, *,

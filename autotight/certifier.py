@@ -54,7 +54,7 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from .certificate import Certificate, certificate, entries, stack
+from .certificate import Certificate, certificate, polish_dual, stack
 from .model import Constraint, Model
 
 #: candidate growth factors of τ per Newton step (the largest whose step is long enough is taken)
@@ -70,16 +70,6 @@ CENTRED_DECREMENT = 1.0
 NEWTON_MAX_ENTRIES = 10_000_000
 #: fraction of the distance to the cone's boundary a damped step may cover
 STEP_FRACTION = 0.95
-
-
-def stationarity_system(Q: sp.sparray, As: Sequence[sp.sparray], Th: np.ndarray) -> tuple[sp.csr_array, np.ndarray]:
-    """(G, g) with G y = g ⟺ H(y)Θ̂ᵀ = 0: column i of G is vec(AᵢΘ̂ᵀ) (N·d rows, row-major)."""
-    d, N = Th.shape
-    r, c, v, owner = entries(As)
-    rows = (r[:, None] * d + np.arange(d)[None, :]).ravel()
-    vals = (v[:, None] * Th[:, c].T).ravel()
-    G = sp.csr_array((vals, (rows, np.repeat(owner, d))), shape=(N * d, len(As)))
-    return G, np.asarray(sp.csr_array(Q) @ Th.T).ravel()
 
 
 def default_cliques(Q: sp.sparray, As: Sequence[sp.sparray], d: int) -> list[np.ndarray]:
@@ -293,9 +283,8 @@ def certify(Q: sp.sparray, constraints: Sequence[Constraint], theta_hat: np.ndar
         if ph2.margin > ph.margin:
             ph, how = PhaseOne(ph2.w, ph2.margin, ph2.status, ph.iterations + ph2.iterations), "centred retry"
     y = ph.w[:prog.m] / prog.scale
-    if ph.margin > 0:  # onto H(y)Θ̂ᵀ = 0 (least squares): the penalty leaves a small residual
-        G, g = stationarity_system(Q, As, Th)
-        y = y + spla.lsqr(G, g - G @ y, atol=1e-14, btol=1e-14, iter_lim=10 * G.shape[1])[0]
+    if ph.margin > 0:  # the penalty leaves a small residual of H(y)Θ̂ᵀ = 0
+        y = polish_dual(Q, As, y, Th)
     cert = certificate(Q, constraints, y, Th, d=d, tol=tol, floor=floor, trace=trace,
                        method=f"clique barrier ({ph.status}, {how}, {ph.iterations} Newton steps, margin "
                               f"{ph.margin:.2e} of max|Q|, {len(prog.cliques)} cliques ≤ {max(prog.sizes)})")

@@ -19,8 +19,9 @@ from typing import Any
 
 import numpy as np
 
-from .certificate import Certificate, certificate
+from .certificate import Certificate
 from .constraint_set import ConstraintsLike, resolve, set_name
+from .dual_polish import polished
 from .errors import ProblemModuleError
 from .model import Model
 from .problem import Instance, LocalResult, Problem
@@ -140,6 +141,7 @@ class SolveResult:
             "solver": self.sdp.solver, "status": self.sdp.status, "outcome": self.outcome, "tight": v.tight,
             "accept": v.accept, "rank_tight": v.rank_tight, "cost_tight": v.cost_tight, "verdict": v.reason,
             "log_svr": self.sdp.log_svr, "sdp_cost": self.sdp.primal_cost, "sdp_dual_cost": self.sdp.dual_cost,
+            "sdp_dual_cost_raw": None if np.isnan(self.sdp.dual_cost_raw) else self.sdp.dual_cost_raw,
             "local_cost": lt.cost, "local_cost_random": [r.cost for r in self.local.from_random],
             "best_local_cost": self.local.best.cost,
             "refined_cost": None if self.refined is None else self.refined.cost,
@@ -157,6 +159,7 @@ class SolveResult:
 
 def _attempt(res: SDPResult, verdict: Verdict | None) -> dict[str, Any]:
     return {"status": res.status, "primal_cost": res.primal_cost, "dual_cost": res.dual_cost,
+            "dual_cost_raw": None if np.isnan(res.dual_cost_raw) else res.dual_cost_raw,
             "log_svr": res.log_svr, "solve_time_s": res.solve_time_s, "outcome": getattr(verdict, "outcome", None),
             "message": res.message}
 
@@ -174,14 +177,12 @@ def marginal_svr(problem: Problem, inst: Instance, res: SDPResult) -> float | No
 
 
 def dual_certificate(problem: Problem, inst: Instance, model: Model, cons: list, res: SDPResult,
-                     best: LocalResult, criteria: Criteria) -> Certificate | None:
-    """What the SDP's multipliers y prove about the best feasible point found
-    (``autotight.certificate``), or None when the solve returned no y."""
-    if res.y is None or not np.all(np.isfinite(res.y)):
-        return None
-    theta = problem.lift(inst, best.state)
-    return certificate(model.Q, cons, res.y, theta, d=model.d, tol=criteria.gap_tol,
-                       floor=criteria.cost_atol / criteria.gap_tol)  # the bracket's absolute tolerance
+                     best: LocalResult, criteria: Criteria) -> tuple[SDPResult, Certificate | None]:
+    """``res`` with the better of its own multipliers and their polish at the best feasible point
+    (``autotight.dual_polish``), and what the kept y proves about that point
+    (``autotight.certificate``; None when the solve returned no y)."""
+    return polished(model.Q, cons, res, problem.lift(inst, best.state), d=model.d, tol=criteria.gap_tol,
+                    floor=criteria.cost_atol / criteria.gap_tol)  # the bracket's absolute tolerance
 
 
 def block_scale_at(problem: Problem, inst: Instance, model: Model, state: dict[str, np.ndarray],
@@ -247,12 +248,12 @@ def solve_instance(problem: Problem, inst: Instance, constraints: ConstraintsLik
             refined = problem.local_solve(inst, estimate)
             best = min(best, refined, key=lambda r: r.cost)
     upper = best.cost
-    cert = dual_certificate(problem, inst, model, cons, res, best, criteria)
+    res, cert = dual_certificate(problem, inst, model, cons, res, best, criteria)
     verdict = judge(res, upper, criteria, cert, Q=model.Q, constraints=cons)
     attempts = ([] if unscaled is None else [_attempt(unscaled, None)]) + [_attempt(res, verdict)]
     if getattr(verdict, "undecided", False) and config.tol > 1e-13:
         res2 = sdp.solve_model(model, cons, replace(config, tol=max(config.tol / 100, 1e-13)), scale)
-        cert2 = dual_certificate(problem, inst, model, cons, res2, best, criteria)
+        res2, cert2 = dual_certificate(problem, inst, model, cons, res2, best, criteria)
         verdict2 = judge(res2, upper, criteria, cert2, Q=model.Q, constraints=cons)
         attempts.append(_attempt(res2, verdict2))
         if res2.usable:

@@ -268,20 +268,26 @@ def test_a_folder_written_before_new_columns_resumes_with_them_empty(reference, 
 def test_the_bracket_table_counts_inverted_brackets(reference):
     """The report's bracket table: a solve whose P and D both exceed U by more than roundoff is
     counted, beyond its accuracy only when the excess exceeds it, and so is one whose corrected lower
-    end L exceeds U; on the reference no L exceeds U."""
+    end L exceeds U; on the reference no L exceeds U.  A polished dual (sdp_dual_raw set) below U is
+    not counted with P, and its solver's own dual cost above U is counted apart."""
     from autotight.report.render import bracket_table
 
     df = load_trials(reference)
     table = bracket_table(df, SIGMAS, ["primary"])
-    assert [r[6] for r in table.rows] == ["0", "0"]  # every corrected bracket [L, P] holds U
+    assert table.header[6:8] == ["solver's D above U", "L above U"]
+    assert [r[7] for r in table.rows] == ["0", "0"]  # every corrected bracket [L, P] holds U
     bad = df.copy()
     U = bad.loc[0, "upper_bound"]
-    bad.loc[0, ["sdp_cost", "sdp_dual_cost", "sdp_lower_bound", "sdp_accuracy"]] = \
-        [U * (1 + 1e-6), U * (1 + 2e-6), U * (1 + 5e-7), U * 5e-7]
+    bad.loc[0, ["sdp_cost", "sdp_dual_cost", "sdp_dual_raw", "sdp_lower_bound", "sdp_accuracy"]] = \
+        [U * (1 + 1e-6), U * (1 + 2e-6), np.nan, U * (1 + 5e-7), U * 5e-7]
     row = bracket_table(bad, SIGMAS, ["primary"]).rows[0]
-    assert row[3] == "1" and row[5] == "1" and row[6] == "1" and float(row[4]) == pytest.approx(1e-6, rel=1e-3)
+    assert row[3] == "1" and row[5] == "1" and row[6] == "1" and row[7] == "1"
+    assert float(row[4]) == pytest.approx(1e-6, rel=1e-3)
     bad.loc[0, "sdp_accuracy"] = U * 2e-6  # the same excess within the solve's accuracy
     assert bracket_table(bad, SIGMAS, ["primary"]).rows[0][5] == "0"
+    bad.loc[0, ["sdp_dual_cost", "sdp_dual_raw", "sdp_lower_bound"]] = [U * (1 - 1e-10), U * (1 + 3e-6), U * (1 - 1e-8)]
+    row = bracket_table(bad, SIGMAS, ["primary"]).rows[0]
+    assert row[3] == "0" and row[6] == "1" and row[7] == "0"
 
 
 def test_dask_local_cluster_gives_the_same_results_as_joblib(reference, tmp_path):

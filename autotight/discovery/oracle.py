@@ -25,7 +25,7 @@ from ..model import Constraint, Model
 from ..sdp.config import SolverConfig
 from ..sdp.result import SDPResult
 from ..sdp.scaling import block_scale
-from ..certificate import certificate
+from ..dual_polish import polished
 from ..tightness import Criteria, Verdict, judge
 from ..unbounded import is_unbounded
 from .catalog import Pair
@@ -80,9 +80,9 @@ class Oracle:
             if plain.usable:
                 res = plain
         cert = None
-        if self.accept != "rank" and self.best_theta is not None and res.y is not None:
-            cert = certificate(self.model.Q, cons, res.y, self.best_theta, d=self.model.d, tol=self.criteria.gap_tol,
-                               floor=self.criteria.cost_atol / self.criteria.gap_tol)
+        if self.best_theta is not None:  # the better of y and its polish at x̂ (autotight.dual_polish)
+            res, cert = polished(self.model.Q, cons, res, self.best_theta, d=self.model.d, tol=self.criteria.gap_tol,
+                                 floor=self.criteria.cost_atol / self.criteria.gap_tol)
         v = judge(res, self.best_local, self.criteria, cert, Q=self.model.Q, constraints=cons)
         self.log.append({"stage": stage, "n_pairs": n_pairs, "status": res.status, "log_svr": res.log_svr,
                          "rel_gap": v.rel_gap, "tight": self.ok(v), "calls": calls,

@@ -142,27 +142,31 @@ ROUNDOFF_RTOL = 1e-9
 
 BRACKET_NOTE = (
     "Each solve's interval against the best feasible cost U (differences relative to |U|, or to tol where that "
-    "is larger: a zero cost). D is the solver's dual cost "
-    "and P its primal cost; a raw D above U shows that the solver's multipliers are slightly infeasible, so D "
-    "alone is not a bound. L = D − max(−λ_min(H), 0)·tr X (H = Q − Σ yᵢAᵢ) is the lower end the verdict "
-    "uses: the dual cost corrected for that infeasibility. 'P and D above U' counts solves whose raw costs "
-    "both exceed U by more than 1e-9 relative (roundoff), 'above U beyond acc' those where both exceed U by more "
-    "than the solve's own accuracy acc (a solve that had not converged); 'L above U' counts solves whose corrected "
-    "interval [L, P] misses U by more than that roundoff (one whose L exceeds U by more than the "
-    "tolerance and its accuracy is judged undecided: the solve is wrong). acc: the accuracy of the solve and tol "
-    "the gap the verdict allows, gap_tol·|U| + cost_atol·‖Q‖_max·tr X (see 'Verdicts per noise level'); "
-    "where tol is not small against |U| (the cost_atol term: a cost far below the scale of its own terms), "
-    "the bracket cannot separate a tight from a loose relaxation by much less than tol, and the verdict "
-    "rests on the rank test.")
+    "is larger: a zero cost). P is the solver's primal cost. D = bᵀy is the dual cost of the better of two "
+    "multipliers y: the solver's own, and their polish onto H(y)x̂ = 0 at the best feasible point x̂ (the least "
+    "change of y; autotight/dual_polish.py), whichever gives the larger L. A D above U shows that y is "
+    "slightly infeasible, so D alone is not a bound. L = D − max(−λ_min(H), 0)·tr X (H = Q − Σ yᵢAᵢ) is the lower "
+    "end the verdict uses: the dual cost corrected for that infeasibility. 'P and D above U' counts solves whose "
+    "P and D both exceed U by more than 1e-9 relative (roundoff), 'above U beyond acc' those where both exceed U "
+    "by more than the solve's own accuracy acc (a solve that had not converged); 'solver's D above U' counts "
+    "solves whose solver's own dual cost (sdp_dual_raw where the polish was kept) exceeds U beyond roundoff; "
+    "'L above U' counts solves whose corrected interval [L, P] misses U beyond roundoff (one whose L exceeds U "
+    "by more than the tolerance and its accuracy is judged undecided: the solve is wrong). acc: the accuracy of "
+    "the solve and tol the gap the verdict allows, gap_tol·|U| + cost_atol·‖Q‖_max·tr X (see 'Verdicts per "
+    "noise level'); where tol is not small against |U| (the cost_atol term: a cost far below the scale of its "
+    "own terms), the bracket cannot separate a tight from a loose relaxation by much less than tol, and the "
+    "verdict rests on the rank test.")
 
 
 def bracket_table(df: pd.DataFrame, sigmas: Sequence[float], sets: Sequence[str]) -> Table | None:
-    """Per σ and set: solves whose raw P and D both exceed U, solves whose corrected bracket [L, P] misses U,
-    the largest raw excess and the medians of U − L, acc and tol, all relative to max(|U|, tol); None for
-    trials saved without L."""
+    """Per σ and set: solves whose P and D both exceed U, those whose solver's own dual cost does
+    (trials saved with ``sdp_dual_raw``), solves whose corrected bracket [L, P] misses U, the largest
+    excess and the medians of U − L, acc and tol, all relative to max(|U|, tol); None for trials saved
+    without L."""
     if "sdp_lower_bound" not in df.columns or not df["sdp_lower_bound"].notna().any():
         return None
     ok = df[~df["status"].astype(str).str.startswith("Error") & df["sdp_lower_bound"].notna()]
+    has_raw = "sdp_dual_raw" in ok.columns and ok["sdp_dual_raw"].notna().any()
     rows = []
     for i, sg in enumerate(sigmas):
         for s in sets:
@@ -174,13 +178,18 @@ def bracket_table(df: pd.DataFrame, sigmas: Sequence[float], sets: Sequence[str]
             raw = (np.minimum(x["sdp_cost"], x["sdp_dual_cost"]).to_numpy(float) - U) / scale
             low = (x["sdp_lower_bound"].to_numpy(float) - U) / scale
             acc = x["sdp_accuracy"].to_numpy(float) / scale
+            solver_d = []
+            if has_raw:
+                own = x["sdp_dual_raw"].fillna(x["sdp_dual_cost"]).to_numpy(float)
+                solver_d = [str(int(np.sum((own - U) / scale > ROUNDOFF_RTOL)))]
             rows.append([_sig(sg), s, str(len(x)), str(int(np.sum(raw > ROUNDOFF_RTOL))), f"{np.nanmax(raw):.1e}",
-                         str(int(np.sum(raw > np.maximum(acc, ROUNDOFF_RTOL)))), str(int(np.sum(low > ROUNDOFF_RTOL))),
-                         f"{np.nanmedian(-low):.1e}", f"{np.nanmedian(acc):.1e}",
-                         f"{np.nanmedian(x['sdp_tolerance'].to_numpy(float) / scale):.1e}"])
+                         str(int(np.sum(raw > np.maximum(acc, ROUNDOFF_RTOL)))), *solver_d,
+                         str(int(np.sum(low > ROUNDOFF_RTOL))), f"{np.nanmedian(-low):.1e}",
+                         f"{np.nanmedian(acc):.1e}", f"{np.nanmedian(x['sdp_tolerance'].to_numpy(float) / scale):.1e}"])
     return Table("Bracket against the best feasible cost",
                  ["σ", "set", "solves", "P and D above U", "max excess min(P, D) − U", "above U beyond acc",
-                  "L above U", "median U − L", "median acc", "median tol"], rows, BRACKET_NOTE)
+                  *(["solver's D above U"] if has_raw else []), "L above U", "median U − L", "median acc",
+                  "median tol"], rows, BRACKET_NOTE)
 
 
 def _has_marginal(df: pd.DataFrame) -> bool:

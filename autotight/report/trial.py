@@ -20,7 +20,8 @@ from .spec import SweepSpec, trial_seeds
 KEY = ("sigma_index", "trial")
 BASE_COLUMNS = ("problem", "sigma_index", "sigma", "trial", "seed", "constraint_set", "n_constraints", "status",
                 "outcome", "tight", "rank_tight", "cost_tight", "log_svr", "sdp_cost", "sdp_dual_cost",
-                "sdp_lower_bound", "sdp_accuracy", "sdp_tolerance", "rel_gap", "upper_bound", "refined_cost",
+                "sdp_dual_raw", "sdp_lower_bound", "sdp_accuracy", "sdp_tolerance", "rel_gap", "upper_bound",
+                "refined_cost",
                 "sdp_attempts", "undecided", "certified", "cert_rel_bound", "sdp_beats_local",
                 "local_cost_truth", "local_cost_random", "local_converged_truth", "local_converged_random",
                 "global_cost", "trapped")
@@ -108,7 +109,8 @@ def _solve(problem: Problem, spec: SweepSpec, i: int, t: int, discovered: Any) -
         rows.append(_row(problem, spec, i, t, seed, name, n_constraints=out.n_constraints, status=res.status,
                          outcome=out.outcome, tight=verdict.tight, rank_tight=verdict.rank_tight,
                          cost_tight=verdict.cost_tight, log_svr=res.log_svr, sdp_cost=res.primal_cost,
-                         sdp_dual_cost=res.dual_cost, sdp_lower_bound=verdict.lower, sdp_accuracy=verdict.accuracy,
+                         sdp_dual_cost=res.dual_cost, sdp_dual_raw=res.dual_cost_raw,
+                         sdp_lower_bound=verdict.lower, sdp_accuracy=verdict.accuracy,
                          sdp_tolerance=verdict.tolerance,
                          rel_gap=verdict.rel_gap, upper_bound=out.upper,
                          refined_cost=None if out.refined is None else out.refined.cost,

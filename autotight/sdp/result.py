@@ -28,6 +28,8 @@ class SDPResult:
     cliques: the blocks ``clique_log_svr`` is read from (a decomposed solve), else None.
     solve_time_s, setup_time_s: summed over every solver call; n_calls: the number of solver calls
     (first attempt, retries, fallback); message: every attempt, in order.
+    dual_cost_raw: nan, or the solver's own dual cost when ``autotight.dual_polish`` replaced y (and
+    dual_cost) by a polished y with a better lower bound.
     """
 
     status: str
@@ -49,6 +51,7 @@ class SDPResult:
     n_calls: int = 1
     cliques: list[np.ndarray] | None = None
     completion: np.ndarray | None = None
+    dual_cost_raw: float = float("nan")  # the solver's own bᵀy when y was replaced by its polish (dual_polish)
 
     @property
     def solved(self) -> bool:
