@@ -142,9 +142,11 @@ ROUNDOFF_RTOL = 1e-9
 
 BRACKET_NOTE = (
     "Each solve's interval against the best feasible cost U (differences relative to |U|, or to tol where that "
-    "is larger: a zero cost). P is the solver's primal cost. D = bᵀy is the dual cost of the better of two "
-    "multipliers y: the solver's own, and their polish onto H(y)x̂ = 0 at the best feasible point x̂ (the least "
-    "change of y; autotight/dual_polish.py), whichever gives the larger L. A D above U shows that y is "
+    "is larger: a zero cost). P is the solver's primal cost. D = bᵀy is the dual cost of the solver's "
+    "multipliers y or of their polish onto H(y)x̂ = 0 at the best feasible point x̂ (the least change of y), "
+    "the polish kept when its L is larger, or when the solver's D exceeds f(x̂) and the polish is no less dual "
+    "feasible, never when it would raise D above both the solver's D and f(x̂) (autotight/dual_polish.py). A D above U "
+    "shows that y is "
     "slightly infeasible, so D alone is not a bound. L = D − max(−λ_min(H), 0)·tr X (H = Q − Σ yᵢAᵢ) is the lower "
     "end the verdict uses: the dual cost corrected for that infeasibility. 'P and D above U' counts solves whose "
     "P and D both exceed U by more than 1e-9 relative (roundoff), 'above U beyond acc' those where both exceed U "
