@@ -15,14 +15,23 @@ proves nothing (it holds for any x̂): y′ is worth its lower bound
 λ⁻ the certified lower bound on λ_min of ``certificate.lambda_min``, exactly as the bracket test
 (``tightness``) corrects the solver's own y.
 
-``polished`` keeps y′ when
-  - L(y′) > L(y), or bᵀy > f(x̂) (a claimed bound above a feasible cost: y is certainly infeasible)
-    and y′ is no less dual feasible (λ_min(H(y′)) ≥ λ_min(H(y)), estimates), and
-  - bᵀy′ ≤ max(bᵀy, f(x̂)): the polish never creates an excess over f(x̂).
-L alone cannot choose at low noise: λ⁻ is then the roundoff floor λ̂ − n·ε·max|H| for both, and
-n·ε·max|H|·tr X is as large as the excess that the polish removes.  A kept y′ is recorded with the
-solver's own dual cost in ``SDPResult.dual_cost_raw``.  Where x̂ is not optimal for the relaxation (a
-loose relaxation, or a worse local minimum) no y′ with H(y′)Θ̂ᵀ = 0 is near PSD and y is kept.
+``polished`` takes two steps.
+1. It keeps y′ when
+   - L(y′) > L(y), or bᵀy > f(x̂) (a claimed bound above a feasible cost: y is certainly infeasible)
+     and y′ is no less dual feasible (λ_min(H(y′)) ≥ λ_min(H(y)), estimates), and
+   - bᵀy′ ≤ max(bᵀy, f(x̂)): the polish never creates an excess over f(x̂).
+   L alone cannot choose at low noise: λ⁻ is then the roundoff floor λ̂ − n·ε·max|H| for both, and
+   n·ε·max|H|·tr X is as large as the excess that the polish removes.  Where x̂ is not optimal for
+   the relaxation (a loose relaxation, or a worse local minimum) no y′ with H(y′)Θ̂ᵀ = 0 is near PSD
+   and y is kept.
+2. If the y kept still has bᵀy > f(x̂) (x̂ is stationary only to the local solver's accuracy, so
+   H(y′)Θ̂ᵀ = 0 holds only to that accuracy too), the multipliers of (X_hh)_ii = 1 are lowered by the
+   excess δ (δ/d each, ``lower_to_cost``): bᵀy drops to f(x̂) and H gains (δ/d)·I on the h block, so
+   it is at least as PSD as before.  This is the complementarity ⟨H, X̂⟩ ≥ 0 that every dual feasible y
+   has at a feasible X̂, restored on the side where it costs no dual feasibility.
+Either step is recorded: the solver's own dual cost stays in ``SDPResult.dual_cost_raw`` and the
+steps in ``SDPResult.message``; the certificate and the bracket use the y kept, whose λ_min is
+computed afresh.
 
 Continuous time, σ = 0.01, seed 1: bᵀy − f(x̂) = +8.1e-7 relative with λ_min(H(y)) = −1.1e-9 (the
 excess is that infeasibility times tr X ≈ 95); after the polish −5.3e-10 with λ_min = +7.8e-13
@@ -35,6 +44,7 @@ from dataclasses import replace
 from typing import Sequence
 
 import numpy as np
+import scipy.sparse as sp
 
 from .certificate import Certificate, certificate, polish_dual, stack
 from .model import Constraint
@@ -46,13 +56,35 @@ def lower_bound(cert: Certificate, trace_X: float) -> float:
     return float(cert.dual_value - max(-cert.lambda_lower, 0.0) * trace_X)
 
 
+def homogenising_rows(constraints: Sequence[Constraint]) -> list[int]:
+    """Indices of the constraints (X_hh)_ii = 1 (family "homogenisation", one diagonal entry, b = 1)."""
+    out = []
+    for i, c in enumerate(constraints):
+        if c.family == "homogenisation" and c.b == 1.0:
+            A = sp.coo_array(c.A)
+            if A.nnz == 1 and A.row[0] == A.col[0] and A.data[0] == 1.0:
+                out.append(i)
+    return out
+
+
+def lower_to_cost(constraints: Sequence[Constraint], y: np.ndarray, excess: float) -> np.ndarray | None:
+    """y with the multipliers of (X_hh)_ii = 1 lowered by ``excess``/d each (d of them): bᵀy drops by
+    ``excess`` and H = Q − Σ yᵢAᵢ gains (excess/d)·I on the h block, so it is at least as PSD.  None
+    when the constraints hold no such rows."""
+    rows = homogenising_rows(constraints)
+    if not rows:
+        return None
+    out = np.array(y, dtype=float)
+    out[rows] -= excess / len(rows)
+    return out
+
+
 def polished(Q, constraints: Sequence[Constraint], res: SDPResult, theta_hat: np.ndarray, *, d: int = 1,
              tol: float = 1e-6, floor: float = 1e-12) -> tuple[SDPResult, Certificate | None]:
-    """``res`` with the better of its own y and the polish of y onto H(y)Θ̂ᵀ = 0 (Θ̂ = ``theta_hat``,
-    (N,) or (d, N), the best feasible point's lifting; the rule of the module docstring), and the
-    certificate of x̂ from the y kept (``certificate.certificate`` with ``tol`` and ``floor``).
-    (res, None) when the solve returned no finite y; its own y's certificate alone when X is unusable
-    (no tr X to weigh the two by)."""
+    """``res`` with its multipliers polished by the rules of the module docstring at the best feasible
+    point x̂ (Θ̂ = ``theta_hat``, (N,) or (d, N)), and the certificate of x̂ from the y kept
+    (``certificate.certificate`` with ``tol`` and ``floor``).  (res, None) when the solve returned no
+    finite y; its own y and certificate when X is unusable (no tr X to weigh two multipliers by)."""
     if res.y is None or not np.all(np.isfinite(res.y)):
         return res, None
     Th = np.asarray(theta_hat, dtype=float).reshape(d, -1)
@@ -60,16 +92,26 @@ def polished(Q, constraints: Sequence[Constraint], res: SDPResult, theta_hat: np
     if not res.usable:
         return res, cert
     As, _ = stack(constraints)
+    y, steps = res.y, []
     y2 = polish_dual(Q, As, res.y, Th)
-    if not np.all(np.isfinite(y2)):
+    if np.all(np.isfinite(y2)):
+        cert2 = certificate(Q, constraints, y2, Th, d=d, tol=tol, floor=floor, method="given y, polished")
+        trX = float(res.X.trace())
+        contradicts = cert.dual_value > cert.cost  # bᵀy above f(x̂): y is infeasible by at least that much
+        better = (lower_bound(cert2, trX) > lower_bound(cert, trX)
+                  or (contradicts and cert2.lambda_min >= cert.lambda_min))
+        if better and cert2.dual_value <= max(cert.dual_value, cert.cost):  # never a new excess over f(x̂)
+            steps.append(f"polished onto H(y)Θ̂ᵀ = 0 (‖δy‖ = {np.linalg.norm(y2 - y):.1e})")
+            y, cert = y2, cert2
+    excess = cert.dual_value - cert.cost
+    y3 = lower_to_cost(constraints, y, excess) if excess > 0 else None
+    if y3 is not None:
+        cert = certificate(Q, constraints, y3, Th, d=d, tol=tol, floor=floor, method=cert.method.split(";")[0]
+                           + ", lowered to f(x̂)")
+        steps.append(f"h² multiplier lowered by {excess:.1e}")
+        y = y3
+    if not steps:
         return res, cert
-    cert2 = certificate(Q, constraints, y2, Th, d=d, tol=tol, floor=floor, method="given y, polished")
-    trX = float(res.X.trace())
-    contradicts = cert.dual_value > cert.cost  # bᵀy above f(x̂): y is infeasible by at least that much
-    better = lower_bound(cert2, trX) > lower_bound(cert, trX) or (contradicts and cert2.lambda_min >= cert.lambda_min)
-    if not better or cert2.dual_value > max(cert.dual_value, cert.cost):  # never a new excess over f(x̂)
-        return res, cert
-    note = (f"y polished onto H(y)Θ̂ᵀ = 0 (‖δy‖ = {np.linalg.norm(y2 - res.y):.1e}): dual cost "
-            f"{res.dual_cost:.10g} → {cert2.dual_value:.10g}")
-    return replace(res, y=y2, dual_cost=cert2.dual_value, dual_cost_raw=res.dual_cost,
-                   message=f"{res.message}; {note}" if res.message else note), cert2
+    note = f"y {' and '.join(steps)}: dual cost {res.dual_cost:.10g} → {cert.dual_value:.10g}"
+    return replace(res, y=y, dual_cost=cert.dual_value, dual_cost_raw=res.dual_cost,
+                   message=f"{res.message}; {note}" if res.message else note), cert

@@ -4,7 +4,7 @@ import numpy as np
 
 from autotight.certificate import certificate, dual_matrix, polish_dual, stack
 from autotight.constraint_set import named as constraint_set
-from autotight.dual_polish import lower_bound, polished
+from autotight.dual_polish import homogenising_rows, lower_bound, lower_to_cost, polished
 from autotight.pipeline import solve_instance
 from autotight.problem import load
 from autotight.sdp import solve_model
@@ -78,3 +78,30 @@ def test_pipeline_dual_never_above_the_best_feasible_cost_on_tight_instances():
             assert r.sdp.dual_cost - r.upper <= 1e-9 * max(abs(r.upper), r.verdict.tolerance), (sigma, seed)
             if np.isfinite(r.sdp.dual_cost_raw):
                 assert r.sdp.dual_cost_raw != r.sdp.dual_cost
+
+
+def test_lowering_the_h_multiplier_drops_the_dual_cost_and_keeps_h_as_psd():
+    """y with bᵀy above f(x̂): lowering the multiplier of h² = 1 by the excess gives bᵀy = f(x̂) and
+    H(y) + excess·e_h e_hᵀ, so λ_min does not drop (pose averaging, d = 1; rotation averaging, d = 3)."""
+    for name, params, set_name in (("pose_averaging", {"M": 5}, "paper"), ("rotation_averaging", {"M": 5}, "primary")):
+        p = load(name)
+        inst = p.generate(params, seed=0)
+        model = p.build(inst)
+        loc = p.local_solve(inst, inst.truth)
+        cons = constraint_set(model, set_name)
+        assert len(homogenising_rows(cons)) == model.d
+        res = solve_model(model, cons)
+        x = p.lift(inst, loc.state)
+        As, b = stack(cons)
+        y_up = res.y.copy()
+        y_up[homogenising_rows(cons)] += 1e-3 * abs(loc.cost) / model.d  # a dual cost above f(x̂)
+        excess = b @ y_up - loc.cost
+        assert excess > 5e-4 * abs(loc.cost)
+        y_low = lower_to_cost(cons, y_up, excess)
+        assert abs(b @ y_low - loc.cost) <= 1e-12 * max(1.0, abs(loc.cost))
+        c_up, c_low = (certificate(model.Q, cons, y, x, d=model.d) for y in (y_up, y_low))
+        assert c_low.lambda_min >= c_up.lambda_min - 1e-12
+        kept, cert = polished(model.Q, cons, type(res)(**{**res.__dict__, "y": y_up, "dual_cost": float(b @ y_up)}),
+                              x, d=model.d)
+        assert kept.dual_cost <= loc.cost + 1e-12 * max(1.0, abs(loc.cost)) and "y " in kept.message
+        assert kept.dual_cost_raw == float(b @ y_up) and cert.dual_value == kept.dual_cost
