@@ -13,6 +13,8 @@ import json
 import sys
 from typing import Any, NoReturn, Sequence
 
+import numpy as np
+
 from .cli_checks import nonneg_int
 from .errors import AutotightError
 from .io import jsonable, versions
@@ -121,7 +123,10 @@ def cmd_solve(args: argparse.Namespace) -> int:
     print(f"constraints: {rec['constraint_set']} ({rec['n_constraints']})  solver {out.sdp.solver}")
     print(f"SDP: status {out.sdp.status}  cost {out.sdp.primal_cost:.10g}  log SVR {out.sdp.log_svr:.2f}  "
           f"{out.outcome.upper()} ({v.reason})")
-    print(f"bounds: SDP dual {out.sdp.dual_cost:.10g} ≤ optimum ≤ best feasible {out.upper:.10g}")
+    raw = out.sdp.dual_cost_raw
+    print(f"bounds: L {v.lower:.10g} ≤ optimum ≤ best feasible {out.upper:.10g}  (SDP dual {out.sdp.dual_cost:.10g}"
+          + (f", the solver's own {raw:.10g} before the polish" if np.isfinite(raw) else "")
+          + "; L corrects it for λ_min(H) < 0)")
     print(f"local solver from ground truth: cost {out.local.from_truth.cost:.10g}  "
           f"({out.local.from_truth.iterations} it, {out.local.from_truth.message})")
     for r in out.local.from_random:
