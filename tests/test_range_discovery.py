@@ -54,6 +54,32 @@ def test_reduction_is_irreducible_over_all_trainers_and_never_solves_a_set_twice
     assert run.n_solves < 2 ** 6
 
 
+class _Blind(_Needs):
+    """_Needs whose solves of a loose set return no usable X (a NumericalError)."""
+
+    def solve(self, tr, chosen, stage):
+        from types import SimpleNamespace
+
+        tight = super().solve(tr, chosen, stage)
+        tr.last = SimpleNamespace(sdp=SimpleNamespace(X=None, usable=tight, status="Solved" if tight else
+                                                      "NumericalError"))
+        return tight
+
+
+def test_a_solve_without_usable_x_adds_every_candidate_and_the_reduction_prunes():
+    """Discrete K = 20 at σ = 0.316 fails with the primary constraints (NumericalError): nothing ranks
+    the candidates, so all are added, and the reduction keeps only what is needed."""
+    from autotight.discovery.range import _tighten
+
+    run = _Blind({1: [{"b", "d"}], 2: [{"z"}]})  # trainer 2 needs a pair that is not a candidate
+    trainers = [_trainer(1), _trainer(2)]
+    chosen = _tighten(run, trainers, list("abcde"), 1e-7, lambda *a: None)
+    assert set(chosen) == set("abcde") and trainers[0].reached
+    assert not trainers[1].reached and "NumericalError with every candidate added" in trainers[1].message
+    pairs, _ = _reduce(run, [trainers[0]], chosen, lambda *a: None)
+    assert set(pairs) == {"b", "d"}
+
+
 def test_training_and_heldout_seeds_differ():
     train = {training_seed(0, i, t) for i in range(5) for t in range(2)}
     held = {instance_seed(0, i, t) for i in range(5) for t in range(10)}

@@ -19,7 +19,10 @@
    only the instances not yet tight are solved again (adding valid constraints keeps a tight
    relaxation tight).  A training instance that is not tight while no remaining pair cuts its
    solution cannot be made tight by the candidates: it is "not reached" and left out of the
-   rest.  A point none of whose training instances is reached is reported as such.
+   rest.  A solve that returns no usable X (NumericalError at σ = 0.316 on discrete K = 20 with the
+   primary constraints) ranks nothing: every remaining pair is then added at once, and the
+   reduction removes those not needed.  A point none of whose training instances is reached is
+   reported as such.
 4. **Reduce** over the reached training instances: pairs ordered by their largest normalised
    dual importance Σ|yᵢ|‖Aᵢ‖_F on any instance (least important first) are removed in blocks that
    double after a success and halve after a failure, as in ``reduce.reduce_pairs``; a set counts
@@ -319,11 +322,15 @@ def _tighten(run: _Run, trainers: list[Trainer], candidates: list[Pair], min_vio
     while loose:
         remaining = [p for p in candidates if p not in set(chosen)]
         score: dict[Pair, float] = {}
+        blind = False  # a loose trainer whose solve returned no usable X: nothing ranks the candidates
         for tr in loose:
             X = tr.last.sdp.X if tr.last is not None else None
             if X is None or not tr.last.sdp.usable:
                 status = tr.last.sdp.status if tr.last else "?"
-                tr.reached, tr.message = False, f"solver status {status}: cannot rank candidates"
+                if remaining:
+                    blind = True
+                else:
+                    tr.reached, tr.message = False, f"solver status {status} with every candidate added"
                 continue
             v = {p: tr.violation(X, p) for p in remaining}
             if not v or max(v.values()) <= min_violation:
@@ -336,10 +343,13 @@ def _tighten(run: _Run, trainers: list[Trainer], candidates: list[Pair], min_vio
                 score[p] = max(score.get(p, 0.0), x)
         loose = [tr for tr in loose if tr.reached]
         ranked = sorted((p for p in score if score[p] > min_violation), key=lambda p: -score[p])
-        if not loose or not ranked:
+        if not loose or not (ranked or blind):
             break
-        chosen += ranked[: 2 ** r]
-        r += 1
+        if blind:  # add every remaining candidate at once; the reduction removes those not needed
+            chosen += remaining
+        else:
+            chosen += ranked[: 2 ** r]
+            r += 1
         loose = [tr for tr in loose if not run.solve(tr, chosen, "tighten")]
         say("tighten", f"{len(chosen)} pairs, {len(loose)} not tight")
     return chosen
