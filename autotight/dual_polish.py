@@ -44,7 +44,6 @@ from dataclasses import replace
 from typing import Sequence
 
 import numpy as np
-import scipy.sparse as sp
 
 from .certificate import Certificate, certificate, polish_dual, stack
 from .model import Constraint
@@ -57,14 +56,9 @@ def lower_bound(cert: Certificate, trace_X: float) -> float:
 
 
 def homogenising_rows(constraints: Sequence[Constraint]) -> list[int]:
-    """Indices of the constraints (X_hh)_ii = 1 (family "homogenisation", one diagonal entry, b = 1)."""
-    out = []
-    for i, c in enumerate(constraints):
-        if c.family == "homogenisation" and c.b == 1.0:
-            A = sp.coo_array(c.A)
-            if A.nnz == 1 and A.row[0] == A.col[0] and A.data[0] == 1.0:
-                out.append(i)
-    return out
+    """Indices of the constraints (X_hh)_ii = 1: those of ``Model.homogenisation`` with b = 1 (its
+    off-diagonal ones have b = 0)."""
+    return [i for i, c in enumerate(constraints) if c.family == "homogenisation" and c.b == 1.0]
 
 
 def lower_to_cost(constraints: Sequence[Constraint], y: np.ndarray, excess: float) -> np.ndarray | None:

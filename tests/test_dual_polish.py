@@ -1,5 +1,7 @@
 """Polishing the SDP's multipliers onto x̂'s complementarity (autotight.dual_polish)."""
 
+from dataclasses import replace
+
 import numpy as np
 
 from autotight.certificate import certificate, dual_matrix, polish_dual, stack
@@ -42,8 +44,8 @@ def test_polished_keeps_the_polish_only_when_it_is_no_worse():
     p, inst, model, loc, cons, res = _setup({"M": 10, "sigma": 0.001}, "paper")
     x = p.lift(inst, loc.state)
     rng = np.random.default_rng(1)
-    off = type(res)(**{**res.__dict__, "y": res.y + 1e-6 * np.abs(res.y).max() * rng.standard_normal(res.y.size)})
-    off.dual_cost = float(stack(cons)[1] @ off.y)
+    y_off = res.y + 1e-6 * np.abs(res.y).max() * rng.standard_normal(res.y.size)
+    off = replace(res, y=y_off, dual_cost=float(stack(cons)[1] @ y_off))
     kept, cert = polished(model.Q, cons, off, x)
     assert np.isfinite(kept.dual_cost_raw) and kept.dual_cost_raw == off.dual_cost
     assert abs(kept.dual_cost - loc.cost) <= 1e-8 * abs(loc.cost) and cert.dual_value == kept.dual_cost
@@ -101,7 +103,7 @@ def test_lowering_the_h_multiplier_drops_the_dual_cost_and_keeps_h_as_psd():
         assert abs(b @ y_low - loc.cost) <= 1e-12 * max(1.0, abs(loc.cost))
         c_up, c_low = (certificate(model.Q, cons, y, x, d=model.d) for y in (y_up, y_low))
         assert c_low.lambda_min >= c_up.lambda_min - 1e-12
-        kept, cert = polished(model.Q, cons, type(res)(**{**res.__dict__, "y": y_up, "dual_cost": float(b @ y_up)}),
+        kept, cert = polished(model.Q, cons, replace(res, y=y_up, dual_cost=float(b @ y_up)),
                               x, d=model.d)
         assert kept.dual_cost <= loc.cost + 1e-12 * max(1.0, abs(loc.cost)) and "y " in kept.message
         assert kept.dual_cost_raw == float(b @ y_up) and cert.dual_value == kept.dual_cost
