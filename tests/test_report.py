@@ -573,6 +573,20 @@ def test_two_saved_sets_in_one_sweep_are_named_by_their_files(tmp_path):
     assert n["single"] == n["again"] > n["primary"]
     meta = json.loads((out / "meta.json").read_text())
     assert set(meta["files"]) == {"single", "again"} and len(meta["files"]["single"]["sha256"]) == 64
+    # report.md: each set's constraints beyond h² and the primary ones, and its pairs (read from the
+    # file only while its hash is the sweep's)
+    k = len(json.loads(a.read_text())["pairs"])
+    pairs = f"{k} pair{'s' if k != 1 else ''}"
+    render(out, meta)
+    md = (out / "report.md").read_text()
+    assert f"| primary | {n['primary']} | 0 | – |" in md
+    assert f"| single | {n['single']} | {n['single'] - n['primary']} | {pairs} |" in md
+    assert f"| again | {n['again']} | {n['again'] - n['primary']} | {pairs} |" in md
+    b.write_text(b.read_text().replace('"pairs"', '"pairs_"', 1))
+    render(out, meta)
+    md = (out / "report.md").read_text()
+    assert f"| single | {n['single']} | {n['single'] - n['primary']} | {pairs} |" in md
+    assert f"| again | {n['again']} | {n['again'] - n['primary']} | – |" in md
     with pytest.raises(ReportError, match="saved set"):
         make_spec(load("pose_averaging"), "pose_averaging", {"M": 3}, sets=f"primary,file:{tmp_path}/paper.json")
 

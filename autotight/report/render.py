@@ -82,17 +82,30 @@ def _verdicts(at: pd.DataFrame, s: str) -> list[str]:
     return [_frac(x[c].astype(float)) if c in x else "–" for c in cols]
 
 
-def tables(df: pd.DataFrame, sigmas: Sequence[float], sets: Sequence[str]) -> list[Table]:
-    """Constraint counts, fraction tight, median log SVR, median times, solver statuses."""
+def _count(n: np.ndarray) -> str:
+    return "–" if not n.size else f"{int(np.median(n))}" if n.min() == n.max() \
+        else f"{int(np.median(n))} (range {int(n.min())}–{int(n.max())})"
+
+
+def tables(df: pd.DataFrame, sigmas: Sequence[float], sets: Sequence[str],
+           structure: SetStructure | None = None) -> list[Table]:
+    """Constraint counts (with each set's pairs or families and its constraints beyond the primary
+    ones when ``structure`` is given), fraction tight, median log SVR, median times, solver statuses."""
     ok = df[~df["status"].astype(str).str.startswith("Error")]
     per_trial = ok.drop_duplicates(["sigma_index", "trial"])
     counts = []
     for s in sets:
         n = ok[ok["constraint_set"] == s]["n_constraints"].to_numpy(float)
-        counts.append([s, "–" if not n.size else f"{int(np.median(n))}" if n.min() == n.max()
-                       else f"{int(np.median(n))} (range {int(n.min())}–{int(n.max())})"])
-    out = [Table("Constraints per set", ["set", "constraints"], counts,
-                 "Counts include the homogenisation and primary constraints.")]
+        row = [s, _count(n)]
+        if structure is not None:
+            row += [_count(n - structure.n_primary) if n.size else "–", structure.parts.get(s, "–")]
+        counts.append(row)
+    head = ["set", "constraints"] + (["beyond h² and primary", "made of"] if structure is not None else [])
+    out = [Table("Constraints per set", head, counts,
+                 "Counts include the homogenisation and primary constraints"
+                 + (f" ({structure.n_primary} on the report's instances); 'made of' gives a learned set's "
+                    "(factor type, identity) pairs, each instantiated on every factor of its type, and the "
+                    "paper's families." if structure is not None else "."))]
     rows_t, rows_s, rows_time = [], [], []
     for i, sg in enumerate(sigmas):
         at = df[df["sigma_index"] == i]
@@ -231,6 +244,62 @@ def _claim(meta: dict[str, Any]) -> dict[str, Any] | None:
         return None
 
 
+@dataclass
+class SetStructure:
+    """n_primary: homogenisation and primary constraints of the report's instances; parts: per set, the
+    pairs of a learned set or the paper's families, as text."""
+
+    n_primary: int
+    parts: dict[str, str]
+
+
+def _pairs(path: Path, sha256: str | None = None) -> str | None:
+    """"n pairs" of a saved set, or None when it cannot be read (or its hash differs from the sweep's)."""
+    import hashlib
+    import json
+
+    try:
+        raw = path.read_bytes()
+        if sha256 is not None and hashlib.sha256(raw).hexdigest() != sha256:
+            return None
+        n = len(json.loads(raw)["pairs"])
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+    return f"{n} pair{'s' if n != 1 else ''}"
+
+
+def set_structure(out: Path, meta: dict[str, Any]) -> SetStructure | None:
+    """The sets' structure at the report's parameters (seed 0), or None when the problem cannot be
+    built here.  A ``file:`` set is read from the path in the recorded command (relative to the
+    working directory), and only when its hash is the sweep's."""
+    import shlex
+
+    from ..errors import AutotightError
+    from ..problem import load
+    from .spec import file_sets
+    from .sweep import DISCOVERED_NAME
+
+    try:
+        problem = load(meta.get("source") or meta["problem"])
+        model = problem.build(problem.generate(problem.parse_params(dict(meta["params"])), 0))
+    except AutotightError:
+        return None
+    parts = {"paper": f"{len(model.paper)} families ({', '.join(model.paper)})" if model.paper else "–"}
+    disc = _pairs(Path(out) / DISCOVERED_NAME)
+    if disc:
+        parts["discovered"] = disc
+    command = meta["runs"][-1].get("command", "") if meta.get("runs") else ""
+    words = shlex.split(command)
+    sets_arg = next((a.split("=", 1)[-1] for a in words if a.startswith("--sets=")), None)
+    if sets_arg is None and "--sets" in words[:-1]:
+        sets_arg = words[words.index("--sets") + 1]
+    for name, path in (file_sets(sets_arg)[1] if sets_arg else ()):
+        got = _pairs(Path(path), meta.get("files", {}).get(name, {}).get("sha256"))
+        if got:
+            parts[name] = got
+    return SetStructure(len(model.primary()), parts)
+
+
 def summarize(out: Path, meta: dict[str, Any]) -> Summary:
     """Read the results in ``out`` and draw the figures."""
     df = load_trials(out, meta["trials"])
@@ -252,7 +321,7 @@ def summarize(out: Path, meta: dict[str, Any]) -> Summary:
              ("Generated", time.strftime("%Y-%m-%d %H:%M"))]
     figs = figures.make_all(df, sigmas, sets, out, trap_rtol=meta["trap_rtol"], rank_line=crit["min_log_svr"]) \
         if len(df) else {}
-    tabs = tables(df, sigmas, sets)
+    tabs = tables(df, sigmas, sets, set_structure(out, meta))
     claim = _claim(meta)
     versus = paper_table(df, sigmas, claim) if claim and len(df) else None
     if versus is not None:
