@@ -107,7 +107,7 @@ def cmd_solve(args: argparse.Namespace) -> int:
     config = solver_config(args)
     prob = load(args.problem)
     params = prob.parse_params(parse_assignments(args.param))
-    check_size(prob, params)
+    check_size(prob, params, config)
     check_count(prob, params, f"--random-starts {args.random_starts}", args.random_starts, what="local solves")
     out = solve(prob, params, args.seed, constraints=constraints_arg(args.set, args.skip_invalid), solver=config,
                 n_random=args.random_starts, criteria=Criteria(accept=args.accept))

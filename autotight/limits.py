@@ -6,9 +6,10 @@ default (the other parameters as given, or at their defaults when they are probe
 lifting size N and the SDP data's nonzeros (Q and the primary constraints) are extrapolated by the
 quadratic through those three points, summed over the probed parameters.  The memory estimate is
 ``BYTES_PER_NONZERO`` per nonzero of the data plus ``BYTES_PER_DENSE_ENTRY`` per entry of the
-N × N solution X (the result holds X dense), fitted to the peak RSS of ``autotight solve`` on
-rotation averaging with M = 50, 200, 400 (89, 173, 350 MB); the run is refused when it exceeds
-the memory available.
+N × N solution X, fitted to the peak RSS of ``autotight solve`` on rotation averaging with M = 50,
+200, 400 (89, 173, 350 MB); the run is refused when it exceeds the memory available.  A solve on
+our clique cover (``--solver ipm``, ``--decompose``) keeps X on the cliques' pattern above
+``DENSE_X_MAX`` columns: for it at most DENSE_X_MAX² entries of X count (``holds_dense_x``).
 
 Counts (``check_count``): trials, random starts, held-out instances: n × the measured time of one
 local solve from the ground truth (a lower bound: every item does at least that) must stay below
@@ -26,6 +27,9 @@ import numpy as np
 import scipy.sparse as sp
 
 from .errors import ParameterError
+from .sdp.config import SolverConfig
+from .sdp.registry import BACKENDS
+from .sdp.result import DENSE_X_MAX
 
 PROBE_FACTOR = 4
 PROBE_MIN = 64
@@ -43,10 +47,22 @@ class SizeError(ParameterError):
 class SizeEstimate:
     N: float
     nonzeros: float
+    dense_x: bool = True
 
     @property
     def bytes(self) -> float:
-        return self.nonzeros * BYTES_PER_NONZERO + self.N * self.N * BYTES_PER_DENSE_ENTRY
+        n = self.N if self.dense_x else min(self.N, DENSE_X_MAX)
+        return self.nonzeros * BYTES_PER_NONZERO + n * n * BYTES_PER_DENSE_ENTRY
+
+
+def holds_dense_x(config: SolverConfig | None) -> bool:
+    """Whether a solve with ``config`` may hold X dense: every solve but one on our clique cover
+    (``--solver ipm``, or ``--decompose``), whose X above DENSE_X_MAX columns is sparse."""
+    if config is None:
+        return True
+    backend = BACKENDS[config.backend_name]
+    ours = backend.decompose_default if config.decompose is None else config.decompose
+    return not (ours and backend.cover is not None)
 
 
 def _measure(problem: Any, params: dict[str, Any]) -> tuple[int, int]:
@@ -76,7 +92,7 @@ def probed(problem: Any, params: dict[str, Any]) -> dict[str, int]:
     return out
 
 
-def estimate_size(problem: Any, params: dict[str, Any]) -> SizeEstimate | None:
+def estimate_size(problem: Any, params: dict[str, Any], dense_x: bool = True) -> SizeEstimate | None:
     """N and the nonzeros at ``params`` (parsed), or None when no parameter needs probing."""
     big = probed(problem, params)
     if not big:
@@ -89,7 +105,7 @@ def estimate_size(problem: Any, params: dict[str, Any]) -> SizeEstimate | None:
         xs = [a, 2 * a, 3 * a]
         N += _extrapolate(xs, [q[0] for q in pts], params[k]) - N0
         z += _extrapolate(xs, [q[1] for q in pts], params[k]) - z0
-    return SizeEstimate(N, z)
+    return SizeEstimate(N, z, dense_x)
 
 
 def available_memory() -> float:
@@ -111,9 +127,10 @@ def _gb(b: float) -> str:
     return f"{b / 1e9:.3g} GB"
 
 
-def check_size(problem: Any, params: dict[str, Any]) -> SizeEstimate | None:
-    """Refuse parameters whose SDP data would not fit in memory (``SizeError``); returns the estimate."""
-    est = estimate_size(problem, params)
+def check_size(problem: Any, params: dict[str, Any], config: SolverConfig | None = None) -> SizeEstimate | None:
+    """Refuse parameters whose SDP data would not fit in memory (``SizeError``) with the solver of
+    ``config`` (default: one that may hold X dense); returns the estimate."""
+    est = estimate_size(problem, params, holds_dense_x(config))
     if est is None:
         return None
     avail = available_memory()

@@ -75,3 +75,21 @@ def test_sparse_solution_matches_dense(monkeypatch, backend):
     assert abs(sparse.log_svr - dense.log_svr) < 1e-6
     assert np.allclose(sparse.sdp.Theta, dense.sdp.Theta, rtol=1e-6, atol=1e-8)
     assert abs(sparse.sdp.eigvals[0] - dense.sdp.eigvals[0]) <= 1e-8 * dense.sdp.eigvals[0]
+
+
+def test_size_estimate_counts_a_dense_x_only_for_solvers_that_hold_one():
+    """Discrete trajectory K = 1000 (N ≈ 24 000): a solve that may hold X dense needs N² entries
+    (> 50 GB: refused on this machine), one on our clique cover (``--solver ipm``, ``--decompose``)
+    keeps X on the cliques' pattern, so only the data's nonzeros and DENSE_X_MAX² entries count."""
+    from autotight.limits import estimate_size, holds_dense_x
+    from autotight.sdp.result import DENSE_X_MAX
+
+    prob = load("discrete_trajectory")
+    params = prob.parse_params({"K": 1000})
+    assert holds_dense_x(None) and holds_dense_x(SolverConfig())
+    assert not holds_dense_x(SolverConfig(backend="ipm")) and not holds_dense_x(SolverConfig(decompose=True))
+    assert holds_dense_x(SolverConfig(backend="ipm", decompose=False))
+    dense, cover = estimate_size(prob, params, True), estimate_size(prob, params, False)
+    assert 23_000 < dense.N < 25_000 and dense.bytes > 50e9
+    assert cover.bytes == pytest.approx(dense.bytes - (dense.N ** 2 - DENSE_X_MAX ** 2) * 100.0)
+    assert cover.bytes < 3e9
