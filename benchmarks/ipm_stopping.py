@@ -38,8 +38,9 @@ d = np.load(sys.argv[1])
 F = sp.csc_matrix((d["data"], d["indices"], d["indptr"]), shape=tuple(d["shape"]))
 t = time.perf_counter()
 s = schur_ipm.solve_blocks(F, d["c"], d["g"], [int(n) for n in d["sizes"]], tol=1e-7)
-print(json.dumps({"module": schur_ipm.__file__, "status": s.status, "iterations": s.iterations, "time_s": time.perf_counter() - t,
-                  "gap": s.gap, "pinf": s.pinf, "dinf": s.dinf, "pobj": s.pobj, "message": s.message}))
+print(json.dumps({"module": schur_ipm.__file__, "status": s.status, "iterations": s.iterations,
+                  "time_s": time.perf_counter() - t, "gap": s.gap, "pinf": s.pinf, "dinf": s.dinf,
+                  "pobj": s.pobj, "message": s.message}))
 """
 
 
