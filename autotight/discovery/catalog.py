@@ -8,12 +8,12 @@ from dataclasses import dataclass, field
 from typing import Iterable, Sequence
 
 import numpy as np
-import scipy.sparse as sp
 
 from ..errors import LearningError
 from ..model import Constraint, Model
 from ..problem import Instance, Problem
-from .learn import Group, LearnedGroup, LearnOptions, groups_of, learn_group, monomials_needed, spanning_matrices
+from .learn import (Group, LearnedGroup, LearnOptions, SpanningIndex, groups_of, learn_group, monomials_needed,
+                    spanning_matrices)
 from .samples import SampleBank, check_feasible, draw
 
 Pair = tuple[str, str]  # (factor type, identity within the type)
@@ -77,12 +77,13 @@ def learn(problem: Problem, inst: Instance, model: Model, rng: np.random.Generat
     bank, heldout, t_sample = sample_banks(problem, inst, model, gs, opts, rng)
     t0 = time.perf_counter()
     learned: list[LearnedGroup] = []
-    spanning = spanning_matrices(model)  # grows with each group's new relations
+    spanning = SpanningIndex(spanning_matrices(model))  # grows with each group's new relations
     N = model.variables.N
     for g in gs:
         lg = learn_group(model, g, bank, heldout, opts, spanning=spanning)
         learned.append(lg)
-        spanning += [sp.coo_array(lg.constraint(j, N).A) for j in lg.candidate_index()]
+        for j in lg.candidate_index():
+            spanning.add(lg.constraint(j, N).A)
         if progress is not None:
             progress(g.name)
     return Catalog(model, learned, bank.size, {"sampling_s": t_sample, "nullspace_s": time.perf_counter() - t0})

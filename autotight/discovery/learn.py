@@ -10,7 +10,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..errors import ProblemDefinitionError
-from ..model import HOMOGENISING, Constraint, Factor, Model
+from ..model import HOMOGENISING, Constraint, Factor, Model, canonical_coo
 from ..svec import sym_to_poly, triu_indices
 from .nullspace import basic_solutions, free_monomials, nullspace, spectrum
 from .samples import SampleBank
@@ -187,7 +187,7 @@ class LearnedGroup:
         rows = np.concatenate([gi, gj[off]])
         cols = np.concatenate([gj, gi[off]])
         vals = np.concatenate([np.where(off, p[nz] / 2, p[nz]), p[nz][off] / 2])
-        A = sp.csr_array((vals, (rows, cols)), shape=(N, N))
+        A = canonical_coo(rows, cols, vals, N)  # no CSR index array of length N + 1 per constraint
         ident = self.identities[j]
         return Constraint(A, 0.0, name=f"{self.group.name}:{ident}", family="learned", factor=self.group.name,
                           identity=f"{self.group.type}:{ident}")
@@ -201,13 +201,34 @@ def _monomial_names(group: Group, sizes: dict[str, int], d: int) -> list[str]:
     return names
 
 
+class SpanningIndex:
+    """COO matrices of the constraints that count as spanned, bucketed by the largest column they
+    touch: a group finds those supported inside its columns by looking at the buckets of its own
+    columns only (scanning every matrix for every group grew with the square of the trajectory)."""
+
+    def __init__(self, matrices: Sequence[sp.coo_array] = ()):
+        self.buckets: dict[int, list[tuple[np.ndarray, sp.coo_array]]] = {}
+        for U in matrices:
+            self.add(U)
+
+    def add(self, U: sp.coo_array) -> None:
+        if U.nnz:
+            cols = np.unique(np.concatenate([U.row, U.col]))
+            self.buckets.setdefault(int(cols[-1]), []).append((cols, U))
+
+    def within(self, cols: np.ndarray) -> list[sp.coo_array]:
+        """The matrices whose every row and column is one of ``cols``."""
+        return [U for c in np.asarray(cols).tolist() for ucols, U in self.buckets.get(c, ())
+                if np.isin(ucols, cols).all()]
+
+
 def learn_group(model: Model, group: Group, bank: SampleBank, heldout: SampleBank, opts: LearnOptions,
-                spanning: Sequence[sp.coo_array] | None = None) -> LearnedGroup:
+                spanning: SpanningIndex | Sequence[sp.coo_array] | None = None) -> LearnedGroup:
     """Nullspace of the group's monomial data → basic solutions, primary-span flags, held-out check.
 
-    ``spanning``: COO matrices of the constraints that count as spanned (default: the homogeneous
-    primary constraints, ``spanning_matrices``); ``learn`` appends each group's new relations, so
-    those supported inside a later group are not proposed twice.
+    ``spanning``: the constraints that count as spanned (default: the homogeneous primary
+    constraints, ``spanning_matrices``); ``learn`` adds each group's new relations, so those
+    supported inside a later group are not proposed twice.
     """
     t0 = time.perf_counter()
     V = model.variables
@@ -241,15 +262,14 @@ def learn_group(model: Model, group: Group, bank: SampleBank, heldout: SampleBan
     names = _monomial_names(group, V.sizes, d)
     idents = [f"{names[ii[order[f]]]}·{names[jj[order[f]]]}" for f in free]
     # which solutions the primary constraints (and earlier solutions) already span, in the normalised space
-    if spanning is None:
-        spanning = spanning_matrices(model)
-    local = np.full(V.N, -1, dtype=np.int64)
-    local[cols] = np.arange(n)
+    if not isinstance(spanning, SpanningIndex):
+        spanning = SpanningIndex(spanning_matrices(model) if spanning is None else spanning)
     prim = []
-    for U in spanning:
-        if U.nnz and (local[U.row] >= 0).all():
-            loc = sp.coo_array((U.data, (local[U.row], local[U.col])), shape=(n, n))
-            prim.append(sym_to_poly(loc)[order] * D)
+    sorter = np.argsort(cols)
+    for U in spanning.within(cols):
+        r, c = (sorter[np.searchsorted(cols, x, sorter=sorter)] for x in (U.row, U.col))  # local indices
+        loc = sp.coo_array((U.data, (r, c)), shape=(n, n))
+        prim.append(sym_to_poly(loc)[order] * D)
     basis = np.zeros((m, 0))
     if prim:
         Qp, Rp = np.linalg.qr(np.array(prim).T)
