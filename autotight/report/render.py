@@ -289,7 +289,10 @@ def set_structure(out: Path, meta: dict[str, Any]) -> SetStructure | None:
     if disc:
         parts["discovered"] = disc
     command = meta["runs"][-1].get("command", "") if meta.get("runs") else ""
-    words = shlex.split(command)
+    try:
+        words = shlex.split(command)
+    except ValueError:  # a hand-edited command with unbalanced quotes: no file sets
+        words = []
     sets_arg = next((a.split("=", 1)[-1] for a in words if a.startswith("--sets=")), None)
     if sets_arg is None and "--sets" in words[:-1]:
         sets_arg = words[words.index("--sets") + 1]
