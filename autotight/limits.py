@@ -27,8 +27,8 @@ import numpy as np
 import scipy.sparse as sp
 
 from .errors import ParameterError
+from .sdp import BACKENDS, decomposes
 from .sdp.config import SolverConfig
-from .sdp.registry import BACKENDS
 from .sdp.result import DENSE_X_MAX
 
 PROBE_FACTOR = 4
@@ -58,11 +58,7 @@ class SizeEstimate:
 def holds_dense_x(config: SolverConfig | None) -> bool:
     """Whether a solve with ``config`` may hold X dense: every solve but one on our clique cover
     (``--solver ipm``, or ``--decompose``), whose X above DENSE_X_MAX columns is sparse."""
-    if config is None:
-        return True
-    backend = BACKENDS[config.backend_name]
-    ours = backend.decompose_default if config.decompose is None else config.decompose
-    return not (ours and backend.cover is not None)
+    return config is None or not (decomposes(config) and BACKENDS[config.backend_name].cover is not None)
 
 
 def _measure(problem: Any, params: dict[str, Any]) -> tuple[int, int]:

@@ -223,7 +223,7 @@ class SpanningIndex:
 
 
 def learn_group(model: Model, group: Group, bank: SampleBank, heldout: SampleBank, opts: LearnOptions,
-                spanning: SpanningIndex | Sequence[sp.coo_array] | None = None) -> LearnedGroup:
+                spanning: SpanningIndex | None = None) -> LearnedGroup:
     """Nullspace of the group's monomial data → basic solutions, primary-span flags, held-out check.
 
     ``spanning``: the constraints that count as spanned (default: the homogeneous primary
@@ -262,8 +262,8 @@ def learn_group(model: Model, group: Group, bank: SampleBank, heldout: SampleBan
     names = _monomial_names(group, V.sizes, d)
     idents = [f"{names[ii[order[f]]]}·{names[jj[order[f]]]}" for f in free]
     # which solutions the primary constraints (and earlier solutions) already span, in the normalised space
-    if not isinstance(spanning, SpanningIndex):
-        spanning = SpanningIndex(spanning_matrices(model) if spanning is None else spanning)
+    if spanning is None:
+        spanning = SpanningIndex(spanning_matrices(model))
     prim = []
     sorter = np.argsort(cols)
     for U in spanning.within(cols):

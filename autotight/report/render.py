@@ -255,14 +255,14 @@ class SetStructure:
 
 def _pairs(path: Path, sha256: str | None = None) -> str | None:
     """"n pairs" of a saved set, or None when it cannot be read (or its hash differs from the sweep's)."""
-    import hashlib
     import json
 
+    from .sweep import _sha256
+
     try:
-        raw = path.read_bytes()
-        if sha256 is not None and hashlib.sha256(raw).hexdigest() != sha256:
+        if sha256 is not None and _sha256(path) != sha256:
             return None
-        n = len(json.loads(raw)["pairs"])
+        n = len(json.loads(path.read_bytes())["pairs"])
     except (OSError, ValueError, KeyError, TypeError):
         return None
     return f"{n} pair{'s' if n != 1 else ''}"

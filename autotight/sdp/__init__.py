@@ -103,6 +103,12 @@ def _with_retries(backend: Backend, why: str, Q: sp.csr_array, As: list[sp.csr_a
     return res
 
 
+def decomposes(config: SolverConfig) -> bool:
+    """``config.decompose`` with None resolved by the backend's default: whether the solve runs on a
+    clique cover chosen by this layer (for a backend that takes one, ``Backend.cover``)."""
+    return BACKENDS[config.backend_name].decompose_default if config.decompose is None else config.decompose
+
+
 def _cover(backend: Backend, decompose: bool, covers: CliqueCovers | None) -> list[np.ndarray] | None:
     if not decompose or backend.cover is None or covers is None:
         return None
@@ -168,7 +174,7 @@ def _solve(Q: sp.spmatrix | sp.sparray, constraints: Sequence[Constraint], d: in
     else:
         Qs, As_s = Q, As
     backend = BACKENDS[config.backend_name]
-    decompose = backend.decompose_default if config.decompose is None else config.decompose
+    decompose = decomposes(config)
     fb = BACKENDS[backend.fallback] if backend.fallback else None
     needs_cover = decompose and (backend.cover is not None or (fb is not None and fb.cover is not None))
     covers = CliqueCovers(Qs, As_s, d, block_sizes, cliques) if needs_cover else None
