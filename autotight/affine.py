@@ -96,12 +96,19 @@ def cross_rows(V: Variables, phi: Affine, u: Affine) -> list[QuadForm]:
     return [quad(V, phi, u, LEVI[k]) for k in range(3)]
 
 
-def cayley_rows(V: Variables, phi: str, a: Affine, b: Affine, rho: Affine | None = None) -> list[sp.csr_array]:
-    """a − b − ½ φ × (a + b) − ρ = 0, as three sparse symmetric matrices (one per component)."""
-    lin = a - b if rho is None else a - b - rho
+def cayley_rows(V: Variables, phi: str, a: Affine, b: Affine, rho: Affine | None = None,
+                gate: Affine | None = None) -> list[sp.csr_array]:
+    """a − b − ½ φ × (a + b) − ρ = 0, as three sparse symmetric matrices (one per component).
+
+    gate: a scalar affine g (1 row); the rows are then multiplied by g, with the blocks ``phi`` and ρ
+    standing for g·φ and g·ρ: g (a − b) − ½ (gφ) × (a + b) − gρ = 0 (still quadratic).
+    """
+    g = H if gate is None else gate
     out = []
     for k in range(3):
-        qf = quad(V, H, lin.row(k))
+        qf = quad(V, g, (a - b).row(k))
+        if rho is not None:
+            quad(V, H, (-rho).row(k), into=qf)
         quad(V, var(phi), a + b, -0.5 * LEVI[k], into=qf)
         out.append(qf.matrix())
     return out

@@ -58,17 +58,24 @@ def discover(problem: str | ModuleType | Problem, params: dict[str, Any] | None 
     ``options`` are those of ``autotight.discovery.pipeline.discover`` (groups, learn_options,
     criteria, n_heldout, n_random, progress, …).  With ``over={"sigma": [...], ...}`` the set is
     learned over the whole range (``autotight.discovery.range.discover_range``: options n_train,
-    train_params, n_heldout, …) and a ``RangeDiscoveryResult`` is returned.
+    train_params, n_heldout, …) and a ``RangeDiscoveryResult`` is returned.  So it is too with
+    ``n_train`` > 1, or when the problem's ``DEFAULT_TRAIN`` exceeds 1 and ``n_train`` is not given: the
+    set is then reduced over that many training instances of ``params``.
     """
-    from .discovery.pipeline import discover as _discover
+    from .discovery.pipeline import default_train, discover as _discover
 
-    if options.get("over") is not None:
+    prob = _problem(problem)
+    n_train = options.pop("n_train", None)
+    over = options.pop("over", None)
+    if over is not None or (n_train if n_train is not None else default_train(prob)) > 1:
         from .discovery.range import discover_range
 
-        return discover_range(_problem(problem), params, options.pop("over"), _seed(seed),
+        if n_train is None:
+            n_train = 2 if over else default_train(prob)
+        return discover_range(prob, params, over or {}, _seed(seed), n_train=n_train,
                               solver=solver or SolverConfig(), **options)
 
-    return _discover(_problem(problem), params, _seed(seed), solver=solver or SolverConfig(), **options)
+    return _discover(prob, params, _seed(seed), solver=solver or SolverConfig(), **options)
 
 
 def certify(problem: str | ModuleType | Problem, params: dict[str, Any] | None = None, seed: int = 0, *,

@@ -20,6 +20,14 @@ a·tr X_UU ≤ |b| + ‖A_BB‖_F·T_B + 2‖A_UB‖_F·√(tr X_UU·T_B)  (for 
 a quadratic inequality in √tr X_UU.  h² = 1 and cᵢᵀcᵢ = h² bound h and rotation columns; the cost
 bounds the residual blocks (tr over them ≤ f̄/λ_min(W) without cross terms); rᵀr = … (R2) then bounds
 translations.  When some column stays unbounded, T is None and nothing is certified.
+
+Recession columns (``recession_columns``).  A column j on which neither Q nor any Aᵢ has a diagonal
+entry is a zero-cost recession direction: X + t·e_j e_jᵀ is feasible with the same cost for every t ≥ 0,
+so tr X is unbounded and every dual feasible H(y) ⪰ 0 has H(y)e_j = 0 (H_jj = 0).  For such columns J
+(K the others) the bound uses H_KK: if H's rows on J vanish, ⟨H,X⟩ = ⟨H_KK,X_KK⟩ ≥ −λ⁻(H_KK)·tr X_KK,
+and T only has to bound the columns K.  ``polish_dual`` adds the equations H(y)_{J,·} = 0; their
+residual max|H_{J,·}| must be below ``FREE_ATOL``·max|H| (roundoff of the polish; above it, nothing is
+certified).  Example: robust pose averaging's gated lifting, where nothing bounds the translation r.
 """
 
 from __future__ import annotations
@@ -36,6 +44,8 @@ from .model import Constraint
 
 #: below this many columns, eigenvalues are computed densely
 DENSE_MAX = 200
+#: H's entries on recession columns count as zero up to this multiple of max|H| (module docstring)
+FREE_ATOL = 1e-12
 
 
 @dataclass
@@ -47,7 +57,8 @@ class Certificate:
     lambda_lower: the certified lower bound on λ_min(H) used in the bound.  residual: ‖H Θ̂ᵀ‖_F /
     (‖Q Θ̂ᵀ‖_F + ‖H‖_max·‖Θ̂‖_F), the stationarity residual relative to the cost's own terms.
     primal_residual: max |⟨Aᵢ,X̂⟩ − bᵢ| (x̂'s infeasibility).  trace: the bound T on tr(X), None when the
-    constraints imply none.  method: how y and λ_min were obtained.
+    constraints imply none.  method: how y and λ_min were obtained.  recession: the number of recession
+    columns J (module docstring), on which H must vanish; free_residual: max|H_{J,·}| / max|H|.
     """
 
     certified: bool
@@ -63,6 +74,8 @@ class Certificate:
     time_s: float
     method: str
     message: str = ""
+    recession: int = 0
+    free_residual: float = 0.0
 
     def record(self) -> dict:
         return {k: getattr(self, k) for k in self.__dataclass_fields__}
@@ -156,9 +169,10 @@ def lambda_min(H: sp.sparray) -> tuple[float, float, str]:
 
 
 def trace_bound(Q: sp.sparray, As: Sequence[sp.sparray], b: np.ndarray, f_bar: float,
-                max_passes: int = 8) -> float | None:
+                max_passes: int = 8, columns: np.ndarray | None = None) -> float | None:
     """A bound on tr(X) over {X ⪰ 0 : ⟨Aᵢ,X⟩ = bᵢ, ⟨Q,X⟩ ≤ f_bar} (see the module docstring), or None
-    when the constraints and the cost leave some column unbounded."""
+    when the constraints and the cost leave some column unbounded.  columns: bound only the trace over
+    these columns (the others may stay unbounded)."""
     n = Q.shape[0]
     bound_of = np.full(n, -1, dtype=np.int64)  # the group that bounds each column (−1: none yet)
     groups: list[float] = []
@@ -202,7 +216,7 @@ def trace_bound(Q: sp.sparray, As: Sequence[sp.sparray], b: np.ndarray, f_bar: f
             groups.append(root ** 2)
             bound_of[U] = len(groups) - 1
             progress = True
-        if (bound_of >= 0).all():
+        if (bound_of[slice(None) if columns is None else columns] >= 0).all():
             return float(sum(groups))
         if not progress:
             return None
@@ -237,25 +251,62 @@ def _lambda_min_blocks(A: sp.csr_array) -> float:
     return out
 
 
+def recession_columns(Q: sp.sparray, stacked: tuple[np.ndarray, ...]) -> np.ndarray:
+    """Columns j with Q_jj = 0 and (Aᵢ)_jj = 0 for every i (``stacked`` = ``entries(As)``): zero-cost
+    recession directions e_j e_jᵀ of the relaxation (module docstring), sorted."""
+    Q = sp.coo_array(Q)
+    r, c, v, _ = stacked
+    diag = np.zeros(Q.shape[0], dtype=bool)
+    diag[Q.row[(Q.row == Q.col) & (Q.data != 0)]] = True
+    diag[r[(r == c) & (v != 0)]] = True
+    return np.flatnonzero(~diag)
+
+
 def stationarity_system(Q: sp.sparray, As: Sequence[sp.sparray], Th: np.ndarray) -> tuple[sp.csr_array, np.ndarray]:
-    """(G, g) with G y = g ⟺ H(y)Θ̂ᵀ = 0: column i of G is vec(AᵢΘ̂ᵀ) (N·d rows, row-major)."""
+    """(G, g) with G y = g ⟺ H(y)Θ̂ᵀ = 0 and H(y)_{J,·} = 0 on the recession columns J.  The first N·d rows
+    (row-major): column i of G is vec(AᵢΘ̂ᵀ); then one row per entry (j, k), j ∈ J, of some Aᵢ or Q."""
     d, N = Th.shape
-    r, c, v, owner = entries(As)
+    stacked = r, c, v, owner = entries(As)
     rows = (r[:, None] * d + np.arange(d)[None, :]).ravel()
     vals = (v[:, None] * Th[:, c].T).ravel()
-    G = sp.csr_array((vals, (rows, np.repeat(owner, d))), shape=(N * d, len(As)))
-    return G, np.asarray(sp.csr_array(Q) @ Th.T).ravel()
+    cols = np.repeat(owner, d)
+    g = np.asarray(sp.csr_array(Q) @ Th.T).ravel()
+    J = recession_columns(Q, stacked)
+    if J.size:
+        Qc = sp.coo_array(Q)
+        on_J = np.isin(r, J)
+        q_on_J = np.isin(Qc.row, J)
+        keys = np.concatenate([r[on_J] * N + c[on_J], Qc.row[q_on_J] * N + Qc.col[q_on_J]])
+        uniq, inv = np.unique(keys, return_inverse=True)
+        n_on = int(on_J.sum())
+        rows = np.concatenate([rows, N * d + inv[:n_on]])
+        vals = np.concatenate([vals, v[on_J]])
+        cols = np.concatenate([cols, owner[on_J]])
+        gJ = np.zeros(uniq.size)
+        np.add.at(gJ, inv[n_on:], Qc.data[q_on_J])
+        g = np.concatenate([g, gJ])
+        G = sp.csr_array((vals, (rows, cols)), shape=(N * d + uniq.size, len(As)))
+        return G, g
+    return sp.csr_array((vals, (rows, cols)), shape=(N * d, len(As))), g
 
 
 def polish_dual(Q: sp.sparray, As: Sequence[sp.sparray], y: np.ndarray, theta_hat: np.ndarray) -> np.ndarray:
-    """y + δ, δ the least change (2-norm) that makes H(y + δ)Θ̂ᵀ = 0: the minimum-norm least-squares
+    """y + δ, δ the least change (2-norm) that makes H(y + δ)Θ̂ᵀ = 0 (and H's rows on recession columns
+    zero, ``stationarity_system``): the minimum-norm least-squares
     solution of G δ = g − G y (``stationarity_system``, LSQR).  Θ̂: (d, N).  Where x̂ is stationary only
     to the local solver's accuracy, the system is consistent only to that accuracy, and so is
     H(y + δ)Θ̂ᵀ = 0.  Then bᵀ(y + δ) = f(x̂) − ⟨H, Θ̂ᵀΘ̂⟩ ≈ f(x̂), up to that and x̂'s constraint
-    residual; whether y + δ proves anything is λ_min's to say."""
-    G, g = stationarity_system(Q, As, np.atleast_2d(np.asarray(theta_hat, dtype=float)))
+    residual; whether y + δ proves anything is λ_min's to say.  The rows on recession columns, which
+    must hold exactly (to roundoff) for a certificate, get a second least-change step of their own."""
+    Th = np.atleast_2d(np.asarray(theta_hat, dtype=float))
+    G, g = stationarity_system(Q, As, Th)
     y = np.asarray(y, dtype=float)
-    return y + spla.lsqr(G, g - G @ y, atol=1e-14, btol=1e-14, iter_lim=10 * G.shape[1])[0]
+    y = y + spla.lsqr(G, g - G @ y, atol=1e-14, btol=1e-14, iter_lim=10 * G.shape[1])[0]
+    n_stat = Th.size
+    if G.shape[0] > n_stat:
+        GJ, gJ = G[n_stat:], g[n_stat:]
+        y = y + spla.lsqr(GJ, gJ - GJ @ y, atol=1e-16, btol=1e-16, iter_lim=10 * G.shape[1])[0]
+    return y
 
 
 def certificate(Q: sp.sparray, constraints: Sequence[Constraint], y: np.ndarray, theta_hat: np.ndarray, *,
@@ -281,13 +332,27 @@ def certificate(Q: sp.sparray, constraints: Sequence[Constraint], y: np.ndarray,
     res_A = np.bincount(owner, weights=v * np.sum(Th[:, r] * Th[:, c], axis=0), minlength=len(As)) - b
     scale = float(abs(Q).max()) if Q.nnz else 1.0
     residual = float(np.linalg.norm(HT) / (np.linalg.norm(QT) + float(abs(H).max()) * np.sqrt(Xhat_tr) + 1e-300))
-    lam, lam_lo, how = lambda_min(H)
+    J = recession_columns(Q, stacked)
+    free_res = 0.0
+    if J.size:
+        K = np.setdiff1d(np.arange(H.shape[0]), J)
+        HJ = H[:, J]
+        Hmax = float(abs(H).max()) if H.nnz else 1.0
+        free_res = float(abs(HJ).max()) / Hmax if HJ.nnz else 0.0
+        lam, lam_lo, how = lambda_min(sp.csc_array(H[K][:, K]))
+        how += f" on the {K.size} columns off the {J.size} recession columns"
+    else:
+        K = None
+        lam, lam_lo, how = lambda_min(H)
     T = trace
     if T is None and lam_lo < 0:
-        T = trace_bound(Q, As, b, 2 * abs(f_hat) + floor * scale * Xhat_tr)
+        T = trace_bound(Q, As, b, 2 * abs(f_hat) + floor * scale * Xhat_tr, columns=K)
     neg = max(-lam_lo, 0.0)
     msg = ""
-    if neg == 0.0:
+    if free_res > FREE_ATOL:
+        correction, msg = np.inf, (f"H does not vanish on the {J.size} recession columns (max |H_J·| = "
+                                   f"{free_res:.1e} of max |H|)")
+    elif neg == 0.0:
         correction = 0.0
     elif T is None:
         correction, msg = np.inf, "λ_min(H) < 0 and no trace bound follows from the constraints"
@@ -299,4 +364,5 @@ def certificate(Q: sp.sparray, constraints: Sequence[Constraint], y: np.ndarray,
     rel = bound / denom if denom > 0 else (0.0 if bound <= 0 else np.inf)
     ok = bool(np.isfinite(bound) and rel <= tol)
     return Certificate(ok, bound, float(rel), lam, lam_lo, residual, float(np.max(np.abs(res_A), initial=0.0)),
-                       f_hat, dual_value, T, time.perf_counter() - t0, f"{method}; λ_min: {how}", msg)
+                       f_hat, dual_value, T, time.perf_counter() - t0, f"{method}; λ_min: {how}", msg,
+                       int(J.size), free_res)

@@ -52,11 +52,12 @@ def orthonormality(V: Variables, prefix: str = "", factor: str | None = None) ->
 
 
 def rotation_cayley(V: Variables, cols_a: list[Affine], cols_b: list[Affine], phi: str, name: str,
-                    factor: str | None = None) -> list[Constraint]:
-    """a_i − b_i − ½ φ × (a_i + b_i) = 0 for the three columns (9 constraints)."""
+                    factor: str | None = None, gate: Affine | None = None) -> list[Constraint]:
+    """a_i − b_i − ½ φ × (a_i + b_i) = 0 for the three columns (9 constraints); ``gate`` as in
+    ``cayley_rows``."""
     out = []
     for i in range(3):
-        for k, A in enumerate(cayley_rows(V, phi, cols_a[i], cols_b[i])):
+        for k, A in enumerate(cayley_rows(V, phi, cols_a[i], cols_b[i], gate=gate)):
             out.append(Constraint(A, 0.0, name=f"{name}:col{i + 1}[{k}]", factor=factor))
     return out
 

@@ -16,10 +16,12 @@ proves nothing (it holds for any x̂): y′ is worth its lower bound
 (``tightness``) corrects the solver's own y.
 
 ``polished`` takes two steps.
-1. It keeps y′ when
+1. It keeps y′ when y′ certifies x̂ and y does not, or when
    - L(y′) > L(y), or bᵀy > f(x̂) (a claimed bound above a feasible cost: y is certainly infeasible)
      and y′ is no less dual feasible (λ_min(H(y′)) ≥ λ_min(H(y)), estimates), and
    - bᵀy′ ≤ max(bᵀy, f(x̂)): the polish never creates an excess over f(x̂).
+   (A y that must vanish on recession columns, ``certificate`` docstring, is certified only after
+   the polish, which enforces that.)
    L alone cannot choose at low noise: λ⁻ is then the roundoff floor λ̂ − n·ε·max|H| for both, and
    n·ε·max|H|·tr X is as large as the excess that the polish removes.  Where x̂ is not optimal for
    the relaxation (a loose relaxation, or a worse local minimum) no y′ with H(y′)Θ̂ᵀ = 0 is near PSD
@@ -94,7 +96,9 @@ def polished(Q, constraints: Sequence[Constraint], res: SDPResult, theta_hat: np
         contradicts = cert.dual_value > cert.cost  # bᵀy above f(x̂): y is infeasible by at least that much
         better = (lower_bound(cert2, trX) > lower_bound(cert, trX)
                   or (contradicts and cert2.lambda_min >= cert.lambda_min))
-        if better and cert2.dual_value <= max(cert.dual_value, cert.cost):  # never a new excess over f(x̂)
+        # never a new excess over f(x̂), unless y′ certifies x̂ (step 2 then lowers the excess, keeping H ⪰ 0)
+        if (cert2.certified and not cert.certified) or (better and cert2.dual_value <= max(cert.dual_value,
+                                                                                           cert.cost)):
             steps.append(f"polished onto H(y)Θ̂ᵀ = 0 (‖δy‖ = {np.linalg.norm(y2 - y):.1e})")
             y, cert = y2, cert2
     excess = cert.dual_value - cert.cost

@@ -6,17 +6,22 @@ returns X_r as the certificate: the blocks on which X_r has mass are the unbound
 ends "Solved" with a cost below a valid lower bound of the QCQP (e.g. negative for a cost that is a
 sum of squares and non-negative terms) is unbounded in the same sense, stopped by the solver's limits:
 its unbounded blocks are those whose diagonal exceeds ``HUGE`` times the feasible scale.
+
+A bounded relaxation can still have an unbounded optimal set: a column on which neither the cost nor
+any constraint has a diagonal entry (``certificate.recession_columns``) can grow at no cost, so no SDP
+solution is rank 1 and an interior-point solver drifts along it.  ``rank_out_of_reach`` says so.
 """
 
 from __future__ import annotations
 
 import re
 from collections import OrderedDict
+from collections.abc import Sequence
 
 import numpy as np
 
 from .errors import SolverError
-from .model import HOMOGENISING, Model
+from .model import HOMOGENISING, Constraint, Model
 from .sdp.result import SDPResult, finite
 
 #: statuses meaning "the SDP in X is unbounded below" (its dual is infeasible)
@@ -60,6 +65,23 @@ def unbounded_blocks(model: Model, res: SDPResult, scale: float | None = None) -
         return [n for n, v in per.items() if top > 0 and v >= RAY_SUPPORT * top and n != HOMOGENISING]
     ref = scale if scale is not None else max(per[HOMOGENISING], 1e-300)
     return [n for n, v in per.items() if v > HUGE * ref and n != HOMOGENISING]
+
+
+def recession_blocks(model: Model, constraints: Sequence[Constraint]) -> list[str]:
+    """Blocks holding a recession column of the relaxation with these constraints (module docstring)."""
+    from .certificate import entries, recession_columns, stack
+
+    J = recession_columns(model.Q, entries(stack(constraints)[0]))
+    return list(OrderedDict.fromkeys(model.variables.block_of(int(j))[0] for j in J))
+
+
+def rank_out_of_reach(model: Model, constraints: Sequence[Constraint]) -> str:
+    """'' or one clause: rank d is out of reach because nothing bounds some blocks (module docstring)."""
+    blocks = recession_blocks(model, constraints)
+    if not blocks:
+        return ""
+    return (f"rank {model.d} is out of reach: nothing bounds block(s) {compress(blocks)} (no cost term and no "
+            "constraint has a diagonal entry on them, so X can grow there at no cost)")
 
 
 def compress(blocks: list[str]) -> str:

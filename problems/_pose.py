@@ -126,21 +126,26 @@ def pose_orthonormality(V: Variables, prefix: str = "", factor: str | None = Non
     return orthonormality(V, prefix, factor=factor)
 
 
-def pose_cayley(V: Variables, a: tuple[list[Affine], Affine], b: tuple[list[Affine], Affine], xi: str, name: str,
-                factor: str | None = None) -> list[Constraint]:
-    """(I − ½ξ^∧) A = (I + ½ξ^∧) B for poses A, B given as affine columns (9 rotation + 3 translation rows)."""
-    rho, phi = xi_blocks(xi)
+def pose_cayley(V: Variables, a: tuple[list[Affine], Affine], b: tuple[list[Affine], Affine], xi: str | Sequence[str],
+                name: str, factor: str | None = None, gate: Affine | None = None) -> list[Constraint]:
+    """(I − ½ξ^∧) A = (I + ½ξ^∧) B for poses A, B given as affine columns (9 rotation + 3 translation rows).
+
+    xi: the residual's suffix (blocks ``rho_{xi}``, ``phi_{xi}``) or its two block names (ρ, φ).
+    gate: a scalar affine g; the rows are multiplied by g, the ξ blocks holding g·ξ (``cayley_rows``).
+    """
+    rho, phi = xi_blocks(xi) if isinstance(xi, str) else xi
     (a_cols, a_r), (b_cols, b_r) = a, b
-    out = rotation_cayley(V, a_cols, b_cols, phi, name, factor=factor)
-    for k, A in enumerate(cayley_rows(V, phi, a_r, b_r, rho=var(rho))):
+    out = rotation_cayley(V, a_cols, b_cols, phi, name, factor=factor, gate=gate)
+    for k, A in enumerate(cayley_rows(V, phi, a_r, b_r, rho=var(rho), gate=gate)):
         out.append(Constraint(A, 0.0, name=f"{name}:r[{k}]", factor=factor))
     return out
 
 
-def unary_cayley(V: Variables, prefix: str, T_meas: np.ndarray, xi: str, name: str,
-                 factor: str | None = None) -> list[Constraint]:
-    """ξ = cay⁻¹(T T̃⁻¹): the 12 Cayley rows of pose ``prefix`` against the measurement T̃ (4, 4)."""
-    return pose_cayley(V, state_pose(prefix), measured_pose(*split_pose(T_meas)), xi, name, factor)
+def unary_cayley(V: Variables, prefix: str, T_meas: np.ndarray, xi: str | Sequence[str], name: str,
+                 factor: str | None = None, gate: Affine | None = None) -> list[Constraint]:
+    """ξ = cay⁻¹(T T̃⁻¹): the 12 Cayley rows of pose ``prefix`` against the measurement T̃ (4, 4)
+    (``xi`` and ``gate`` as in ``pose_cayley``)."""
+    return pose_cayley(V, state_pose(prefix), measured_pose(*split_pose(T_meas)), xi, name, factor, gate)
 
 
 def binary_cayley(V: Variables, prefix1: str, prefix2: str, T_rel: np.ndarray | None, xi: str, name: str,

@@ -11,71 +11,60 @@ Cost (TLS with binary w_m ∈ {±1}; w_m = 1 inlier, −1 outlier), with ξ_m = 
 so min_w f = Σ_m 2·min(ξ_mᵀW_mξ_m/β², 1): a measurement counts as an inlier while its residual is
 below β.
 
-Lifting.  The cost term w_m ξ_mᵀW_mξ_m is cubic.  Lift z_m = w_m·ξ_m (6 entries: zrho_m = w_m ρ_m,
-zphi_m = w_m φ_m), i.e. w_m times the factor's pose block ξ_m = [ρ_m; φ_m], the block the cost
-is written in (AutoTight's rPPR lifts z_i = w_i·[t; vec R] because its residual is linear in
-[t; vec R]; here the residual is the block ξ_m itself, and lifting w_m·[C, r] instead would leave
-w_m ξ_m cubic).  Then
+Lifting.  The cost term w_m ξ_mᵀW_mξ_m is cubic.  Two liftings (parameter ``lifting``):
 
-    x = [h, c₁, c₂, c₃, r, (ρ_m, φ_m, w_m, zρ_m, zφ_m)_{m=1..M}]      n = 13 + 13M,
-    xᵀQx = Σ_m (ξ_mᵀW_mξ_m + ξ_mᵀW_m z_m)/β² + h² − w_m h          (the same f when h = 1).
+- **gated** (default): u_m = ½(1 + w_m)·ξ_m, the residual of an inlier and 0 for an outlier (6 entries:
+  urho_m, uphi_m).  Since (1 + w_m)² = 2(1 + w_m), (1 + w_m)ξ_mᵀWξ_m = 2 u_mᵀWu_m:
 
-Primary constraints (they make the lifting exact: with h = ±1, w_m = ±1 and z_m = w_m ξ_m, every
-feasible x is ±(the lifting of some (T, w))):
+      x = [h, c₁, c₂, c₃, r, (w_m, uρ_m, uφ_m)_{m=1..M}]      n = 13 + 7M,
+      xᵀQx = Σ_m 2 u_mᵀW_m u_m/β² + h² − w_m h.
 
-- c_iᵀc_j = δ_ij h² (6);
-- per m, the 12 Cayley rows of ξ_m = cay⁻¹(T T̃_m⁻¹) (as in pose averaging);
-- per m, w_m² = h² (1);
-- per m, z_m·h = w_m·ξ_m (6, bilinear).
+  Primary constraints: c_iᵀc_j = δ_ij h² (6); per m, w_m² = h² (1), u_m·h = u_m·w_m (6: u_m = 0 for an
+  outlier), and the 12 Cayley rows of ξ_m multiplied by ½(h + w_m), written with u_m ("gated" rows,
+  ``affine.cayley_rows(gate=…)``): ½(h + w_m)(c_i − c̃_i h) − ½ uφ_m × (c_i + c̃_i h) = 0 and
+  ½(h + w_m)(r − r̃ h) − ½ uφ_m × (r + r̃ h) − uρ_m h = 0.  Exact: w_m = 1 makes them ξ_m's Cayley rows,
+  w_m = −1 makes u_m = 0 and the rows vanish.
+- **product** (the issue's first form, AutoTight's rPPR style): z_m = w_m·ξ_m beside ξ_m,
+  x = [h, C, r, (ρ_m, φ_m, w_m, zρ_m, zφ_m)_m] (n = 13 + 13M), xᵀQx = Σ_m (ξ_mᵀWξ_m + ξ_mᵀWz_m)/β² + h² − w_m h;
+  primary: orthonormality, ξ_m's Cayley rows, w_m² = h², z_m·h = w_m·ξ_m.
 
-Valid redundant relations include z_mᵀz_m = ξ_mᵀξ_m (more finely z_{m,k} z_{m,l} = ξ_{m,k} ξ_{m,l}),
-z_m·w_m = ξ_m·h, z_{m,k} ξ_{m,l} = z_{m,l} ξ_{m,k}, and the Cayley rows multiplied by w_m written with
-z_m (w_m c_i − w_m c̃_i h − ½ zφ_m × (c_i + c̃_i h) = 0).  With the primary constraints alone nothing
-bounds the z blocks: the cross term ξ_mᵀW_m z_m is unbounded below and the SDP is unbounded
-(discovery reports this and first adds the relations that bound z, e.g. z_mᵀz_m = ξ_mᵀξ_m).
+Why gated.  In the product lifting every direction v = e_ξ − e_z of one measurement (ξ_m growing with
+z_m = −ξ_m: an outlier's residual) has vᵀQv = 0 and vᵀAv = 0 for every valid quadratic relation (no
+quadratic relation has ξ_mξ_mᵀ terms: ξ_m is a rational function of T).  Measured on all 944 learned
+candidates at M = 6: max |vᵀAv| = 5e-15.  So X + t·vvᵀ stays optimal for all t: the relaxation's optimal set
+is unbounded, its dual has no interior point (every dual feasible H has Hv = 0), and the solvers stall
+(AlmostSolved at best, NumericalError / InsufficientProgress otherwise, with Clarabel and our IPM alike).
+The gated lifting is that lifting with the directions v projected out: it keeps u_m = ½(ξ_m + z_m) and
+drops ½(ξ_m − z_m), which neither the cost nor any relation sees.  One recession direction is left: the
+translation r (no quadratic relation in the gated lifting has rᵀr terms; the product lifting's rᵀr
+relations, R2, need ξ_m of every measurement).  It is a coordinate direction, which the certificate
+handles exactly (``certificate`` docstring, "recession columns": H must vanish on r, and the trace is
+bounded on the other columns).  Rank 1 is out of reach on either lifting (X_rr grows at no cost): use
+``--accept cost``.  The primary relaxation of the gated lifting is bounded (the cost bounds u_m); that of
+the product lifting is unbounded in the z blocks, which ``solve --set primary -p lifting=product``
+reports.
 
-Why per-measurement relations are not enough.  The cost monomials w_m ξ_{m,k} ξ_{m,l} appear only in
-the entries z_m ξ_mᵀ of X, and no quadratic relation within one measurement ties them to anything but
-z_mᵀz_m = ξ_mᵀξ_m and the symmetry of z_m ξ_mᵀ: ξ_m is a rational function of T (Cayley), so no
-quadratic relation in (h, T, ξ_m) has ξ_m ξ_mᵀ terms that w_m could turn into z_m ξ_mᵀ.  The relaxation
-then "reflects" z_m against ξ_m (z_m − E z_m = −(ξ_m − E ξ_m)), which removes the spread of ξ_m from
-the inlier cost; a spread-out T then lowers the bound (5.4 % below the optimum with the per-measurement
-relations alone, M = 6, seed 0).  Relations between two measurements tie those spreads: the relation
-between ξ_m and ξ_l through the shared pose, (I − ½ξ_l^∧)(I + ½ξ_m^∧)T̃_m = (I + ½ξ_l^∧)(I − ½ξ_m^∧)T̃_l,
-is quadratic, and so are its products with w_m, w_l and w_m w_l once written with z_m, z_l (terms
-z_m ξ_l, ξ_m z_l, z_m z_l).
+Relations between measurements.  Per-measurement relations alone leave the bound percent below the
+optimum (product lifting: 5.4 %, M = 6, seed 0).  The relation between ξ_m and ξ_l through the shared
+pose, (I − ½ξ_l^∧)(I + ½ξ_m^∧)T̃_m = (I + ½ξ_l^∧)(I − ½ξ_m^∧)T̃_l, is quadratic, and so is its product with
+½(h + w_m)·½(h + w_l) written with u_m, u_l.  Gated: relations of consecutive pairs only certify 2 of 10
+held-out instances (M = 6, σ = 0.05, every candidate); those of every pair, with the pose, all 10.
 
-Factors: "so3" (h, c₁, c₂, c₃); per m "robust_meas" (h, C, r, ρ_m, φ_m, w_m, zρ_m, zφ_m; 26 columns);
-per consecutive pair (m, m+1) "robust_pair" (h, ξ_m, w_m, z_m, ξ_{m+1}, w_{m+1}, z_{m+1}; 27 columns),
-with no cost and no primary constraint: a learning group (so that ``factors`` learns the relations
-between two measurements, and a learned set carries to any M) whose relations join cliques m and m+1.
-The clique cover is the path {h, C, r, ξ_m, w_m, z_m, ξ_{m+1}, w_{m+1}, z_{m+1}}, m = 0 … M−2.
-No paper families.  Rank 1 is generally not reached by quadratic constraints on this lifting
-(as for AutoTight's rPPR, which is cost-tight, not rank-tight): use ``--accept cost``.
+Factors: "so3" (h, c₁, c₂, c₃); per m "robust_meas" (h, C, r and the measurement's blocks; 20 columns
+gated, 26 product); per pair "robust_pair", no cost and no primary constraint: a learning group (so
+that ``factors`` learns the relations between two measurements, and a learned set carries to any M).
+Gated: every pair (m, l), with the pose (h, C, r, w_m, u_m, w_l, u_l; 27 columns); no clique cover (the
+pairs couple every measurement with every other).  Product: consecutive pairs without the pose (h, ξ_m,
+w_m, z_m, ξ_{m+1}, w_{m+1}, z_{m+1}; 27 columns) on the path cover {h, C, r, m's blocks, m+1's}.
+No paper families.
 
-Discovery: ``DEFAULT_GROUPS`` ("factors": so3, robust_meas and robust_pair) is what ``autotight
-discover`` uses for this problem unless ``--groups`` is given.  Pairs of consecutive measurements
-suffice: all pairs (``adjacent:robust_meas+robust_meas/rho/phi/w/zrho/zphi``, 15 pairs at M = 6) are also
-cost-tight, but they couple every measurement with every other, so the SDP has no sparsity left
-(one 250 s solve at load 10, against about 40 s on the path cover).
-
-Measured (M = 6, 1 outlier, σ = 0.05, seed 0; load 10-14 on 2 cores):
-- per-measurement relations alone (so3, robust_meas: 111 candidate pairs, 596 constraints): bounded,
-  5.4 % below the brute-force optimum: not cost-tight, as argued above;
-- with the relations of consecutive pairs learned as separate groups (block lists, 609 more
-  constraints), one Clarabel solve (scaled, third attempt with clique_graph merging) reached the
-  brute-force optimum to a relative gap of 2.8e-7 (log SVR 2.0: cost-tight, not rank-tight);
-- with ``DEFAULT_GROUPS`` (181 candidate pairs, 944 constraints; the robust_pair identities carried to
-  all five pairs) the solve with every candidate ends AlmostSolved at best (|U − D| ≈ 2e-5 relative,
-  accuracy 1e-4; which status depends on the constraint order) or stalls (InsufficientProgress /
-  NumericalError, also at tol 1e-6, scaled, with the 8 exactly dependent rows removed, or with the
-  IPM); the multipliers do not certify the optimum (λ_min(H) < 0 and no trace bound: nothing bounds
-  ξ_m and r in the certificate's sense).  ``discover --accept cost`` therefore ends "undecided", with
-  no reduction and no held-out check.  Greedy tightening instead (``DEFAULT_TIGHTEN = "greedy"``)
-  reaches a bracket gap of 1.3e-10 with 167 pairs (AlmostSolved, certificate still failing) after
-  32 solver calls, 558 s wall / 116 s CPU.  The likely cause of the stalls is a relaxation without
-  a strictly feasible point (facial reduction would be needed); not resolved.
-
+Discovery: ``DEFAULT_GROUPS`` ("factors"), and the set is reduced over ``DEFAULT_TRAIN`` = 3 training
+instances (``discover`` runs the range flow at one point): one instance's irreducible set is too small
+for others.  Measured (M = 6, 1 outlier, σ = 0.05, seed 0, quiet 2-core machine):
+``autotight discover robust_pose_averaging --accept cost``: 45 candidate pairs, 2 pairs kept (30
+constraints), 27 SDP solves, certified cost-tight on 10 of 10 held-out instances, 54 s; with one
+training instance (``--train 1``) 2 pairs, 7 of 10.  The product lifting's discovery ends "undecided"
+(AlmostSolved with all 944 candidates, nothing certified), 8 s.
 
 Sampling discrete variables: ``sample`` must cover every value of each discrete variable and their
 combinations that the monomials can see.  Here w_m = ±1 independently with probability ½ each, so
@@ -98,6 +87,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from autotight import lie
+from autotight.affine import Affine
 from autotight.errors import ParameterError
 from autotight.gauss_newton import gauss_newton
 from autotight.model import Constraint, Factor, Model, QuadForm, Variables
@@ -108,7 +98,28 @@ from ._pose import (POSE_ROLES, XI_ROLES, pose_blocks, pose_from_x, pose_orthono
                     unary_cayley, unary_residuals, xi_blocks)
 
 NAME = "robust_pose_averaging"
-DESCRIPTION = "Pose averaging with outliers: TLS cost with binary w_m, lifted z_m = w_m·ξ_m (paper §3.2 + TLS)."
+DESCRIPTION = "Pose averaging with outliers: TLS cost with binary w_m, lifted u_m = ½(1 + w_m)·ξ_m (paper §3.2 + TLS)."
+#: the two liftings (module docstring): their per-measurement blocks' roles after h and the pose
+LABEL_ROLES = {"gated": ("w", "urho", "uphi"), "product": (*XI_ROLES, "w", "zrho", "zphi")}
+LIFTINGS = tuple(LABEL_ROLES)
+
+
+def meas_roles(lifting: str) -> tuple[str, ...]:
+    return ("h", *POSE_ROLES, *LABEL_ROLES[lifting])
+
+
+def pair_roles(lifting: str) -> tuple[str, ...]:
+    """Roles of a consecutive pair's learning group: with the pose in the gated lifting (module docstring)."""
+    pose = POSE_ROLES if lifting == "gated" else ()
+    return ("h", *pose, *(f"{k}.{r}" for k in (1, 2) for r in LABEL_ROLES[lifting]))
+
+
+def pair_blocks(m: int, l: int, lifting: str) -> list[str]:
+    """Blocks of the pair (m, l)'s learning group after h (with the pose in the gated lifting)."""
+    pose = pose_blocks() if lifting == "gated" else []
+    return [*pose, *label_blocks(m, lifting), *label_blocks(l, lifting)]
+
+
 PARAMS = {
     "M": Param(6, "number of pose measurements", low=1),
     "sigma": Param(0.05, "inlier noise standard deviation of each ξ_m component", low=0.0),
@@ -116,19 +127,22 @@ PARAMS = {
     "outlier_size": Param(1.0, "norm of an outlier's ρ and of its φ at the true pose (Cayley units)", low=0.0),
     "beta": Param(0.5, "TLS threshold on ‖ξ_m‖_W (inlier while below)", low=0.0, low_open=True),
     "scale": Param(1.0, "standard deviation of each component of the true translation", low=0.0),
+    "lifting": Param("gated", "gated: u_m = ½(1 + w_m)·ξ_m (the default; a bounded relaxation); product: ξ_m and "
+                     "z_m = w_m·ξ_m (its relaxation has unbounded optimal sets)", choices=LIFTINGS),
 }
 
 #: the learning groups discovery uses by default for this problem (see the module docstring)
 DEFAULT_GROUPS = "factors"
-#: discovery's tightening starts from every candidate once bounded (``discovery.tighten``): the violation
-#: ranking is not selective here (the greedy rounds add every pair, one solve per doubling)
+#: discovery reduces the set over this many training instances (``discover`` then runs the range flow at
+#: one point): the irreducible set of one instance is too small for others (M = 6, σ = 0.05: 7 of 10
+#: held-out instances certified with 1 training instance, 10 of 10 with 3)
+DEFAULT_TRAIN = 3
+#: single-instance discovery (``--train 1``) starts tightening from every candidate once bounded
+#: (``discovery.tighten``): on the product lifting the violation ranking was not selective (the greedy
+#: rounds added every pair, one solve per doubling)
 DEFAULT_TIGHTEN = "all"
 #: the brute-force local solver enumerates 2^M labellings: refused above this M
 MAX_BRUTE_FORCE = 12
-
-MEAS_ROLES = ("h", *POSE_ROLES, *XI_ROLES, "w", "zrho", "zphi")
-PAIR_ROLES = ("h", *(f"{k}.{r}" for k in (1, 2) for r in (*XI_ROLES, "w", "zrho", "zphi")))
-
 
 def n_outliers(params: dict) -> int:
     return int(round(params["outlier_rate"] * params["M"]))
@@ -154,22 +168,35 @@ def generate(params: dict, rng: np.random.Generator) -> Instance:
 
 
 def z_blocks(m: int | str) -> list[str]:
+    """z_m = w_m ξ_m (product lifting)."""
     return [f"zrho_{m}", f"zphi_{m}"]
+
+
+def u_blocks(m: int | str) -> list[str]:
+    """u_m = ½(1 + w_m) ξ_m (gated lifting)."""
+    return [f"urho_{m}", f"uphi_{m}"]
 
 
 def w_block(m: int | str) -> str:
     return f"w_{m}"
 
 
-def meas_blocks(m: int) -> list[str]:
-    """The blocks of measurement m's factor after h: C, r, ξ_m, w_m, z_m."""
-    return [*pose_blocks(), *xi_blocks(str(m)), w_block(m), *z_blocks(m)]
+def label_blocks(m: int, lifting: str) -> list[str]:
+    """Measurement m's blocks without the pose: w_m, u_m (gated) or ξ_m, w_m, z_m (product)."""
+    if lifting == "gated":
+        return [w_block(m), *u_blocks(m)]
+    return [*xi_blocks(str(m)), w_block(m), *z_blocks(m)]
 
 
-def _variables(M: int) -> Variables:
+def meas_blocks(m: int, lifting: str) -> list[str]:
+    """The blocks of measurement m's factor after h: the pose C, r, then its label blocks."""
+    return [*pose_blocks(), *label_blocks(m, lifting)]
+
+
+def _variables(M: int, lifting: str) -> Variables:
     blocks = [(b, 3) for b in pose_blocks()]
     for m in range(M):
-        blocks += [(b, 3) for b in xi_blocks(str(m))] + [(w_block(m), 1)] + [(b, 3) for b in z_blocks(m)]
+        blocks += [(b, 1 if b == w_block(m) else 3) for b in label_blocks(m, lifting)]
     return Variables(blocks)
 
 
@@ -184,54 +211,75 @@ def _pair_form(V: Variables, a: list[str], b: list[str], W: np.ndarray) -> QuadF
     return qf
 
 
-def meas_cost(V: Variables, m: int, W: np.ndarray, beta: float) -> sp.csr_array:
-    """(ξᵀWξ + ξᵀWz)/β² + h² − w·h for measurement m."""
-    xi = xi_blocks(str(m))
-    A = (_pair_form(V, xi, xi, W).matrix() + _pair_form(V, xi, z_blocks(m), W).matrix()) / beta ** 2
+def meas_cost(V: Variables, m: int, W: np.ndarray, beta: float, lifting: str) -> sp.csr_array:
+    """Measurement m's TLS term (1 + w_m)/β² ξ_mᵀWξ_m + 1 − w_m, lifted:
+    2 u_mᵀW u_m/β² + h² − w_m h (gated), (ξ_mᵀWξ_m + ξ_mᵀW z_m)/β² + h² − w_m h (product)."""
+    if lifting == "gated":
+        u = u_blocks(m)
+        A = 2.0 * _pair_form(V, u, u, W).matrix() / beta ** 2
+    else:
+        xi = xi_blocks(str(m))
+        A = (_pair_form(V, xi, xi, W).matrix() + _pair_form(V, xi, z_blocks(m), W).matrix()) / beta ** 2
     return sp.csr_array(A + QuadForm(V).const(1.0).add("h", w_block(m), -1.0).matrix())
 
 
-def binary_constraints(V: Variables, m: int, name: str) -> list[Constraint]:
-    """w_m² = h² and z_m·h = w_m·ξ_m (7 rows)."""
+def binary_constraints(V: Variables, m: int, name: str, lifting: str) -> list[Constraint]:
+    """w_m² = h², then z_m·h = w_m·ξ_m (product) or u_m·h = u_m·w_m (gated: u_m = 0 for an outlier); 7 rows."""
     w = w_block(m)
     out = [Constraint(QuadForm(V).add(w, w, 1.0).const(-1.0).matrix(), 0.0, name=f"{name}:w²=h²")]
-    for zb, xb in zip(z_blocks(m), xi_blocks(str(m))):
+    pairs = zip(u_blocks(m), u_blocks(m)) if lifting == "gated" else zip(z_blocks(m), xi_blocks(str(m)))
+    for zb, xb in pairs:
         for k in range(3):
-            e = np.zeros(3)
-            e[k] = 1.0
-            A = QuadForm(V).add("h", zb, e.reshape(1, 3)).add(w, xb, -e.reshape(1, 3)).matrix()
+            e = np.zeros((1, 3))
+            e[0, k] = 1.0
+            A = QuadForm(V).add("h", zb, e).add(w, xb, -e).matrix()
             out.append(Constraint(A, 0.0, name=f"{name}:{zb}[{k}]h=w·{xb}[{k}]"))
     return out
 
 
+def meas_cayley(V: Variables, T_meas: np.ndarray, m: int, name: str, lifting: str) -> list[Constraint]:
+    """The 12 Cayley rows of ξ_m = cay⁻¹(T T̃_m⁻¹); gated: multiplied by ½(h + w_m), written with u_m."""
+    if lifting == "product":
+        return unary_cayley(V, "", T_meas, str(m), name)
+    gate = Affine({"h": np.array([[0.5]]), w_block(m): np.array([[0.5]])})
+    return unary_cayley(V, "", T_meas, u_blocks(m), name, gate=gate)
+
+
 def build(inst: Instance) -> Model:
     T_meas, Ws, beta = inst.measurements["T_meas"], inst.measurements["W"], float(inst.measurements["beta"])
+    lifting = lifting_of(inst)
     M = len(T_meas)
-    V = _variables(M)
+    V = _variables(M, lifting)
     pose = pose_blocks()
     factors = [Factor("rotation", "so3", ("h", *pose[:3]), constraints=pose_orthonormality(V, factor="rotation"))]
     for m in range(M):
-        name, s = f"meas_{m}", str(m)
-        cons = unary_cayley(V, "", T_meas[m], s, name) + binary_constraints(V, m, name)
-        factors.append(Factor(name, "robust_meas", ("h", *meas_blocks(m)), cost=meas_cost(V, m, Ws[m], beta),
-                              constraints=cons, roles=MEAS_ROLES))
-    for m in range(M - 1):  # learning groups only: no cost, no primary constraints
-        factors.append(Factor(f"pair_{m}_{m + 1}", "robust_pair", ("h", *label_blocks(m), *label_blocks(m + 1)),
-                              roles=PAIR_ROLES))
-    return Model(V, factors, paper={}, cliques=cliques(M))
+        name = f"meas_{m}"
+        cons = meas_cayley(V, T_meas[m], m, name, lifting) + binary_constraints(V, m, name, lifting)
+        factors.append(Factor(name, "robust_meas", ("h", *meas_blocks(m, lifting)),
+                              cost=meas_cost(V, m, Ws[m], beta, lifting), constraints=cons,
+                              roles=meas_roles(lifting)))
+    for m, l in pairs_of(M, lifting):  # learning groups only: no cost, no primary constraints
+        factors.append(Factor(f"pair_{m}_{l}", "robust_pair", ("h", *pair_blocks(m, l, lifting)),
+                              roles=pair_roles(lifting)))
+    return Model(V, factors, paper={}, cliques=cliques(M, lifting))
 
 
-def label_blocks(m: int) -> list[str]:
-    """ξ_m, w_m, z_m: measurement m's blocks without the pose."""
-    return [*xi_blocks(str(m)), w_block(m), *z_blocks(m)]
+def pairs_of(M: int, lifting: str) -> list[tuple[int, int]]:
+    """The measurement pairs (m, l) with a learning group: every pair (gated), consecutive ones (product)."""
+    if lifting == "gated":
+        return list(itertools.combinations(range(M), 2))
+    return [(m, m + 1) for m in range(M - 1)]
 
 
-def cliques(M: int) -> list[tuple[str, ...]]:
-    """{h, C, r, ξ_m, w_m, z_m, ξ_{m+1}, w_{m+1}, z_{m+1}} for m = 0 … M−2 (a path: the intersection of
-    cliques m and m+2, {h, C, r}, lies in clique m+1); {h, C, r, ξ_0, w_0, z_0} when M = 1."""
+def cliques(M: int, lifting: str = "gated") -> list[tuple[str, ...]] | None:
+    """Product lifting: {h, C, r, measurement m's label blocks, m+1's} for m = 0 … M−2 (a path: the
+    intersection of cliques m and m+2, {h, C, r}, lies in clique m+1); {h, C, r, measurement 0's} when
+    M = 1.  Gated lifting: None (its pairs couple every measurement with every other: one clique)."""
+    if lifting == "gated":
+        return None
     if M == 1:
-        return [("h", *meas_blocks(0))]
-    return [("h", *meas_blocks(m), *label_blocks(m + 1)) for m in range(M - 1)]
+        return [("h", *meas_blocks(0, lifting))]
+    return [("h", *meas_blocks(m, lifting), *label_blocks(m + 1, lifting)) for m in range(M - 1)]
 
 
 def _pose(state: dict) -> np.ndarray:
@@ -251,14 +299,25 @@ def _labels(inst: Instance, state: dict) -> np.ndarray:
     return w
 
 
+def lifting_of(inst: Instance) -> str:
+    return inst.params.get("lifting", "gated")
+
+
 def lift(inst: Instance, state: dict) -> np.ndarray:
     w = _labels(inst, state)
+    lifting = lifting_of(inst)
     vals = pose_values(state["C"], state["r"])
     for m, xi in enumerate(residuals(inst, state)):
-        rho, phi = xi_blocks(str(m))
-        zr, zp = z_blocks(m)
-        vals |= {rho: xi[:3], phi: xi[3:], w_block(m): np.array([w[m]]), zr: w[m] * xi[:3], zp: w[m] * xi[3:]}
-    return _variables(len(w)).assemble(vals)
+        vals[w_block(m)] = np.array([w[m]])
+        if lifting == "gated":
+            ur, up = u_blocks(m)
+            g = 0.5 * (1.0 + w[m])
+            vals |= {ur: g * xi[:3], up: g * xi[3:]}
+        else:
+            rho, phi = xi_blocks(str(m))
+            zr, zp = z_blocks(m)
+            vals |= {rho: xi[:3], phi: xi[3:], zr: w[m] * xi[:3], zp: w[m] * xi[3:]}
+    return _variables(len(w), lifting).assemble(vals)
 
 
 def cost(inst: Instance, state: dict) -> float:
@@ -341,7 +400,7 @@ def recover(inst: Instance, Theta: np.ndarray) -> dict:
     x = np.asarray(Theta, dtype=float).reshape(-1)
     x = x / x[0]
     M = len(inst.measurements["T_meas"])
-    V = _variables(M)
+    V = _variables(M, lifting_of(inst))
     C_raw, r = pose_from_x(V, x)
     w = np.array([1.0 if x[V.slice(w_block(m))][0] >= 0 else -1.0 for m in range(M)])
     return {"C": lie.project_to_so3(C_raw), "r": r, "w": w, "det_raw": np.array(np.linalg.det(C_raw))}

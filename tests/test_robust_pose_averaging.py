@@ -22,22 +22,33 @@ def _instance(seed: int, **params):
     return PROB.generate({"M": 6, "sigma": 0.05} | params, seed)
 
 
+def _product(seed: int, **params):
+    return _instance(seed, lifting="product", **params)
+
+
 def test_structure_counts_and_outliers():
-    inst = _instance(0)
+    inst = _product(0)
     model = PROB.build(inst)
     assert model.variables.N == 13 + 13 * 6
     types = model.factor_types()
     assert len(types["robust_meas"]) == 6 and len(types["so3"]) == 1 and len(types["robust_pair"]) == 5
     assert all(len(f.constraints) == 12 + 7 for f in types["robust_meas"])
     assert all(not f.constraints and f.cost is None and len(f.blocks) == 11 for f in types["robust_pair"])
-    assert [len(model.variables.index(c)) for c in rpa.cliques(6)] == [1 + 12 + 26] * 5
+    assert [len(model.variables.index(c)) for c in rpa.cliques(6, "product")] == [1 + 12 + 26] * 5
     assert model.paper == {}
     assert (inst.truth["w"] == -1).sum() == 1  # round(M/6) outliers by default
     assert (_instance(0, outlier_rate=0.5).truth["w"] == -1).sum() == 3
+    gated = PROB.build(_instance(0))  # the default lifting: every pair, with the pose; no clique cover
+    assert gated.variables.N == 13 + 7 * 6 and gated.cliques is None
+    types = gated.factor_types()
+    assert len(types["robust_meas"]) == 6 and len(types["robust_pair"]) == 15
+    assert all(len(f.constraints) == 12 + 7 and len(f.blocks) == 8 for f in types["robust_meas"])
+    assert all(not f.constraints and f.cost is None and len(f.blocks) == 11 for f in types["robust_pair"])
 
 
-def test_constraints_vanish_and_lifted_cost_is_the_tls_cost():
-    inst = _instance(1)
+@pytest.mark.parametrize("lifting", ["gated", "product"])
+def test_constraints_vanish_and_lifted_cost_is_the_tls_cost(lifting):
+    inst = _instance(1, lifting=lifting)
     model = PROB.build(inst)
     rng = np.random.default_rng(5)
     worst, cost_err, signs = 0.0, 0.0, []
@@ -72,7 +83,7 @@ def test_brute_force_finds_the_outlier_and_beats_the_truth(seed):
 
 
 def test_primary_relaxation_is_unbounded_in_the_z_blocks():
-    inst = _instance(0, M=3)
+    inst = _product(0, M=3)
     model = PROB.build(inst)
     res = solve_sdp(model, model.primary())
     assert is_unbounded(res) and res.status == "DualInfeasible"
@@ -84,7 +95,7 @@ def test_primary_relaxation_is_unbounded_in_the_z_blocks():
 
 
 def test_greedy_bounds_the_unbounded_blocks_first():
-    inst = _instance(0, M=3)
+    inst = _product(0, M=3)
     model = PROB.build(inst)
     rng = np.random.default_rng(1)
     loc = local_search(PROB, inst, rng, 0)
@@ -108,9 +119,9 @@ def test_solve_with_primary_constraints_names_the_unbounded_blocks(capsys):
     from autotight.unbounded import UnboundedRelaxation
 
     with pytest.raises(UnboundedRelaxation) as e:
-        solve("robust_pose_averaging", {"M": 3}, seed=0, constraints="primary")
+        solve("robust_pose_averaging", {"M": 3, "lifting": "product"}, seed=0, constraints="primary")
     assert {"zrho_0", "zphi_1", "zrho_2"} <= set(e.value.blocks) and "c1" not in e.value.blocks
-    code = main(["solve", "robust_pose_averaging", "-p", "M=3", "--set", "primary"])
+    code = main(["solve", "robust_pose_averaging", "-p", "M=3", "-p", "lifting=product", "--set", "primary"])
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 2 and len(err) == 1
     assert err[0].startswith("autotight: error: the relaxation is unbounded") and "zrho_* (3)" in err[0]
@@ -120,7 +131,7 @@ def test_solve_with_primary_constraints_names_the_unbounded_blocks(capsys):
 def test_per_measurement_relations_leave_a_gap_to_the_brute_force_optimum():
     """Every relation learned within one measurement (and the rotation): bounded, but the bound stays
     percent below the brute-force optimum (the z_m ξ_mᵀ entries are untied; see the module docstring)."""
-    inst = _instance(0)
+    inst = _product(0)
     model = PROB.build(inst)
     loc = local_search(PROB, inst, np.random.default_rng([0, 1]), 2)
     cat = learn(PROB, inst, model, np.random.default_rng([0, 2]), "factors", types=["so3", "robust_meas"])
@@ -128,3 +139,107 @@ def test_per_measurement_relations_leave_a_gap_to_the_brute_force_optimum():
     v, res = oracle.solve(list(oracle.pairs))
     assert not is_unbounded(res) and res.usable
     assert not v.tight and 0.02 < v.rel_gap < 0.2  # 5.4 % at seed 0
+
+
+def test_product_lifting_has_zero_cost_recession_directions_that_the_gated_one_removes():
+    """v = e_ξ − e_z (an outlier's residual growing, z = −ξ) is invisible to the cost and to every relation
+    learned on the product lifting; the gated lifting keeps only u = ½(ξ + z) and r is its one
+    recession block."""
+    from autotight.unbounded import recession_blocks
+
+    inst = _product(0, M=3)
+    model = PROB.build(inst)
+    cat = learn(PROB, inst, model, np.random.default_rng(3), "factors")
+    cons = model.all_constraints() + list(cat.candidates())
+    V = model.variables
+    worst = 0.0
+    for m in range(3):
+        for xb, zb in zip(rpa.xi_blocks(str(m)), rpa.z_blocks(m)):
+            for k in range(3):
+                v = np.zeros(V.N)
+                v[V.index([xb])[k]], v[V.index([zb])[k]] = 1.0, -1.0
+                assert v @ (model.Q @ v) == 0.0
+                worst = max(worst, max(abs(v @ (c.A @ v)) / abs(c.A).max() for c in cons))
+    assert worst < 1e-12
+    gated = PROB.build(_instance(0, M=3))
+    assert recession_blocks(gated, gated.all_constraints()) == ["r"]
+
+
+def _gated_solve(seed: int):
+    from autotight.pipeline import seeds, solve_instance
+
+    inst = _instance(seed)
+    model = PROB.build(inst)
+    cat = learn(PROB, inst, model, seeds(seed).constraints(), "factors")
+    return inst, solve_instance(PROB, inst, model.all_constraints() + list(cat.candidates()),
+                                criteria=Criteria(accept="cost"))
+
+
+def test_gated_relaxation_with_every_candidate_is_certified_cost_tight():
+    inst, r = _gated_solve(3)
+    cert = r.certificate
+    assert r.tight and r.outcome == "tight"
+    assert cert.certified and cert.recession == 3 and cert.free_residual <= 1e-12
+    assert cert.rel_bound <= 1e-6 and abs(r.verdict.rel_gap) < 1e-6
+    # the certified point is the brute-force optimum, with the generated labels
+    assert r.upper == pytest.approx(r.local.best.cost, rel=1e-12)
+    assert np.array_equal(r.local.best.state["w"], inst.truth["w"])
+    assert r.log_svr < 5  # X_rr grows at no cost: never rank 1
+
+
+def test_certificate_needs_h_to_vanish_on_recession_columns():
+    """x = [h, a, b], cost (a − h)² + h², h² = 1, a² = h², b·h = 0: b has no diagonal entry anywhere (a
+    recession column).  y = (1, 0, 0) certifies x̂ = [1, 1, 0]; one that leaves H_bh ≠ 0 certifies nothing."""
+    import scipy.sparse as sp
+
+    from autotight.certificate import certificate, polish_dual, recession_columns, entries, stack
+    from autotight.model import Constraint
+
+    Q = sp.csr_array(np.array([[2.0, -1, 0], [-1, 1, 0], [0, 0, 0]]))
+    cons = [Constraint(sp.coo_array(([1.0], ([0], [0])), shape=(3, 3)), 1.0, family="homogenisation"),
+            Constraint(sp.coo_array(([1.0, -1.0], ([1, 0], [1, 0])), shape=(3, 3)), 0.0),
+            Constraint(sp.coo_array(([0.5, 0.5], ([0, 2], [2, 0])), shape=(3, 3)), 0.0)]
+    x = np.array([1.0, 1.0, 0.0])
+    assert list(recession_columns(Q, entries(stack(cons)[0]))) == [2]
+    y = polish_dual(Q, stack(cons)[0], np.array([0.3, 0.2, 0.1]), x)
+    ok = certificate(Q, cons, y, x)
+    assert ok.certified and ok.recession == 1 and ok.free_residual <= 1e-12 and ok.lambda_lower > -1e-12
+    assert np.allclose(y, [1.0, 0.0, 0.0], atol=1e-12)
+    bad = certificate(Q, cons, y + np.array([0.0, 0.0, 1e-3]), x)
+    assert not bad.certified and bad.free_residual > 1e-4 and "recession columns" in bad.message
+
+
+def test_discover_reduces_over_training_instances_and_certifies_heldout_ones():
+    """Plain discover with the module's DEFAULT_TRAIN = 3: the range flow at one point; the set it
+    keeps certifies held-out instances (also re-checked here on a fresh one)."""
+    from autotight import ConstraintSet, discover, solve
+
+    res = discover("robust_pose_averaging", {"M": 5}, 0, criteria=Criteria(accept="cost"), n_heldout=4)
+    s = res.summary()
+    assert s["n_train"] == 3 and s["over"] == {} and res.tight and s["irreducible"]
+    assert 1 <= s["n_pairs"] <= 10 and s["n_solves"] == sum(s["solves_by_stage"].values())
+    assert s["points"][0]["heldout_fraction"] == 1.0
+    fresh = solve("robust_pose_averaging", {"M": 5}, seed=99, constraints=ConstraintSet(res.discovered),
+                  criteria=Criteria(accept="cost"))
+    assert fresh.tight and fresh.certificate.certified and fresh.certificate.rel_bound <= 1e-6
+
+
+def test_rank_acceptance_says_why_rank_one_is_not_reached():
+    from autotight.discovery.pipeline import discover
+
+    res = discover(PROB, {"M": 3}, 0, n_heldout=0, compare=False)
+    text = res.explanation()
+    assert not res.tight and "rank 1 is out of reach" in text and "block(s) r " in text
+    assert "use --accept cost" in text
+
+
+def test_default_train_is_validated():
+    from types import SimpleNamespace
+
+    from autotight.discovery.pipeline import default_train
+    from autotight.errors import ProblemDefinitionError
+
+    assert default_train(PROB) == 3 and default_train(load("pose_averaging")) == 1
+    for bad in (0, 2.0, True):
+        with pytest.raises(ProblemDefinitionError, match="DEFAULT_TRAIN must be an int ≥ 1"):
+            default_train(SimpleNamespace(name="p", module=SimpleNamespace(DEFAULT_TRAIN=bad)))

@@ -16,7 +16,8 @@ from ..pretty import polynomial
 from ..unbounded import compress
 from ..problem import load, parse_assignments
 from .learn import LearnOptions
-from .pipeline import DiscoveryResult, discover
+from ..errors import ParameterError
+from .pipeline import DiscoveryResult, default_train, discover
 
 
 def register(sub: argparse._SubParsersAction, add_problem_args: Callable) -> None:
@@ -77,11 +78,15 @@ def cmd_discover(args: argparse.Namespace) -> int:
     config = solver_config(args)
     if args.out is not None:
         check_file(args.out, force=args.force)
-    if args.sigmas is not None or args.range:
+    prob = load(args.problem)
+    ranged = args.sigmas is not None or args.range
+    n_train = args.train if args.train is not None else (2 if ranged else default_train(prob))
+    if n_train < 1:
+        raise ParameterError(f"--train {n_train}: must be ≥ 1")
+    if ranged or n_train > 1:
         from .range import cmd_discover_range
 
-        return cmd_discover_range(args, _groups(args.groups))
-    prob = load(args.problem)
+        return cmd_discover_range(args, _groups(args.groups), n_train)
     params = prob.parse_params(parse_assignments(args.param))
     check_size(prob, params)
     check_count(prob, params, f"--heldout {args.heldout}", args.heldout, per_item=3, what="held-out instances")

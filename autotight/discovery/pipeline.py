@@ -15,7 +15,7 @@ from ..pipeline import local_search, seeds, solve_instance
 from ..problem import Instance, Problem, load
 from ..sdp.config import SolverConfig
 from ..tightness import Criteria, Verdict
-from ..unbounded import UnboundedRelaxation
+from ..unbounded import UnboundedRelaxation, rank_out_of_reach
 from ..validate import check_instance
 from .catalog import Catalog, instantiate, learn
 from .compare import paper_in_span, resemblance
@@ -92,12 +92,14 @@ class DiscoveryResult:
         v = self.final_verdict or self.tightened.verdict
         if self.tight:
             return f"{self.accept}-tight: {self.tightened.message}"
+        out_of_reach = rank_out_of_reach(self.model, self.model.all_constraints() + self.constraints)
+        why = f"; {out_of_reach}" if out_of_reach else ""
         if self.accept == "rank" and v.cost_tight:
             return (f"rank {self.model.d} is not reached: {v.reason} with every learned candidate that cuts the "
-                    f"SDP solution; the relaxation is cost-tight (relative gap {v.rel_gap:.1e}): its optimum is "
-                    "not unique in the lifting, so use --accept cost")
+                    f"SDP solution{why}; the relaxation is cost-tight (relative gap {v.rel_gap:.1e}): its optimum "
+                    "is not unique in the lifting, so use --accept cost")
         if self.accept == "rank":
-            return f"rank {self.model.d} is not reached: {v.reason}; {self.tightened.message}"
+            return f"rank {self.model.d} is not reached: {v.reason}; {self.tightened.message}{why}"
         return f"not {self.accept}-tight: {v.reason}; {self.tightened.message}"
 
     def summary(self) -> dict[str, Any]:
@@ -157,6 +159,16 @@ def heldout_check(problem: Problem, params: dict[str, Any], seeds_: Sequence[int
             h.seeds.append(int(s)); h.tight.append(r.tight); h.log_svr.append(r.log_svr)
             h.rel_gap.append(r.verdict.rel_gap); h.status.append(r.sdp.status)
     return out
+
+
+def default_train(problem: Problem) -> int:
+    """The module's ``DEFAULT_TRAIN`` (training instances the set is reduced over; 1 if absent)."""
+    n = getattr(problem.module, "DEFAULT_TRAIN", 1)
+    if isinstance(n, bool) or not isinstance(n, int) or n < 1:
+        from ..errors import ProblemDefinitionError
+
+        raise ProblemDefinitionError(f"{problem.name}: DEFAULT_TRAIN must be an int ≥ 1, got {n!r}")
+    return n
 
 
 def default_groups(problem: Problem, groups: str | Sequence[Sequence[str]] | None) -> str | Sequence[Sequence[str]]:

@@ -63,6 +63,7 @@ from ..problem import Instance, Problem, load, parse_assignments
 from ..sdp.config import SolverConfig
 from ..threads import single_blas_thread
 from ..tightness import Criteria
+from ..unbounded import rank_out_of_reach
 from .catalog import Pair, learn
 from .discovered import DiscoveredSet
 from .learn import LearnOptions
@@ -212,7 +213,8 @@ class RangeDiscoveryResult:
                  f"{'point':<18}{'trained':>9}{'range set':>11}{'tight (held-out)':>18}{'paper':>7}"
                  f"{'tight (held-out)':>18}"]
         for p in self.points:
-            label = ", ".join(f"{k}={v:g}" if isinstance(v, float) else f"{k}={v}" for k, v in p.varied.items())
+            label = ", ".join(f"{k}={v:g}" if isinstance(v, float) else f"{k}={v}" for k, v in p.varied.items()) \
+                or "params"
             tr = f"{sum(p.reached)}/{len(p.reached)}"
             hf = _frac(p.heldout)
             pf = _frac(p.paper)
@@ -222,7 +224,8 @@ class RangeDiscoveryResult:
             for seed, ok, msg in zip(p.train_seeds, p.reached, p.messages):
                 if not ok:
                     lines.append(f"not reached at {p.varied} (training seed {seed}): {msg}")
-        lines.append("pairs: " + (", ".join(s["pairs"]) or "none (the primary constraints suffice)"))
+        none = "none (the primary constraints suffice)" if self.tight else "none (no training instance was reached)"
+        lines.append("pairs: " + (", ".join(s["pairs"]) or none))
         return "\n".join(lines)
 
 
@@ -337,6 +340,11 @@ def _tighten(run: _Run, trainers: list[Trainer], candidates: list[Pair], min_vio
                 vd = tr.last.verdict
                 why = ("its SDP solution is rank 1 but the cost gap is not closed (solver accuracy?)" if vd.rank_tight
                        else "no remaining candidate cuts its SDP solution")
+                if not vd.rank_tight:
+                    cons = tr.model.all_constraints() + [c for p in chosen for c in tr.pairs[p]]
+                    why = "; ".join(w for w in (why, rank_out_of_reach(tr.model, cons)) if w)
+                if vd.cost_tight and run.criteria.accept == "rank":
+                    why += f"; the relaxation is cost-tight (relative gap {vd.rel_gap:.1e}): use --accept cost"
                 tr.reached, tr.message = False, f"not tight with {len(chosen)} pairs, log SVR {vd.log_svr:.2f}: {why}"
                 continue
             for p, x in v.items():
@@ -414,14 +422,15 @@ def discover_range(problem: Problem | str, params: Mapping[str, Any] | None, ove
                    progress: Callable[[str, str], None] | None = None) -> RangeDiscoveryResult:
     """Learn, tighten and reduce one set over every point of ``over`` (see the module docstring).
 
+    An empty ``over`` is the single point ``params``: the set is then reduced over ``n_train``
+    instances of it (what ``discover`` does for a problem whose ``DEFAULT_TRAIN`` exceeds 1).
+
     n_validate: after the reduction, up to ``max_rounds`` times, learn ``n_validate`` more training
     instances per point that has a reached one; when the set is not tight on one of them, tighten
     from the set on them and reduce again over all training instances (0: no such rounds).
     """
     prob = load(problem) if isinstance(problem, str) else problem
     groups = default_groups(prob, groups)
-    if not over:
-        raise ParameterError("give at least one parameter to vary, e.g. over={'sigma': [0.01, 0.1, 1]}")
     if isinstance(n_train, bool) or not isinstance(n_train, (int, np.integer)) or n_train < 1:
         raise ParameterError(f"n_train must be an int ≥ 1, got {n_train!r}")
     for name, v in (("n_heldout", n_heldout), ("n_validate", n_validate), ("max_rounds", max_rounds)):
@@ -514,8 +523,9 @@ def add_range_args(p: argparse.ArgumentParser) -> None:
     from ..check_cmd import add_range_args as points_args
 
     points_args(p)
-    p.add_argument("--train", type=int, default=2,
-                   help="with --sigmas/--range: training instances per point (default 2)")
+    p.add_argument("--train", type=int, default=None,
+                   help="training instances per point (default 2 with --sigmas/--range; without them the "
+                        "problem's DEFAULT_TRAIN, else 1: more than 1 reduces the set over that many instances)")
     p.add_argument("--train-param", action="append", default=[], metavar="NAME=VALUE",
                    help="with --sigmas/--range: a parameter of the training instances only, e.g. K=5 (repeatable)")
     p.add_argument("--validate", type=int, default=0, metavar="N",
@@ -523,8 +533,9 @@ def add_range_args(p: argparse.ArgumentParser) -> None:
                         "again where the set is not tight on one (default 0)")
 
 
-def cmd_discover_range(args: argparse.Namespace, groups: Any) -> int:
-    """``autotight discover PROBLEM --sigmas …`` (or ``--range NAME=…``): the range table, JSON, --out."""
+def cmd_discover_range(args: argparse.Namespace, groups: Any, n_train: int) -> int:
+    """``autotight discover PROBLEM --sigmas …`` (or ``--range NAME=…``, or ``--train N`` > 1 at one point):
+    the range table, JSON, --out."""
     from ..check_cmd import parse_range
     from ..cli import solver_config
 
@@ -533,7 +544,7 @@ def cmd_discover_range(args: argparse.Namespace, groups: Any) -> int:
     prob = load(args.problem)
     with progress_bar(args) as progress:
         res = discover_range(prob, parse_assignments(args.param), parse_range(args.sigmas, args.range), args.seed,
-                             n_train=args.train, train_params=parse_assignments(args.train_param),
+                             n_train=n_train, train_params=parse_assignments(args.train_param),
                              n_heldout=args.heldout, n_validate=args.validate, groups=groups,
                              learn_options=LearnOptions(min_gap_decades=args.min_gap),
                              criteria=Criteria(gap_tol=args.gap_tol, accept=args.accept), progress=progress,
