@@ -437,10 +437,12 @@ def fake_discovery(monkeypatch):
 
     def discover(problem, params, seed=0, **kw):
         calls.append((problem.name, params["sigma"], seed))
-        return types.SimpleNamespace(discovered=_FakeSet(2), model=None, constraints=None, summary=lambda: {})
+        return types.SimpleNamespace(discovered=_FakeSet(2), save=_FakeSet(2).save, summary=lambda: {})
 
-    monkeypatch.setitem(sys.modules, "autotight.discovery",
-                        types.SimpleNamespace(DiscoveredSet=_FakeSet, discover=discover))
+    import autotight.api
+
+    monkeypatch.setitem(sys.modules, "autotight.discovery", types.SimpleNamespace(DiscoveredSet=_FakeSet))
+    monkeypatch.setattr(autotight.api, "discover", discover)  # the report runs discovery through the public API
     return calls
 
 
@@ -611,3 +613,14 @@ def test_against_the_paper_table_reads_our_fractions_and_the_module_claim():
                                            undecided=False, sdp_beats_local=False),
                                  [0.001, 0.1], ["paper"]) if x.title == "Median log SVR")
     assert svr.header == ["σ", "paper", "paper (marginalised X)"] and svr.rows[0] == ["0.001", "5.0", "3.8"]
+
+
+def test_the_tight_rule_follows_the_acceptance():
+    from autotight.report.render import tight_rule
+
+    crit = {"min_log_svr": 5.0, "gap_tol": 1e-5}
+    head, caption = tight_rule(crit | {"accept": "cost"})
+    assert "certificate" in head and "log SVR" not in head and "rank is not required" in caption
+    head, caption = tight_rule(crit | {"accept": "rank"})
+    assert head.startswith("log SVR > 5 and the cost bracket within 1e-05") and "rank-d threshold" in caption
+    assert "certified" in tight_rule(crit | {"accept": "certified"})[1]

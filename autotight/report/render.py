@@ -87,8 +87,25 @@ def _count(n: np.ndarray) -> str:
         else f"{int(np.median(n))} (range {int(n.min())}–{int(n.max())})"
 
 
+def tight_rule(crit: dict[str, Any]) -> tuple[str, str]:
+    """(the header's "Tight" fact, the fraction table's caption) for the sweep's criteria."""
+    accept = crit.get("accept", "rank")
+    if accept == "cost":
+        return (f"the cost bracket within {crit['gap_tol']:g} relative and a dual certificate of the best feasible "
+                "point; the rank is not required (accept: cost; see 'Verdicts per noise level')",
+                "Tight (accept: cost): the cost bracket closed and the best feasible point certified by the SDP's "
+                "multipliers; the rank is not required (see 'Verdicts per noise level').")
+    if accept == "certified":
+        return ("a dual certificate of the best feasible point (accept: certified; see 'Verdicts per noise level')",
+                "Tight (accept: certified): the best feasible point certified by the SDP's multipliers.")
+    return (f"log SVR > {crit['min_log_svr']:g} and the cost bracket within {crit['gap_tol']:g} relative "
+            f"(accept: {accept}; see 'Verdicts per noise level')",
+            "Tight: log SVR = log10(λ_d/λ_{d+1}) above the rank-d threshold and the cost bracket "
+            "closed (see 'Verdicts per noise level' for how a verdict is decided).")
+
+
 def tables(df: pd.DataFrame, sigmas: Sequence[float], sets: Sequence[str],
-           structure: SetStructure | None = None) -> list[Table]:
+           structure: SetStructure | None = None, crit: dict[str, Any] | None = None) -> list[Table]:
     """Constraint counts (with each set's pairs or families and its constraints beyond the primary
     ones when ``structure`` is given), fraction tight, median log SVR, median times, solver statuses."""
     ok = df[~df["status"].astype(str).str.startswith("Error")]
@@ -119,8 +136,7 @@ def tables(df: pd.DataFrame, sigmas: Sequence[float], sets: Sequence[str],
                          + [_median(pt["local_truth_time_s"]), _median(pt["local_random_time_s"])])
     out.append(Table("Fraction tight per noise level", ["σ", "trials", *[f"tight: {s}" for s in sets],
                                                         "trapped (random start)"], rows_t,
-                     "Tight: log SVR = log10(λ_d/λ_{d+1}) above the rank-d threshold and the cost bracket "
-                     "closed (see 'Verdicts per noise level' for how a verdict is decided)."))
+                     tight_rule(crit or {"min_log_svr": 5.0, "gap_tol": 1e-5})[1]))
     rows_v = []
     for i, sg in enumerate(sigmas):
         at = ok[ok["sigma_index"] == i]
@@ -315,8 +331,7 @@ def summarize(out: Path, meta: dict[str, Any]) -> Summary:
              ("Trials", f"{done} of {meta['trials'] * len(sigmas)} done ({meta['trials']} per σ)"),
              ("Constraint sets", ", ".join(sets)),
              ("Base seed", f"{meta['seed']} (trial seeds: SeedSequence((seed, σ index, trial)))"),
-             ("Tight", f"log SVR > {crit['min_log_svr']:g} and the cost bracket within {crit['gap_tol']:g} relative "
-                       f"(accept: {crit.get('accept', 'rank')}; see 'Verdicts per noise level')"),
+             ("Tight", tight_rule(crit)[0]),
              ("Trapped", f"random-start local cost above the global cost by more than {meta['trap_rtol']:g} "
                          "relative"),
              ("Command", meta["runs"][-1].get("command", "") if meta.get("runs") else ""),
@@ -324,7 +339,7 @@ def summarize(out: Path, meta: dict[str, Any]) -> Summary:
              ("Generated", time.strftime("%Y-%m-%d %H:%M"))]
     figs = figures.make_all(df, sigmas, sets, out, trap_rtol=meta["trap_rtol"], rank_line=crit["min_log_svr"]) \
         if len(df) else {}
-    tabs = tables(df, sigmas, sets, set_structure(out, meta))
+    tabs = tables(df, sigmas, sets, set_structure(out, meta), crit)
     claim = _claim(meta)
     versus = paper_table(df, sigmas, claim) if claim and len(df) else None
     if versus is not None:

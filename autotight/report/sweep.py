@@ -161,7 +161,8 @@ def prepare_discovered(spec: SweepSpec, problem: Problem, out: Path,
     path = Path(spec.discovered) if spec.discovered else None
     if path is not None and not path.is_file():
         raise ReportError(f"no discovered-set file {path}")
-    from ..discovery import DiscoveredSet, discover
+    from ..api import discover
+    from ..discovery import DiscoveredSet
     if path is not None:
         check_set_file(path, "--discovered")
         ds = DiscoveredSet.load(path)
@@ -172,8 +173,8 @@ def prepare_discovered(spec: SweepSpec, problem: Problem, out: Path,
     if not saved.is_file():
         params = problem.parse_params(spec.params)  # σ at the problem's default
         log(f"running discovery for {problem.name} at {params} (seed {spec.seed}); saving it to {saved}")
-        res = discover(problem, params, seed=spec.seed, criteria=spec.criteria,
+        res = discover(problem, params, seed=spec.seed, criteria=spec.criteria,  # the module's DEFAULT_TRAIN applies
                        solver=spec.solver_config())
         with writing(saved):
-            res.discovered.save(saved, res.model, res.constraints, {"summary": res.summary()})
+            res.save(saved)
     return ConstraintSet(DiscoveredSet.load(saved)), {"source": "discover", "seed": spec.seed, "sha256": _sha256(saved)}
