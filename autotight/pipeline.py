@@ -23,6 +23,7 @@ from .certificate import Certificate
 from .constraint_set import ConstraintsLike, resolve, set_name
 from .dual_polish import polished
 from .errors import ProblemModuleError
+from .unbounded import rank_out_of_reach
 from .model import Model
 from .problem import Instance, LocalResult, Problem
 from . import sdp
@@ -258,6 +259,9 @@ def solve_instance(problem: Problem, inst: Instance, constraints: ConstraintsLik
         attempts.append(_attempt(res2, verdict2))
         if res2.usable:
             res, verdict, cert = res2, verdict2, cert2
+    if not verdict.rank_tight:
+        out_of_reach = rank_out_of_reach(model, cons)  # '' unless some block can grow at no cost
+        note += f"; {out_of_reach}" if out_of_reach else ""
     verdict.reason += note
     t4 = time.perf_counter()
     times = {"build_s": t1 - t0, "local_s": t2 - t1, "sdp_total_s": t3 - t2, "sdp_solve_s": res.solve_time_s,
