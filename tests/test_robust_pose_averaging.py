@@ -243,3 +243,27 @@ def test_default_train_is_validated():
     for bad in (0, 2.0, True):
         with pytest.raises(ProblemDefinitionError, match="DEFAULT_TRAIN must be an int ≥ 1"):
             default_train(SimpleNamespace(name="p", module=SimpleNamespace(DEFAULT_TRAIN=bad)))
+
+
+def test_carry_over_to_a_near_degenerate_instance_uses_the_whole_nullspace_of_its_groups():
+    """σ = 0.001: two inlier measurements nearly coincide, so the pair groups' free monomials give no
+    accurate basic solutions (LearningError when learning).  Carrying a set there uses every new relation
+    of such a group instead (a superset, no shortfall), each valid on fresh samples."""
+    from autotight.discovery.catalog import carry_over
+    from autotight.errors import LearningError
+    from autotight.pipeline import seeds
+
+    inst = _instance(0, sigma=0.001)
+    model = PROB.build(inst)
+    pairs = [("robust_pair", "1.urho[2]·2.urho[2]"), ("robust_pair", "1.uphi[2]·2.urho[1]")]
+    with pytest.raises(LearningError, match="ill-conditioned"):
+        learn(PROB, inst, model, seeds(0).constraints(), "factors", types=["robust_pair"])
+    co = carry_over(PROB, inst, pairs, seeds(0).constraints(), model=model)
+    assert not co.issues and co.whole and co.n_whole > 0
+    assert co.counts["robust_pair"][1] >= co.counts["robust_pair"][0] == 2 * 15
+    rng = np.random.default_rng(11)
+    worst = 0.0
+    for _ in range(10):
+        x = PROB.lift(inst, PROB.sample(inst, rng, inst.truth, 0.5)).ravel()
+        worst = max(worst, max(abs(x @ (c.A @ x)) / (abs(c.A).sum() * (x @ x)) for c in co.constraints))
+    assert worst < 1e-9

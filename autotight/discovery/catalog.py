@@ -65,8 +65,9 @@ def sample_banks(problem: Problem, inst: Instance, model: Model, groups: Sequenc
 @single_blas_thread
 def learn(problem: Problem, inst: Instance, model: Model, rng: np.random.Generator,
           groups: str | Sequence[Sequence[str]] = "factors", opts: LearnOptions = LearnOptions(),
-          types: Iterable[str] | None = None, progress=None) -> Catalog:
-    """Learn every group (or only the factors of ``types``) of one instance."""
+          types: Iterable[str] | None = None, progress=None, whole_nullspace: bool = False) -> Catalog:
+    """Learn every group (or only the factors of ``types``) of one instance (``whole_nullspace``: see
+    ``learn.learn_group``)."""
     gs = groups_of(model, groups)
     if types is not None:
         wanted = set(types)
@@ -80,7 +81,7 @@ def learn(problem: Problem, inst: Instance, model: Model, rng: np.random.Generat
     spanning = SpanningIndex(spanning_matrices(model))  # grows with each group's new relations
     N = model.variables.N
     for g in gs:
-        lg = learn_group(model, g, bank, heldout, opts, spanning=spanning)
+        lg = learn_group(model, g, bank, heldout, opts, spanning=spanning, whole_nullspace=whole_nullspace)
         learned.append(lg)
         for j in lg.candidate_index():
             spanning.add(lg.constraint(j, N).A)
@@ -96,11 +97,17 @@ class CarryOver:
     counts[type] = (expected, instantiated): expected = (pairs of that factor type) × (groups of that
     type on the instance), instantiated = the constraints found there that passed the held-out check.
     issues: one line per identity missing or rejected on some group, and per type with a shortfall.
+    whole: one line per near-degenerate group (``learn.learn_group``'s ``whole_nullspace``) whose
+    identities could not be written accurately: every new relation of its nullspace that passed the
+    held-out check is used instead (a superset of the identities' span, so no shortfall), counted in
+    ``n_whole``.
     """
 
     constraints: list[Constraint]
     counts: dict[str, tuple[int, int]]
     issues: list[str]
+    whole: list[str] = field(default_factory=list)
+    n_whole: int = 0
 
     def shortfall(self) -> dict[str, tuple[int, int]]:
         return {t: (e, n) for t, (e, n) in self.counts.items() if n < e}
@@ -128,13 +135,23 @@ def carry_over(problem: Problem, inst: Instance, pairs: Sequence[Pair], rng: np.
     n_groups = {t: sum(1 for g in all_groups if g.type == t) for t in types}
     issues: list[str] = [f"factor type {t!r} has no group on this instance" for t in types if n_groups[t] == 0]
     present = [t for t in types if n_groups[t]]
-    cat = learn(problem, inst, model, rng, groups, opts=opts, types=present) if present else None
+    cat = learn(problem, inst, model, rng, groups, opts=opts, types=present, whole_nullspace=True) if present else None
     want = set(pairs)
     out: list[Constraint] = []
     got = {t: 0 for t in types}
     missing: dict[Pair, list[str]] = {}
+    whole: list[str] = []
+    n_whole = 0
     N = model.variables.N
     for g in cat.groups if cat is not None else []:
+        if g.degenerate is not None and per_type.get(g.group.type):
+            new = [g.constraint(j, N) for j in g.candidate_index()]
+            out += new
+            n_whole += len(new)
+            got[g.group.type] += per_type[g.group.type]
+            whole.append(f"{g.group.name}: {g.degenerate}; its {len(new)} new relations used instead of the "
+                         f"{per_type[g.group.type]} identities")
+            continue
         have = {ident: j for j, ident in enumerate(g.identities)}
         for key in sorted(p for p in want if p[0] == g.group.type):
             j = have.get(key[1])
@@ -152,7 +169,7 @@ def carry_over(problem: Problem, inst: Instance, pairs: Sequence[Pair], rng: np.
     counts = {t: (per_type[t] * n_groups[t], got[t]) for t in types}
     issues += [f"factor type {t!r}: {n} of {e} expected constraints instantiated"
                for t, (e, n) in counts.items() if n < e]
-    return CarryOver(out, counts, issues)
+    return CarryOver(out, counts, issues, whole, n_whole)
 
 
 def instantiate(problem: Problem, inst: Instance, pairs: Sequence[Pair], rng: np.random.Generator,

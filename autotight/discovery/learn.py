@@ -9,10 +9,10 @@ from typing import Sequence
 import numpy as np
 import scipy.sparse as sp
 
-from ..errors import ProblemDefinitionError
+from ..errors import LearningError, ProblemDefinitionError
 from ..model import HOMOGENISING, Constraint, Factor, Model, canonical_coo
 from ..svec import sym_to_poly, triu_indices
-from .nullspace import basic_solutions, free_monomials, nullspace, spectrum
+from .nullspace import CLEAN, basic_solutions, free_monomials, nullspace, spectrum
 from .samples import SampleBank
 
 
@@ -154,6 +154,7 @@ class LearnedGroup:
     times: dict[str, float] = field(default_factory=dict)
     ignored_gap_decades: float | None = None  # a larger gap below the roundoff floor (nullspace.RANK_FLOOR)
     ignored_gap_rank: int | None = None
+    degenerate: str | None = None  # why the free monomials gave no basic solutions ("whole nullspace" below)
 
     def gaps(self) -> dict:
         """The chosen spectral gap (decades, rank) and any ignored one below the roundoff floor."""
@@ -223,12 +224,19 @@ class SpanningIndex:
 
 
 def learn_group(model: Model, group: Group, bank: SampleBank, heldout: SampleBank, opts: LearnOptions,
-                spanning: SpanningIndex | None = None) -> LearnedGroup:
+                spanning: SpanningIndex | None = None, whole_nullspace: bool = False) -> LearnedGroup:
     """Nullspace of the group's monomial data → basic solutions, primary-span flags, held-out check.
 
     ``spanning``: the constraints that count as spanned (default: the homogeneous primary
     constraints, ``spanning_matrices``); ``learn`` adds each group's new relations, so those
     supported inside a later group are not proposed twice.
+
+    whole_nullspace: when the free monomials give no accurate basic solutions (LearningError of
+    ``nullspace.free_monomials`` / ``basic_solutions``: a near-degenerate instance, e.g. two measurements
+    that nearly coincide, where a larger nullspace is close), keep the orthonormal nullspace basis
+    instead: each column scaled to max |coefficient| 1, entries below ``nullspace.CLEAN`` zeroed; valid
+    relations spanning the whole nullspace, named ``nullspace[q]``, not identities; why is recorded in
+    ``degenerate``.  Otherwise such a group raises.
     """
     t0 = time.perf_counter()
     V = model.variables
@@ -248,19 +256,29 @@ def learn_group(model: Model, group: Group, bank: SampleBank, heldout: SampleBan
     spec = spectrum(Yn, opts.min_gap_decades, where=f" in group {group.name} ({m} monomials)")
     t1 = time.perf_counter()
     k = m - spec.rank
+    degenerate = None
+    names = _monomial_names(group, V.sizes, d)
     if k == 0:
         coeffs = np.zeros((m, 0))
         free = np.zeros(0, int)
     else:
         Nn = nullspace(Yn, spec.rank)
-        free = free_monomials(Nn, opts.free_tol)
-        Vn = basic_solutions(Nn, free)
-        P = Vn / D[:, None]  # back to polynomial coefficients (scan order); P[free] = diag(1/D[free])
-        P = P * D[free][None, :]
+        try:
+            free = free_monomials(Nn, opts.free_tol)
+            Vn = basic_solutions(Nn, free)
+            P = Vn / D[:, None]  # back to polynomial coefficients (scan order); P[free] = diag(1/D[free])
+            P = P * D[free][None, :]
+        except LearningError as e:
+            if not whole_nullspace:
+                raise
+            degenerate, free = str(e), np.zeros(0, int)
+            P = Nn / D[:, None]
+            P = P / np.max(np.abs(P), axis=0, keepdims=True)
+            P[np.abs(P) < CLEAN] = 0.0  # roundoff, as basic_solutions cleans its solutions
         coeffs = np.zeros((m, k))
         coeffs[order] = P
-    names = _monomial_names(group, V.sizes, d)
-    idents = [f"{names[ii[order[f]]]}·{names[jj[order[f]]]}" for f in free]
+    idents = ([f"{names[ii[order[f]]]}·{names[jj[order[f]]]}" for f in free] if degenerate is None
+              else [f"nullspace[{q}]" for q in range(k)])
     # which solutions the primary constraints (and earlier solutions) already span, in the normalised space
     if spanning is None:
         spanning = SpanningIndex(spanning_matrices(model))
@@ -292,7 +310,7 @@ def learn_group(model: Model, group: Group, bank: SampleBank, heldout: SampleBan
     t2 = time.perf_counter()
     return LearnedGroup(group, cols, need, spec.rel, spec.rank, spec.gap_decades, idents, coeffs, in_span, viol,
                         opts.heldout_tol, {"nullspace_s": t1 - t0, "basis_s": t2 - t1},
-                        spec.ignored_gap_decades, spec.ignored_gap_rank)
+                        spec.ignored_gap_decades, spec.ignored_gap_rank, degenerate)
 
 
 def spanning_matrices(model: Model) -> list[sp.coo_array]:

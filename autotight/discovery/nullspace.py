@@ -135,7 +135,11 @@ def free_monomials(N: np.ndarray, tol: float = 1e-7) -> np.ndarray:
     return np.array(sorted(free))
 
 
-def basic_solutions(N: np.ndarray, free: np.ndarray, clean: float = 1e-10) -> np.ndarray:
+#: coefficients below this fraction of a relation's largest are roundoff and set to 0
+CLEAN = 1e-10
+
+
+def basic_solutions(N: np.ndarray, free: np.ndarray, clean: float = CLEAN) -> np.ndarray:
     """Basis V (m × k) of range(N) with V[free] = I; entries below clean·max|column| set to 0.
     LearningError when N_F is too ill-conditioned for V to be accurate (cond > MAX_FREE_COND)."""
     cond = np.linalg.cond(N[free]) if len(free) else 1.0
