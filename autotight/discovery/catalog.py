@@ -98,9 +98,9 @@ class CarryOver:
     type on the instance), instantiated = the constraints found there that passed the held-out check.
     issues: one line per identity missing or rejected on some group, and per type with a shortfall.
     whole: one line per near-degenerate group (``learn.learn_group``'s ``whole_nullspace``) whose
-    identities could not be written accurately: every new relation of its nullspace that passed the
-    held-out check is used instead (a superset of the identities' span, so no shortfall), counted in
-    ``n_whole``.
+    identities could not be written accurately (no accurate basic solutions, or a wanted identity failed
+    the held-out check): every new relation of its orthonormal nullspace basis that passed the held-out
+    check is used instead (a superset of the identities' span, so no shortfall), counted in ``n_whole``.
     """
 
     constraints: list[Constraint]
@@ -144,15 +144,20 @@ def carry_over(problem: Problem, inst: Instance, pairs: Sequence[Pair], rng: np.
     n_whole = 0
     N = model.variables.N
     for g in cat.groups if cat is not None else []:
-        if g.degenerate is not None and per_type.get(g.group.type):
-            new = [g.constraint(j, N) for j in g.candidate_index()]
+        t = g.group.type
+        have = {ident: j for j, ident in enumerate(g.identities)}
+        wanted_here = [have[key[1]] for key in want if key[0] == t and key[1] in have]
+        inaccurate = [g.identities[j] for j in wanted_here if not g.passed()[j]]
+        if per_type.get(t) and (g.degenerate is not None or (inaccurate and g.whole is not None)):
+            src = g if g.degenerate is not None else g.whole
+            why = g.degenerate or f"identities {', '.join(inaccurate)} failed the held-out check"
+            new = [src.constraint(j, N) for j in src.candidate_index()]
             out += new
             n_whole += len(new)
-            got[g.group.type] += per_type[g.group.type]
-            whole.append(f"{g.group.name}: {g.degenerate}; its {len(new)} new relations used instead of the "
-                         f"{per_type[g.group.type]} identities")
+            got[t] += per_type[t]
+            whole.append(f"{g.group.name}: {why}; its nullspace's {len(new)} new relations used instead of the "
+                         f"{per_type[t]} identities")
             continue
-        have = {ident: j for j, ident in enumerate(g.identities)}
         for key in sorted(p for p in want if p[0] == g.group.type):
             j = have.get(key[1])
             if j is None:

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Sequence
 
 import numpy as np
@@ -154,7 +154,8 @@ class LearnedGroup:
     times: dict[str, float] = field(default_factory=dict)
     ignored_gap_decades: float | None = None  # a larger gap below the roundoff floor (nullspace.RANK_FLOOR)
     ignored_gap_rank: int | None = None
-    degenerate: str | None = None  # why the free monomials gave no basic solutions ("whole nullspace" below)
+    degenerate: str | None = None  # why the free monomials gave no basic solutions (``learn_group``)
+    whole: "LearnedGroup | None" = None  # with whole_nullspace: the orthonormal basis of the same nullspace
 
     def gaps(self) -> dict:
         """The chosen spectral gap (decades, rank) and any ignored one below the roundoff floor."""
@@ -258,30 +259,58 @@ def learn_group(model: Model, group: Group, bank: SampleBank, heldout: SampleBan
     k = m - spec.rank
     degenerate = None
     names = _monomial_names(group, V.sizes, d)
+    whole: np.ndarray | None = None
     if k == 0:
         coeffs = np.zeros((m, 0))
         free = np.zeros(0, int)
     else:
         Nn = nullspace(Yn, spec.rank)
+        if whole_nullspace:
+            whole = np.zeros((m, k))
+            whole[order] = _orthonormal_relations(Nn, D)
         try:
             free = free_monomials(Nn, opts.free_tol)
             Vn = basic_solutions(Nn, free)
             P = Vn / D[:, None]  # back to polynomial coefficients (scan order); P[free] = diag(1/D[free])
             P = P * D[free][None, :]
+            coeffs = np.zeros((m, k))
+            coeffs[order] = P
         except LearningError as e:
-            if not whole_nullspace:
+            if whole is None:
                 raise
-            degenerate, free = str(e), np.zeros(0, int)
-            P = Nn / D[:, None]
-            P = P / np.max(np.abs(P), axis=0, keepdims=True)
-            P[np.abs(P) < CLEAN] = 0.0  # roundoff, as basic_solutions cleans its solutions
-        coeffs = np.zeros((m, k))
-        coeffs[order] = P
+            degenerate, free, coeffs, whole = str(e), np.zeros(0, int), whole, None
     idents = ([f"{names[ii[order[f]]]}·{names[jj[order[f]]]}" for f in free] if degenerate is None
               else [f"nullspace[{q}]" for q in range(k)])
-    # which solutions the primary constraints (and earlier solutions) already span, in the normalised space
     if spanning is None:
         spanning = SpanningIndex(spanning_matrices(model))
+    in_span, viol = _span_and_heldout(coeffs, cols, order, D, spanning, heldout, opts)
+    t2 = time.perf_counter()
+    lg = LearnedGroup(group, cols, need, spec.rel, spec.rank, spec.gap_decades, idents, coeffs, in_span, viol,
+                      opts.heldout_tol, {"nullspace_s": t1 - t0, "basis_s": t2 - t1},
+                      spec.ignored_gap_decades, spec.ignored_gap_rank, degenerate)
+    if whole is not None:  # the same nullspace, orthonormal: what carry-over uses where an identity is inaccurate
+        w_span, w_viol = _span_and_heldout(whole, cols, order, D, spanning, heldout, opts)
+        lg.whole = replace(lg, identities=[f"nullspace[{q}]" for q in range(k)], coeffs=whole, in_primary_span=w_span,
+                           heldout_violation=w_viol, degenerate="the orthonormal basis of the nullspace")
+    return lg
+
+
+def _orthonormal_relations(Nn: np.ndarray, D: np.ndarray) -> np.ndarray:
+    """The orthonormal nullspace basis Nn (normalised monomials, scan order) as polynomial coefficients:
+    each column scaled to max |coefficient| 1, entries below ``nullspace.CLEAN`` zeroed (roundoff)."""
+    P = Nn / D[:, None]
+    P = P / np.max(np.abs(P), axis=0, keepdims=True)
+    P[np.abs(P) < CLEAN] = 0.0
+    return P
+
+
+def _span_and_heldout(coeffs: np.ndarray, cols: np.ndarray, order: np.ndarray, D: np.ndarray,
+                      spanning: SpanningIndex, heldout: SampleBank,
+                      opts: LearnOptions) -> tuple[np.ndarray, np.ndarray]:
+    """Per relation (column of ``coeffs``, svec order): in the span of ``spanning`` and the relations before
+    it (in the normalised space), and its largest relative violation on the held-out samples."""
+    n, (m, k) = len(cols), coeffs.shape
+    ii, jj = triu_indices(n)
     prim = []
     sorter = np.argsort(cols)
     for U in spanning.within(cols):
@@ -301,16 +330,12 @@ def learn_group(model: Model, group: Group, bank: SampleBank, heldout: SampleBan
             in_span[q] = True
         else:
             basis = np.column_stack([basis, r / np.linalg.norm(r)])
-    # held-out check of every basic solution
     Th = heldout.thetas[:, :, cols]
     Mh = np.einsum("sdk,sdk->sk", Th[:, :, ii], Th[:, :, jj])
     nh = np.linalg.norm(Th, axis=1)
     mag = nh[:, ii] * nh[:, jj]  # ‖θ_i‖‖θ_j‖ ≥ |θ_iᵀθ_j|: the size of each monomial's factors
     viol = np.max(np.abs(Mh @ coeffs) / np.maximum(mag @ np.abs(coeffs), 1e-300), axis=0) if k else np.zeros(0)
-    t2 = time.perf_counter()
-    return LearnedGroup(group, cols, need, spec.rel, spec.rank, spec.gap_decades, idents, coeffs, in_span, viol,
-                        opts.heldout_tol, {"nullspace_s": t1 - t0, "basis_s": t2 - t1},
-                        spec.ignored_gap_decades, spec.ignored_gap_rank, degenerate)
+    return in_span, viol
 
 
 def spanning_matrices(model: Model) -> list[sp.coo_array]:
