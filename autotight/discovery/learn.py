@@ -267,7 +267,7 @@ def learn_group(model: Model, group: Group, bank: SampleBank, heldout: SampleBan
         Nn = nullspace(Yn, spec.rank)
         if whole_nullspace:
             whole = np.zeros((m, k))
-            whole[order] = _orthonormal_relations(Nn, D)
+            whole[order] = _orthonormal_relations(Nn, D)  # checked below only where it is needed
         try:
             free = free_monomials(Nn, opts.free_tol)
             Vn = basic_solutions(Nn, free)
@@ -288,7 +288,8 @@ def learn_group(model: Model, group: Group, bank: SampleBank, heldout: SampleBan
     lg = LearnedGroup(group, cols, need, spec.rel, spec.rank, spec.gap_decades, idents, coeffs, in_span, viol,
                       opts.heldout_tol, {"nullspace_s": t1 - t0, "basis_s": t2 - t1},
                       spec.ignored_gap_decades, spec.ignored_gap_rank, degenerate)
-    if whole is not None:  # the same nullspace, orthonormal: what carry-over uses where an identity is inaccurate
+    if whole is not None and not lg.passed().all():  # the same nullspace, orthonormal: what carry-over uses
+        # where an identity is inaccurate (held-out failure of a basic solution)
         w_span, w_viol = _span_and_heldout(whole, cols, order, D, spanning, heldout, opts)
         lg.whole = replace(lg, identities=[f"nullspace[{q}]" for q in range(k)], coeffs=whole, in_primary_span=w_span,
                            heldout_violation=w_viol, degenerate="the orthonormal basis of the nullspace")
