@@ -282,3 +282,20 @@ def test_carry_over_replaces_an_identity_that_fails_its_heldout_check_by_the_gro
     co = carry_over(PROB, inst, pairs, seeds(seed).constraints(), model=model)
     assert not co.issues and any("failed the held-out check" in w for w in co.whole)
     assert co.counts["robust_pair"] == (30, 30) and co.n_whole > 0
+
+
+def test_an_identity_named_otherwise_on_a_near_degenerate_group_is_replaced_by_its_nullspace():
+    """σ = 0.01, the robust report's trial 22: on pair (1, 3) the free monomials, and so the names, differ
+    from a generic instance's (smallest singular value kept 1e-5: near-degenerate); the group's
+    orthonormal nullspace stands in.  A group that is not near-degenerate still reports the loss
+    (tests/test_carry_over.py)."""
+    from autotight.discovery.catalog import carry_over
+    from autotight.pipeline import seeds
+
+    seed = 2272484642
+    inst = _instance(seed, sigma=0.01)
+    model = PROB.build(inst)
+    pairs = [("robust_pair", "1.urho[2]·2.urho[2]"), ("robust_pair", "1.uphi[2]·2.urho[1]")]
+    co = carry_over(PROB, inst, pairs, seeds(seed).constraints(), model=model)
+    assert not co.issues and co.counts["robust_pair"] == (30, 30)
+    assert any("pair_1_3" in w and "named otherwise" in w for w in co.whole)

@@ -98,9 +98,11 @@ class CarryOver:
     type on the instance), instantiated = the constraints found there that passed the held-out check.
     issues: one line per identity missing or rejected on some group, and per type with a shortfall.
     whole: one line per near-degenerate group (``learn.learn_group``'s ``whole_nullspace``) whose
-    identities could not be written accurately (no accurate basic solutions, or a wanted identity failed
-    the held-out check): every new relation of its orthonormal nullspace basis that passed the held-out
-    check is used instead (a superset of the identities' span, so no shortfall), counted in ``n_whole``.
+    identities could not be written accurately (no accurate basic solutions, a wanted identity failed
+    the held-out check, or a wanted identity is missing on a ``near_degenerate`` group, whose free
+    monomials differ from a generic instance's): every new relation of its orthonormal nullspace basis
+    that passed the held-out check is used instead (a superset of the identities' span, so no
+    shortfall), counted in ``n_whole``.
     """
 
     constraints: list[Constraint]
@@ -148,9 +150,13 @@ def carry_over(problem: Problem, inst: Instance, pairs: Sequence[Pair], rng: np.
         have = {ident: j for j, ident in enumerate(g.identities)}
         wanted_here = [have[key[1]] for key in want if key[0] == t and key[1] in have]
         inaccurate = [g.identities[j] for j in wanted_here if not g.passed()[j]]
-        if per_type.get(t) and (g.degenerate is not None or (inaccurate and g.whole is not None)):
+        renamed = [key[1] for key in want if key[0] == t and key[1] not in have] if g.near_degenerate else []
+        if per_type.get(t) and (g.degenerate is not None or ((inaccurate or renamed) and g.whole is not None)):
             src = g if g.degenerate is not None else g.whole
-            why = g.degenerate or f"identities {', '.join(inaccurate)} failed the held-out check"
+            why = g.degenerate or "; ".join(
+                ([f"identities {', '.join(inaccurate)} failed the held-out check"] if inaccurate else [])
+                + ([f"near-degenerate (smallest singular value kept {g.spectrum_rel[g.rank - 1]:.1e}), identities "
+                    f"{', '.join(renamed)} named otherwise here"] if renamed else []))
             new = [src.constraint(j, N) for j in src.candidate_index()]
             out += new
             n_whole += len(new)

@@ -130,6 +130,12 @@ def scan_order(n: int, d: int) -> np.ndarray:
     return np.argsort(degree, kind="stable")
 
 
+#: a group whose smallest kept singular value is below this fraction of its largest is near-degenerate
+#: (``LearnedGroup.near_degenerate``); generic robust pose averaging pairs at σ = 0.05: ≥ 6.7e-5, those that
+#: lose identities at σ ≤ 0.01: ≤ 1.2e-5 (near-degenerate groups matter only where an identity is missing)
+NEAR_DEGENERATE = 1e-4
+
+
 @dataclass
 class LearnedGroup:
     """The constraints learned on one group.
@@ -156,6 +162,13 @@ class LearnedGroup:
     ignored_gap_rank: int | None = None
     degenerate: str | None = None  # why the free monomials gave no basic solutions (``learn_group``)
     whole: "LearnedGroup | None" = None  # with whole_nullspace: the orthonormal basis of the same nullspace
+
+    @property
+    def near_degenerate(self) -> bool:
+        """A nonempty nullspace with a larger one close by: the smallest singular value kept is below
+        ``NEAR_DEGENERATE`` of the largest (e.g. two measurements that nearly coincide), so the free
+        monomials, and with them the identities' names, may differ from a generic instance's."""
+        return self.coeffs.shape[1] > 0 and self.rank > 0 and float(self.spectrum_rel[self.rank - 1]) < NEAR_DEGENERATE
 
     def gaps(self) -> dict:
         """The chosen spectral gap (decades, rank) and any ignored one below the roundoff floor."""
@@ -288,8 +301,8 @@ def learn_group(model: Model, group: Group, bank: SampleBank, heldout: SampleBan
     lg = LearnedGroup(group, cols, need, spec.rel, spec.rank, spec.gap_decades, idents, coeffs, in_span, viol,
                       opts.heldout_tol, {"nullspace_s": t1 - t0, "basis_s": t2 - t1},
                       spec.ignored_gap_decades, spec.ignored_gap_rank, degenerate)
-    if whole is not None and not lg.passed().all():  # the same nullspace, orthonormal: what carry-over uses
-        # where an identity is inaccurate (held-out failure of a basic solution)
+    if whole is not None and (not lg.passed().all() or lg.near_degenerate):  # the same nullspace, orthonormal:
+        # what carry-over uses where an identity is inaccurate (held-out failure) or named otherwise (near-degenerate)
         w_span, w_viol = _span_and_heldout(whole, cols, order, D, spanning, heldout, opts)
         lg.whole = replace(lg, identities=[f"nullspace[{q}]" for q in range(k)], coeffs=whole, in_primary_span=w_span,
                            heldout_violation=w_viol, degenerate="the orthonormal basis of the nullspace")
