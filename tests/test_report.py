@@ -619,8 +619,10 @@ def test_the_tight_rule_follows_the_acceptance():
     from autotight.report.render import tight_rule
 
     crit = {"min_log_svr": 5.0, "gap_tol": 1e-5}
-    head, caption = tight_rule(crit | {"accept": "cost"})
+    head, caption, figure = tight_rule(crit | {"accept": "cost"})
     assert "certificate" in head and "log SVR" not in head and "rank is not required" in caption
-    head, caption = tight_rule(crit | {"accept": "rank"})
+    assert "certified" in figure and "rank d" not in figure
+    head, caption, figure = tight_rule(crit | {"accept": "rank"})
     assert head.startswith("log SVR > 5 and the cost bracket within 1e-05") and "rank-d threshold" in caption
+    assert figure.startswith("Fraction of SDP solves judged tight (rank d")
     assert "certified" in tight_rule(crit | {"accept": "certified"})[1]

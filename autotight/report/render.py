@@ -44,6 +44,7 @@ class Summary:
     facts: list[tuple[str, str]]
     tables: list[Table]
     figures: dict[str, Path] = field(default_factory=dict)
+    captions: dict[str, str] = field(default_factory=lambda: dict(CAPTIONS))
 
 
 def _sig(s: float) -> str:
@@ -87,21 +88,26 @@ def _count(n: np.ndarray) -> str:
         else f"{int(np.median(n))} (range {int(n.min())}–{int(n.max())})"
 
 
-def tight_rule(crit: dict[str, Any]) -> tuple[str, str]:
-    """(the header's "Tight" fact, the fraction table's caption) for the sweep's criteria."""
+def tight_rule(crit: dict[str, Any]) -> tuple[str, str, str]:
+    """(the header's "Tight" fact, the fraction table's caption, the tight figure's caption) for the
+    sweep's criteria."""
     accept = crit.get("accept", "rank")
     if accept == "cost":
         return (f"the cost bracket within {crit['gap_tol']:g} relative and a dual certificate of the best feasible "
                 "point; the rank is not required (accept: cost; see 'Verdicts per noise level')",
                 "Tight (accept: cost): the cost bracket closed and the best feasible point certified by the SDP's "
-                "multipliers; the rank is not required (see 'Verdicts per noise level').")
+                "multipliers; the rank is not required (see 'Verdicts per noise level').",
+                "Fraction of SDP solves judged tight (accept: cost: the bracket [dual cost, best feasible cost] "
+                "within the gap tolerance and the best feasible point certified; the rank is not required).")
     if accept == "certified":
         return ("a dual certificate of the best feasible point (accept: certified; see 'Verdicts per noise level')",
-                "Tight (accept: certified): the best feasible point certified by the SDP's multipliers.")
+                "Tight (accept: certified): the best feasible point certified by the SDP's multipliers.",
+                "Fraction of SDP solves whose multipliers certify the best feasible point (accept: certified).")
     return (f"log SVR > {crit['min_log_svr']:g} and the cost bracket within {crit['gap_tol']:g} relative "
             f"(accept: {accept}; see 'Verdicts per noise level')",
             "Tight: log SVR = log10(λ_d/λ_{d+1}) above the rank-d threshold and the cost bracket "
-            "closed (see 'Verdicts per noise level' for how a verdict is decided).")
+            "closed (see 'Verdicts per noise level' for how a verdict is decided).",
+            CAPTIONS["tight"])
 
 
 def tables(df: pd.DataFrame, sigmas: Sequence[float], sets: Sequence[str],
@@ -344,7 +350,8 @@ def summarize(out: Path, meta: dict[str, Any]) -> Summary:
     versus = paper_table(df, sigmas, claim) if claim and len(df) else None
     if versus is not None:
         tabs.insert(1, versus)
-    return Summary(f"Tightness report: {meta['problem']}", facts, tabs, figs)
+    return Summary(f"Tightness report: {meta['problem']}", facts, tabs, figs,
+                   CAPTIONS | {"tight": tight_rule(crit)[2]})
 
 
 def markdown(s: Summary) -> str:
@@ -359,7 +366,7 @@ def markdown(s: Summary) -> str:
     if s.figures:
         lines += ["", "## Figures", ""]
         for name, path in s.figures.items():
-            lines += [f"![{name}]({path.name})", "", CAPTIONS.get(name, ""), ""]
+            lines += [f"![{name}]({path.name})", "", s.captions.get(name, ""), ""]
     return "\n".join(lines).rstrip() + "\n"
 
 
@@ -390,7 +397,7 @@ def html_page(s: Summary) -> str:
     for name, path in s.figures.items():
         data = base64.b64encode(path.read_bytes()).decode("ascii")
         parts.append(f'<figure><img alt="{e(name)}" src="data:image/png;base64,{data}">'
-                     f"<figcaption>{e(CAPTIONS.get(name, name))}</figcaption></figure>")
+                     f"<figcaption>{e(s.captions.get(name, name))}</figcaption></figure>")
     parts += ["</body>", "</html>", ""]
     return "\n".join(parts)
 
