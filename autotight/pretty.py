@@ -23,11 +23,14 @@ AXES = "xyz"
 
 
 def symbol(block: str) -> str:
-    """'rho_3' → 'ρ_3', 'phi' → 'φ', 'xi12' → 'ξ12'; other names unchanged."""
+    """'rho_3' → 'ρ_3', 'phi' → 'φ', 'xi12' → 'ξ12'; one Latin letter before a letter's name keeps it as
+    a prefix ('urho_2' → 'uρ_2', 'zphi_0' → 'zφ_0'); other names unchanged."""
     m = re.fullmatch(r"([A-Za-z]+)((?:[_0-9].*)?)", block)
     if not m:
         return block
     head, tail = m.groups()
+    if head not in GREEK and head[1:] in GREEK:
+        return head[0] + GREEK[head[1:]] + tail
     return GREEK.get(head, head) + tail
 
 

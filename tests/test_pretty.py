@@ -77,6 +77,8 @@ def test_greek_names_need_the_whole_name_or_a_subscript():
     assert [symbol(n) for n in ("w_3", "w", "weight", "phil_2", "rhox", "c1", "T3_r", "p0_c1")] == \
         ["w_3", "w", "weight", "phil_2", "rhox", "c1", "T3_r", "p0_c1"]
     assert p3(Q(V3).add("w_3", "varpi_1", -2.0)) == "−2 w_3·ϖ_1 = 0"
+    # one Latin letter before a Greek name is a prefix (robust pose averaging's u_m = ½(1 + w_m)ξ_m blocks)
+    assert [symbol(n) for n in ("urho_2", "zphi_0", "uphi")] == ["uρ_2", "zφ_0", "uφ"]
 
 
 @pytest.mark.parametrize("name", ["pose_averaging", "rotation_averaging"])
