@@ -250,7 +250,9 @@ def learn_group(model: Model, group: Group, bank: SampleBank, heldout: SampleBan
     that nearly coincide, where a larger nullspace is close), keep the orthonormal nullspace basis
     instead: each column scaled to max |coefficient| 1, entries below ``nullspace.CLEAN`` zeroed; valid
     relations spanning the whole nullspace, named ``nullspace[q]``, not identities; why is recorded in
-    ``degenerate``.  Otherwise such a group raises.
+    ``degenerate``.  Otherwise such a group raises.  With whole_nullspace, a group whose basic solutions
+    exist but some fail the held-out check, or that is ``near_degenerate``, also gets that basis as
+    ``whole`` (what ``catalog.carry_over`` uses when a wanted identity is inaccurate or named otherwise).
     """
     t0 = time.perf_counter()
     V = model.variables
