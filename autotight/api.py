@@ -62,16 +62,14 @@ def discover(problem: str | ModuleType | Problem, params: dict[str, Any] | None 
     ``n_train`` > 1, or when the problem's ``DEFAULT_TRAIN`` exceeds 1 and ``n_train`` is not given: the
     set is then reduced over that many training instances of ``params``.
     """
-    from .discovery.pipeline import default_train, discover as _discover
+    from .discovery.pipeline import discover as _discover, n_training
 
     prob = _problem(problem)
-    n_train = options.pop("n_train", None)
     over = options.pop("over", None)
-    if over is not None or (n_train if n_train is not None else default_train(prob)) > 1:
+    n_train = n_training(prob, options.pop("n_train", None), over is not None)
+    if over is not None or n_train > 1:
         from .discovery.range import discover_range
 
-        if n_train is None:
-            n_train = 2 if over else default_train(prob)
         return discover_range(prob, params, over or {}, _seed(seed), n_train=n_train,
                               solver=solver or SolverConfig(), **options)
 

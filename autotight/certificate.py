@@ -271,23 +271,22 @@ def stationarity_system(Q: sp.sparray, As: Sequence[sp.sparray], Th: np.ndarray)
     vals = (v[:, None] * Th[:, c].T).ravel()
     cols = np.repeat(owner, d)
     g = np.asarray(sp.csr_array(Q) @ Th.T).ravel()
+    n_rows = N * d
     J = recession_columns(Q, stacked)
-    if J.size:
+    if J.size:  # one more row per entry (j, k), j ∈ J: (Σ yᵢAᵢ)_jk = Q_jk
         Qc = sp.coo_array(Q)
-        on_J = np.isin(r, J)
-        q_on_J = np.isin(Qc.row, J)
+        on_J, q_on_J = np.isin(r, J), np.isin(Qc.row, J)
         keys = np.concatenate([r[on_J] * N + c[on_J], Qc.row[q_on_J] * N + Qc.col[q_on_J]])
         uniq, inv = np.unique(keys, return_inverse=True)
         n_on = int(on_J.sum())
-        rows = np.concatenate([rows, N * d + inv[:n_on]])
+        rows = np.concatenate([rows, n_rows + inv[:n_on]])
         vals = np.concatenate([vals, v[on_J]])
         cols = np.concatenate([cols, owner[on_J]])
         gJ = np.zeros(uniq.size)
         np.add.at(gJ, inv[n_on:], Qc.data[q_on_J])
         g = np.concatenate([g, gJ])
-        G = sp.csr_array((vals, (rows, cols)), shape=(N * d + uniq.size, len(As)))
-        return G, g
-    return sp.csr_array((vals, (rows, cols)), shape=(N * d, len(As))), g
+        n_rows += uniq.size
+    return sp.csr_array((vals, (rows, cols)), shape=(n_rows, len(As))), g
 
 
 def polish_dual(Q: sp.sparray, As: Sequence[sp.sparray], y: np.ndarray, theta_hat: np.ndarray) -> np.ndarray:

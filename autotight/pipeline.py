@@ -259,7 +259,7 @@ def solve_instance(problem: Problem, inst: Instance, constraints: ConstraintsLik
         attempts.append(_attempt(res2, verdict2))
         if res2.usable:
             res, verdict, cert = res2, verdict2, cert2
-    if not verdict.rank_tight and not verdict.tight:
+    if not verdict.rank_tight and not verdict.tight and (cert is None or cert.recession):
         out_of_reach = rank_out_of_reach(model, cons)  # '' unless some block can grow at no cost
         note += f"; {out_of_reach}" if out_of_reach else ""
     verdict.reason += note

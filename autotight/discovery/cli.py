@@ -16,8 +16,7 @@ from ..pretty import polynomial
 from ..unbounded import compress
 from ..problem import load, parse_assignments
 from .learn import LearnOptions
-from ..errors import ParameterError
-from .pipeline import DiscoveryResult, default_train, discover
+from .pipeline import DiscoveryResult, discover, n_training
 
 
 def register(sub: argparse._SubParsersAction, add_problem_args: Callable) -> None:
@@ -79,10 +78,8 @@ def cmd_discover(args: argparse.Namespace) -> int:
     if args.out is not None:
         check_file(args.out, force=args.force)
     prob = load(args.problem)
-    ranged = args.sigmas is not None or args.range
-    n_train = args.train if args.train is not None else (2 if ranged else default_train(prob))
-    if n_train < 1:
-        raise ParameterError(f"--train {n_train}: must be ≥ 1")
+    ranged = bool(args.sigmas is not None or args.range)
+    n_train = n_training(prob, args.train, ranged)
     if ranged or n_train > 1:
         from .range import cmd_discover_range
 

@@ -171,6 +171,17 @@ def default_train(problem: Problem) -> int:
     return n
 
 
+def n_training(problem: Problem, n_train: int | None, ranged: bool) -> int:
+    """The training instances a discovery uses: ``n_train`` if given, else 2 over a range, else the
+    module's ``DEFAULT_TRAIN``; more than 1 (or a range) means the range flow."""
+    n = n_train if n_train is not None else (2 if ranged else default_train(problem))
+    if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1:
+        from ..errors import ParameterError
+
+        raise ParameterError(f"the number of training instances must be an int ≥ 1, got {n!r}")
+    return int(n)
+
+
 def default_groups(problem: Problem, groups: str | Sequence[Sequence[str]] | None) -> str | Sequence[Sequence[str]]:
     """``groups``, or when None the problem module's ``DEFAULT_GROUPS`` (else "factors")."""
     return getattr(problem.module, "DEFAULT_GROUPS", "factors") if groups is None else groups

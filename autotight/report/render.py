@@ -88,6 +88,10 @@ def _count(n: np.ndarray) -> str:
         else f"{int(np.median(n))} (range {int(n.min())}–{int(n.max())})"
 
 
+RANK_TIGHT_CAPTION = ("Tight: log SVR = log10(λ_d/λ_{d+1}) above the rank-d threshold and the cost bracket "
+                      "closed (see 'Verdicts per noise level' for how a verdict is decided).")
+
+
 def tight_rule(crit: dict[str, Any]) -> tuple[str, str, str]:
     """(the header's "Tight" fact, the fraction table's caption, the tight figure's caption) for the
     sweep's criteria."""
@@ -105,15 +109,14 @@ def tight_rule(crit: dict[str, Any]) -> tuple[str, str, str]:
                 "Fraction of SDP solves whose multipliers certify the best feasible point (accept: certified).")
     return (f"log SVR > {crit['min_log_svr']:g} and the cost bracket within {crit['gap_tol']:g} relative "
             f"(accept: {accept}; see 'Verdicts per noise level')",
-            "Tight: log SVR = log10(λ_d/λ_{d+1}) above the rank-d threshold and the cost bracket "
-            "closed (see 'Verdicts per noise level' for how a verdict is decided).",
-            CAPTIONS["tight"])
+            RANK_TIGHT_CAPTION, CAPTIONS["tight"])
 
 
 def tables(df: pd.DataFrame, sigmas: Sequence[float], sets: Sequence[str],
-           structure: SetStructure | None = None, crit: dict[str, Any] | None = None) -> list[Table]:
+           structure: SetStructure | None = None, tight_caption: str | None = None) -> list[Table]:
     """Constraint counts (with each set's pairs or families and its constraints beyond the primary
-    ones when ``structure`` is given), fraction tight, median log SVR, median times, solver statuses."""
+    ones when ``structure`` is given), fraction tight (``tight_caption``: ``tight_rule``'s, rank by
+    default), median log SVR, median times, solver statuses."""
     ok = df[~df["status"].astype(str).str.startswith("Error")]
     per_trial = ok.drop_duplicates(["sigma_index", "trial"])
     counts = []
@@ -142,7 +145,7 @@ def tables(df: pd.DataFrame, sigmas: Sequence[float], sets: Sequence[str],
                          + [_median(pt["local_truth_time_s"]), _median(pt["local_random_time_s"])])
     out.append(Table("Fraction tight per noise level", ["σ", "trials", *[f"tight: {s}" for s in sets],
                                                         "trapped (random start)"], rows_t,
-                     tight_rule(crit or {"min_log_svr": 5.0, "gap_tol": 1e-5})[1]))
+                     tight_caption or RANK_TIGHT_CAPTION))
     rows_v = []
     for i, sg in enumerate(sigmas):
         at = ok[ok["sigma_index"] == i]
@@ -331,13 +334,14 @@ def summarize(out: Path, meta: dict[str, Any]) -> Summary:
     sigmas, sets = meta["sigmas"], meta["sets"]
     crit = meta["criteria"]
     done = df.drop_duplicates(["sigma_index", "trial"]).shape[0]
+    rule = tight_rule(crit)
     facts = [("Problem", f"{meta['problem']} — {meta.get('description', '')}".rstrip(" —")),
              ("Parameters", ", ".join(f"{k} = {v}" for k, v in meta["params"].items()) or "defaults"),
              ("Noise levels σ", ", ".join(_sig(s) for s in sigmas)),
              ("Trials", f"{done} of {meta['trials'] * len(sigmas)} done ({meta['trials']} per σ)"),
              ("Constraint sets", ", ".join(sets)),
              ("Base seed", f"{meta['seed']} (trial seeds: SeedSequence((seed, σ index, trial)))"),
-             ("Tight", tight_rule(crit)[0]),
+             ("Tight", rule[0]),
              ("Trapped", f"random-start local cost above the global cost by more than {meta['trap_rtol']:g} "
                          "relative"),
              ("Command", meta["runs"][-1].get("command", "") if meta.get("runs") else ""),
@@ -345,13 +349,13 @@ def summarize(out: Path, meta: dict[str, Any]) -> Summary:
              ("Generated", time.strftime("%Y-%m-%d %H:%M"))]
     figs = figures.make_all(df, sigmas, sets, out, trap_rtol=meta["trap_rtol"], rank_line=crit["min_log_svr"]) \
         if len(df) else {}
-    tabs = tables(df, sigmas, sets, set_structure(out, meta), crit)
+    tabs = tables(df, sigmas, sets, set_structure(out, meta), rule[1])
     claim = _claim(meta)
     versus = paper_table(df, sigmas, claim) if claim and len(df) else None
     if versus is not None:
         tabs.insert(1, versus)
     return Summary(f"Tightness report: {meta['problem']}", facts, tabs, figs,
-                   CAPTIONS | {"tight": tight_rule(crit)[2]})
+                   CAPTIONS | {"tight": rule[2]})
 
 
 def markdown(s: Summary) -> str:
