@@ -67,3 +67,10 @@ def gauss_newton(linearize: Callable[[Any], tuple[np.ndarray, Any, Any]], retrac
             converged, msg = True, "converged"
             break
     return LocalResult(state, f, it, converged, time.perf_counter() - t0, msg)
+
+
+def block_weight(blocks: np.ndarray) -> sp.csr_array:
+    """The block-diagonal weight of stacked residuals from their (B, d, d) blocks, sparse: (Bd × Bd)."""
+    B, d, _ = blocks.shape
+    b, i, j = np.meshgrid(np.arange(B), np.arange(d), np.arange(d), indexing="ij")
+    return sp.csr_array((blocks.ravel(), ((d * b + i).ravel(), (d * b + j).ravel())), shape=(B * d, B * d))

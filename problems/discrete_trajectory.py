@@ -230,33 +230,28 @@ def linearize(inst: Instance, Ts: np.ndarray) -> tuple[np.ndarray, sp.csr_array,
     """Stacked residuals e = [ξ_0 … ξ_{K−1}, ξ_{1,0} … ξ_{K−1,K−2}] (6(2K−1),), sparse Jacobian w.r.t.
     ε = [ε_0 … ε_{K−1}] for T_k = cay(ε_k^∧) T_op,k (6(2K−1) × 6K), and the block-diagonal weight."""
     m = inst.measurements
+    Ts = np.asarray(Ts)
     K = len(Ts)
-    es, rows, cols, vals = [], [], [], []
-
-    def put(block_row: int, block_col: int, J: np.ndarray) -> None:
-        r, c = np.meshgrid(np.arange(6), np.arange(6), indexing="ij")
-        rows.append((6 * block_row + r).ravel())
-        cols.append((6 * block_col + c).ravel())
-        vals.append(J.ravel())
-
-    for k in range(K):
-        xi, J = lie.residual_se3(Ts[k], m["T_meas"][k])
-        es.append(xi)
-        put(k, k, J)
-    for k in range(K - 1):
-        xi, J1, J2 = lie.residual_se3_binary(Ts[k], Ts[k + 1], m["T_rel"][k])
-        es.append(xi)
-        put(K + k, k, J1)
-        put(K + k, k + 1, J2)
+    xi_u, J_u = lie.residuals_se3(Ts, np.asarray(m["T_meas"]))  # all factors of a type in one pass
+    xi_b, J1, J2 = lie.residuals_se3_binary(Ts[:-1], Ts[1:], np.asarray(m["T_rel"]))
+    # block (row k, column c) holds a 6 × 6 Jacobian: its entries at rows 6k + i, columns 6c + j
+    brow = np.concatenate([np.arange(K), K + np.arange(K - 1), K + np.arange(K - 1)])
+    bcol = np.concatenate([np.arange(K), np.arange(K - 1), np.arange(1, K)])
+    i, j = np.meshgrid(np.arange(6), np.arange(6), indexing="ij")
+    rows = (6 * brow[:, None, None] + i).ravel()
+    cols = (6 * bcol[:, None, None] + j).ravel()
+    vals = np.concatenate([J_u, J1, J2]).ravel()
     n_res = 6 * (2 * K - 1)
-    J = sp.csr_array((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(n_res, 6 * K))
-    W = sp.block_diag(list(m["W"]) + list(m["W_rel"]), format="csr")
-    return np.concatenate(es), J, sp.csr_array(W)
+    J = sp.csr_array((vals, (rows, cols)), shape=(n_res, 6 * K))
+    b = np.arange(2 * K - 1)[:, None, None]  # W: each residual's 6 × 6 weight on the diagonal
+    W = sp.csr_array((np.concatenate([np.asarray(m["W"]), np.asarray(m["W_rel"])]).ravel(),
+                      ((6 * b + i).ravel(), (6 * b + j).ravel())), shape=(n_res, n_res))
+    return np.concatenate([xi_u.ravel(), xi_b.ravel()]), J, W
 
 
 def retract(Ts: np.ndarray, eps: np.ndarray) -> np.ndarray:
     """T_k ← cay(ε_k^∧) T_k (paper (77)); ε (6K,)."""
-    return np.array([lie.cay_se3(e) @ T for e, T in zip(np.asarray(eps).reshape(-1, 6), Ts)])
+    return lie.cay_se3_batch(np.asarray(eps).reshape(-1, 6)) @ Ts
 
 
 def local_solve(inst: Instance, init: dict, max_iter: int = 200) -> LocalResult:

@@ -16,10 +16,9 @@ Cliques: the "pose_meas" block sets (size 19), used when the SDP is decomposed (
 from __future__ import annotations
 
 import numpy as np
-from scipy.linalg import block_diag
 
 from autotight import lie
-from autotight.gauss_newton import gauss_newton
+from autotight.gauss_newton import block_weight, gauss_newton
 from autotight.model import Factor, Model, Variables
 from autotight.problem import Instance, LocalResult, Param
 
@@ -118,12 +117,9 @@ def random_state(inst: Instance, rng: np.random.Generator) -> dict:
 
 def linearize(inst: Instance, T: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Stacked ξ_m (6M,), Jacobian 𝒥_c(ξ_m)⁻¹ (6M×6) w.r.t. ε for T = cay(ε^∧) T_op, block-diagonal W."""
-    es, Js = [], []
-    for Tm in inst.measurements["T_meas"]:
-        xi, J = lie.residual_se3(T, Tm)
-        es.append(xi)
-        Js.append(J)
-    return np.concatenate(es), np.vstack(Js), block_diag(*inst.measurements["W"])
+    Tm = np.asarray(inst.measurements["T_meas"])
+    xi, J = lie.residuals_se3(np.broadcast_to(T, Tm.shape), Tm)  # all M measurements in one pass
+    return xi.ravel(), J.reshape(-1, 6), block_weight(np.asarray(inst.measurements["W"]))
 
 
 def retract(T: np.ndarray, eps: np.ndarray) -> np.ndarray:

@@ -89,7 +89,7 @@ import scipy.sparse as sp
 from autotight import lie
 from autotight.affine import Affine
 from autotight.errors import ParameterError
-from autotight.gauss_newton import gauss_newton
+from autotight.gauss_newton import block_weight, gauss_newton
 from autotight.model import Constraint, Factor, Model, QuadForm, Variables
 from autotight.problem import Instance, LocalResult, Param
 
@@ -354,14 +354,9 @@ def _linearize(inst: Instance, T: np.ndarray, inliers: np.ndarray) -> tuple[np.n
     """Stacked ξ_m of the inliers, their Jacobians w.r.t. ε (T = cay(ε^∧) T_op), weights 2 W_m/β²."""
     beta = float(inst.measurements["beta"])
     idx = np.flatnonzero(inliers)
-    es, Js = [], []
-    W = np.zeros((6 * idx.size, 6 * idx.size))
-    for k, m in enumerate(idx):
-        xi, J = lie.residual_se3(T, inst.measurements["T_meas"][m])
-        es.append(xi)
-        Js.append(J)
-        W[6 * k:6 * k + 6, 6 * k:6 * k + 6] = 2.0 / beta ** 2 * inst.measurements["W"][m]
-    return np.concatenate(es), np.vstack(Js), W
+    Tm = np.asarray(inst.measurements["T_meas"])[idx]
+    xi, J = lie.residuals_se3(np.broadcast_to(T, Tm.shape), Tm)
+    return xi.ravel(), J.reshape(-1, 6), block_weight(2.0 / beta ** 2 * np.asarray(inst.measurements["W"])[idx])
 
 
 def _gn(inst: Instance, T0: np.ndarray, inliers: np.ndarray, max_iter: int) -> LocalResult:

@@ -267,3 +267,46 @@ def test_gauss_newton_sign() -> None:
         costs.append(sum(e @ e for e, _ in res))
         C = cay(-np.linalg.solve(A, g)) @ C
     assert np.linalg.norm(g) < 1e-9 and costs[-1] <= costs[0]
+
+
+def _random_poses(rng: np.random.Generator, B: int) -> np.ndarray:
+    return np.array([lie.make_pose(lie.random_rotation(rng), 3 * rng.standard_normal(3)) for _ in range(B)])
+
+
+def test_batched_residuals_equal_the_single_pose_ones() -> None:
+    """The vectorised residuals and Jacobians of the local solvers agree with the single-pose maps, including
+    a residual within 1e-3 rad of π (the near-singular branch) and the binary one without a measurement."""
+    rng = np.random.default_rng(7)
+    T1, T2, Tm = _random_poses(rng, 40), _random_poses(rng, 40), _random_poses(rng, 40)
+    # residual T1 T_m⁻¹ at angle π − 1e-3: 1 + tr C < 1e-4 takes the single-pose branch
+    Tm[3] = lie.make_pose(lie.cay(2 * np.tan((np.pi - 1e-3) / 2) * np.array([0.0, 0.6, 0.8])).T, np.zeros(3)) @ T1[3]
+    xi, J = lie.residuals_se3(T1, Tm)
+    for b in range(40):
+        xb, Jb = lie.residual_se3(T1[b], Tm[b])
+        assert np.abs(xi[b] - xb).max() <= 1e-12 * max(1.0, np.abs(xb).max())
+        assert np.abs(J[b] - Jb).max() <= 1e-12 * max(1.0, np.abs(Jb).max())
+    assert np.abs(xi[3, 3:]).max() > 1e3  # the branch was exercised: |φ| = 2 tan(θ/2) ≈ 2000
+    for meas in (Tm, None):
+        xi, J1, J2 = lie.residuals_se3_binary(T1, T2, meas)
+        for b in range(40):
+            ref = lie.residual_se3_binary(T1[b], T2[b], None if meas is None else meas[b])
+            for got, want in zip((xi[b], J1[b], J2[b]), ref):
+                assert np.abs(got - want).max() <= 1e-12 * max(1.0, np.abs(want).max())
+    eps = rng.standard_normal((40, 6))
+    stacked = lie.cay_se3_batch(eps)
+    assert max(np.abs(stacked[b] - lie.cay_se3(eps[b])).max() for b in range(40)) <= 1e-14
+
+
+def test_batched_residuals_raise_the_single_pose_errors() -> None:
+    rng = np.random.default_rng(8)
+    T = _random_poses(rng, 5)
+    bad = T.copy()
+    bad[2, :3, :3] *= 1.1  # not a rotation
+    with pytest.raises(ValueError, match=r"T\[2\]\[:3, :3\] is not a rotation"):
+        lie.residuals_se3(bad, T)
+    flip = T.copy()
+    flip[1] = lie.make_pose(lie.exp_so3(np.pi * np.array([1.0, 0.0, 0.0])), np.zeros(3)) @ T[1]  # residual at π
+    with pytest.raises(CayleySingularityError):
+        lie.residuals_se3(flip, T)
+    with pytest.raises(ValueError, match=r"shape \(B, 4, 4\)"):
+        lie.residuals_se3(T[0], T[0])
