@@ -6,6 +6,7 @@ A backend names its policy (``Backend.cover``): "clarabel" (Clarabel's dense KKT
 
 from __future__ import annotations
 
+from functools import cached_property
 from typing import Sequence
 
 import numpy as np
@@ -45,8 +46,8 @@ class CliqueCovers:
         N = Q.shape[0]
         owner, rows, cols = nonzeros([Q, *As])  # one pass over the data
         caps = tuple(sorted({MERGE_MAX_SIZE, *IPM_MERGE_CAPS}))
+        self._entries = (N, rows, cols, d, caps)  # for ``columns``, built on first use
         #: {cap: cover} for each base cover (cap 0: unmerged), on one clique tree per base
-        self.columns = merged_covers(entry_cliques(N, rows, cols, always=range(d)), caps)
         self.blocks = merged_covers(block_cliques(block_sizes, rows, cols), (0,) + caps) if block_sizes else {}
         self.own: list[list[np.ndarray]] = []
         if hint is not None:
@@ -55,6 +56,13 @@ class CliqueCovers:
             self.own = [own]
         con = owner > 0  # (N × m) the columns of each constraint (owner 0 is Q)
         self.support = support_matrix(rows[con], cols[con], owner[con] - 1, N, len(As))
+
+    @cached_property
+    def columns(self) -> dict[int, list[np.ndarray]]:
+        """{cap: cover} of the min-fill column cover, merged (cap 0 is not built).  Built on first use:
+        the IPM does without it when the block sizes are known (discrete K = 1000: 6 s of min-fill)."""
+        N, rows, cols, d, caps = self._entries
+        return merged_covers(entry_cliques(N, rows, cols, always=range(d)), caps)
 
     def choose(self, policy: str = "clarabel") -> list[np.ndarray]:
         from .schur_ipm import iteration_cost
