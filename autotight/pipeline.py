@@ -252,8 +252,11 @@ def solve_instance(problem: Problem, inst: Instance, constraints: ConstraintsLik
     res, cert = dual_certificate(problem, inst, model, cons, res, best, criteria)
     verdict = judge(res, upper, criteria, cert, Q=model.Q, constraints=cons)
     attempts = ([] if unscaled is None else [_attempt(unscaled, None)]) + [_attempt(res, verdict)]
-    if getattr(verdict, "undecided", False) and config.tol > 1e-13:
-        res2 = sdp.solve_model(model, cons, replace(config, tol=max(config.tol / 100, 1e-13)), scale)
+    tighter = replace(config, tol=max(config.tol / 100, 1e-13))
+    # once more at a tighter tolerance, unless the backend cannot go tighter (the IPM's floor): the
+    # same solve again (discrete K = 1000, IPM: 41 s for an identical result)
+    if getattr(verdict, "undecided", False) and sdp.effective_tol(tighter) < sdp.effective_tol(config):
+        res2 = sdp.solve_model(model, cons, tighter, scale)
         res2, cert2 = dual_certificate(problem, inst, model, cons, res2, best, criteria)
         verdict2 = judge(res2, upper, criteria, cert2, Q=model.Q, constraints=cons)
         attempts.append(_attempt(res2, verdict2))

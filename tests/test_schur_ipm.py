@@ -422,3 +422,15 @@ def test_stall_clock_ignores_jitter_at_a_floor_and_measures_already_within_tol()
     assert not clock.stalled(4)
     clock.tick(5, 1e-3, 1.0, 1e-3, 1e-4, 1e-3)  # pinf falls 10×, the max residual does not
     assert not clock.stalled(9) and clock.stalled(10) == schur_ipm.STALL_ITERATIONS
+
+
+def test_almost_solved_means_clarabels_reduced_accuracy():
+    """A stopped solve is AlmostSolved at a relative gap ≤ 5e-5 and infeasibilities ≤ 1e-4, as
+    Clarabel's reduced tolerances (the IPM's best iterate on discrete K = 1000, paper set: gap
+    1.5e-5, pinf 6.8e-6); not above either, and never in place of Solved."""
+    assert schur_ipm.almost_solved("InsufficientProgress", 1.5e-5, 6.8e-6, 2.4e-11)
+    assert schur_ipm.almost_solved("MaxIterations", 5e-5, 1e-4, 1e-4)
+    assert not schur_ipm.almost_solved("InsufficientProgress", 6e-5, 1e-6, 1e-6)
+    assert not schur_ipm.almost_solved("InsufficientProgress", 1e-6, 2e-4, 1e-6)
+    assert not schur_ipm.almost_solved("InsufficientProgress", 1e-6, 1e-6, 2e-4)
+    assert not schur_ipm.almost_solved("Solved", 1e-9, 1e-9, 1e-9)

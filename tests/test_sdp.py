@@ -479,3 +479,13 @@ def test_scaled_and_unscaled_solves_agree_on_a_well_conditioned_instance():
     assert np.abs(scaled.y - plain.y).max() <= 1e-5 * np.abs(plain.y).max()
     ignored = sdp.solve(Q, cons, scale=D, config=SolverConfig(scale="none"))
     assert np.array_equal(ignored.X, plain.X)
+
+
+def test_effective_tolerance_is_the_backends_floor_when_higher():
+    """The pipeline retries an undecided verdict at tol / 100 only when that changes what the backend
+    solves to: Clarabel goes down to 1e-13, our IPM stops at its floor IPM_MIN_TOL (1e-7)."""
+    from autotight.sdp.schur_ipm import IPM_MIN_TOL
+
+    assert sdp.effective_tol(SolverConfig(tol=1e-8)) == 1e-8
+    assert sdp.effective_tol(SolverConfig(backend="ipm", tol=1e-8)) == IPM_MIN_TOL == 1e-7
+    assert sdp.effective_tol(SolverConfig(backend="ipm", tol=1e-5)) == 1e-5

@@ -31,6 +31,7 @@ the attributes of ``registry.Backend``::
     class MySolverBackend:
         name, decompose_default, cover, fallback = "mysolver", False, None, None
         errors = ()
+        min_tol = 0.0                                # optional: the tightest tol it solves to
         def check(self, arg): ...                    # SolverConfigError if not installed
         def solve(self, Q, As, b, d, cliques, config): ...   # -> SDPResult
         def retries(self, config, decomposed, N): return []
@@ -101,6 +102,12 @@ def _with_retries(backend: Backend, why: str, Q: sp.csr_array, As: list[sp.csr_a
         if retry.status == "Solved" or not res.usable:
             res = retry
     return res
+
+
+def effective_tol(config: SolverConfig) -> float:
+    """The tolerance the backend solves to: ``config.tol``, or the backend's floor when higher (the
+    optional attribute ``min_tol``; our IPM's is ``schur_ipm.IPM_MIN_TOL``)."""
+    return max(config.tol, float(getattr(BACKENDS[config.backend_name], "min_tol", 0.0)))
 
 
 def decomposes(config: SolverConfig) -> bool:
