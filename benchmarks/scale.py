@@ -1,17 +1,22 @@
-"""Carried constraint sets at scale: discrete trajectory K = 10 … 1000 with a set learned at K = 5.
+"""Carried constraint sets at scale: a set learned at size 5 applied at sizes 10 … 1000.
 
-Every (K, route) runs in a fresh subprocess (so that its peak RSS is its own) and reports build, apply,
-SDP and total wall time, peak RSS (``resource.getrusage``, max resident set), SDP status, log SVR and the
-verdict.  Routes: "template" (the set's templates evaluated: ``ConstraintSet.apply``) and "relearn" (the
-pairs re-learned on every factor: ``DiscoveredSet.instantiate``, today's route before templates), the
-latter at K ≤ 100.  Growth exponents are log(v(1000)/v(100))/log(10) for the template route.  The SDP
-uses our IPM (``--solver ipm``); local search: from the ground truth only (n_random = 0).
+Problems: discrete trajectory (size K, the default) and pose averaging (size M, ``--problem
+pose_averaging``).  Every (size, route, seed) runs in a fresh subprocess (so that its peak RSS is
+its own) and reports build, apply, SDP and total wall time, peak RSS (``resource.getrusage``, max
+resident set), SDP status, log SVR and the verdict.  Routes: "template" (the set's templates
+evaluated: ``ConstraintSet.apply``) and "relearn" (the pairs re-learned on every factor:
+``DiscoveredSet.instantiate``, today's route before templates), the
+latter at sizes ≤ 100.  Growth exponents are log(v(1000)/v(100))/log(10) for the template route (first
+seed).  The SDP uses our IPM (``--solver ipm``); local search: from the ground truth only (n_random = 0).
 
-    nice -n 19 python benchmarks/scale.py [--set FILE] [--sizes 10,30,100,300,1000] [--relearn 10,30,100]
-                                          [--paper 100,300,1000]
+    nice -n 19 python benchmarks/scale.py [--problem discrete_trajectory|pose_averaging] [--set FILE]
+        [--sizes 10,30,100,300,1000] [--relearn 10,30,100] [--paper 100,300,1000] [--seeds 0]
+        [--seeds-at 1000]
 
-Without --set (or when the file is missing) the set is discovered at K = 5, seed 0, and saved there.
-Writes benchmarks/results/scale.json with the versions and the load average around every run.
+--seeds: the instance seeds of every run; --seeds-at: sizes that run with every seed (the others with the
+first).  Without --set (or when the file is missing) the set is discovered at size 5, seed 0, and saved
+there.  Writes benchmarks/results/scale.json (pose averaging: scale_pose_averaging.json) with the
+versions and the load average around every run.
 """
 
 from __future__ import annotations
@@ -27,10 +32,14 @@ from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
-DEFAULT_SET = HERE / "results" / "scale_set_discrete_K5.json"
+SIZE = {"discrete_trajectory": "K", "pose_averaging": "M"}  # each problem's size parameter
+SETS = {"discrete_trajectory": HERE / "results" / "scale_set_discrete_K5.json",
+        "pose_averaging": HERE / "results" / "scale_set_pose_M5.json"}
+OUTS = {"discrete_trajectory": HERE / "results" / "scale.json",
+        "pose_averaging": HERE / "results" / "scale_pose_averaging.json"}
 
 
-def one(K: int, route: str, set_path: str, seed: int) -> dict:
+def one(problem: str, K: int, route: str, set_path: str, seed: int) -> dict:
     """One run in this process (called in a fresh subprocess)."""
     import numpy as np
 
@@ -41,9 +50,9 @@ def one(K: int, route: str, set_path: str, seed: int) -> dict:
 
     rss0 = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
     t0 = time.perf_counter()
-    prob = load("discrete_trajectory")
+    prob = load(problem)
     cs = ConstraintSet.load(set_path)
-    inst = prob.generate(prob.parse_params({"K": K}), np.random.default_rng(seed))
+    inst = prob.generate(prob.parse_params({SIZE[problem]: K}), np.random.default_rng(seed))
     inst.seed = seed
     t1 = time.perf_counter()
     model = prob.build(inst)
@@ -67,13 +76,14 @@ def one(K: int, route: str, set_path: str, seed: int) -> dict:
             "outcome": out.outcome, "tight": out.tight, "verdict": out.verdict.reason}
 
 
-def run_child(K: int, route: str, set_path: str, seed: int, timeout: float) -> dict:
+def run_child(problem: str, K: int, route: str, set_path: str, seed: int, timeout: float) -> dict:
     load0 = os.getloadavg()
     t0 = time.perf_counter()
     env = dict(os.environ, PYTHONPATH=str(ROOT))
     try:
-        p = subprocess.run([sys.executable, __file__, "--one", str(K), "--route", route, "--set", set_path,
-                            "--seed", str(seed)], capture_output=True, text=True, env=env, timeout=timeout)
+        p = subprocess.run([sys.executable, __file__, "--problem", problem, "--one", str(K), "--route", route,
+                            "--set", set_path, "--seeds", str(seed)], capture_output=True, text=True, env=env,
+                           timeout=timeout)
     except subprocess.TimeoutExpired:
         return {"K": K, "route": route, "seed": seed, "error": f"timeout after {timeout:g} s"}
     wall = time.perf_counter() - t0
@@ -87,52 +97,59 @@ def run_child(K: int, route: str, set_path: str, seed: int, timeout: float) -> d
 def exponent(rows: list[dict], key: str, a: int = 100, b: int = 1000) -> float | None:
     import math
 
-    va = next((r.get(key) for r in rows if r["K"] == a and key in r), None)
+    va = next((r.get(key) for r in rows if r["K"] == a and key in r), None)  # "K": the size, for any problem
     vb = next((r.get(key) for r in rows if r["K"] == b and key in r), None)
     if not va or not vb:
         return None
     return math.log(vb / va) / math.log(b / a)
 
 
-def ensure_set(path: Path) -> None:
+def ensure_set(problem: str, path: Path) -> None:
     if path.exists():
         return
     env = dict(os.environ, PYTHONPATH=str(ROOT))
-    subprocess.run([sys.executable, "-m", "autotight.cli", "discover", "discrete_trajectory", "-p", "K=5",
+    subprocess.run([sys.executable, "-m", "autotight.cli", "discover", problem, "-p", f"{SIZE[problem]}=5",
                     "--no-progress", "--out", str(path)], check=True, env=env, stdout=subprocess.DEVNULL)
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--set", default=str(DEFAULT_SET))
+    ap.add_argument("--problem", default="discrete_trajectory", choices=sorted(SIZE))
+    ap.add_argument("--set", default=None, help="default: the problem's file in benchmarks/results/")
     ap.add_argument("--sizes", default="10,30,100,300,1000")
     ap.add_argument("--relearn", default="10,30,100")
     ap.add_argument("--paper", default="", help="sizes also run with the paper families (a tight relaxation)")
-    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--seeds", default="0")
+    ap.add_argument("--seeds-at", default="", help="sizes that run with every seed (the others: the first)")
     ap.add_argument("--timeout", type=float, default=1800.0)
-    ap.add_argument("--out", default=str(HERE / "results" / "scale.json"))
+    ap.add_argument("--out", default=None, help="default: benchmarks/results/scale.json (discrete), "
+                                                "scale_pose_averaging.json (pose)")
     ap.add_argument("--one", type=int, default=None, help=argparse.SUPPRESS)
     ap.add_argument("--route", default="template", help=argparse.SUPPRESS)
     args = ap.parse_args()
+    args.set = args.set or str(SETS[args.problem])
+    args.out = args.out or str(OUTS[args.problem])
+    seeds = [int(s) for s in args.seeds.split(",") if s]
     if args.one is not None:
-        print(json.dumps(one(args.one, args.route, args.set, args.seed)))
+        print(json.dumps(one(args.problem, args.one, args.route, args.set, seeds[0])))
         return
-    ensure_set(Path(args.set))
+    ensure_set(args.problem, Path(args.set))
     rows = []
-    jobs = [(int(k), "template") for k in args.sizes.split(",") if k]
-    jobs += [(int(k), "relearn") for k in args.relearn.split(",") if k]
-    jobs += [(int(k), "paper") for k in args.paper.split(",") if k]
-    print(f"{'K':>5} {'route':>8} {'build':>7} {'apply':>8} {'SDP':>8} {'total':>8} {'RSS MB':>7} "
-          f"{'status':>12} {'logSVR':>7} {'outcome':>10}  load")
-    for K, route in jobs:
-        r = run_child(K, route, args.set, args.seed, args.timeout)
+    every = {int(k) for k in args.seeds_at.split(",") if k}
+    jobs = [(int(k), route, s) for route, sizes in (("template", args.sizes), ("relearn", args.relearn),
+                                                    ("paper", args.paper))
+            for k in sizes.split(",") if k for s in (seeds if int(k) in every else seeds[:1])]
+    print(f"{SIZE[args.problem]:>5} {'route':>8} {'seed':>4} {'build':>7} {'apply':>8} {'SDP':>8} {'total':>8} "
+          f"{'RSS MB':>7} {'status':>12} {'logSVR':>7} {'outcome':>10}  load")
+    for K, route, seed in jobs:
+        r = run_child(args.problem, K, route, args.set, seed, args.timeout)
         rows.append(r)
         if "error" in r:
-            print(f"{K:>5} {route:>8}  error: {r['error']}")
+            print(f"{K:>5} {route:>8} {seed:>4}  error: {r['error']}")
         else:
-            print(f"{K:>5} {route:>8} {r['build_s']:7.2f} {r['apply_s']:8.3f} {r['sdp_s']:8.2f} {r['total_s']:8.2f} "
-                  f"{r['peak_rss_mb']:7.0f} {r['status']:>12} {r['log_svr']:7.2f} {r['outcome']:>10}  "
-                  f"{r['loadavg_before'][0]:.1f}", flush=True)
+            print(f"{K:>5} {route:>8} {seed:>4} {r['build_s']:7.2f} {r['apply_s']:8.3f} {r['sdp_s']:8.2f} "
+                  f"{r['total_s']:8.2f} {r['peak_rss_mb']:7.0f} {r['status']:>12} {r['log_svr']:7.2f} "
+                  f"{r['outcome']:>10}  {r['loadavg_before'][0]:.1f}", flush=True)
         write(args, rows, {})  # after every run: a partial table survives an interrupted benchmark
     write(args, rows, growth_of(rows))
 
@@ -140,7 +157,8 @@ def main() -> None:
 def growth_of(rows: list[dict]) -> dict:
     growth = {}
     for route in ("template", "paper"):
-        sel = [r for r in rows if r["route"] == route and "error" not in r]
+        first = rows[0]["seed"] if rows else 0
+        sel = [r for r in rows if r["route"] == route and "error" not in r and r["seed"] == first]
         for r in sel:
             r["rss_over_import_mb"] = r["peak_rss_mb"] - r["import_rss_mb"]
         growth[route] = {k: exponent(sel, k) for k in ("total_s", "sdp_s", "build_s", "apply_s", "peak_rss_mb",
@@ -153,8 +171,10 @@ def growth_of(rows: list[dict]) -> dict:
 def write(args: argparse.Namespace, rows: list[dict], growth: dict) -> None:
     from autotight.io import versions
 
-    obj = {"benchmark": "scale", "problem": "discrete_trajectory", "set": Path(args.set).name,
-           "learned_at": {"K": 5}, "solver": "ipm", "n_random": 0, "seed": args.seed, "rows": rows,
+    obj = {"benchmark": "scale", "problem": args.problem, "size_param": SIZE[args.problem],
+           "set": Path(args.set).name, "learned_at": {SIZE[args.problem]: 5}, "solver": "ipm", "n_random": 0,
+           "seeds": args.seeds, "seeds_at": args.seeds_at, "rows": rows,
+           "command": "python benchmarks/scale.py " + " ".join(sys.argv[1:]),
            "growth_exponents_100_1000": growth, "targets": {"time": 1.15, "memory": 1.1},
            "versions": versions(), "cpu_count": os.cpu_count(), "loadavg_end": os.getloadavg()}
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
