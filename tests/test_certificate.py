@@ -95,3 +95,19 @@ def test_lambda_min_sparse_matches_dense():
     lam, low, method = lambda_min(H)
     assert "Lanczos" in method or "inertia" in method
     assert abs(lam - w) <= 1e-8 * abs(H).max() and low <= w
+
+
+def test_lambda_min_of_an_indefinite_matrix_is_bracketed_with_capped_lanczos():
+    """An indefinite sparse H above DENSE_MAX columns (a relaxation that is not tight): the lower bound
+    confirmed by LDLᵀ inertia is below the true λ_min, and the estimate is within 1e-6 of it, with
+    the Lanczos iterations capped by LANCZOS_MAXITER."""
+    from autotight.certificate import DENSE_MAX, LANCZOS_MAXITER, lambda_min
+
+    rng = np.random.default_rng(3)
+    n = 600
+    assert n > DENSE_MAX and 10 * n > LANCZOS_MAXITER
+    B = sp.random(n, n, density=0.01, random_state=np.random.RandomState(3))
+    H = sp.csr_array(B + B.T + sp.diags(rng.uniform(-0.5, 2.0, n)))
+    true = float(np.linalg.eigvalsh(H.toarray())[0])
+    est, lower, _ = lambda_min(H)
+    assert true < 0 and lower <= true and abs(est - true) <= 1e-6 * max(1.0, abs(true))
