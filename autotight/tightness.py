@@ -147,8 +147,11 @@ def bracket(res: SDPResult, upper: float, criteria: Criteria, acc: Accuracy) -> 
         return TIGHT, L, tol, ""
     if U - P > tol + acc.acc:
         return NOT_TIGHT, L, tol, f"U − P = {U - P:.3e} exceeds the tolerance {tol:.2e} + accuracy {acc.acc:.2e}"
-    return UNDECIDED, L, tol, (f"bracket too wide: U − D = {U - D:.3e} > tolerance {tol:.2e}, "
-                               f"solver accuracy {acc.acc:.2e}")
+    if acc.acc > tol:  # the solve cannot resolve the tolerance, whatever U − D is
+        return UNDECIDED, L, tol, (f"bracket too wide: solver accuracy {acc.acc:.2e} > tolerance {tol:.2e} "
+                                   f"(U − D = {U - D:.3e})")
+    return UNDECIDED, L, tol, (f"bracket too wide: U − D = {U - D:.3e} > tolerance {tol:.2e} + solver accuracy "
+                               f"{acc.acc:.2e}")
 
 
 def judge(res: SDPResult, upper: float, criteria: Criteria = Criteria(), certificate=None, *,

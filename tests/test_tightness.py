@@ -30,6 +30,8 @@ def test_cost_slack_rule():
     v = judge(_res(1 + 1e-5, 1 - 4e-5), U, c)
     assert v.outcome == "undecided" and v.undecided and not v.tight
     assert v.accuracy == pytest.approx(5e-5, rel=1e-6) and v.tolerance == pytest.approx(1e-5, rel=1e-3)
+    # the reason names what is too wide: here the accuracy (U − D = 4e-5 is within tolerance + accuracy)
+    assert "solver accuracy 5.00e-05 > tolerance 1.00e-05 (U − D = 4.000e-05)" in v.reason
     # a gap far outside the accuracy is decided
     assert judge(_res(0.5, 0.5 - 1e-6), U, c).outcome == "not tight"
     # a lower bound above a feasible point's cost beyond the accuracy is flagged, never "tight" (issue 15)
