@@ -17,6 +17,7 @@ from typing import Any, Callable
 import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
+from scipy.linalg import block_diag
 
 from .lie import CayleySingularityError
 from .problem import LocalResult
@@ -69,8 +70,17 @@ def gauss_newton(linearize: Callable[[Any], tuple[np.ndarray, Any, Any]], retrac
     return LocalResult(state, f, it, converged, time.perf_counter() - t0, msg)
 
 
-def block_weight(blocks: np.ndarray) -> sp.csr_array:
-    """The block-diagonal weight of stacked residuals from their (B, d, d) blocks, sparse: (Bd × Bd)."""
+#: up to this many rows the block-diagonal weight is dense (as it always was): the products are cheap
+#: and the local solutions of the committed reports (pose averaging M = 10, robust M = 6) stay the
+#: same to the last bit; above, sparse (M = 1000: a dense weight was 288 MB)
+DENSE_WEIGHT_MAX = 600
+
+
+def block_weight(blocks: np.ndarray) -> np.ndarray | sp.csr_array:
+    """The block-diagonal weight (Bd × Bd) of stacked residuals from their (B, d, d) blocks: dense up to
+    DENSE_WEIGHT_MAX rows, else sparse."""
     B, d, _ = blocks.shape
+    if B * d <= DENSE_WEIGHT_MAX:
+        return block_diag(*blocks) if B else np.zeros((0, 0))
     b, i, j = np.meshgrid(np.arange(B), np.arange(d), np.arange(d), indexing="ij")
     return sp.csr_array((blocks.ravel(), ((d * b + i).ravel(), (d * b + j).ravel())), shape=(B * d, B * d))
