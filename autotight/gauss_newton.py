@@ -76,11 +76,19 @@ def gauss_newton(linearize: Callable[[Any], tuple[np.ndarray, Any, Any]], retrac
 DENSE_WEIGHT_MAX = 600
 
 
-def block_weight(blocks: np.ndarray) -> np.ndarray | sp.csr_array:
+def block_sparse(brow: np.ndarray, bcol: np.ndarray, blocks: np.ndarray, shape: tuple[int, int]) -> sp.csr_array:
+    """The sparse matrix of ``shape`` holding the (d × e) ``blocks[k]`` at block row brow[k] and block
+    column bcol[k] (entries at rows d·brow[k] + i, columns e·bcol[k] + j)."""
+    _, d, e = blocks.shape
+    i, j = np.meshgrid(np.arange(d), np.arange(e), indexing="ij")
+    return sp.csr_array((blocks.ravel(), ((d * np.asarray(brow)[:, None, None] + i).ravel(),
+                                          (e * np.asarray(bcol)[:, None, None] + j).ravel())), shape=shape)
+
+
+def block_weight(blocks: np.ndarray, dense_max: int = DENSE_WEIGHT_MAX) -> np.ndarray | sp.csr_array:
     """The block-diagonal weight (Bd × Bd) of stacked residuals from their (B, d, d) blocks: dense up to
-    DENSE_WEIGHT_MAX rows, else sparse."""
+    ``dense_max`` rows, else sparse."""
     B, d, _ = blocks.shape
-    if B * d <= DENSE_WEIGHT_MAX:
+    if B * d <= dense_max:
         return block_diag(*blocks) if B else np.zeros((0, 0))
-    b, i, j = np.meshgrid(np.arange(B), np.arange(d), np.arange(d), indexing="ij")
-    return sp.csr_array((blocks.ravel(), ((d * b + i).ravel(), (d * b + j).ravel())), shape=(B * d, B * d))
+    return block_sparse(np.arange(B), np.arange(B), blocks, (B * d, B * d))

@@ -30,7 +30,7 @@ import scipy.sparse as sp
 
 from autotight import lie
 from autotight.errors import ParameterError
-from autotight.gauss_newton import gauss_newton
+from autotight.gauss_newton import block_sparse, block_weight, gauss_newton
 from autotight.model import Factor, Model, Variables
 from autotight.problem import Instance, LocalResult, Param
 
@@ -234,18 +234,11 @@ def linearize(inst: Instance, Ts: np.ndarray) -> tuple[np.ndarray, sp.csr_array,
     K = len(Ts)
     xi_u, J_u = lie.residuals_se3(Ts, np.asarray(m["T_meas"]))  # all factors of a type in one pass
     xi_b, J1, J2 = lie.residuals_se3_binary(Ts[:-1], Ts[1:], np.asarray(m["T_rel"]))
-    # block (row k, column c) holds a 6 × 6 Jacobian: its entries at rows 6k + i, columns 6c + j
+    # the 6 × 6 Jacobians at block (residual, pose): unary k → (k, k), binary k → (K + k, k) and (K + k, k + 1)
     brow = np.concatenate([np.arange(K), K + np.arange(K - 1), K + np.arange(K - 1)])
     bcol = np.concatenate([np.arange(K), np.arange(K - 1), np.arange(1, K)])
-    i, j = np.meshgrid(np.arange(6), np.arange(6), indexing="ij")
-    rows = (6 * brow[:, None, None] + i).ravel()
-    cols = (6 * bcol[:, None, None] + j).ravel()
-    vals = np.concatenate([J_u, J1, J2]).ravel()
-    n_res = 6 * (2 * K - 1)
-    J = sp.csr_array((vals, (rows, cols)), shape=(n_res, 6 * K))
-    b = np.arange(2 * K - 1)[:, None, None]  # W: each residual's 6 × 6 weight on the diagonal
-    W = sp.csr_array((np.concatenate([np.asarray(m["W"]), np.asarray(m["W_rel"])]).ravel(),
-                      ((6 * b + i).ravel(), (6 * b + j).ravel())), shape=(n_res, n_res))
+    J = block_sparse(brow, bcol, np.concatenate([J_u, J1, J2]), (6 * (2 * K - 1), 6 * K))
+    W = block_weight(np.concatenate([np.asarray(m["W"]), np.asarray(m["W_rel"])]), dense_max=0)
     return np.concatenate([xi_u.ravel(), xi_b.ravel()]), J, W
 
 
