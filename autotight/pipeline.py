@@ -149,7 +149,8 @@ class SolveResult:
             "upper_bound": self.upper, "rel_gap": v.rel_gap, "trapped": self.trapped,
             "sdp_beats_local": self.sdp_beats_local, "solve_time_s": self.sdp.solve_time_s,
             "undecided": v.undecided, "bracket": {"lower": v.lower, "primal": v.primal, "upper": v.upper,
-                                                  "accuracy": v.accuracy, "tolerance": v.tolerance},
+                                                  "accuracy": v.accuracy, "tolerance": v.tolerance,
+                                                  "frame": v.frame},
             "log_svr_marginal": self.log_svr_marginal,
             "certified": None if self.certificate is None else self.certificate.certified,
             "certificate": None if self.certificate is None else self.certificate.record(),
@@ -250,7 +251,7 @@ def solve_instance(problem: Problem, inst: Instance, constraints: ConstraintsLik
             best = min(best, refined, key=lambda r: r.cost)
     upper = best.cost
     res, cert = dual_certificate(problem, inst, model, cons, res, best, criteria)
-    verdict = judge(res, upper, criteria, cert, Q=model.Q, constraints=cons)
+    verdict = judge(res, upper, criteria, cert, Q=model.Q, constraints=cons, scale=scale)
     attempts = ([] if unscaled is None else [_attempt(unscaled, None)]) + [_attempt(res, verdict)]
     tighter = replace(config, tol=max(config.tol / 100, 1e-13))
     # once more at a tighter tolerance, unless the backend cannot go tighter (the IPM's floor): the
@@ -258,7 +259,7 @@ def solve_instance(problem: Problem, inst: Instance, constraints: ConstraintsLik
     if getattr(verdict, "undecided", False) and sdp.effective_tol(tighter) < sdp.effective_tol(config):
         res2 = sdp.solve_model(model, cons, tighter, scale)
         res2, cert2 = dual_certificate(problem, inst, model, cons, res2, best, criteria)
-        verdict2 = judge(res2, upper, criteria, cert2, Q=model.Q, constraints=cons)
+        verdict2 = judge(res2, upper, criteria, cert2, Q=model.Q, constraints=cons, scale=scale)
         attempts.append(_attempt(res2, verdict2))
         if res2.usable:
             res, verdict, cert = res2, verdict2, cert2

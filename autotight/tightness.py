@@ -10,6 +10,11 @@ so p* ≤ U.  The accuracy this solve reached, ``acc``, is the largest of
   ⟨Q,X'⟩ ≥ D + min(λ_min(H), 0)·tr(X') for every feasible X')
 (the last two need the data: pass ``Q`` and ``constraints``; without them acc is |P − D| plus the
 roundoff of summing the cost).  L = D − max(−λ_min(H), 0)·tr(X) is the lower end of the bracket.
+When the solve used a diagonal scaling X = D X' D (``judge(..., scale=D)``) and the bracket is
+undecided, the dual correction is also taken in that frame: ⟨H, X'⟩ = ⟨DHD, D⁻¹X'D⁻¹⟩ ≥
+λ_min(DHD)·tr(D⁻¹X'D⁻¹), an equally valid bound, and the smaller correction is used.  On long chains it
+is the tighter one by orders: tr(X) grows with the squared positions, tr(D⁻¹XD⁻¹) only with the
+number of blocks (discrete trajectory K = 1000: tr(X) = 8.5e5 against 1.3e4).
 The gap being tested is  tol = gap_tol·|U| + cost_atol·s,  s = ‖Q‖_max·tr(X) (≥ |⟨Q,X⟩|, the cost's own
 scale; without Q: max(Σ|Q_ij X_ij|, |P|, |D|)), so a zero-cost instance is judged by cost_atol alone and
 nothing is divided by 0.  Then:
@@ -28,10 +33,11 @@ decides an undecided bracket), "certified" (the certificate of ``autotight.certi
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Sequence
 
 import numpy as np
+import scipy.sparse as sp
 
 from .sdp.result import SDPResult
 
@@ -71,7 +77,8 @@ class Verdict:
     rank_tight, cost_tight: the two tests separately (cost_tight: the bracket says tight);
     cost_outcome: the bracket's own outcome.  lower, primal, upper: L, P, U; accuracy: acc;
     tolerance: the gap tested (module docstring).  certified: the certificate's verdict (None: none given).
-    accept: the rule that decided ``outcome`` (``Criteria.accept``).
+    accept: the rule that decided ``outcome`` (``Criteria.accept``).  frame: "plain", or "scaled" when
+    the dual correction of L was taken in the solve's scaled frame (module docstring).
     """
 
     tight: bool
@@ -90,6 +97,7 @@ class Verdict:
     tolerance: float = float("nan")
     certified: bool | None = None
     accept: str = "rank"
+    frame: str = "plain"
 
     def record(self) -> dict:
         return {k: getattr(self, k) for k in self.__dataclass_fields__}
@@ -106,6 +114,7 @@ class Accuracy:
     gap_pd: float
     primal_term: float
     from_residuals: bool = True
+    frame: str = "plain"
 
 
 def accuracy(res: SDPResult, Q=None, constraints: Sequence | None = None,
@@ -129,6 +138,21 @@ def accuracy(res: SDPResult, Q=None, constraints: Sequence | None = None,
     dual_corr = max(-lam_lo, 0.0) * trX
     scale = (float(abs(Q).max()) if Q.nnz else 0.0) * trX
     return Accuracy(max(gap_pd, primal_term, dual_corr), dual_corr, scale, gap_pd, primal_term)
+
+
+def scaled_frame(acc: Accuracy, res: SDPResult, Q, constraints: Sequence, D: np.ndarray) -> Accuracy:
+    """``acc`` with the dual correction of the frame X = D X' D when it is smaller (module docstring):
+    max(−λ_min(DHD), 0)·tr(D⁻¹XD⁻¹), D (N,) positive."""
+    from .certificate import dual_matrix, lambda_min, stack
+    from .sdp import congruence
+
+    D = np.asarray(D, float)
+    As, _ = stack(constraints)
+    lam_lo = lambda_min(congruence(sp.coo_array(dual_matrix(Q, As, res.y)), D))[1]
+    corr = max(-lam_lo, 0.0) * float(np.sum(np.asarray(res.X.diagonal()).ravel() / D ** 2))
+    if not corr < acc.dual_correction:
+        return acc
+    return replace(acc, acc=max(acc.gap_pd, acc.primal_term, corr), dual_correction=corr, frame="scaled")
 
 
 def bracket(res: SDPResult, upper: float, criteria: Criteria, acc: Accuracy) -> tuple[str, float, float, str]:
@@ -155,15 +179,20 @@ def bracket(res: SDPResult, upper: float, criteria: Criteria, acc: Accuracy) -> 
 
 
 def judge(res: SDPResult, upper: float, criteria: Criteria = Criteria(), certificate=None, *,
-          Q=None, constraints: Sequence | None = None) -> Verdict:
+          Q=None, constraints: Sequence | None = None, scale: np.ndarray | None = None) -> Verdict:
     """Tightness of one SDP solution against the best feasible cost ``upper`` (module docstring).
 
     certificate: an ``autotight.certificate.Certificate`` for the local solution from this solve's y
     (optional; needed for accept="certified"; its λ_min bound is reused for the accuracy).  Q, constraints: the SDP's
-    data, for the residual-based accuracy.
+    data, for the residual-based accuracy.  scale: the solve's diagonal scaling D (N,), if any; an
+    undecided bracket is then tried once more with the dual correction of the scaled frame.
     """
     acc = accuracy(res, Q, constraints, None if certificate is None else certificate.lambda_lower)
     cost_outcome, L, tol, why = bracket(res, upper, criteria, acc)
+    if cost_outcome == UNDECIDED and scale is not None and acc.from_residuals and acc.dual_correction > 0:
+        acc = scaled_frame(acc, res, Q, constraints, scale)
+        if acc.frame == "scaled":
+            cost_outcome, L, tol, why = bracket(res, upper, criteria, acc)
     lsvr = res.log_svr
     rank_tight = bool(lsvr == np.inf or (np.isfinite(lsvr) and lsvr > criteria.min_log_svr))
     cert = None if certificate is None else bool(certificate.certified)
@@ -197,4 +226,5 @@ def judge(res: SDPResult, upper: float, criteria: Criteria = Criteria(), certifi
                    relative_gap(res.primal_cost, upper, criteria.cost_floor) if res.usable else float("nan"),
                    "; ".join(reasons) or "tight", undecided=outcome == UNDECIDED, outcome=outcome,
                    cost_outcome=cost_outcome, lower=float(L), primal=float(res.primal_cost), upper=float(upper),
-                   accuracy=float(acc.acc), tolerance=float(tol), certified=cert, accept=criteria.accept)
+                   accuracy=float(acc.acc), tolerance=float(tol), certified=cert, accept=criteria.accept,
+                   frame=acc.frame)

@@ -94,3 +94,54 @@ def test_zero_cost_is_tight():
 def test_primary_set_not_tight():
     v, res = _judged("pose_averaging", {"M": 10}, 0, set_name="primary")
     assert v.outcome == "not tight" and not v.rank_tight and not v.cost_tight
+
+
+def test_scaled_frame_decides_a_bracket_that_the_plain_frame_cannot():
+    """λ_min(H) = −1e-9 on the h column, X with a block of size 1e6: the plain correction
+    1e-9·tr(X) = 1e-3 exceeds the tolerance, the scaled frame's 1e-9·tr(D⁻¹XD⁻¹) = 2e-9 does not."""
+    import scipy.sparse as sp
+
+    from autotight.model import Constraint
+
+    Q = sp.coo_array(np.diag([1.0, 0.0]))
+    cons = [Constraint(sp.coo_array(np.diag([1.0, 0.0])), 1.0)]
+    res = replace(_res(1.0, 1.0 + 1e-9), X=np.diag([1.0, 1e6]), y=np.array([1.0 + 1e-9]))
+    c = Criteria(gap_tol=1e-5, cost_atol=1e-12)
+    plain = judge(res, 1.0, c, Q=Q, constraints=cons)
+    assert plain.outcome == "undecided" and plain.frame == "plain"
+    assert plain.accuracy == pytest.approx(1e-9 * (1 + 1e6), rel=1e-6)
+    scaled = judge(res, 1.0, c, Q=Q, constraints=cons, scale=np.array([1.0, 1e3]))
+    assert scaled.outcome == "tight" and scaled.frame == "scaled"
+    assert scaled.lower == pytest.approx(1.0 + 1e-9 - 2e-9, abs=1e-15)
+    # a scaling that makes the correction larger is not taken
+    worse = judge(res, 1.0, c, Q=Q, constraints=cons, scale=np.array([1e3, 1.0]))
+    assert worse.frame == "plain" and worse.lower == plain.lower
+
+
+def test_scaled_frame_bound_is_a_lower_bound_on_a_real_relaxation():
+    """On a perturbed y (H indefinite), L = bᵀy − max(−λ_min, 0)·tr in either frame stays below the
+    SDP's optimal value p* (solved accurately), and the scaled frame is the one that gets close."""
+    from autotight.pipeline import block_scale_at
+    from autotight.sdp.config import SolverConfig
+    from autotight.tightness import accuracy, scaled_frame
+
+    prob = load("discrete_trajectory")
+    inst = prob.generate(prob.parse_params({"K": 4, "sigma": 0.1}), np.random.default_rng(3))
+    model = prob.build(inst)
+    cons = constraint_set(model, "paper")
+    loc = local_search(prob, inst, np.random.default_rng(1), 0)
+    D = block_scale_at(prob, inst, model, loc.best.state, SolverConfig())
+    res = solve_model(model, cons, SolverConfig(), D)
+    assert res.status == "Solved"
+    p_star = res.primal_cost
+    rng = np.random.default_rng(7)
+    b = np.array([c.b for c in cons])
+    for _ in range(3):
+        y = res.y + 1e-2 * np.abs(res.y).max() * rng.standard_normal(res.y.size)
+        pert = replace(res, y=y, dual_cost=float(b @ y))
+        acc = accuracy(pert, model.Q, cons)
+        assert acc.dual_correction > 0  # H is indefinite
+        both = [acc, scaled_frame(replace(acc, dual_correction=np.inf), pert, model.Q, cons, D)]
+        for a in both:
+            assert pert.dual_cost - a.dual_correction <= p_star + 1e-9 * abs(p_star)
+        assert both[1].frame == "scaled"
