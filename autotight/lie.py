@@ -376,6 +376,18 @@ def _cay_inv_se3_batch(T: np.ndarray) -> np.ndarray:
     return xi
 
 
+def inv_se3_batch(T: np.ndarray) -> np.ndarray:
+    """``inv_se3`` on a stack: (B, 4, 4) poses → (B, 4, 4) inverses (checked as ``inv_se3`` does not:
+    finite poses with rotation blocks)."""
+    return _inv_se3_batch(_poses(T, "T"))
+
+
+def cay_inv_se3_batch(T: np.ndarray) -> np.ndarray:
+    """``cay_inv_se3`` on a stack: (B, 4, 4) poses → ξ (B, 6); the same errors (ValueError on a pose
+    that is not one, CayleySingularityError at rotation angle π)."""
+    return _cay_inv_se3_batch(_poses(T, "T"))
+
+
 def _jac_cay_se3_inv_batch(xi: np.ndarray) -> np.ndarray:
     """ξ (B, 6) → 𝒥_c(ξ)⁻¹ (B, 6, 6), as ``jac_cay_se3_inv``."""
     rho, phi = xi[:, :3], xi[:, 3:]
@@ -453,6 +465,29 @@ def exp_se3(xi: np.ndarray) -> np.ndarray:
     else:
         V = np.eye(3) + (1 - np.cos(theta)) / theta**2 * P + (theta - np.sin(theta)) / theta**3 * P @ P
     return make_pose(exp_so3(phi), V @ rho)
+
+
+def exp_se3_batch(xi: np.ndarray) -> np.ndarray:
+    """``exp_se3`` on a stack: ξ (B, 6) → (B, 4, 4), with the same operations in the same order (the same
+    floating-point result up to the matrix products' summation order)."""
+    xi = np.asarray(xi, dtype=float)
+    if xi.ndim != 2 or xi.shape[1] != 6 or not np.all(np.isfinite(xi)):
+        raise ValueError(f"xi must be a finite (B, 6) array, got shape {xi.shape}")
+    rho, phi = xi[:, :3], xi[:, 3:]
+    theta = np.sqrt((phi[:, None, :] @ phi[:, :, None])[:, 0, 0])  # as norm(φ) of one vector: a dot product
+    small = (theta < 1e-8)[:, None, None]
+    t = np.where(theta < 1e-8, 1.0, theta)[:, None, None]
+    P = _hat_batch(phi)
+    I = np.eye(3)
+    C = np.where(small, I + P + (0.5 * P) @ P, I + np.sin(t) / t * P + ((1 - np.cos(t)) / t**2 * P) @ P)
+    t3 = np.array([x**3 for x in t.ravel()]).reshape(t.shape)  # scalar pow: an array's t**3 rounds differently
+    V = np.where(small, I + 0.5 * P + P @ P / 6.0,
+                 I + (1 - np.cos(t)) / t**2 * P + ((t - np.sin(t)) / t3 * P) @ P)
+    T = np.zeros((xi.shape[0], 4, 4))
+    T[:, :3, :3] = C
+    T[:, :3, 3] = (V @ rho[:, :, None])[..., 0]
+    T[:, 3, 3] = 1.0
+    return T
 
 
 def random_rotation(rng: np.random.Generator) -> np.ndarray:

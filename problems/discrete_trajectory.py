@@ -36,8 +36,8 @@ from autotight.problem import Instance, LocalResult, Param
 
 from ._cayley import draw_valid
 from ._pose import (POSE_ROLES, XI_ROLES, binary_cayley, declare_pose, declare_xi, pose_blocks, pose_from_x,
-                    pose_orthonormality, pose_values, r1_unary, r2_unary, r3_binary, unary_cayley, weighted_cost,
-                    xi_blocks, xi_values)
+                    pose_orthonormality, r1_unary, r2_unary, r3_binary, unary_cayley, weighted_cost,
+                    xi_blocks)
 
 NAME = "discrete_trajectory"
 DESCRIPTION = "Estimate K poses from pose and relative-pose measurements (paper §4)."
@@ -185,21 +185,19 @@ def residuals(inst: Instance, state: dict) -> tuple[np.ndarray, np.ndarray]:
     """(ξ_k (K, 6), ξ_{k+1,k} (K−1, 6)); raises CayleySingularityError at rotation angle π."""
     Ts = _poses(state)
     m = inst.measurements
-    un = np.array([lie.cay_inv_se3(T @ lie.inv_se3(Tm)) for T, Tm in zip(Ts, m["T_meas"])])
-    bi = np.array([lie.cay_inv_se3(Ts[k + 1] @ lie.inv_se3(Ts[k]) @ lie.inv_se3(m["T_rel"][k]))
-                   for k in range(len(Ts) - 1)]).reshape(-1, 6)
-    return un, bi
+    un = lie.cay_inv_se3_batch(Ts @ lie.inv_se3_batch(np.asarray(m["T_meas"])))
+    bi = lie.cay_inv_se3_batch(Ts[1:] @ lie.inv_se3_batch(Ts[:-1]) @ lie.inv_se3_batch(np.asarray(m["T_rel"])))
+    return un, bi.reshape(-1, 6)
 
 
 def lift(inst: Instance, state: dict) -> np.ndarray:
+    """x in the block order of the module docstring, all poses at once: per pose c1, c2, c3 (the columns
+    of C), r; then every ξ_k; then every ξ_{k+1,k}."""
     K = _count(inst)
     un, bi = residuals(inst, state)
-    vals: dict[str, np.ndarray] = {}
-    for k in range(K):
-        vals |= pose_values(state["C"][k], state["r"][k], pose_prefix(k)) | xi_values(un[k], unary_name(k))
-    for k in range(K - 1):
-        vals |= xi_values(bi[k], binary_name(k))
-    return _variables(K).assemble(vals)
+    C, r = np.asarray(state["C"], dtype=float), np.asarray(state["r"], dtype=float)
+    poses = np.concatenate([np.swapaxes(C, 1, 2).reshape(K, 9), r], axis=1)
+    return np.concatenate([[1.0], poses.ravel(), un.ravel(), bi.ravel()])[None, :]
 
 
 def cost(inst: Instance, state: dict) -> float:
@@ -211,7 +209,7 @@ def cost(inst: Instance, state: dict) -> float:
 def sample(inst: Instance, rng: np.random.Generator, nominal: dict, spread: float) -> dict:
     """T_k = exp((spread·ν_k)^∧) T_nominal,k, ν_k ~ N(0, I₆) independently; redrawn near the Cayley singularity."""
     T0 = _poses(nominal)
-    return draw_valid(lambda: _state(np.array([lie.exp_se3(spread * rng.standard_normal(6)) @ T for T in T0])),
+    return draw_valid(lambda: _state(lie.exp_se3_batch(spread * rng.standard_normal((len(T0), 6))) @ T0),
                       lambda state: residuals(inst, state))
 
 

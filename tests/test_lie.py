@@ -310,3 +310,27 @@ def test_batched_residuals_raise_the_single_pose_errors() -> None:
         lie.residuals_se3(flip, T)
     with pytest.raises(ValueError, match=r"shape \(B, 4, 4\)"):
         lie.residuals_se3(T[0], T[0])
+
+
+def test_batched_exp_and_inverse_cayley_equal_the_single_pose_ones() -> None:
+    """exp_se3_batch, cay_inv_se3_batch and inv_se3_batch repeat the single-pose operations in the same
+    order: equal to the last bit here (sampling for discovery must not move a committed result), on
+    ordinary angles, a near-zero one (the series branch) and one near π (the solve branch)."""
+    rng = np.random.default_rng(9)
+    xi = rng.standard_normal((60, 6))
+    xi[4, 3:] = 1e-10
+    xi[5, 3:] = 0.0
+    E = lie.exp_se3_batch(xi)
+    assert max(np.abs(E[b] - lie.exp_se3(xi[b])).max() for b in range(60)) == 0.0
+    T = _random_poses(rng, 30)
+    T[7] = lie.make_pose(lie.cay(2 * np.tan((np.pi - 1e-3) / 2) * np.array([0.0, 0.6, 0.8])), np.ones(3))
+    X = lie.cay_inv_se3_batch(T)
+    assert max(np.abs(X[b] - lie.cay_inv_se3(T[b])).max() for b in range(30)) == 0.0
+    Ti = lie.inv_se3_batch(T)
+    assert max(np.abs(Ti[b] - lie.inv_se3(T[b])).max() for b in range(30)) == 0.0
+    flip = T.copy()
+    flip[2] = lie.make_pose(lie.exp_so3(np.pi * np.array([0.0, 0.0, 1.0])), np.zeros(3))
+    with pytest.raises(CayleySingularityError):
+        lie.cay_inv_se3_batch(flip)
+    with pytest.raises(ValueError, match="finite"):
+        lie.exp_se3_batch(np.full((2, 6), np.nan))
