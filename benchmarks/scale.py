@@ -15,7 +15,9 @@ seed).  The SDP uses our IPM (``--solver ipm``); local search: from the ground t
 
 --seeds: the instance seeds of every run; --seeds-at: sizes that run with every seed (the others with the
 first).  Without --set (or when the file is missing) the set is discovered at size 5, seed 0, and saved
-there.  Writes benchmarks/results/scale.json (pose averaging: scale_pose_averaging.json) with the
+there; --set takes any set file of the problem (e.g. reports/sets/discrete_trajectory_range.json, whose
+factor type has no template, so its "template" route re-learns every factor), and the JSON records where
+it was learned (``learned_at``).  Writes benchmarks/results/scale.json (pose averaging: scale_pose_averaging.json) with the
 versions and the load average around every run.
 """
 
@@ -168,11 +170,20 @@ def growth_of(rows: list[dict]) -> dict:
     return growth
 
 
+def learned_at(path: str, size: str) -> dict:
+    """The set file's learning size (and its range, for a set discovered over one)."""
+    obj = json.loads(Path(path).read_text(encoding="utf-8"))
+    out = {size: obj.get("params", {}).get(size)}
+    over = obj.get("info", {}).get("range", {}).get("over")
+    return out | ({"range": over} if over else {})
+
+
 def write(args: argparse.Namespace, rows: list[dict], growth: dict) -> None:
     from autotight.io import versions
 
     obj = {"benchmark": "scale", "problem": args.problem, "size_param": SIZE[args.problem],
-           "set": Path(args.set).name, "learned_at": {SIZE[args.problem]: 5}, "solver": "ipm", "n_random": 0,
+           "set": Path(args.set).name, "learned_at": learned_at(args.set, SIZE[args.problem]), "solver": "ipm",
+           "n_random": 0,
            "seeds": args.seeds, "seeds_at": args.seeds_at, "rows": rows,
            "command": "python benchmarks/scale.py " + " ".join(sys.argv[1:]),
            "growth_exponents_100_1000": growth, "targets": {"time": 1.15, "memory": 1.1},
