@@ -17,8 +17,8 @@ seed).  The SDP uses our IPM (``--solver ipm``); local search: from the ground t
 first).  Without --set (or when the file is missing) the set is discovered at size 5, seed 0, and saved
 there; --set takes any set file of the problem (e.g. reports/sets/discrete_trajectory_range.json, whose
 factor type has no template, so its "template" route re-learns every factor), and the JSON records where
-it was learned (``learned_at``).  Writes benchmarks/results/scale.json (pose averaging: scale_pose_averaging.json) with the
-versions and the load average around every run.
+it was learned (``learned_at``).  Writes benchmarks/results/scale.json (pose averaging:
+scale_pose_averaging.json) with the versions and the load average around every run.
 """
 
 from __future__ import annotations
