@@ -185,6 +185,8 @@ def residuals(inst: Instance, state: dict) -> tuple[np.ndarray, np.ndarray]:
     """(ξ_k (K, 6), ξ_{k+1,k} (K−1, 6)); raises CayleySingularityError at rotation angle π."""
     Ts = _poses(state)
     m = inst.measurements
+    if len(Ts) != len(m["T_meas"]):
+        raise ParameterError(f"a state of {len(Ts)} poses for an instance of K = {len(m['T_meas'])}")
     un = lie.cay_inv_se3_batch(Ts @ lie.inv_se3_batch(np.asarray(m["T_meas"])))
     bi = lie.cay_inv_se3_batch(Ts[1:] @ lie.inv_se3_batch(Ts[:-1]) @ lie.inv_se3_batch(np.asarray(m["T_rel"])))
     return un, bi.reshape(-1, 6)

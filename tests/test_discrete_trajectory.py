@@ -197,3 +197,6 @@ def test_vectorised_lift_and_sample_equal_the_per_pose_construction():
     T0 = dt._poses(state)
     want = np.array([lie.exp_se3(0.2 * rng_b.standard_normal(6)) @ T for T in T0])
     assert np.array_equal(got["C"], want[:, :3, :3]) and np.array_equal(got["r"], want[:, :3, 3])
+    short = {"C": state["C"][:-1], "r": state["r"][:-1]}
+    with pytest.raises(ParameterError, match="a state of 6 poses for an instance of K = 7"):
+        PROB.lift(inst, short)
