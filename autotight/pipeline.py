@@ -209,7 +209,8 @@ def solve_instance(problem: Problem, inst: Instance, constraints: ConstraintsLik
     instance; the generators default to the seed scheme of the module docstring.  The SDP is
     solved in the variables X' of X = D X' D with D from the best local solution's lifting
     (``block_scale_at``): every block of X' is then O(1), which the solver's relative accuracy needs
-    when residual blocks are O(σ).  A verdict left undecided by the solver's accuracy is solved once
+    when residual blocks are O(σ); the verdict may take its bracket's dual correction in that frame
+    (``tightness.judge``'s ``scale``).  A verdict left undecided by the solver's accuracy is solved once
     more at a 100× tighter tolerance; ``attempts`` records both.  An unbounded SDP (DualInfeasible:
     nothing bounds some blocks) raises ``UnboundedRelaxation`` naming those blocks in one line, unless
     ``raise_unbounded`` is False (then it is judged not tight, as discovery's held-out check needs for
