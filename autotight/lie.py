@@ -468,8 +468,8 @@ def exp_se3(xi: np.ndarray) -> np.ndarray:
 
 
 def exp_se3_batch(xi: np.ndarray) -> np.ndarray:
-    """``exp_se3`` on a stack: ξ (B, 6) → (B, 4, 4), with the same operations in the same order (the same
-    floating-point result up to the matrix products' summation order)."""
+    """``exp_se3`` on a stack: ξ (B, 6) → (B, 4, 4), with the same operations in the same order, so the
+    same floating-point result (tests: equal to the last bit)."""
     xi = np.asarray(xi, dtype=float)
     if xi.ndim != 2 or xi.shape[1] != 6 or not np.all(np.isfinite(xi)):
         raise ValueError(f"xi must be a finite (B, 6) array, got shape {xi.shape}")
