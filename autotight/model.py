@@ -13,6 +13,7 @@ from typing import Iterable, Sequence
 
 import numpy as np
 import scipy.sparse as sp
+import scipy.sparse.linalg as spla
 
 from .errors import ProblemDefinitionError
 
@@ -184,10 +185,17 @@ class Constraint:
     def __post_init__(self) -> None:
         self.A = as_coo(self.A)
 
-    def value(self, X: np.ndarray) -> float:
-        """⟨A, X⟩ − b."""
+    def value(self, X: np.ndarray | sp.csr_array) -> float:
+        """⟨A, X⟩ − b; X dense, or sparse holding at least A's entries (a large decomposed solve keeps X on
+        its cliques' pattern, ``sdp.result.DENSE_X_MAX``, and a factor's constraint lies inside a clique)."""
         A = self.A
-        return float(np.dot(A.data, np.asarray(X)[A.row, A.col]) - self.b)
+        vals = np.asarray(X[A.row, A.col]).ravel() if sp.issparse(X) else np.asarray(X)[A.row, A.col]
+        return float(np.dot(A.data, vals) - self.b)
+
+
+def frobenius(X: np.ndarray | sp.csr_array) -> float:
+    """‖X‖_F of a dense X, or of the entries a sparse X holds (its cliques' pattern)."""
+    return float(spla.norm(X)) if sp.issparse(X) else float(np.linalg.norm(X))
 
 
 @dataclass

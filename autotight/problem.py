@@ -23,7 +23,10 @@ and **may** define (the default is used otherwise)
 - ``errors(instance, state) -> dict[str, float]``: default ``default_errors`` (rotation-like entries →
   angle in degrees, poses → angle and translation, other arrays → RMS norm of the difference);
 - ``SPREAD`` (0.5): the spread discovery samples with; ``RANDOM_SPREAD`` (π); ``SIGMAS`` (the noise levels
-  of ``report``); ``CHECK_PARAMS`` (parameters for ``check-module``; default ``PARAMS``' defaults).
+  of ``report``); ``CHECK_PARAMS`` (parameters for ``check-module``; default ``PARAMS``' defaults);
+- ``TRANSPORTS: dict[str, Callable]``: per factor type, ``transport(data) -> M`` (n × n, n the factor's
+  local columns, h first): a factor's columns θ satisfy the relations of measurement ``data`` exactly
+  when Mθ satisfies those of the reference measurement (``autotight.discovery.transport``).
 
 A state is a ``dict[str, np.ndarray]`` in the problem's own terms.  h² = 1 (d = 1) or Θ_hh = I_d
 is added to the primary constraints for you (``Model.homogenisation``); ``lift`` fills h in when it
@@ -62,7 +65,7 @@ State = dict[str, np.ndarray]
 REQUIRED = ("PARAMS", "generate", "build", "lift", "sample", "local_solve", "recover")
 #: Parts with a default (``Problem`` derives them when absent).
 OPTIONAL = ("NAME", "DESCRIPTION", "cost", "random_state", "errors", "SPREAD", "RANDOM_SPREAD", "SIGMAS",
-            "CHECK_PARAMS")
+            "CHECK_PARAMS", "TRANSPORTS")
 FUNCTIONS = ("generate", "build", "lift", "sample", "cost", "local_solve", "recover", "random_state", "errors")
 #: Default sampling spread (discovery's samples, check-module).
 SPREAD = 0.5
@@ -211,6 +214,30 @@ class Problem:
         if isinstance(v, (bool, np.bool_)) or not isinstance(v, (Real, np.number)):
             raise self.fail(part, f"returned {_kind(v)}, expected a float")
         return float(v)
+
+    def transport_types(self) -> tuple[str, ...]:
+        """The factor types with a declared ``TRANSPORTS`` entry."""
+        ts = getattr(self.module, "TRANSPORTS", {})
+        if not isinstance(ts, Mapping) or not all(callable(f) for f in ts.values()):
+            raise ProblemDefinitionError(f"{self.where()}: TRANSPORTS must be a dict of functions")
+        return tuple(sorted(ts))
+
+    def transport(self, factor_type: str, data: np.ndarray, n: int) -> np.ndarray:
+        """The module's ``TRANSPORTS[factor_type](data)``, checked: a finite (n, n) array."""
+        if factor_type not in self.transport_types():
+            raise self.fail("TRANSPORTS", f"has no entry for factor type {factor_type!r}")
+        part = f"TRANSPORTS[{factor_type!r}]"
+        try:
+            M = np.asarray(self.module.TRANSPORTS[factor_type](np.asarray(data, dtype=float)), dtype=float)
+        except AutotightError:
+            raise
+        except Exception as e:
+            msg = _first_line(e)
+            raise self.fail(part, f"raised {type(e).__name__}" + (f": {msg}" if msg else "")) from e
+        if M.shape != (n, n) or not np.all(np.isfinite(M)):
+            raise self.fail(part, f"returned {_kind(M)}" + ("" if M.shape != (n, n) else " with non-finite entries")
+                            + f", expected a finite ({n}, {n}) array")
+        return M
 
     def _model(self, instance: Instance) -> Model | None:
         hit = self._models.get(id(instance))

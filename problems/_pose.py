@@ -201,6 +201,38 @@ def r3_binary(V: Variables, prefix1: str, prefix2: str, T_rel: np.ndarray | None
 # ----------------------------------------------------------------------------- residuals
 
 
+# ----------------------------------------------------------------------------- transports (learned templates)
+#
+# A factor's local columns θ (h, then its blocks in order; d = 1) satisfy the Cayley rows of measurement
+# T̃ exactly when Mθ satisfies those of T̃ = I, so its learned relations are congruences Mᵀ A M of the
+# relations at T̃ = I (``autotight.discovery.transport``).  ``data`` is [C̃ r̃] row-major (12,).
+
+
+def _measured(data: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    T = np.asarray(data, dtype=float).reshape(3, 4)
+    return T[:, :3], T[:, 3]
+
+
+def unary_transport(data: np.ndarray) -> np.ndarray:
+    """M (19 × 19) on [h, c1, c2, c3, r, ρ, φ] for ξ = cay⁻¹(T T̃⁻¹): T ↦ T T̃⁻¹, i.e.
+    c_i ↦ Σ_j C̃_ij c_j and r ↦ r − Σ_j (C̃ᵀ r̃)_j c_j; h, ρ, φ unchanged."""
+    C, r = _measured(data)
+    M = np.eye(19)
+    M[1:10, 1:10] = np.kron(C, np.eye(3))
+    M[10:13, 1:10] = -np.kron((C.T @ r)[None, :], np.eye(3))
+    return M
+
+
+def binary_transport(data: np.ndarray) -> np.ndarray:
+    """M (31 × 31) on [h, c1, c2, c3, r, c1′, c2′, c3′, r′, ρ, φ] for ξ = cay⁻¹(T₂ T₁⁻¹ T̃⁻¹): T₁ ↦ T̃ T₁, i.e.
+    c₁,ᵢ ↦ C̃ c₁,ᵢ and r₁ ↦ C̃ r₁ + r̃ h; pose 2, ρ, φ unchanged."""
+    C, r = _measured(data)
+    M = np.eye(31)
+    M[1:13, 1:13] = np.kron(np.eye(4), C)
+    M[10:13, 0] = r
+    return M
+
+
 def unary_residuals(T: np.ndarray, T_meas: Sequence[np.ndarray]) -> np.ndarray:
     """ξ_m = cay⁻¹(T T̃_m⁻¹)^∨ for each measurement, (M, 6); raises CayleySingularityError at angle π."""
     return np.array([lie.cay_inv_se3(T @ lie.inv_se3(Tm)) for Tm in T_meas]).reshape(-1, 6)

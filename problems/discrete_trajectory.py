@@ -35,9 +35,9 @@ from autotight.model import Factor, Model, Variables
 from autotight.problem import Instance, LocalResult, Param
 
 from ._cayley import draw_valid
-from ._pose import (POSE_ROLES, XI_ROLES, binary_cayley, declare_pose, declare_xi, pose_blocks, pose_from_x,
-                    pose_orthonormality, r1_unary, r2_unary, r3_binary, unary_cayley, weighted_cost,
-                    xi_blocks)
+from ._pose import (POSE_ROLES, XI_ROLES, binary_cayley, binary_transport, declare_pose, declare_xi, pose_blocks,
+                    pose_from_x, pose_orthonormality, r1_unary, r2_unary, r3_binary, unary_cayley, unary_transport,
+                    weighted_cost, xi_blocks)
 
 NAME = "discrete_trajectory"
 DESCRIPTION = "Estimate K poses from pose and relative-pose measurements (paper §4)."
@@ -56,6 +56,10 @@ PARAMS = {
                        high=2.5),
     "climb": Param(0.1, "vertical distance per step (makes the path a helix)"),
 }
+
+#: each factor type's learned relations move with its measurement (``Factor.data``) by this change of
+#: variables (``autotight.discovery.transport``): templates for relations that no low-degree polynomial fits
+TRANSPORTS = {"pose_meas": unary_transport, "odometry": binary_transport}
 
 #: roles of an odometry factor: pose k, then pose k+1 (primed), then ξ_{k+1,k}
 ODOMETRY_ROLES = ("h", *POSE_ROLES, *(f"{r}'" for r in POSE_ROLES), *XI_ROLES)

@@ -13,9 +13,11 @@ from autotight.discovery.catalog import learn
 from autotight.discovery.discovered import FORMAT, FORMAT_V1, DiscoveredSet
 from autotight.discovery.learn import LearnOptions
 from autotight.discovery.templates import FIT_RTOL, TemplateSet, apply_templates, learn_templates, relative_error
-from autotight.errors import AutotightError
+from autotight.discovery.transport import TransportTemplate
+from autotight.errors import AutotightError, ProblemModuleError
 from autotight.pipeline import solve_instance
 from autotight.problem import load
+from problems._pose import unary_transport
 
 #: the factor types of the shipped problems with templates, and one learned identity of each
 #: (the relation that discovery keeps on both problems, resembling the paper's R2)
@@ -140,3 +142,70 @@ def test_set_from_size5_applied_at_size50(learned):
             theta = np.atleast_2d(prob.lift(inst, inst.truth))
             assert len(cons) == 50
             assert max(abs(c.value(theta.T @ theta)) for c in cons) < 1e-8
+
+
+# ----------------------------------------------------------------------------- transport templates
+
+#: the discrete trajectory's relations of c3ᵀρ: no polynomial of degree ≤ 2 in the measurement fits them
+TRANSPORTED = [("pose_meas", "c3[0]·rho[0]"), ("pose_meas", "c3[1]·rho[1]"), ("pose_meas", "c3[2]·rho[2]")]
+
+
+@pytest.fixture(scope="module")
+def transported():
+    prob = load("discrete_trajectory")
+    params = prob.parse_params({"K": 5})
+    return prob, params, learn_templates(prob, params, TRANSPORTED, seed=0)
+
+
+def test_transport_template_equals_relearning_on_fresh_measurements(transported):
+    prob, params, ts = transported
+    tpl = ts.templates["pose_meas"]
+    assert isinstance(tpl, TransportTemplate) and ts.fallback == {}
+    assert "not a polynomial of degree ≤ 2" in tpl.check["polynomial"]
+    inst = prob.generate(prob.parse_params({"K": 7}), np.random.default_rng(987))
+    model = prob.build(inst)
+    cat = learn(prob, inst, model, np.random.default_rng(3), "factors", LearnOptions(), types=["pose_meas"])
+    D = np.array([model.factor(g.group.name).data for g in cat.groups])
+    Y = np.array([g.coeffs[:, [g.identities.index(i) for _, i in TRANSPORTED]].T for g in cat.groups])
+    got = tpl.dense(D, prob)
+    err = relative_error(got.reshape(7, -1), Y.reshape(7, -1))
+    assert len(err) == 7 and err.max() <= FIT_RTOL, err.max()
+    # the saved record carries the same template
+    again = TemplateSet.from_record(json.loads(json.dumps(ts.record()))).templates["pose_meas"]
+    assert np.array_equal(again.dense(D, prob), got)
+
+
+def test_transport_applied_at_size_50_holds_and_equals_relearning(transported):
+    prob, params, ts = transported
+    inst = prob.generate(prob.parse_params({"K": 50}), np.random.default_rng(11))
+    model = prob.build(inst)
+    cons, skipped = apply_templates(prob, inst, model, ts, np.random.default_rng(1), LearnOptions())
+    assert len(cons) == 150 and not skipped
+    relearned = DiscoveredSet(prob.name, params, 0, TRANSPORTED).instantiate(prob, inst, np.random.default_rng(2),
+                                                                           model)
+    by_name = {c.name: c for c in relearned}
+    worst = max(abs(c.A - by_name[c.name].A).max() / abs(by_name[c.name].A).max() for c in cons)
+    assert worst <= FIT_RTOL, worst
+    theta = np.atleast_2d(prob.lift(inst, inst.truth))
+    X = theta.T @ theta
+    assert max(abs(c.value(X)) for c in cons) < 1e-9 * np.abs(X).max()
+
+
+def test_wrong_transport_falls_back_with_the_reason(monkeypatch):
+    prob = load("discrete_trajectory")
+    params = prob.parse_params({"K": 5})
+    # a map that moves the rotation but forgets the translation: the carried relations are wrong
+    monkeypatch.setitem(prob.module.TRANSPORTS, "pose_meas",
+                        lambda d: unary_transport(np.concatenate([d.reshape(3, 4)[:, :3], np.zeros((3, 1))], 1)))
+    ts = learn_templates(prob, params, TRANSPORTED[:1], seed=0)
+    assert "pose_meas" not in ts.templates
+    assert "no transport template either: carried coefficients off by" in ts.fallback["pose_meas"]
+
+
+def test_transport_output_is_checked_at_the_boundary(monkeypatch):
+    prob = load("discrete_trajectory")
+    monkeypatch.setitem(prob.module.TRANSPORTS, "pose_meas", lambda d: np.eye(3))
+    with pytest.raises(ProblemModuleError, match=r"TRANSPORTS\['pose_meas'\] returned .*expected a finite \(19, 19\)"):
+        prob.transport("pose_meas", np.zeros(12), 19)
+    with pytest.raises(ProblemModuleError, match="has no entry for factor type 'so3'"):
+        prob.transport("so3", np.zeros(0), 4)

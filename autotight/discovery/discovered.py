@@ -41,6 +41,12 @@ CONVENTION = {
                 "monomial pos % m, m = n(n+1)/2); monomial μ is θ_{c_i}ᵀθ_{c_j}, i ≤ j, in svec order (column-"
                 "major upper triangle, no √2); the constraint is Σ p_μ θ_{c_i}ᵀθ_{c_j} = 0, i.e. A_ii = p, "
                 "A_ij = A_ji = p/2; features(δ) = [1, δ_i, δ_i δ_j (i ≤ j, svec order)] up to 'degree'",
+    "transport template": "kind 'transport': 'basis_triplets' [μ, q, value] hold the type's basic solutions at "
+                          "the reference measurement (m × n_relations); for a factor with data δ, M = the problem "
+                          "module's TRANSPORTS[type](δ) (n × n), each relation A_q becomes Mᵀ A_q M, and the "
+                          "coefficients are the basic solutions of that span with coefficient 1 on monomial "
+                          "'free'[j] and 0 on the other free monomials; identity j of 'identities' is row "
+                          "'want'[j] (autotight/discovery/transport.py)",
     "svec": "svec(X) stacks the upper triangle column by column, off-diagonal entries times √2 (Clarabel's "
             "PSDTriangle layout); ⟨A, X⟩ = svec(A)·svec(X)",
 }

@@ -162,6 +162,7 @@ class LearnedGroup:
     ignored_gap_rank: int | None = None
     degenerate: str | None = None  # why the free monomials gave no basic solutions (``learn_group``)
     whole: "LearnedGroup | None" = None  # with whole_nullspace: the orthonormal basis of the same nullspace
+    free: np.ndarray | None = None  # svec index of each solution's free monomial (None: ``degenerate``)
 
     @property
     def near_degenerate(self) -> bool:
@@ -302,12 +303,13 @@ def learn_group(model: Model, group: Group, bank: SampleBank, heldout: SampleBan
     t2 = time.perf_counter()
     lg = LearnedGroup(group, cols, need, spec.rel, spec.rank, spec.gap_decades, idents, coeffs, in_span, viol,
                       opts.heldout_tol, {"nullspace_s": t1 - t0, "basis_s": t2 - t1},
-                      spec.ignored_gap_decades, spec.ignored_gap_rank, degenerate)
+                      spec.ignored_gap_decades, spec.ignored_gap_rank, degenerate,
+                      free=order[free] if degenerate is None else None)
     if whole is not None and (not lg.passed().all() or lg.near_degenerate):  # the same nullspace, orthonormal:
         # what carry-over uses where an identity is inaccurate (held-out failure) or named otherwise (near-degenerate)
         w_span, w_viol = _span_and_heldout(whole, cols, order, D, spanning, heldout, opts)
         lg.whole = replace(lg, identities=[f"nullspace[{q}]" for q in range(k)], coeffs=whole, in_primary_span=w_span,
-                           heldout_violation=w_viol, degenerate="the orthonormal basis of the nullspace")
+                           heldout_violation=w_viol, degenerate="the orthonormal basis of the nullspace", free=None)
     return lg
 
 

@@ -21,7 +21,7 @@ from typing import Iterable
 import numpy as np
 
 from .. import sdp
-from ..model import Constraint, Model
+from ..model import Constraint, Model, frobenius
 from ..sdp.config import SolverConfig
 from ..sdp.result import SDPResult
 from ..sdp.scaling import block_scale
@@ -91,7 +91,7 @@ class Oracle:
 
     def violation(self, X: np.ndarray, pair: Pair) -> float:
         """max over the pair's constraints of |⟨A,X⟩| / (‖A‖_F ‖X‖_F): 0 at every rank-1 feasible X."""
-        nx = np.linalg.norm(X)
+        nx = frobenius(X)
         return max(abs(c.value(X)) / (np.sqrt((c.A.multiply(c.A)).sum()) * nx) for c in self.pairs[pair])
 
     def importance(self, res: SDPResult, chosen: list[Pair]) -> dict[Pair, float]:

@@ -57,7 +57,7 @@ from ..check import PointResult, parse_over, points_of, solve_points
 from ..constraint_set import ConstraintSet
 from ..errors import ParameterError
 from ..io import jsonable
-from ..model import Constraint, Model
+from ..model import Constraint, Model, frobenius
 from ..pipeline import LocalSearch, SolveResult, local_search, seeds, solve_instance
 from ..problem import Instance, Problem, load, parse_assignments
 from ..sdp.config import SolverConfig
@@ -105,7 +105,7 @@ class Trainer:
 
     def violation(self, X: np.ndarray, pair: Pair) -> float:
         """max over the pair's constraints on this instance of |⟨A,X⟩| / (‖A‖_F ‖X‖_F)."""
-        nx = np.linalg.norm(X)
+        nx = frobenius(X)
         return max(abs(c.value(X)) / (np.sqrt((c.A.multiply(c.A)).sum()) * nx) for c in self.pairs[pair])
 
     def importance(self) -> dict[Pair, float]:

@@ -13,8 +13,9 @@ nullspace.  Every template is checked before it is kept on instances that took n
 (a) its coefficients equal those re-learned there to ``FIT_RTOL`` (relative to each factor's largest
 coefficient) and (b) its constraints hold on fresh feasible states of those instances to
 ``LearnOptions.heldout_tol`` (relative violation, as for learning).  The degree is the smallest of
-(0, 1, 2) that passes; a factor type that passes none is reported and learned per factor instead
-(``fallback``).
+(0, 1, 2) that passes.  A factor type that passes none gets a transport template when its problem module
+declares ``TRANSPORTS`` for it (``transport``: exact congruences of one learned factor's relations, checked
+the same way); otherwise it is reported and learned per factor instead (``fallback``).
 
 Coefficient layout: for a factor with local columns c_0 … c_{n−1} (its blocks in order, h first), the
 monomials are θ_{c_i}ᵀθ_{c_j}, i ≤ j, in svec order (column-major upper triangle, no √2; see
@@ -35,6 +36,7 @@ from ..model import Constraint, Model, canonical_coo
 from ..problem import Instance, Problem
 from ..svec import triu_indices
 from .learn import LearnOptions
+from .transport import TransportTemplate, reference_template
 
 #: a template's coefficients must equal re-learned ones to this relative accuracy (max-norm, relative
 #: to each factor's largest coefficient) on the instances used for fitting and checking
@@ -92,11 +94,12 @@ class TypeTemplate:
     def n_monomials(self) -> int:
         return self.n_cols * (self.n_cols + 1) // 2
 
-    def coefficients(self, D: np.ndarray) -> np.ndarray:
-        """Coefficients on ``support`` for factors with data D (n_f, n_data) → (n_f, |support|)."""
+    def coefficients(self, D: np.ndarray, problem: Problem | None = None) -> np.ndarray:
+        """Coefficients on ``support`` for factors with data D (n_f, n_data) → (n_f, |support|) (``problem``:
+        unused, as ``TransportTemplate.coefficients``)."""
         return features(D, self.degree) @ self.W
 
-    def dense(self, D: np.ndarray) -> np.ndarray:
+    def dense(self, D: np.ndarray, problem: Problem | None = None) -> np.ndarray:
         """Full coefficient vectors (n_f, k, m), as learning returns them (``LearnedGroup.coeffs``ᵀ)."""
         out = np.zeros((D.shape[0], len(self.identities) * self.n_monomials))
         out[:, self.support] = self.coefficients(D)
@@ -108,7 +111,9 @@ class TypeTemplate:
                 "support": self.support.tolist(), "W": self.W.tolist(), "check": self.check}
 
     @classmethod
-    def from_record(cls, r: dict[str, Any]) -> "TypeTemplate":
+    def from_record(cls, r: dict[str, Any]) -> "TypeTemplate | TransportTemplate":
+        if r.get("kind", "polynomial") == "transport":
+            return TransportTemplate.from_record(r)
         return cls(r["factor_type"], list(r["identities"]), list(r["roles"]), [int(s) for s in r["block_sizes"]],
                    int(r["n_data"]), int(r["degree"]), np.asarray(r["support"], dtype=np.int64),
                    np.asarray(r["W"], dtype=float).reshape(n_features(int(r["n_data"]), int(r["degree"])), -1),
@@ -119,7 +124,7 @@ class TypeTemplate:
 class TemplateSet:
     """Templates per factor type, and the types that fall back to per-factor learning (with the reason)."""
 
-    templates: dict[str, TypeTemplate]
+    templates: dict[str, "TypeTemplate | TransportTemplate"]
     fallback: dict[str, str]
     times: dict[str, float] = field(default_factory=dict)
 
@@ -235,12 +240,20 @@ def learn_templates(problem: Problem, params: dict[str, Any], pairs: Sequence[tu
     for t in open_types:
         fallback[t] = (f"factor type {t!r}: no template of degree ≤ {max(DEGREES)} fitted within {MAX_INSTANCES} "
                        "instances; learned per factor instead")
-    t1 = time.perf_counter()
-    templates: dict[str, TypeTemplate] = {}
+    templates: dict[str, TypeTemplate | TransportTemplate] = {}
     for t, (g, W, support) in fitted.items():
         D0 = samples[t][0][0]
         templates[t] = TypeTemplate(t, wanted[t], *layout[t], int(D0.size), g, support, W[:, support],
                                     {"n_fit_factors": len(samples[t]), "fit_instances": k})
+    for t in sorted(set(wanted) - set(fitted)):
+        if t in layout and t in problem.transport_types():
+            try:
+                templates[t] = _transport_template(problem, params, t, wanted[t], layout[t], seed, opts)
+            except AutotightError as e:
+                fallback[t] += f"; no transport template either: {e}"
+                continue
+            templates[t].check["polynomial"] = fallback.pop(t).replace("; learned per factor instead", "")
+    t1 = time.perf_counter()
     t2 = time.perf_counter()
     for c in range(CHECK_INSTANCES):
         if not templates:
@@ -255,12 +268,12 @@ def learn_templates(problem: Problem, params: dict[str, Any], pairs: Sequence[tu
             if got[t]:
                 D = np.array([d for d, _ in got[t]]).reshape(len(got[t]), -1)
                 Y = np.array([y for _, y in got[t]])
-                err = float(relative_error(tpl.dense(D).reshape(len(Y), -1), Y).max())
+                err = float(relative_error(tpl.dense(D, problem).reshape(len(Y), -1), Y).max())
             viol = check_template(problem, inst, model, tpl, rng, opts)
             worst = max(viol.values()) if viol else 0.0
             tpl.check["relearn_rel_error"] = max(tpl.check.get("relearn_rel_error", 0.0), err)
             tpl.check["heldout_violation"] = max(tpl.check.get("heldout_violation", 0.0), worst)
-            if err > FIT_RTOL or worst > opts.heldout_tol:
+            if not (err <= FIT_RTOL and worst <= opts.heldout_tol):  # NaN (no solution on a factor) fails
                 fallback[t] = (f"the template of factor type {t!r} failed its check on a fresh instance "
                                f"(coefficients off by {err:.1e} relative, violation {worst:.1e}); learned per "
                                "factor instead")
@@ -268,6 +281,34 @@ def learn_templates(problem: Problem, params: dict[str, Any], pairs: Sequence[tu
     for tpl in templates.values():
         tpl.check |= {"check_instances": CHECK_INSTANCES, "fit_rtol": FIT_RTOL, "heldout_tol": opts.heldout_tol}
     return TemplateSet(templates, fallback, {"fit_s": t1 - t0, "check_s": time.perf_counter() - t2})
+
+
+def _transport_template(problem: Problem, params: dict[str, Any], t: str, wanted: list[str],
+                        layout: tuple[list[str], list[int]], seed: int, opts: LearnOptions) -> TransportTemplate:
+    """A transport template of type ``t`` from the first factor of the first fitting instance (seed + 1000),
+    its coefficients checked against re-learning on the instance's other factors (``FIT_RTOL``); the
+    support is the union of their nonzeros.  AutotightError when it does not hold."""
+    from .catalog import learn
+
+    inst = problem.generate(params, np.random.default_rng(seed + 1000))
+    model = problem.build(inst)
+    cat = learn(problem, inst, model, np.random.default_rng([seed, 1000]), "factors",
+                replace(opts, heldout=min(opts.heldout, 6)), types=[t])
+    gs = [g for g in cat.groups if g.free is not None and all(i in g.identities for i in wanted)]
+    if len(gs) < 2:
+        raise AutotightError(f"fewer than 2 factors of type {t!r} have the identities {wanted} on an instance "
+                             f"with params {params}")
+    data = [np.zeros(0) if model.factor(g.group.name).data is None else model.factor(g.group.name).data
+            for g in gs]
+    tpl = reference_template(problem, t, wanted, *layout, data[0], gs[0].coeffs, gs[0].free, gs[0].identities)
+    Y = np.array([g.coeffs[:, [g.identities.index(i) for i in wanted]].T.ravel() for g in gs[1:]])
+    pred = tpl.solutions(np.array(data[1:]), problem).reshape(len(Y), -1)
+    tpl.support = np.flatnonzero(np.any(Y != 0, axis=0) | np.any(pred != 0, axis=0))
+    err = float(np.nan_to_num(relative_error(pred, Y), nan=np.inf).max())
+    tpl.check |= {"reference_factor": gs[0].group.name, "n_fit_factors": len(gs) - 1, "relearn_rel_error": err}
+    if not err <= FIT_RTOL:
+        raise AutotightError(f"carried coefficients off by {err:.1e} relative on the learning instance's other factors")
+    return tpl
 
 
 # ----------------------------------------------------------------------------- applying
@@ -328,16 +369,16 @@ def check_template(problem: Problem, inst: Instance, model: Model, tpl: TypeTemp
     from .samples import draw
 
     bank = draw(problem, inst, n_samples or max(4, opts.heldout // 10), rng, opts.spread)
-    v = violations(tpl, cols, tpl.coefficients(D), bank.thetas).max(axis=1)
+    v = violations(tpl, cols, tpl.coefficients(D, problem), bank.thetas).max(axis=1)
     return {f.name: float(x) for f, x in zip(fs, v)}
 
 
-def apply_template(model: Model, tpl: TypeTemplate) -> list[Constraint]:
-    """The template's constraints on every factor of its type in ``model`` (evaluation only)."""
+def apply_template(model: Model, tpl: TypeTemplate | TransportTemplate, coeffs: np.ndarray) -> list[Constraint]:
+    """The template's constraints on every factor of its type in ``model``, from their coefficients
+    (``tpl.coefficients`` of the factors' data, in ``factor_columns`` order)."""
     fs, cols, D = factor_columns(model, tpl)
     if not fs:
         return []
-    coeffs = tpl.coefficients(D)
     m = tpl.n_monomials
     q, mono = tpl.support // m, tpl.support % m
     ii, jj = triu_indices(tpl.n_cols)
@@ -376,13 +417,16 @@ def apply_templates(problem: Problem, inst: Instance, model: Model, ts: Template
             from .samples import draw
 
             thetas = draw(problem, inst, n_check, rng, opts.spread).thetas
-        viol = violations(tpl, cols, tpl.coefficients(D), thetas)
-        bad = np.argwhere(viol > opts.heldout_tol)
-        cons = apply_template(model, tpl)
+        coeffs = tpl.coefficients(D, problem)
+        viol = violations(tpl, cols, coeffs, thetas)
+        bad = np.argwhere(~(viol <= opts.heldout_tol))  # NaN: no solution on that factor
+        cons = apply_template(model, tpl, coeffs)
         if bad.size:
             r, a = bad[0]
+            why = ("no basic solution there: its free monomials are ill-conditioned" if np.isnan(viol[r, a])
+                   else f"relative violation {viol[r, a]:.1e} > {opts.heldout_tol:g}")
             msg = (f"template {tpl.factor_type}:{tpl.identities[a]} fails its check on factor {fs[r].name} "
-                   f"(relative violation {viol[r, a]:.1e} > {opts.heldout_tol:g}; {len(bad)} factor identities fail)")
+                   f"({why}; {len(bad)} factor identities fail)")
             if not skip_invalid:
                 raise AutotightError(msg + "; pass --skip-invalid (skip_invalid=True) to leave them out")
             drop = {(fs[r].name, tpl.identities[a]) for r, a in bad}

@@ -1,0 +1,171 @@
+"""Transport templates: the relations of a factor type move with its measurement by a change of variables.
+
+A problem module may declare ``TRANSPORTS[type](δ) -> M`` (n × n, n the factor's local columns, h first):
+a factor's columns θ satisfy the relations of measurement δ exactly when θ' = Mθ satisfies those of the
+reference measurement (pose measurements: T ↦ T T̃⁻¹, so the reference is T̃ = I).  Then the relation spaces
+of any two factors of the type are congruent: with the basic solutions A₀ learned on one factor (data δ₀),
+
+    A(δ) = Rᵀ A₀ R,   R = M(δ₀)⁻¹ M(δ),
+
+spans the relations of a factor with data δ, and its basic solutions (``nullspace.basic_solutions``:
+coefficient 1 on its own free monomial, 0 on the other free ones) are
+
+    P(δ) = B (B_F)⁻¹,   B = the learned basis carried by R (m × k),   F the free monomials.
+
+(The learned factor, not δ = reference, anchors the basis: at T̃ = I itself the free monomials of a
+generic factor can be singular.)
+
+That is exact for every δ, although P(δ) is a rational function of high degree in δ (which is why no
+polynomial template of degree ≤ 2 fits such a type).  Applying it costs one congruence and one k × k
+solve per factor, batched over the type's factors: no sampling and no nullspace.
+
+Layout as in ``templates``: coefficient vectors over the local monomials θ_iᵀθ_j, i ≤ j, in svec order
+(column-major upper triangle, no √2); the reference basis is stored as (monomial, relation, value)
+triplets of its nonzeros.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from ..errors import AutotightError
+from ..problem import Problem
+from ..svec import triu_indices
+from .nullspace import CLEAN, MAX_FREE_COND
+
+#: factors carried at once (bounds the (chunk, k, n, n) congruence array)
+CHUNK = 128
+
+
+def carry(P: np.ndarray, Ms: np.ndarray) -> np.ndarray:
+    """Coefficients of θ ↦ p(Mθ) for each relation p (columns of P, (m, k)) and each M of Ms (c, n, n)
+    → (c, k, m): the congruence Mᵀ A M of each relation's symmetric matrix A."""
+    n = Ms.shape[1]
+    ii, jj = triu_indices(n)
+    off = ii != jj
+    S = np.zeros((P.shape[1], n, n))
+    S[:, ii, jj] = np.where(off, P.T / 2, P.T)
+    S[:, jj, ii] = S[:, ii, jj]
+    C = np.swapaxes(Ms, 1, 2)[:, None] @ S[None] @ Ms[:, None]  # (c, k, n, n)
+    return np.where(off, 2.0, 1.0) * C[:, :, ii, jj]
+
+
+def basic(B: np.ndarray, free: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Basic solutions of the spans of B (c, k, m) with respect to ``free`` (k monomials) → ((c, k, m), the
+    condition number of each span's orthonormal basis Q on the free monomials, as learning measures it).
+    Rows follow ``free``; entries below ``CLEAN`` of a row's largest are 0, as in learning
+    (``nullspace.basic_solutions``); a span with cond > ``MAX_FREE_COND`` gets NaN rows."""
+    Q, _ = np.linalg.qr(np.swapaxes(B, 1, 2))  # (c, m, k), orthonormal columns
+    QF = Q[:, free, :]  # (c, k free rows, k)
+    cond = np.linalg.cond(QF)
+    ok = cond <= MAX_FREE_COND
+    V = np.full(B.shape, np.nan)
+    if ok.any():
+        W = np.linalg.solve(np.swapaxes(QF[ok], 1, 2), np.swapaxes(Q[ok], 1, 2))  # (Q Q_F⁻¹)ᵀ, row j: solution j
+        W[:, np.arange(len(free))[:, None], free[None, :]] = np.eye(len(free))
+        mx = np.max(np.abs(W), axis=2, keepdims=True)
+        W[np.abs(W) < CLEAN * mx] = 0.0
+        V[ok] = W
+    return V, cond
+
+
+@dataclass
+class TransportTemplate:
+    """The relations of one factor type, carried from the reference measurement by ``TRANSPORTS[type]``.
+
+    basis: (m, k) basic solutions learned on one factor, whose data is ``data``; ``free`` their free
+    monomials; ``want`` the rows of the identities kept (``identities``).  Same interface as ``TypeTemplate``:
+    ``coefficients(D, problem)`` on ``support`` (positions in the stacked k_wanted · m vector)."""
+
+    factor_type: str
+    identities: list[str]
+    roles: list[str]
+    block_sizes: list[int]
+    n_data: int
+    data: np.ndarray
+    free: np.ndarray
+    want: np.ndarray
+    basis: np.ndarray
+    support: np.ndarray
+    check: dict[str, Any] = field(default_factory=dict)
+    kind: str = "transport"
+
+    @property
+    def n_cols(self) -> int:
+        return int(sum(self.block_sizes))
+
+    @property
+    def n_monomials(self) -> int:
+        return self.n_cols * (self.n_cols + 1) // 2
+
+    def solutions(self, D: np.ndarray, problem: Problem) -> np.ndarray:
+        """The wanted basic solutions for factors with data D (n_f, n_data) → (n_f, k_wanted, m); NaN rows for
+        a factor whose free monomials are ill-conditioned there (cond B_F > ``MAX_FREE_COND``)."""
+        if problem is None:
+            raise AutotightError(f"the transport template of {self.factor_type!r} needs its problem module")
+        D = np.asarray(D, dtype=float).reshape(-1, self.n_data)
+        out = np.empty((D.shape[0], len(self.want), self.n_monomials))
+        M0 = problem.transport(self.factor_type, self.data, self.n_cols)
+        for s in range(0, D.shape[0], CHUNK):
+            Ms = np.linalg.solve(M0, np.array([problem.transport(self.factor_type, d, self.n_cols)
+                                               for d in D[s:s + CHUNK]]))
+            V, _ = basic(carry(self.basis, Ms), self.free)
+            out[s:s + CHUNK] = V[:, self.want]
+        return out
+
+    def coefficients(self, D: np.ndarray, problem: Problem | None = None) -> np.ndarray:
+        """Coefficients on ``support`` (n_f, |support|); NaN for a factor where the solutions do not exist or
+        leave ``support``: such a factor fails every check."""
+        full = self.solutions(D, problem).reshape(len(np.atleast_2d(D)), -1)
+        out = full[:, self.support]
+        rest = np.ones(full.shape[1], bool)
+        rest[self.support] = False
+        out[np.any(full[:, rest] != 0, axis=1)] = np.nan
+        return out
+
+    def dense(self, D: np.ndarray, problem: Problem | None = None) -> np.ndarray:
+        """Full coefficient vectors (n_f, k_wanted, m), as learning returns them."""
+        return self.solutions(D, problem)
+
+    def record(self) -> dict[str, Any]:
+        r, c = np.nonzero(self.basis)
+        return {"kind": self.kind, "factor_type": self.factor_type, "identities": self.identities,
+                "roles": self.roles, "block_sizes": self.block_sizes, "n_data": self.n_data,
+                "transport": f"TRANSPORTS[{self.factor_type!r}] of the problem module", "data": self.data.tolist(),
+                "free": self.free.tolist(), "want": self.want.tolist(), "n_relations": int(self.basis.shape[1]),
+                "basis_triplets": [[int(i), int(j), float(self.basis[i, j])] for i, j in zip(r, c)],
+                "support": self.support.tolist(), "check": self.check}
+
+    @classmethod
+    def from_record(cls, r: dict[str, Any]) -> "TransportTemplate":
+        sizes = [int(s) for s in r["block_sizes"]]
+        n = sum(sizes)
+        basis = np.zeros((n * (n + 1) // 2, int(r["n_relations"])))
+        for i, j, v in r["basis_triplets"]:
+            basis[int(i), int(j)] = float(v)
+        ints = {k: np.asarray(r[k], dtype=np.int64) for k in ("free", "want", "support")}
+        return cls(r["factor_type"], list(r["identities"]), list(r["roles"]), sizes, int(r["n_data"]),
+                   np.asarray(r["data"], dtype=float), ints["free"], ints["want"], basis, ints["support"],
+                   dict(r.get("check", {})))
+
+
+def reference_template(problem: Problem, factor_type: str, wanted: list[str], roles: list[str],
+                       block_sizes: list[int], data: np.ndarray, coeffs: np.ndarray, free: np.ndarray,
+                       identities: list[str]) -> TransportTemplate:
+    """The template from one learned factor: its basic solutions ``coeffs`` (m, k) at measurement ``data``
+    (support still empty: the caller sets it).  AutotightError when a wanted identity is not among them or
+    the module's transport is singular there."""
+    missing = [i for i in wanted if i not in identities]
+    if missing:
+        raise AutotightError(f"identity {factor_type}:{missing[0]} is not a basic solution of the learned factor")
+    data = np.asarray(data, dtype=float).ravel()
+    M = problem.transport(factor_type, data, int(sum(block_sizes)))
+    if not np.linalg.cond(M) <= MAX_FREE_COND:
+        raise AutotightError(f"factor type {factor_type!r}: TRANSPORTS gives a singular map at the learned factor")
+    want = np.array([identities.index(i) for i in wanted], dtype=np.int64)
+    return TransportTemplate(factor_type, list(wanted), roles, block_sizes, data.size, data,
+                             np.asarray(free, dtype=np.int64), want, np.asarray(coeffs, dtype=float).copy(),
+                             np.zeros(0, np.int64))
