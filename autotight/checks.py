@@ -274,8 +274,11 @@ def _identities(prob: Problem, inst: Instance, model: Model, rng: np.random.Gene
     heldout = draw(prob, inst, opts.heldout, rng, None)
     shared_any = False
     for a, b in pairs:
-        ia, ib = (set(learn_group(model, g, bank, heldout, opts).identities) for g in (a, b))
+        la, lb = (learn_group(model, g, bank, heldout, opts) for g in (a, b))
+        ia, ib = set(la.identities), set(lb.identities)
         shared_any |= bool(ia & ib)
+        if a.type in prob.transport_types():
+            _transport(prob, model, la, lb, out)
         where = f"factors {a.name!r} and {b.name!r} of type {a.type!r}"
         if a.roles != b.roles:
             diff = [f"{x}→{y}" for x, y in zip(a.roles, b.roles) if x != y][:3]
@@ -292,3 +295,35 @@ def _identities(prob: Problem, inst: Instance, model: Model, rng: np.random.Gene
     if not shared_any:
         out.warnings.append("identities: no two factors of one type share an identity; a learned set will not "
                             "carry over")
+
+
+#: a declared transport must carry one factor's learned relations onto another's to this relative accuracy
+TRANSPORT_RTOL = 1e-8
+
+
+def _transport(prob: Problem, model: Model, la: Any, lb: Any, out: ProblemCheck) -> None:
+    """``TRANSPORTS[type]`` carries the relations learned on factor a onto those learned on factor b."""
+    from .discovery.templates import relative_error
+    from .discovery.transport import basic, carry
+
+    t = la.group.type
+    where = f"TRANSPORTS[{t!r}] on factors {la.group.name!r} → {lb.group.name!r}"
+    fa, fb = model.factor(la.group.name), model.factor(lb.group.name)
+    if lb.free is None or la.coeffs.shape != lb.coeffs.shape:
+        out.failures.append(f"transport: {where}: the factors learn relation spaces of different sizes "
+                            f"({la.coeffs.shape[1]} and {lb.coeffs.shape[1]}), so no change of variables maps one "
+                            "onto the other")
+        return
+    n = len(la.columns)
+    da, db = (np.zeros(0) if f.data is None else f.data for f in (fa, fb))
+    R = np.linalg.solve(prob.transport(t, da, n), prob.transport(t, db, n))
+    V, _ = basic(carry(la.coeffs, R[None]), lb.free)
+    err = float(np.nan_to_num(relative_error(V[0], lb.coeffs.T), nan=np.inf).max())
+    out.measurements[f"transport_{t}_rel_error"] = err
+    ok = err <= TRANSPORT_RTOL
+    (out.passed if ok else out.failures).append(
+        f"transport: {where} carries the {lb.coeffs.shape[1]} learned relations onto the other factor's (relative "
+        f"error {err:.1e}; tolerance {TRANSPORT_RTOL:g})" if ok else
+        f"transport: {where} does not carry the learned relations onto the other factor's (relative error "
+        f"{err:.1e}; tolerance {TRANSPORT_RTOL:g}): M(data) is not the change of variables to the reference "
+        "measurement")

@@ -24,8 +24,8 @@ from autotight.problem import Instance, LocalResult, Param
 
 from ._cayley import draw_valid
 from ._pose import (POSE_ROLES, XI_ROLES, declare_pose, declare_xi, pose_blocks, pose_from_x, pose_orthonormality,
-                    pose_values, r1_unary, r2_unary, unary_cayley, unary_residuals, weighted_cost, xi_blocks,
-                    xi_values)
+                    pose_values, r1_unary, r2_unary, unary_cayley, unary_residuals, unary_transport, weighted_cost,
+                    xi_blocks, xi_values)
 
 NAME = "pose_averaging"
 DESCRIPTION = "Average M noisy SE(3) pose measurements (paper §3.2)."
@@ -42,6 +42,9 @@ PARAMS = {
                    high=10.0),
     "scale": Param(1.0, "standard deviation of each component of the true translation (≤ 1e6)", low=0.0, high=1e6),
 }
+#: the measured pose's learned relations move with it by T ↦ T T̃⁻¹ (``autotight.discovery.transport``): a
+#: template for relations that no polynomial of degree ≤ 2 in the measurement fits
+TRANSPORTS = {"pose_meas": unary_transport}
 
 
 def generate(params: dict, rng: np.random.Generator) -> Instance:

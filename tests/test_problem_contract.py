@@ -142,6 +142,31 @@ def test_factors_without_shared_roles_warn(tmp_path):
     assert any(line.startswith("WARN identities:") for line in res.lines())
 
 
+DT_HEAD = """
+from problems.discrete_trajectory import *  # noqa: F401,F403
+from problems._pose import unary_transport, binary_transport
+import numpy as np
+"""
+
+
+def test_declared_transports_are_checked(tmp_path):
+    res = check_problem("discrete_trajectory", {"K": 3})
+    assert res.measurements["transport_pose_meas_rel_error"] <= 1e-8
+    assert res.measurements["transport_odometry_rel_error"] <= 1e-8
+    # the unary map used for the binary factor's first pose: right shape, wrong change of variables
+    path = _module(tmp_path, "dt_bad_transport", """
+        def _wrong(d):
+            M = binary_transport(d)
+            M[10:13, 0] = 0.0  # r₁ ↦ C̃ r₁, forgetting + r̃
+            return M
+        TRANSPORTS = {"pose_meas": unary_transport, "odometry": _wrong}
+        """, head=DT_HEAD)
+    res = check_problem(path, {"K": 3})
+    [f] = _fails(res, "transport")
+    assert "TRANSPORTS['odometry']" in f and "does not carry" in f
+    assert res.measurements["transport_odometry_rel_error"] > 1e-3
+
+
 def test_check_module_cli_exit_codes(tmp_path, capsys):
     assert main(["check-module", "rotation_averaging", "-p", "M=3"]) == 0
     out = capsys.readouterr().out.splitlines()
