@@ -1,4 +1,4 @@
-"""Command line: ``autotight list | solve | discover | report | check | check-module``.
+"""Command line: ``autotight list | solve | discover | report | check | check-module | certify | templates``.
 
 The CLI is a thin layer over the Python API (``autotight.api``).  Errors: an input error or a
 failed solve (any ``autotight.errors.AutotightError``) prints one line ``autotight: error: …``
@@ -176,8 +176,11 @@ def build_parser() -> argparse.ArgumentParser:
     from .discovery.cli import register as register_discover
     from .report.cli import register as register_report
 
+    from .discovery.templates_cmd import register as register_templates
+
     for register in (register_discover, register_report, register_check, register_check_module, register_certify):
         register(sub, _add_problem_args)
+    register_templates(sub)
     return ap
 
 

@@ -11,13 +11,14 @@ seed).  The SDP uses our IPM (``--solver ipm``); local search: from the ground t
 
     nice -n 19 python benchmarks/scale.py [--problem discrete_trajectory|pose_averaging] [--set FILE]
         [--sizes 10,30,100,300,1000] [--relearn 10,30,100] [--paper 100,300,1000] [--seeds 0]
-        [--seeds-at 1000]
+        [--seeds-at 1000] [--retemplate PATH]
 
 --seeds: the instance seeds of every run; --seeds-at: sizes that run with every seed (the others with the
 first).  Without --set (or when the file is missing) the set is discovered at size 5, seed 0, and saved
-there; --set takes any set file of the problem (e.g. reports/sets/discrete_trajectory_range.json, whose
-factor type has no template, so its "template" route re-learns every factor), and the JSON records where
-it was learned (``learned_at``).  Writes benchmarks/results/scale.json (pose averaging:
+there; --set takes any set file of the problem (e.g. reports/sets/discrete_trajectory_range.json, saved
+without a template for its factor type, so its "template" route re-learns every factor; ``--retemplate
+PATH`` learns its templates again first, transport templates included), and the JSON records where it
+was learned (``learned_at``).  Writes benchmarks/results/scale.json (pose averaging:
 scale_pose_averaging.json) with the versions and the load average around every run.
 """
 
@@ -123,6 +124,9 @@ def main() -> None:
     ap.add_argument("--paper", default="", help="sizes also run with the paper families (a tight relaxation)")
     ap.add_argument("--seeds", default="0")
     ap.add_argument("--seeds-at", default="", help="sizes that run with every seed (the others: the first)")
+    ap.add_argument("--retemplate", default=None, metavar="PATH",
+                    help="first learn the set's templates again into PATH (`autotight templates SET --out PATH`: "
+                         "e.g. transport templates for a set saved without them) and run with that file")
     ap.add_argument("--timeout", type=float, default=1800.0)
     ap.add_argument("--out", default=None, help="default: benchmarks/results/scale.json (discrete), "
                                                 "scale_pose_averaging.json (pose)")
@@ -136,6 +140,10 @@ def main() -> None:
         print(json.dumps(one(args.problem, args.one, args.route, args.set, seeds[0])))
         return
     ensure_set(args.problem, Path(args.set))
+    if args.retemplate:
+        subprocess.run([sys.executable, "-m", "autotight.cli", "templates", args.set, "--out", args.retemplate,
+                        "--force"], check=True, env=dict(os.environ, PYTHONPATH=str(ROOT)))
+        args.set = args.retemplate
     rows = []
     every = {int(k) for k in args.seeds_at.split(",") if k}
     jobs = [(int(k), route, s) for route, sizes in (("template", args.sizes), ("relearn", args.relearn),

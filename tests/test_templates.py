@@ -60,7 +60,7 @@ def test_applied_constraints_hold_and_skip_invalid(learned):
     size = "K" if "K" in params else "M"
     inst = prob.generate(prob.parse_params({size: 12}), np.random.default_rng(5))
     model = prob.build(inst)
-    cons, skipped = apply_templates(prob, inst, model, ts, np.random.default_rng(1), LearnOptions())
+    cons, skipped, _ = apply_templates(prob, inst, model, ts, np.random.default_rng(1), LearnOptions())
     assert len(cons) == 12 and not skipped
     assert all(c.identity == f"{ftype}:{ident}" and c.A.nnz > 0 for c in cons)
     theta = np.atleast_2d(prob.lift(inst, inst.truth))
@@ -71,7 +71,7 @@ def test_applied_constraints_hold_and_skip_invalid(learned):
     bad.templates[ftype].W[0] += 0.5
     with pytest.raises(AutotightError, match=r"fails its check on factor meas_\d+"):
         apply_templates(prob, inst, model, bad, np.random.default_rng(1), LearnOptions())
-    kept, skipped = apply_templates(prob, inst, model, bad, np.random.default_rng(1), LearnOptions(),
+    kept, skipped, _ = apply_templates(prob, inst, model, bad, np.random.default_rng(1), LearnOptions(),
                                     skip_invalid=True)
     assert len(kept) + len(skipped) == 12 and skipped
 
@@ -179,7 +179,7 @@ def test_transport_applied_at_size_50_holds_and_equals_relearning(transported):
     prob, params, ts = transported
     inst = prob.generate(prob.parse_params({"K": 50}), np.random.default_rng(11))
     model = prob.build(inst)
-    cons, skipped = apply_templates(prob, inst, model, ts, np.random.default_rng(1), LearnOptions())
+    cons, skipped, _ = apply_templates(prob, inst, model, ts, np.random.default_rng(1), LearnOptions())
     assert len(cons) == 150 and not skipped
     relearned = DiscoveredSet(prob.name, params, 0, TRANSPORTED).instantiate(prob, inst, np.random.default_rng(2),
                                                                            model)
@@ -209,3 +209,20 @@ def test_transport_output_is_checked_at_the_boundary(monkeypatch):
         prob.transport("pose_meas", np.zeros(12), 19)
     with pytest.raises(ProblemModuleError, match="has no entry for factor type 'so3'"):
         prob.transport("so3", np.zeros(0), 4)
+
+
+def test_factor_without_basic_solutions_is_relearned(transported):
+    prob, params, ts = transported
+    inst = prob.generate(prob.parse_params({"K": 6}), np.random.default_rng(4))
+    inst.measurements["T_meas"][2] = np.eye(4)  # T̃ = I: the learned free monomials are singular there
+    model = prob.build(inst)
+    cons, skipped, relearn = apply_templates(prob, inst, model, ts, np.random.default_rng(1), LearnOptions())
+    assert relearn == ["meas_2"] and not skipped and len(cons) == 5 * len(TRANSPORTED)
+    out = DiscoveredSet(prob.name, params, 0, TRANSPORTED, templates=ts).apply(prob, inst, model,
+                                                                              np.random.default_rng(1))
+    on2 = [c for c in out if c.factor == "meas_2"]
+    assert on2 and len(out) == len(cons) + len(on2)
+    for state in (inst.truth, prob.sample(inst, np.random.default_rng(5))):
+        theta = np.atleast_2d(prob.lift(inst, state))
+        X = theta.T @ theta
+        assert max(abs(c.value(X)) for c in out) < 1e-8 * np.abs(X).max()

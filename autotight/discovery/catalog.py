@@ -65,13 +65,17 @@ def sample_banks(problem: Problem, inst: Instance, model: Model, groups: Sequenc
 @single_blas_thread
 def learn(problem: Problem, inst: Instance, model: Model, rng: np.random.Generator,
           groups: str | Sequence[Sequence[str]] = "factors", opts: LearnOptions = LearnOptions(),
-          types: Iterable[str] | None = None, progress=None, whole_nullspace: bool = False) -> Catalog:
-    """Learn every group (or only the factors of ``types``) of one instance (``whole_nullspace``: see
-    ``learn.learn_group``)."""
+          types: Iterable[str] | None = None, progress=None, whole_nullspace: bool = False,
+          names: Iterable[str] | None = None) -> Catalog:
+    """Learn every group (or only the factors of ``types``, or only the groups ``names``) of one instance
+    (``whole_nullspace``: see ``learn.learn_group``)."""
     gs = groups_of(model, groups)
     if types is not None:
         wanted = set(types)
         gs = [g for g in gs if g.type in wanted]
+    if names is not None:
+        only = set(names)
+        gs = [g for g in gs if g.name in only]
     if not gs:
         raise LearningError("no groups to learn on")
     gs = _sorted_groups(model, gs)
@@ -125,19 +129,24 @@ class CarryOver:
 @single_blas_thread
 def carry_over(problem: Problem, inst: Instance, pairs: Sequence[Pair], rng: np.random.Generator,
                opts: LearnOptions = LearnOptions(), model: Model | None = None,
-               groups: str | Sequence[Sequence[str]] = "factors") -> CarryOver:
-    """Re-learn the groups of the needed types on ``inst`` and keep the given identities, counting per
-    factor type what was expected and what was instantiated (see ``CarryOver``)."""
+               groups: str | Sequence[Sequence[str]] = "factors", names: Iterable[str] | None = None) -> CarryOver:
+    """Re-learn the groups of the needed types on ``inst`` (only the groups ``names``, if given) and keep
+    the given identities, counting per factor type what was expected and what was instantiated (see
+    ``CarryOver``)."""
     if not pairs:
         return CarryOver([], {}, [])
     model = model or problem.build(inst)
     types = sorted({t for t, _ in pairs})
     per_type = {t: sum(1 for q in set(pairs) if q[0] == t) for t in types}
     all_groups = groups_of(model, groups)
+    if names is not None:
+        only = set(names)
+        all_groups = [g for g in all_groups if g.name in only]
     n_groups = {t: sum(1 for g in all_groups if g.type == t) for t in types}
     issues: list[str] = [f"factor type {t!r} has no group on this instance" for t in types if n_groups[t] == 0]
     present = [t for t in types if n_groups[t]]
-    cat = learn(problem, inst, model, rng, groups, opts=opts, types=present, whole_nullspace=True) if present else None
+    cat = (learn(problem, inst, model, rng, groups, opts=opts, types=present, whole_nullspace=True, names=names)
+           if present else None)
     want = set(pairs)
     out: list[Constraint] = []
     got = {t: 0 for t in types}

@@ -126,14 +126,22 @@ class DiscoveredSet:
         the pairs of types without a template re-learned per factor (strict, see ``instantiate``)."""
         self._check(problem, model)
         ts = self.template_set(problem)
-        out, _ = apply_templates(problem, inst, model, ts, rng, self.options(), skip_invalid)
+        out, _, relearn = apply_templates(problem, inst, model, ts, rng, self.options(), skip_invalid)
         rest = [p for p in self.pairs if p[0] not in ts.templates]
+        if relearn:  # factors where a transport template has no basic solutions: learned as without templates
+            here = {model.factor(f).type for f in relearn}
+            out += self._carry(problem, inst, model, rng, [p for p in self.pairs if p[0] in here], skip_invalid,
+                               names=relearn)
         if rest:
-            co = carry_over(problem, inst, rest, rng, self.options(), model, self.groups)
-            if co.issues and not skip_invalid:
-                raise LearningError(f"cannot re-instantiate the discovered set: {co.message() or co.issues[0]}")
-            out += co.constraints
+            out += self._carry(problem, inst, model, rng, rest, skip_invalid)
         return out
+
+    def _carry(self, problem: Problem, inst: Instance, model: Model, rng: np.random.Generator, pairs: list[Pair],
+               skip_invalid: bool, names: list[str] | None = None) -> list[Constraint]:
+        co = carry_over(problem, inst, pairs, rng, self.options(), model, self.groups, names=names)
+        if co.issues and not skip_invalid:
+            raise LearningError(f"cannot re-instantiate the discovered set: {co.message() or co.issues[0]}")
+        return co.constraints
 
     def instantiate(self, problem: Problem, inst: Instance, rng: np.random.Generator,
                     model: Model | None = None, strict: bool = True) -> list[Constraint]:

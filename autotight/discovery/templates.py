@@ -85,6 +85,7 @@ class TypeTemplate:
     support: np.ndarray
     W: np.ndarray
     check: dict[str, Any] = field(default_factory=dict)
+    kind: str = "polynomial"
 
     @property
     def n_cols(self) -> int:
@@ -106,7 +107,7 @@ class TypeTemplate:
         return out.reshape(D.shape[0], len(self.identities), self.n_monomials)
 
     def record(self) -> dict[str, Any]:
-        return {"factor_type": self.factor_type, "identities": self.identities, "roles": self.roles,
+        return {"kind": self.kind, "factor_type": self.factor_type, "identities": self.identities, "roles": self.roles,
                 "block_sizes": self.block_sizes, "n_data": self.n_data, "degree": self.degree,
                 "support": self.support.tolist(), "W": self.W.tolist(), "check": self.check}
 
@@ -286,8 +287,8 @@ def learn_templates(problem: Problem, params: dict[str, Any], pairs: Sequence[tu
 def _transport_template(problem: Problem, params: dict[str, Any], t: str, wanted: list[str],
                         layout: tuple[list[str], list[int]], seed: int, opts: LearnOptions) -> TransportTemplate:
     """A transport template of type ``t`` from the first factor of the first fitting instance (seed + 1000),
-    its coefficients checked against re-learning on the instance's other factors (``FIT_RTOL``); the
-    support is the union of their nonzeros.  AutotightError when it does not hold."""
+    its coefficients checked against re-learning on the instance's other factors (``FIT_RTOL``).
+    AutotightError when it does not hold."""
     from .catalog import learn
 
     inst = problem.generate(params, np.random.default_rng(seed + 1000))
@@ -303,7 +304,6 @@ def _transport_template(problem: Problem, params: dict[str, Any], t: str, wanted
     tpl = reference_template(problem, t, wanted, *layout, data[0], gs[0].coeffs, gs[0].free, gs[0].identities)
     Y = np.array([g.coeffs[:, [g.identities.index(i) for i in wanted]].T.ravel() for g in gs[1:]])
     pred = tpl.solutions(np.array(data[1:]), problem).reshape(len(Y), -1)
-    tpl.support = np.flatnonzero(np.any(Y != 0, axis=0) | np.any(pred != 0, axis=0))
     err = float(np.nan_to_num(relative_error(pred, Y), nan=np.inf).max())
     tpl.check |= {"reference_factor": gs[0].group.name, "n_fit_factors": len(gs) - 1, "relearn_rel_error": err}
     if not err <= FIT_RTOL:
@@ -391,9 +391,13 @@ def apply_template(model: Model, tpl: TypeTemplate | TransportTemplate, coeffs: 
         for r, f in enumerate(fs):
             p = coeffs[r, sel]
             gi, gj = cols[r, li], cols[r, lj]
-            rows = np.concatenate([gi, gj[off]])
-            cc = np.concatenate([gj, gi[off]])
-            vals = np.concatenate([np.where(off, p / 2, p), p[off] / 2])
+            o = off
+            if tpl.kind == "transport":  # support is every position: keep this factor's nonzeros
+                nz = p != 0
+                p, gi, gj, o = p[nz], gi[nz], gj[nz], off[nz]
+            rows = np.concatenate([gi, gj[o]])
+            cc = np.concatenate([gj, gi[o]])
+            vals = np.concatenate([np.where(o, p / 2, p), p[o] / 2])
             out.append(Constraint(canonical_coo(rows, cc, vals, N), 0.0, name=f"{f.name}:{ident}", family="learned",
                                   factor=f.name, identity=f"{tpl.factor_type}:{ident}"))
     return out
@@ -401,13 +405,19 @@ def apply_template(model: Model, tpl: TypeTemplate | TransportTemplate, coeffs: 
 
 def apply_templates(problem: Problem, inst: Instance, model: Model, ts: TemplateSet, rng: np.random.Generator,
                     opts: LearnOptions, skip_invalid: bool = False,
-                    n_check: int = 2) -> tuple[list[Constraint], list[str]]:
-    """Every template's constraints on ``inst``, each checked on ``n_check`` fresh feasible states of ``inst``.
+                    n_check: int = 2) -> tuple[list[Constraint], list[str], list[str]]:
+    """Every template's constraints on ``inst``, each checked on ``n_check`` fresh feasible states of ``inst``
+    → (constraints, skipped "factor:identity", factors to re-learn).
 
     A factor whose constraints violate the check (relative violation > ``opts.heldout_tol``) is a one-line
-    AutotightError naming it, unless ``skip_invalid`` (its constraints are then left out and listed)."""
+    AutotightError naming it, unless ``skip_invalid`` (its constraints are then left out and listed).  A
+    factor where a transport template has no basic solutions (its free monomials are ill-conditioned there,
+    e.g. a measured position at the origin) is not an error: its constraints are left out and the factor
+    is listed to be re-learned (``DiscoveredSet.apply``), as learning names such a factor's relations
+    otherwise."""
     out: list[Constraint] = []
     skipped: list[str] = []
+    relearn: list[str] = []
     thetas = None
     for tpl in ts.templates.values():
         fs, cols, D = factor_columns(model, tpl)
@@ -419,18 +429,21 @@ def apply_templates(problem: Problem, inst: Instance, model: Model, ts: Template
             thetas = draw(problem, inst, n_check, rng, opts.spread).thetas
         coeffs = tpl.coefficients(D, problem)
         viol = violations(tpl, cols, coeffs, thetas)
-        bad = np.argwhere(~(viol <= opts.heldout_tol))  # NaN: no solution on that factor
-        cons = apply_template(model, tpl, coeffs)
+        none = np.isnan(viol).any(axis=1)  # no basic solutions on that factor
+        bad = np.argwhere((viol > opts.heldout_tol) & ~none[:, None])
+        drop = {(fs[r].name, tpl.identities[a]) for r in np.flatnonzero(none) for a in range(len(tpl.identities))}
+        relearn += [fs[r].name for r in np.flatnonzero(none)]
         if bad.size:
             r, a = bad[0]
-            why = ("no basic solution there: its free monomials are ill-conditioned" if np.isnan(viol[r, a])
-                   else f"relative violation {viol[r, a]:.1e} > {opts.heldout_tol:g}")
             msg = (f"template {tpl.factor_type}:{tpl.identities[a]} fails its check on factor {fs[r].name} "
-                   f"({why}; {len(bad)} factor identities fail)")
+                   f"(relative violation {viol[r, a]:.1e} > {opts.heldout_tol:g}; {len(bad)} factor identities fail)")
             if not skip_invalid:
                 raise AutotightError(msg + "; pass --skip-invalid (skip_invalid=True) to leave them out")
-            drop = {(fs[r].name, tpl.identities[a]) for r, a in bad}
-            skipped += [f"{f}:{i}" for f, i in sorted(drop)]
+            bad_pairs = {(fs[r].name, tpl.identities[a]) for r, a in bad}
+            skipped += [f"{f}:{i}" for f, i in sorted(bad_pairs)]
+            drop |= bad_pairs
+        cons = apply_template(model, tpl, coeffs)
+        if drop:
             cons = [c for n, c in enumerate(cons) if (fs[n % len(fs)].name, tpl.identities[n // len(fs)]) not in drop]
         out += cons
-    return out, skipped
+    return out, skipped, relearn

@@ -37,39 +37,51 @@ from ..svec import triu_indices
 from .nullspace import CLEAN, MAX_FREE_COND
 
 #: factors carried at once (bounds the (chunk, k, n, n) congruence array)
-CHUNK = 128
+CHUNK = 256
 
 
 def carry(P: np.ndarray, Ms: np.ndarray) -> np.ndarray:
     """Coefficients of θ ↦ p(Mθ) for each relation p (columns of P, (m, k)) and each M of Ms (c, n, n)
     → (c, k, m): the congruence Mᵀ A M of each relation's symmetric matrix A."""
-    n = Ms.shape[1]
+    c, n = Ms.shape[0], Ms.shape[1]
+    k = P.shape[1]
     ii, jj = triu_indices(n)
     off = ii != jj
-    S = np.zeros((P.shape[1], n, n))
+    S = np.zeros((k, n, n))
     S[:, ii, jj] = np.where(off, P.T / 2, P.T)
     S[:, jj, ii] = S[:, ii, jj]
-    C = np.swapaxes(Ms, 1, 2)[:, None] @ S[None] @ Ms[:, None]  # (c, k, n, n)
+    AM = (S.reshape(k * n, n) @ Ms).reshape(c, k, n, n)  # A M, one product per factor
+    C = (np.swapaxes(AM, 2, 3).reshape(c, k * n, n) @ Ms).reshape(c, k, n, n)  # (A M)ᵀ M = Mᵀ A M
     return np.where(off, 2.0, 1.0) * C[:, :, ii, jj]
 
 
 def basic(B: np.ndarray, free: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Basic solutions of the spans of B (c, k, m) with respect to ``free`` (k monomials) → ((c, k, m), the
-    condition number of each span's orthonormal basis Q on the free monomials, as learning measures it).
-    Rows follow ``free``; entries below ``CLEAN`` of a row's largest are 0, as in learning
-    (``nullspace.basic_solutions``); a span with cond > ``MAX_FREE_COND`` gets NaN rows."""
-    Q, _ = np.linalg.qr(np.swapaxes(B, 1, 2))  # (c, m, k), orthonormal columns
-    QF = Q[:, free, :]  # (c, k free rows, k)
-    cond = np.linalg.cond(QF)
-    ok = cond <= MAX_FREE_COND
-    V = np.full(B.shape, np.nan)
-    if ok.any():
-        W = np.linalg.solve(np.swapaxes(QF[ok], 1, 2), np.swapaxes(Q[ok], 1, 2))  # (Q Q_F⁻¹)ᵀ, row j: solution j
-        W[:, np.arange(len(free))[:, None], free[None, :]] = np.eye(len(free))
-        mx = np.max(np.abs(W), axis=2, keepdims=True)
-        W[np.abs(W) < CLEAN * mx] = 0.0
-        V[ok] = W
-    return V, cond
+    """Basic solutions of the spans of B (c, k, m) with respect to ``free`` (k monomials) → ((c, k, m), their
+    Frobenius norms).  Rows follow ``free``; entries below ``CLEAN`` of a row's largest are 0, as in learning
+    (``nullspace.basic_solutions``).
+
+    The solutions V = B B_F⁻¹ do not depend on the basis B of the span; for its orthonormal basis Q they are
+    Q Q_F⁻¹, so ‖V‖_F ≥ ‖Q_F⁻¹‖₂ ≥ cond(Q_F), the measure learning bounds by ``MAX_FREE_COND``.  A span with
+    ‖V‖_F above it (or a singular B_F) gets NaN rows: its free monomials do not write its relations accurately."""
+    BF = B[:, :, free]  # (c, k rows of B, k free columns) = B_Fᵀ
+    try:
+        V = np.linalg.solve(BF, B)  # (B_Fᵀ)⁻¹ Bᵀ = (B B_F⁻¹)ᵀ, row j: solution j
+    except np.linalg.LinAlgError:  # some B_F exactly singular: one factor at a time
+        V = np.full(B.shape, np.nan)
+        for i in range(B.shape[0]):
+            try:
+                V[i] = np.linalg.solve(BF[i], B[i])
+            except np.linalg.LinAlgError:
+                pass
+    size = np.linalg.norm(V, axis=(1, 2))
+    V[~(size <= MAX_FREE_COND)] = np.nan
+    ok = np.isfinite(size) & (size <= MAX_FREE_COND)
+    W = V[ok]
+    W[:, np.arange(len(free))[:, None], free[None, :]] = np.eye(len(free))
+    mx = np.max(np.abs(W), axis=2, keepdims=True)
+    W[np.abs(W) < CLEAN * mx] = 0.0
+    V[ok] = W
+    return V, size
 
 
 @dataclass
@@ -103,28 +115,22 @@ class TransportTemplate:
 
     def solutions(self, D: np.ndarray, problem: Problem) -> np.ndarray:
         """The wanted basic solutions for factors with data D (n_f, n_data) → (n_f, k_wanted, m); NaN rows for
-        a factor whose free monomials are ill-conditioned there (cond B_F > ``MAX_FREE_COND``)."""
+        a factor whose free monomials do not write its relations accurately (see ``basic``)."""
         if problem is None:
             raise AutotightError(f"the transport template of {self.factor_type!r} needs its problem module")
         D = np.asarray(D, dtype=float).reshape(-1, self.n_data)
         out = np.empty((D.shape[0], len(self.want), self.n_monomials))
-        M0 = problem.transport(self.factor_type, self.data, self.n_cols)
+        M0inv = np.linalg.inv(problem.transport(self.factor_type, self.data, self.n_cols))
         for s in range(0, D.shape[0], CHUNK):
-            Ms = np.linalg.solve(M0, np.array([problem.transport(self.factor_type, d, self.n_cols)
-                                               for d in D[s:s + CHUNK]]))
+            Ms = M0inv @ np.array([problem.transport(self.factor_type, d, self.n_cols) for d in D[s:s + CHUNK]])
             V, _ = basic(carry(self.basis, Ms), self.free)
             out[s:s + CHUNK] = V[:, self.want]
         return out
 
     def coefficients(self, D: np.ndarray, problem: Problem | None = None) -> np.ndarray:
-        """Coefficients on ``support`` (n_f, |support|); NaN for a factor where the solutions do not exist or
-        leave ``support``: such a factor fails every check."""
-        full = self.solutions(D, problem).reshape(len(np.atleast_2d(D)), -1)
-        out = full[:, self.support]
-        rest = np.ones(full.shape[1], bool)
-        rest[self.support] = False
-        out[np.any(full[:, rest] != 0, axis=1)] = np.nan
-        return out
+        """Coefficients on ``support`` (every position: which are zero depends on the factor) → (n_f, k_wanted·m);
+        NaN rows for a factor without basic solutions."""
+        return self.solutions(D, problem).reshape(len(np.atleast_2d(D)), -1)
 
     def dense(self, D: np.ndarray, problem: Problem | None = None) -> np.ndarray:
         """Full coefficient vectors (n_f, k_wanted, m), as learning returns them."""
@@ -156,7 +162,7 @@ def reference_template(problem: Problem, factor_type: str, wanted: list[str], ro
                        block_sizes: list[int], data: np.ndarray, coeffs: np.ndarray, free: np.ndarray,
                        identities: list[str]) -> TransportTemplate:
     """The template from one learned factor: its basic solutions ``coeffs`` (m, k) at measurement ``data``
-    (support still empty: the caller sets it).  AutotightError when a wanted identity is not among them or
+    (its support: every position).  AutotightError when a wanted identity is not among them or
     the module's transport is singular there."""
     missing = [i for i in wanted if i not in identities]
     if missing:
@@ -166,6 +172,7 @@ def reference_template(problem: Problem, factor_type: str, wanted: list[str], ro
     if not np.linalg.cond(M) <= MAX_FREE_COND:
         raise AutotightError(f"factor type {factor_type!r}: TRANSPORTS gives a singular map at the learned factor")
     want = np.array([identities.index(i) for i in wanted], dtype=np.int64)
+    m = coeffs.shape[0]
     return TransportTemplate(factor_type, list(wanted), roles, block_sizes, data.size, data,
                              np.asarray(free, dtype=np.int64), want, np.asarray(coeffs, dtype=float).copy(),
-                             np.zeros(0, np.int64))
+                             np.arange(len(wanted) * m, dtype=np.int64))
