@@ -143,11 +143,18 @@ def canonical_coo(rows: np.ndarray, cols: np.ndarray, vals: np.ndarray, N: int) 
     rows, cols, vals = (np.asarray(rows, np.int64), np.asarray(cols, np.int64), np.asarray(vals, float))
     if rows.size:
         key = rows * N + cols
-        uniq, inv = np.unique(key, return_inverse=True)
-        summed = np.bincount(inv.ravel(), weights=vals, minlength=uniq.size)
+        order = np.argsort(key, kind="stable")
+        skey = key[order]
+        if skey.size > 1 and not (skey[1:] != skey[:-1]).all():  # duplicates: sum them
+            uniq, inv = np.unique(key, return_inverse=True)
+            summed = np.bincount(inv.ravel(), weights=vals, minlength=uniq.size)
+        else:  # the common case (e.g. a template's entries): sorting is all it takes
+            uniq, summed = skey, vals[order]
         keep = summed != 0
         uniq, summed = uniq[keep], summed[keep]
         rows, cols, vals = uniq // N, uniq % N, summed
+    if N < 2 ** 31:  # the index type scipy picks anyway: no scan of the contents
+        rows, cols = rows.astype(np.int32), cols.astype(np.int32)
     A = sp.coo_array((vals, (rows, cols)), shape=(N, N))
     A.has_canonical_format = True
     return A

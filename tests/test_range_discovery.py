@@ -151,3 +151,33 @@ def test_validation_rounds_add_training_instances_the_set_is_then_tight_on():
     inst = prob.generate({"M": 3, "sigma": 1.0}, training_seed(0, 0, 1))
     assert solve_instance(prob, inst, res.constraint_set, n_random=2).outcome == "tight"
     assert res.solves_by_stage["validate"] == 1 and res.n_solves == sum(res.solves_by_stage.values())
+
+
+def test_learn_params_select_at_a_larger_size_what_was_learned_at_a_small_one(tmp_path):
+    """Candidates learned once at K = 5 and carried by their templates to a K = 12 training instance: they
+    hold there, the selected set is tight on it, and the saved set's templates are those of K = 5."""
+    from autotight.discovery.discovered import DiscoveredSet
+    from autotight.problem import load
+
+    res = discover_range("discrete_trajectory", {"K": 12}, {}, 0, n_train=1, n_heldout=0, learn_params={"K": 5},
+                         solver=at.SolverConfig(backend="ipm"))
+    assert res.tight and res.pairs and res.learn_params == {"K": 5}
+    assert len(res.candidates) >= 20  # every pair of the K = 5 instance, carried
+    prob = load("discrete_trajectory")
+    model, cons = res.example
+    tr_inst = prob.generate(prob.parse_params({"K": 12}), training_seed(0, 0, 0))
+    theta = prob.lift(tr_inst, tr_inst.truth).reshape(1, -1)
+    X = theta.T @ theta
+    assert len(cons) == 12 * sum(1 for t, _ in res.pairs if t == "pose_meas") + \
+        11 * sum(1 for t, _ in res.pairs if t == "odometry") + 12 * sum(1 for t, _ in res.pairs if t == "so3")
+    assert max(abs(c.value(X)) for c in cons) < 1e-9 * abs(X).max()
+    path = tmp_path / "set.json"
+    res.save(str(path))
+    ds = DiscoveredSet.load(path)
+    assert ds.params["K"] == 5 and ds.info["range"]["selected_at"]["K"] == 12
+    assert set(ds.templates.templates) == {t for t, _ in res.pairs} and not ds.templates.fallback
+    inst = prob.generate(prob.parse_params({"K": 12}), 7)  # another instance of the selection size
+    out = solve_instance(prob, inst, ConstraintSet(ds), config=at.SolverConfig(backend="ipm"), n_random=0)
+    assert out.tight, out.verdict.reason
+    with pytest.raises(ParameterError, match="unknown parameter"):
+        discover_range("discrete_trajectory", {"K": 12}, {}, 0, n_train=1, n_heldout=0, learn_params={"Q": 5})

@@ -66,6 +66,7 @@ from ..tightness import Criteria
 from ..unbounded import rank_out_of_reach
 from .catalog import Pair, learn
 from .discovered import DiscoveredSet
+from .templates import learn_templates
 from .learn import LearnOptions
 from .pipeline import default_groups
 
@@ -172,6 +173,7 @@ class RangeDiscoveryResult:
     log: list[dict[str, Any]]
     example: tuple[Model, list[Constraint]] | None = None
     validation: list[dict[str, int]] = field(default_factory=list)
+    learn_params: dict[str, Any] = field(default_factory=dict)
 
     @property
     def tight(self) -> bool:
@@ -189,7 +191,7 @@ class RangeDiscoveryResult:
 
     def summary(self) -> dict[str, Any]:
         return {"problem": self.problem, "params": self.params, "over": self.over, "train_params": self.train_params,
-                "n_train": self.n_train, "seed": self.seed, "tight": self.tight,
+                "learn_params": self.learn_params, "n_train": self.n_train, "seed": self.seed, "tight": self.tight,
                 "n_candidate_pairs": len(self.candidates),
                 "not_learned_everywhere": [f"{t}:{i}" for t, i in self.not_everywhere],
                 "n_greedy_pairs": len(self.greedy), "validation_rounds": self.validation, "n_pairs": len(self.pairs),
@@ -202,8 +204,11 @@ class RangeDiscoveryResult:
         s = self.summary()
         lines = [f"problem {self.problem}  params {self.params}  over {self.over}"
                  + (f"  (training at {self.train_params})" if self.train_params else "") + f"  seed {self.seed}",
-                 f"{len(self.candidates)} candidate pairs learned on all {sum(len(p.reached) for p in self.points)} "
-                 f"training instances; greedy {len(self.greedy)} pairs"
+                 (f"{len(self.candidates)} candidate pairs learned once at {self.learn_params} and carried by their "
+                  f"templates to {sum(len(p.reached) for p in self.points)} training instances"
+                  if self.learn_params else
+                  f"{len(self.candidates)} candidate pairs learned on all {sum(len(p.reached) for p in self.points)} "
+                  "training instances") + f"; greedy {len(self.greedy)} pairs"
                  + "".join(f", +{r['new_instances']} instances ({r['not_tight']} not tight, +{r['pairs_added']} pairs)"
                            for r in self.validation)
                  + f" → {len(self.pairs)} pairs "
@@ -300,7 +305,9 @@ def _on_every_factor(tr: Trainer, pair: Pair) -> bool:
 
 def _learn_trainers(prob: Problem, points: list[tuple[dict, dict]], which: Sequence[int], train_params: dict[str, Any],
                     trials: range, seed: int, groups: Any, opts: LearnOptions, n_random: int,
-                    say: Callable) -> list[Trainer]:
+                    say: Callable, source: DiscoveredSet | None = None) -> list[Trainer]:
+    """Training instances with their candidate pairs: learned on each, or (``source``) every pair of a set
+    learned elsewhere, applied (its templates evaluated; ``learn_params``)."""
     out = []
     for i in which:
         full, varied = points[i]
@@ -309,10 +316,33 @@ def _learn_trainers(prob: Problem, points: list[tuple[dict, dict]], which: Seque
             inst = prob.generate(full | train_params, s)
             model = prob.build(inst)
             loc = local_search(prob, inst, seeds(s).local(), n_random)
-            cat = learn(prob, inst, model, seeds(s).constraints(), groups, opts)
-            out.append(Trainer(i, s, inst, model, loc, cat.by_pair()))
+            if source is None:
+                pairs = learn(prob, inst, model, seeds(s).constraints(), groups, opts).by_pair()
+            else:
+                pairs = {}
+                for c in source.apply(prob, inst, model, seeds(s).constraints(), skip_invalid=True):
+                    pairs.setdefault(tuple(c.identity.split(":", 1)), []).append(c)
+            out.append(Trainer(i, s, inst, model, loc, pairs))
             say("learn", f"{varied} #{t}")
     return out
+
+
+def _learned_source(prob: Problem, params: dict[str, Any], seed: int, groups: Any, opts: LearnOptions,
+                    say: Callable) -> DiscoveredSet:
+    """Every pair learned on every factor of one instance at ``params`` (seed: ``training_seed(seed, 0, 0)``),
+    with its templates (learned at ``params``): the candidates that ``learn_params`` carries to the training
+    instances."""
+    s = training_seed(seed, 0, 0)
+    inst = prob.generate(params, s)
+    model = prob.build(inst)
+    cat = learn(prob, inst, model, seeds(s).constraints(), groups, opts)
+    n_of = {t: len(fs) for t, fs in model.factor_types().items()}
+    pairs = [p for p, cs in cat.by_pair().items() if len({c.factor for c in cs}) == n_of.get(p[0], -1)]
+    say("learn", f"{len(pairs)} pairs at {params}; templates")
+    src = DiscoveredSet(prob.name, dict(params), int(seed), pairs, asdict(opts), {},
+                        groups if isinstance(groups, str) else [list(g) for g in groups])
+    src.template_set(prob)
+    return src
 
 
 def _tighten(run: _Run, trainers: list[Trainer], candidates: list[Pair], min_violation: float,
@@ -416,6 +446,7 @@ def _reduce(run: _Run, trainers: list[Trainer], chosen: list[Pair], say: Callabl
 @single_blas_thread
 def discover_range(problem: Problem | str, params: Mapping[str, Any] | None, over: Mapping[str, Sequence[Any]],
                    seed: int = 0, *, n_train: int = 2, train_params: Mapping[str, Any] | None = None,
+                   learn_params: Mapping[str, Any] | None = None,
                    n_heldout: int = 10, groups: Any = None, learn_options: LearnOptions = LearnOptions(),
                    criteria: Criteria = Criteria(), solver: Any = None, n_random: int = 2,
                    n_validate: int = 0, max_rounds: int = 3, min_violation: float = 1e-7, compare: bool = True,
@@ -424,6 +455,12 @@ def discover_range(problem: Problem | str, params: Mapping[str, Any] | None, ove
 
     An empty ``over`` is the single point ``params``: the set is then reduced over ``n_train``
     instances of it (what ``discover`` does for a problem whose ``DEFAULT_TRAIN`` exceeds 1).
+
+    learn_params (e.g. ``{"K": 5}``): learn the candidates once, on one instance at the first point's
+    parameters overridden by these, with their templates; the training instances (at the points'
+    parameters, e.g. K = 1000) get every candidate by evaluating the templates instead of learning on
+    each.  The set is then saved with templates learned at ``learn_params`` (``DiscoveredSet.params``);
+    where it was selected is in ``info["range"]``.
 
     n_validate: after the reduction, up to ``max_rounds`` times, learn ``n_validate`` more training
     instances per point that has a reached one; when the set is not tight on one of them, tighten
@@ -445,6 +482,9 @@ def discover_range(problem: Problem | str, params: Mapping[str, Any] | None, ove
         raise ParameterError(f"parameter {clash[0]} is both varied and fixed for training")
     prob.parse_params(tparams)  # validates the names and values
     tparams = {k: prob.params[k].parse(k, v) for k, v in tparams.items()}
+    lparams = dict(learn_params or {})
+    prob.parse_params(lparams)
+    lparams = {k: prob.params[k].parse(k, v) for k, v in lparams.items()}
     points = points_of(prob, params, over_)
     fixed = {k: v for k, v in points[0][0].items() if k not in over_}
     t0 = time.perf_counter()
@@ -456,7 +496,11 @@ def discover_range(problem: Problem | str, params: Mapping[str, Any] | None, ove
         tm[key] += time.perf_counter() - t
         return out
 
-    common = (int(seed), groups, learn_options, n_random, say)
+    source = None
+    if lparams:
+        source = timed("learn_s", _learned_source, prob, points[0][0] | tparams | lparams, int(seed), groups,
+                       learn_options, say)
+    common = (int(seed), groups, learn_options, n_random, say, source)
     trainers = timed("learn_s", _learn_trainers, prob, points, range(len(points)), tparams, range(int(n_train)),
                      *common)
     candidates, not_everywhere = _candidates(trainers, tparams)
@@ -484,12 +528,17 @@ def discover_range(problem: Problem | str, params: Mapping[str, Any] | None, ove
     rpoints = [RangePoint(i, varied, full, [tr.seed for tr in trainers if tr.point == i],
                           [tr.reached for tr in trainers if tr.point == i],
                           [tr.message for tr in trainers if tr.point == i]) for i, (full, varied) in enumerate(points)]
-    info = {"range": {"over": over_, "train_params": tparams, "n_train": int(n_train), "validation": rounds,
+    info = {"range": {"over": over_, "train_params": tparams, "learn_params": lparams,
+                      "selected_at": dict(points[0][0]) if source is not None else None,
+                      "n_train": int(n_train), "validation": rounds,
                       "training_seeds": "SeedSequence((seed, point, t, 1))",
                       "reached": {str(p.varied): p.reached for p in rpoints}},
             "criteria": asdict(criteria), "tight": bool(reached), "message": "discovered over a range"}
     ds = DiscoveredSet(prob.name, dict(points[0][0]), int(seed), list(pairs), asdict(learn_options), info,
                        groups if isinstance(groups, str) else [list(g) for g in groups])
+    if source is not None:  # the identities were learned at learn_params: so are the saved templates
+        ds.params = dict(source.params)
+        ds.templates = learn_templates(prob, ds.params, list(pairs), int(seed), learn_options)
     t = time.perf_counter()
     if n_heldout:
         sets: dict[str, Any] = {"range": ConstraintSet(ds)}
@@ -515,7 +564,7 @@ def discover_range(problem: Problem | str, params: Mapping[str, Any] | None, ove
     say("done", "")
     return RangeDiscoveryResult(prob.name, fixed, over_, tparams, int(n_train), int(seed), rpoints, candidates,
                                 not_everywhere, greedy, list(pairs), bool(reached), dropped,
-                                ds, run.n_solves, dict(run.by_stage), times, run.log, ex, rounds)
+                                ds, run.n_solves, dict(run.by_stage), times, run.log, ex, rounds, lparams)
 
 
 def add_range_args(p: argparse.ArgumentParser) -> None:
@@ -528,6 +577,10 @@ def add_range_args(p: argparse.ArgumentParser) -> None:
                         "problem's DEFAULT_TRAIN, else 1: more than 1 reduces the set over that many instances)")
     p.add_argument("--train-param", action="append", default=[], metavar="NAME=VALUE",
                    help="with --sigmas/--range: a parameter of the training instances only, e.g. K=5 (repeatable)")
+    p.add_argument("--learn-param", action="append", default=[], metavar="NAME=VALUE",
+                   help="learn the candidates once on an instance with this parameter (e.g. K=5, repeatable) and "
+                        "carry them to the training instances by their templates: select at -p K=1000 what was "
+                        "learned at K=5")
     p.add_argument("--validate", type=int, default=0, metavar="N",
                    help="with --sigmas/--range: up to 3 rounds of N more training instances per point, tightening "
                         "again where the set is not tight on one (default 0)")
@@ -545,6 +598,7 @@ def cmd_discover_range(args: argparse.Namespace, groups: Any, n_train: int) -> i
     with progress_bar(args) as progress:
         res = discover_range(prob, parse_assignments(args.param), parse_range(args.sigmas, args.range), args.seed,
                              n_train=n_train, train_params=parse_assignments(args.train_param),
+                             learn_params=parse_assignments(args.learn_param),
                              n_heldout=args.heldout, n_validate=args.validate, groups=groups,
                              learn_options=LearnOptions(min_gap_decades=args.min_gap),
                              criteria=Criteria(gap_tol=args.gap_tol, accept=args.accept), progress=progress,

@@ -55,29 +55,34 @@ def carry(P: np.ndarray, Ms: np.ndarray) -> np.ndarray:
     return np.where(off, 2.0, 1.0) * C[:, :, ii, jj]
 
 
-def basic(B: np.ndarray, free: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Basic solutions of the spans of B (c, k, m) with respect to ``free`` (k monomials) → ((c, k, m), their
-    Frobenius norms).  Rows follow ``free``; entries below ``CLEAN`` of a row's largest are 0, as in learning
-    (``nullspace.basic_solutions``).
+def basic(B: np.ndarray, free: np.ndarray, rows: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Basic solutions ``rows`` (default all) of the spans of B (c, k, m) with respect to ``free`` (k
+    monomials) → ((c, len(rows), m), their Frobenius norms).  Entries below ``CLEAN`` of a solution's largest
+    are 0, as in learning (``nullspace.basic_solutions``).
 
     The solutions V = B B_F⁻¹ do not depend on the basis B of the span; for its orthonormal basis Q they are
-    Q Q_F⁻¹, so ‖V‖_F ≥ ‖Q_F⁻¹‖₂ ≥ cond(Q_F), the measure learning bounds by ``MAX_FREE_COND``.  A span with
-    ‖V‖_F above it (or a singular B_F) gets NaN rows: its free monomials do not write its relations accurately."""
-    BF = B[:, :, free]  # (c, k rows of B, k free columns) = B_Fᵀ
+    Q Q_F⁻¹, so ‖V‖_F ≥ ‖Q_F⁻¹‖₂ ≥ cond(Q_F), the measure learning bounds by ``MAX_FREE_COND``.  Solutions
+    with a norm above it (or a singular B_F) are NaN: the free monomials do not write the relations
+    accurately there."""
+    k = len(free)
+    rows = np.arange(k) if rows is None else np.asarray(rows)
+    BF = np.swapaxes(B[:, :, free], 1, 2)  # (c, k free, k relations) = B_F
+    E = np.eye(k)[:, rows]
     try:
-        V = np.linalg.solve(BF, B)  # (B_Fᵀ)⁻¹ Bᵀ = (B B_F⁻¹)ᵀ, row j: solution j
+        G = np.linalg.solve(BF, E)  # (c, k, |rows|): columns rows of B_F⁻¹
     except np.linalg.LinAlgError:  # some B_F exactly singular: one factor at a time
-        V = np.full(B.shape, np.nan)
+        G = np.full((B.shape[0], k, len(rows)), np.nan)
         for i in range(B.shape[0]):
             try:
-                V[i] = np.linalg.solve(BF[i], B[i])
+                G[i] = np.linalg.solve(BF[i], E)
             except np.linalg.LinAlgError:
                 pass
+    V = np.swapaxes(G, 1, 2) @ B  # (B B_F⁻¹)ᵀ, rows: the solutions
     size = np.linalg.norm(V, axis=(1, 2))
-    V[~(size <= MAX_FREE_COND)] = np.nan
     ok = np.isfinite(size) & (size <= MAX_FREE_COND)
+    V[~ok] = np.nan
     W = V[ok]
-    W[:, np.arange(len(free))[:, None], free[None, :]] = np.eye(len(free))
+    W[:, :, free] = E.T
     mx = np.max(np.abs(W), axis=2, keepdims=True)
     W[np.abs(W) < CLEAN * mx] = 0.0
     V[ok] = W
@@ -123,8 +128,7 @@ class TransportTemplate:
         M0inv = np.linalg.inv(problem.transport(self.factor_type, self.data, self.n_cols))
         for s in range(0, D.shape[0], CHUNK):
             Ms = M0inv @ np.array([problem.transport(self.factor_type, d, self.n_cols) for d in D[s:s + CHUNK]])
-            V, _ = basic(carry(self.basis, Ms), self.free)
-            out[s:s + CHUNK] = V[:, self.want]
+            out[s:s + CHUNK], _ = basic(carry(self.basis, Ms), self.free, self.want)
         return out
 
     def coefficients(self, D: np.ndarray, problem: Problem | None = None) -> np.ndarray:
