@@ -36,7 +36,7 @@ from ..model import Constraint, Model, canonical_coo
 from ..problem import Instance, Problem
 from ..svec import triu_indices
 from .learn import LearnOptions
-from .transport import TransportTemplate, reference_template
+from .transport import Layout, TransportTemplate, reference_template
 
 #: a template's coefficients must equal re-learned ones to this relative accuracy (max-norm, relative
 #: to each factor's largest coefficient) on the instances used for fitting and checking
@@ -73,7 +73,7 @@ def relative_error(pred: np.ndarray, Y: np.ndarray) -> np.ndarray:
 
 
 @dataclass
-class TypeTemplate:
+class TypeTemplate(Layout):
     """The templates of one factor type: coefficients = features(data, degree) @ W on ``support``."""
 
     factor_type: str
@@ -86,14 +86,6 @@ class TypeTemplate:
     W: np.ndarray
     check: dict[str, Any] = field(default_factory=dict)
     kind: str = "polynomial"
-
-    @property
-    def n_cols(self) -> int:
-        return int(sum(self.block_sizes))
-
-    @property
-    def n_monomials(self) -> int:
-        return self.n_cols * (self.n_cols + 1) // 2
 
     def coefficients(self, D: np.ndarray, problem: Problem | None = None) -> np.ndarray:
         """Coefficients on ``support`` for factors with data D (n_f, n_data) → (n_f, |support|) (``problem``:

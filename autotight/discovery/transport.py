@@ -89,8 +89,22 @@ def basic(B: np.ndarray, free: np.ndarray, rows: np.ndarray | None = None) -> tu
     return V, size
 
 
+class Layout:
+    """Sizes of a factor type's local columns and monomials, from its ``block_sizes`` (h first)."""
+
+    block_sizes: list[int]
+
+    @property
+    def n_cols(self) -> int:
+        return int(sum(self.block_sizes))
+
+    @property
+    def n_monomials(self) -> int:
+        return self.n_cols * (self.n_cols + 1) // 2
+
+
 @dataclass
-class TransportTemplate:
+class TransportTemplate(Layout):
     """The relations of one factor type, carried from the reference measurement by ``TRANSPORTS[type]``.
 
     basis: (m, k) basic solutions learned on one factor, whose data is ``data``; ``free`` their free
@@ -109,14 +123,6 @@ class TransportTemplate:
     support: np.ndarray
     check: dict[str, Any] = field(default_factory=dict)
     kind: str = "transport"
-
-    @property
-    def n_cols(self) -> int:
-        return int(sum(self.block_sizes))
-
-    @property
-    def n_monomials(self) -> int:
-        return self.n_cols * (self.n_cols + 1) // 2
 
     def solutions(self, D: np.ndarray, problem: Problem) -> np.ndarray:
         """The wanted basic solutions for factors with data D (n_f, n_data) → (n_f, k_wanted, m); NaN rows for
