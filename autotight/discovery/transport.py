@@ -61,9 +61,9 @@ def basic(B: np.ndarray, free: np.ndarray, rows: np.ndarray | None = None) -> tu
     are 0, as in learning (``nullspace.basic_solutions``).
 
     The solutions V = B B_F⁻¹ do not depend on the basis B of the span; for its orthonormal basis Q they are
-    Q Q_F⁻¹, so ‖V‖_F ≥ ‖Q_F⁻¹‖₂ ≥ cond(Q_F), the measure learning bounds by ``MAX_FREE_COND``.  Solutions
-    with a norm above it (or a singular B_F) are NaN: the free monomials do not write the relations
-    accurately there."""
+    Q Q_F⁻¹, so for all rows ‖V‖_F ≥ ‖Q_F⁻¹‖₂ ≥ cond(Q_F), the measure learning bounds by ``MAX_FREE_COND``
+    (for a subset of rows, the size of those solutions only).  Solutions with a norm above it (or a singular
+    B_F) are NaN: the free monomials do not write the relations accurately there."""
     k = len(free)
     rows = np.arange(k) if rows is None else np.asarray(rows)
     BF = np.swapaxes(B[:, :, free], 1, 2)  # (c, k free, k relations) = B_F
@@ -105,7 +105,7 @@ class Layout:
 
 @dataclass
 class TransportTemplate(Layout):
-    """The relations of one factor type, carried from the reference measurement by ``TRANSPORTS[type]``.
+    """The relations of one factor type, carried from one learned factor to any other by ``TRANSPORTS[type]``.
 
     basis: (m, k) basic solutions learned on one factor, whose data is ``data``; ``free`` their free
     monomials; ``want`` the rows of the identities kept (``identities``).  Same interface as ``TypeTemplate``:
