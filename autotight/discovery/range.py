@@ -66,7 +66,6 @@ from ..tightness import Criteria
 from ..unbounded import rank_out_of_reach
 from .catalog import Pair, learn
 from .discovered import DiscoveredSet
-from .templates import learn_templates
 from .learn import LearnOptions
 from .pipeline import default_groups
 
@@ -300,7 +299,11 @@ def _candidates(trainers: list[Trainer], tparams: dict[str, Any]) -> tuple[list[
 
 def _on_every_factor(tr: Trainer, pair: Pair) -> bool:
     """Whether every factor of the pair's type learned it (else its name is factor-specific and won't carry over)."""
-    return len({c.factor for c in tr.pairs[pair]}) == len(tr.model.factor_types().get(pair[0], ()))
+    return _everywhere(tr.model, pair, tr.pairs[pair])
+
+
+def _everywhere(model: Model, pair: Pair, constraints: Sequence[Constraint]) -> bool:
+    return len({c.factor for c in constraints}) == len(model.factor_types().get(pair[0], ()))
 
 
 def _learn_trainers(prob: Problem, points: list[tuple[dict, dict]], which: Sequence[int], train_params: dict[str, Any],
@@ -336,8 +339,7 @@ def _learned_source(prob: Problem, params: dict[str, Any], seed: int, groups: An
     inst = prob.generate(params, s)
     model = prob.build(inst)
     cat = learn(prob, inst, model, seeds(s).constraints(), groups, opts)
-    n_of = {t: len(fs) for t, fs in model.factor_types().items()}
-    pairs = [p for p, cs in cat.by_pair().items() if len({c.factor for c in cs}) == n_of.get(p[0], -1)]
+    pairs = [p for p, cs in cat.by_pair().items() if _everywhere(model, p, cs)]
     say("learn", f"{len(pairs)} pairs at {params}; templates")
     src = DiscoveredSet(prob.name, dict(params), int(seed), pairs, asdict(opts), {},
                         groups if isinstance(groups, str) else [list(g) for g in groups])
@@ -538,7 +540,7 @@ def discover_range(problem: Problem | str, params: Mapping[str, Any] | None, ove
                        groups if isinstance(groups, str) else [list(g) for g in groups])
     if source is not None:  # the identities were learned at learn_params: so are the saved templates
         ds.params = dict(source.params)
-        ds.templates = learn_templates(prob, ds.params, list(pairs), int(seed), learn_options)
+        ds.templates = source.template_set(prob).restricted(pairs)
     t = time.perf_counter()
     if n_heldout:
         sets: dict[str, Any] = {"range": ConstraintSet(ds)}

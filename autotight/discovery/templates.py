@@ -98,6 +98,16 @@ class TypeTemplate(Layout):
         out[:, self.support] = self.coefficients(D)
         return out.reshape(D.shape[0], len(self.identities), self.n_monomials)
 
+    def restricted(self, identities: Sequence[str]) -> "TypeTemplate":
+        """The template of ``identities`` only (a subset of its own, in that order)."""
+        idx = [self.identities.index(i) for i in identities]
+        m = self.n_monomials
+        q, mono = self.support // m, self.support % m
+        new_q = {old: new for new, old in enumerate(idx)}
+        keep = np.flatnonzero(np.isin(q, idx))
+        support = np.array([new_q[int(q[j])] * m + int(mono[j]) for j in keep], dtype=np.int64)
+        return replace(self, identities=list(identities), support=support, W=self.W[:, keep])
+
     def record(self) -> dict[str, Any]:
         return {"kind": self.kind, "factor_type": self.factor_type, "identities": self.identities, "roles": self.roles,
                 "block_sizes": self.block_sizes, "n_data": self.n_data, "degree": self.degree,
@@ -120,6 +130,16 @@ class TemplateSet:
     templates: dict[str, "TypeTemplate | TransportTemplate"]
     fallback: dict[str, str]
     times: dict[str, float] = field(default_factory=dict)
+
+    def restricted(self, pairs: Sequence[tuple[str, str]]) -> "TemplateSet":
+        """The templates and fallbacks of ``pairs`` only (identities sorted per type, as ``learn_templates``)."""
+        wanted: dict[str, list[str]] = {}
+        for t, i in pairs:
+            wanted.setdefault(t, [])
+            if i not in wanted[t]:
+                wanted[t].append(i)
+        return TemplateSet({t: tpl.restricted(sorted(wanted[t])) for t, tpl in self.templates.items() if t in wanted},
+                           {t: why for t, why in self.fallback.items() if t in wanted}, dict(self.times))
 
     def record(self) -> dict[str, Any]:
         return {"templates": [t.record() for t in self.templates.values()], "fallback": self.fallback,

@@ -26,8 +26,8 @@ triplets of its nonzeros.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-from typing import Any
+from dataclasses import dataclass, field, replace
+from typing import Any, Sequence
 
 import numpy as np
 
@@ -145,6 +145,12 @@ class TransportTemplate(Layout):
     def dense(self, D: np.ndarray, problem: Problem | None = None) -> np.ndarray:
         """Full coefficient vectors (n_f, k_wanted, m), as learning returns them."""
         return self.solutions(D, problem)
+
+    def restricted(self, identities: Sequence[str]) -> "TransportTemplate":
+        """The template of ``identities`` only (a subset of its own, in that order)."""
+        idx = [self.identities.index(i) for i in identities]
+        return replace(self, identities=list(identities), want=self.want[idx],
+                       support=np.arange(len(idx) * self.n_monomials, dtype=np.int64))
 
     def record(self) -> dict[str, Any]:
         r, c = np.nonzero(self.basis)
