@@ -10,7 +10,8 @@ feasible set equals the minimum over S, so p* ≥ yᵀb − λ⁻·T with λ⁻ 
 
 Since p* ≤ q* (the QCQP's optimum), ``bound`` also bounds the suboptimality of x̂ for the QCQP (up to
 x̂'s own constraint residual, reported as ``primal_residual``).  λ⁻ is a certified lower bound: the
-smallest eigenvalue λ̂ (dense below ``DENSE_MAX`` columns, else shift-invert Lanczos), lowered by δ until
+smallest eigenvalue λ̂ (dense below ``DENSE_MAX`` columns, else shift-invert Lanczos, shifted as
+``NEAR_SHIFT_MIN_N`` says), lowered by δ until
 an LDLᵀ factorisation of H − (λ̂ − δ)I has no negative pivot (exact up to that factorisation's roundoff).
 
 The trace bound T (``trace_bound``) is derived from the data, never assumed: columns are bounded one
@@ -40,6 +41,7 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
+from .lstsq import min_norm_lstsq
 from .model import Constraint
 
 #: below this many columns, eigenvalues are computed densely
@@ -51,6 +53,15 @@ DENSE_MAX = 200
 LANCZOS_MAXITER = 5000
 #: H's entries on recession columns count as zero up to this multiple of max|H| (module docstring)
 FREE_ATOL = 1e-12
+#: from this many columns on, ``lambda_min`` shifts to NEAR_SHIFT·max|H| below zero and factors H − σI
+#: symmetrically (``symmetric_lu``) instead of σ = −1e-3·max|H| with SuperLU's pivoting.  At a tight
+#: relaxation λ_min(H) ≈ 0 and on a long chain λ₂ is tiny (discrete K = 1000: λ₂ ≈ 1e-4, max|H| ≈ 4.5e3),
+#: so at σ = −1e-3·max|H| the shifted spectrum has no gap: 7 400 solves, 9.8 s per call, three calls per
+#: solve.  At σ = −1e-8·max|H|: 21 solves and 0.2 s, λ̂ equal to 1e-13 absolute (and closer to the
+#: value that every shift nearer zero gives).  Smaller problems, among them every committed report's,
+#: keep the first shift, so their numbers stay as they were.
+NEAR_SHIFT_MIN_N = 4000
+NEAR_SHIFT = 1e-8
 
 
 @dataclass
@@ -121,16 +132,21 @@ def dual_matrix(Q: sp.sparray, As: Sequence[sp.sparray], y: np.ndarray, *, stack
     return H
 
 
-def negative_pivots(H: sp.sparray, shift: float) -> int | None:
-    """Number of negative eigenvalues of H − shift·I, by Sylvester's law on a symmetric LDLᵀ
-    (SuperLU in symmetric mode without off-diagonal pivoting); None if the factorisation fails or pivots
-    off the diagonal."""
+def symmetric_lu(H: sp.sparray, shift: float):
+    """SuperLU of H − shift·I in symmetric mode without off-diagonal pivoting (an LDLᵀ in effect: the
+    fill of a symmetric ordering); raises RuntimeError when exactly singular."""
     from scipy.sparse.linalg import splu
 
     n = H.shape[0]
+    return splu(sp.csc_matrix(H - shift * sp.identity(n, format="csc")), permc_spec="MMD_AT_PLUS_A",
+                diag_pivot_thresh=0.0, options=dict(SymmetricMode=True))
+
+
+def negative_pivots(H: sp.sparray, shift: float) -> int | None:
+    """Number of negative eigenvalues of H − shift·I, by Sylvester's law on a symmetric LDLᵀ
+    (``symmetric_lu``); None if the factorisation fails or pivots off the diagonal."""
     try:
-        lu = splu(sp.csc_matrix(H - shift * sp.identity(n, format="csc")), permc_spec="MMD_AT_PLUS_A",
-                  diag_pivot_thresh=0.0, options=dict(SymmetricMode=True))
+        lu = symmetric_lu(H, shift)
     except RuntimeError:  # exactly singular
         return None
     if not np.array_equal(lu.perm_r, lu.perm_c):
@@ -153,8 +169,17 @@ def lambda_min(H: sp.sparray) -> tuple[float, float, str]:
     from scipy.sparse.linalg import ArpackError, ArpackNoConvergence, eigsh
 
     method = "shift-invert Lanczos + LDLᵀ inertia"
+    sigma, inverse = -1e-3 * scale, None
+    if n >= NEAR_SHIFT_MIN_N:
+        sigma = -NEAR_SHIFT * scale
+        try:
+            lu = symmetric_lu(H, sigma)
+            if np.array_equal(lu.perm_r, lu.perm_c):  # else it pivoted: eigsh's own factorisation
+                inverse = spla.LinearOperator((n, n), matvec=lu.solve, dtype=float)
+        except RuntimeError:  # exactly singular there: eigsh's own factorisation
+            pass
     try:
-        lam = float(eigsh(sp.csc_matrix(H), k=1, sigma=-1e-3 * scale, which="LM", v0=np.ones(n),
+        lam = float(eigsh(sp.csc_matrix(H), k=1, sigma=sigma, which="LM", v0=np.ones(n), OPinv=inverse,
                           return_eigenvectors=False, tol=1e-12, maxiter=min(10 * n, LANCZOS_MAXITER))[0])
     except (ArpackError, ArpackNoConvergence, RuntimeError):
         lam, method = 0.0, "LDLᵀ inertia"
@@ -298,20 +323,20 @@ def stationarity_system(Q: sp.sparray, As: Sequence[sp.sparray], Th: np.ndarray)
 
 def polish_dual(Q: sp.sparray, As: Sequence[sp.sparray], y: np.ndarray, theta_hat: np.ndarray) -> np.ndarray:
     """y + δ, δ the least change (2-norm) that makes H(y + δ)Θ̂ᵀ = 0 (and H's rows on recession columns
-    zero, ``stationarity_system``): the minimum-norm least-squares
-    solution of G δ = g − G y (``stationarity_system``, LSQR).  Θ̂: (d, N).  Where x̂ is stationary only
-    to the local solver's accuracy, the system is consistent only to that accuracy, and so is
-    H(y + δ)Θ̂ᵀ = 0.  Then bᵀ(y + δ) = f(x̂) − ⟨H, Θ̂ᵀΘ̂⟩ ≈ f(x̂), up to that and x̂'s constraint
-    residual; whether y + δ proves anything is λ_min's to say.  The rows on recession columns, which
-    must hold exactly (to roundoff) for a certificate, get a second least-change step of their own."""
+    zero, ``stationarity_system``): the minimum-norm least-squares solution of G δ = g − G y
+    (``lstsq.min_norm_lstsq``).  Θ̂: (d, N).  Where x̂ is stationary only to the local solver's
+    accuracy, the system is consistent only to that accuracy, and so is H(y + δ)Θ̂ᵀ = 0.  Then
+    bᵀ(y + δ) = f(x̂) − ⟨H, Θ̂ᵀΘ̂⟩ ≈ f(x̂), up to that and x̂'s constraint residual; whether y + δ
+    proves anything is λ_min's to say.  The rows on recession columns, which must hold exactly (to
+    roundoff) for a certificate, get a second least-change step of their own."""
     Th = np.atleast_2d(np.asarray(theta_hat, dtype=float))
     G, g = stationarity_system(Q, As, Th)
     y = np.asarray(y, dtype=float)
-    y = y + spla.lsqr(G, g - G @ y, atol=1e-14, btol=1e-14, iter_lim=10 * G.shape[1])[0]
+    y = y + min_norm_lstsq(G, g - G @ y)
     n_stat = Th.size
     if G.shape[0] > n_stat:
         GJ, gJ = G[n_stat:], g[n_stat:]
-        y = y + spla.lsqr(GJ, gJ - GJ @ y, atol=1e-16, btol=1e-16, iter_lim=10 * G.shape[1])[0]
+        y = y + min_norm_lstsq(GJ, gJ - GJ @ y, atol=1e-16)
     return y
 
 

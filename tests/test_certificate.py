@@ -86,7 +86,15 @@ def test_bound_is_valid_for_the_sdp_dual():
     assert not bad.certified and bad.lambda_min < 0
 
 
-def test_lambda_min_sparse_matches_dense():
+@pytest.fixture(params=["default shift", "near shift"])
+def shift(request, monkeypatch):
+    """Both of ``lambda_min``'s shifts: the near one is used from NEAR_SHIFT_MIN_N columns on."""
+    if request.param == "near shift":
+        monkeypatch.setattr("autotight.certificate.NEAR_SHIFT_MIN_N", 0)
+    return request.param
+
+
+def test_lambda_min_sparse_matches_dense(shift):
     rng = np.random.default_rng(3)
     n = 400
     A = sp.random(n, n, density=0.01, random_state=rng)
@@ -97,7 +105,7 @@ def test_lambda_min_sparse_matches_dense():
     assert abs(lam - w) <= 1e-8 * abs(H).max() and low <= w
 
 
-def test_lambda_min_of_an_indefinite_matrix_is_bracketed_with_capped_lanczos():
+def test_lambda_min_of_an_indefinite_matrix_is_bracketed_with_capped_lanczos(shift):
     """An indefinite sparse H above DENSE_MAX columns (a relaxation that is not tight): the lower bound
     confirmed by LDLᵀ inertia is below the true λ_min, and the estimate is within 1e-6 of it, with
     the Lanczos iterations capped by LANCZOS_MAXITER."""
@@ -111,3 +119,17 @@ def test_lambda_min_of_an_indefinite_matrix_is_bracketed_with_capped_lanczos():
     true = float(np.linalg.eigvalsh(H.toarray())[0])
     est, lower, _ = lambda_min(H)
     assert true < 0 and lower <= true and abs(est - true) <= 1e-6 * max(1.0, abs(true))
+
+
+def test_lambda_min_of_a_chain_with_no_spectral_gap(shift):
+    """H like a tight dual on a long chain: PSD with λ₁ = 0 and λ₂ ≈ π²/n² ≪ 1e-3·max|H| (a path
+    graph's Laplacian, n = 1500, scaled by 1e3).  Both shifts find λ₁ to 1e-9·max|H|, and the lower bound
+    is below it."""
+    n = 1500
+    L = sp.diags([-np.ones(n - 1), np.r_[1.0, 2.0 * np.ones(n - 2), 1.0], -np.ones(n - 1)], [-1, 0, 1])
+    H = sp.csc_array(1e3 * L)
+    w = np.linalg.eigvalsh(H.toarray())[:2]
+    assert abs(w[0]) < 1e-9 and w[1] < 1e-5 * abs(H).max()
+    lam, low, method = lambda_min(H)
+    assert "Lanczos" in method
+    assert abs(lam - w[0]) <= 1e-9 * abs(H).max() and low <= w[0]

@@ -1,0 +1,68 @@
+"""Minimum-norm least squares (autotight.lstsq): the factorised proximal steps against a dense solve."""
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+
+from autotight import lstsq
+from autotight.lstsq import min_norm_lstsq
+
+
+def _chain(rng: np.random.Generator, blocks: int, rows: int = 6, cols: int = 9) -> sp.csr_array:
+    """A chain: block k's columns touch rows of blocks k and k + 1; one column repeated (rank-deficient
+    in columns) and one row the sum of two others (rank-deficient in rows)."""
+    n, m = blocks * rows, blocks * cols
+    G = sp.lil_array((n, m))
+    for k in range(blocks):
+        r = slice(k * rows, min((k + 2) * rows, n))
+        G[r, k * cols:(k + 1) * cols] = rng.standard_normal((min((k + 2) * rows, n) - k * rows, cols))
+    D = G.toarray()
+    D[:, m - 1] = D[:, 0]
+    D[n - 1] = D[0] + D[1]
+    return sp.csr_array(D)
+
+
+@pytest.mark.parametrize("consistent", [True, False])
+def test_factorised_path_equals_the_dense_minimum_norm_solution(monkeypatch, consistent):
+    """Forced onto the factorisation (LSQR_MAX_COLUMNS = 0): equal to pinv(G) r to 1e-9 relative, for a
+    consistent right-hand side and for one with a residual, and orthogonal to G's nullspace."""
+    monkeypatch.setattr(lstsq, "LSQR_MAX_COLUMNS", 0)
+    rng = np.random.default_rng(0)
+    G = _chain(rng, 40)
+    Gd = G.toarray()
+    r = Gd @ rng.standard_normal(G.shape[1]) if consistent else rng.standard_normal(G.shape[0])
+    x = min_norm_lstsq(G, r)
+    ref = np.linalg.pinv(Gd) @ r
+    assert np.linalg.norm(x - ref) <= 1e-9 * np.linalg.norm(ref)
+    null = np.linalg.svd(Gd)[2][np.linalg.matrix_rank(Gd):]  # rows span G's nullspace
+    assert np.linalg.norm(null @ x) <= 1e-9 * np.linalg.norm(x)
+
+
+def test_small_systems_keep_lsqr(monkeypatch):
+    """Below LSQR_MAX_COLUMNS the factorisation is not used (a factorisation that raises is not reached)."""
+    def boom(*a, **k):
+        raise AssertionError("factorised")
+
+    monkeypatch.setattr(lstsq.spla, "splu", boom)
+    rng = np.random.default_rng(1)
+    G = _chain(rng, 10)
+    r = rng.standard_normal(G.shape[0])
+    x = min_norm_lstsq(G, r)
+    assert np.linalg.norm(x - np.linalg.pinv(G.toarray()) @ r) <= 1e-9 * np.linalg.norm(x)
+
+
+def test_a_failed_factorisation_falls_back_to_lsqr(monkeypatch):
+    monkeypatch.setattr(lstsq, "LSQR_MAX_COLUMNS", 0)
+
+    def singular(*a, **k):
+        raise RuntimeError("Factor is exactly singular")
+
+    monkeypatch.setattr(lstsq.spla, "splu", singular)
+    rng = np.random.default_rng(2)
+    G = _chain(rng, 10)
+    r = rng.standard_normal(G.shape[0])
+    assert np.linalg.norm(min_norm_lstsq(G, r) - np.linalg.pinv(G.toarray()) @ r) <= 1e-9 * np.linalg.norm(r)
+
+
+def test_empty_system():
+    assert min_norm_lstsq(sp.csr_array((0, 3)), np.zeros(0)).tolist() == [0.0, 0.0, 0.0]
