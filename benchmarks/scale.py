@@ -108,8 +108,12 @@ def exponent(rows: list[dict], key: str, a: int = 100, b: int = 1000) -> float |
 
 
 def ensure_set(problem: str, path: Path) -> None:
+    """Discover the problem's default set at size 5 when its file is missing; another missing file is an
+    error (it would be filled with a set other than its name says)."""
     if path.exists():
         return
+    if path.resolve() != SETS[problem].resolve():
+        raise SystemExit(f"no set file at {path}")
     env = dict(os.environ, PYTHONPATH=str(ROOT))
     subprocess.run([sys.executable, "-m", "autotight.cli", "discover", problem, "-p", f"{SIZE[problem]}=5",
                     "--no-progress", "--out", str(path)], check=True, env=env, stdout=subprocess.DEVNULL)

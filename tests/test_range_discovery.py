@@ -181,3 +181,23 @@ def test_learn_params_select_at_a_larger_size_what_was_learned_at_a_small_one(tm
     assert out.tight, out.verdict.reason
     with pytest.raises(ParameterError, match="unknown parameter"):
         discover_range("discrete_trajectory", {"K": 12}, {}, 0, n_train=1, n_heldout=0, learn_params={"Q": 5})
+
+
+def test_the_committed_set_learned_at_k5_and_selected_at_k20_is_tight_at_k100():
+    """The README's discrete carry-over file (benchmarks/results/scale_set_discrete_learnK5.json: learned at
+    K = 5, selected over σ on K = 20 instances): its templates are those of K = 5, every template is
+    exact (no per-factor fallback), and on a fresh K = 100 instance (5× the selection size) it is tight,
+    where the set selected at K = 5 alone is not (README, Limits)."""
+    from pathlib import Path
+
+    from autotight.problem import load
+
+    path = Path(__file__).resolve().parent.parent / "benchmarks" / "results" / "scale_set_discrete_learnK5.json"
+    cs = ConstraintSet.load(path)
+    rec = json.loads(path.read_text(encoding="utf-8"))
+    assert rec["params"]["K"] == 5 and rec["info"]["range"]["selected_at"]["K"] == 20
+    assert rec["info"]["range"]["over"]["sigma"][-1] == 0.316 and not rec["fallback"]
+    prob = load("discrete_trajectory")
+    inst = prob.generate(prob.parse_params({"K": 100, "sigma": 0.1}), 11)
+    out = solve_instance(prob, inst, cs, config=at.SolverConfig(backend="ipm"), n_random=0)
+    assert out.verdict.outcome == "tight" and out.verdict.log_svr > 5, out.verdict.reason
