@@ -38,30 +38,24 @@ def test_factorised_path_equals_the_dense_minimum_norm_solution(monkeypatch, con
     assert np.linalg.norm(null @ x) <= 1e-9 * np.linalg.norm(x)
 
 
-def test_small_systems_keep_lsqr(monkeypatch):
-    """Below LSQR_MAX_COLUMNS the factorisation is not used (a factorisation that raises is not reached)."""
-    def boom(*a, **k):
-        raise AssertionError("factorised")
+@pytest.mark.parametrize("route", ["small system", "failed factorisation"])
+def test_lsqr_routes(monkeypatch, route):
+    """Below LSQR_MAX_COLUMNS the factorisation is not reached (one that raises AssertionError is never
+    called); above it, a factorisation that fails ("exactly singular") falls back to LSQR.  Both equal
+    pinv(G) r to 1e-9."""
+    error = AssertionError if route == "small system" else RuntimeError
+    if route == "failed factorisation":
+        monkeypatch.setattr(lstsq, "LSQR_MAX_COLUMNS", 0)
 
-    monkeypatch.setattr(lstsq.spla, "splu", boom)
+    def factorise(*a, **k):
+        raise error("Factor is exactly singular")
+
+    monkeypatch.setattr(lstsq.spla, "splu", factorise)
     rng = np.random.default_rng(1)
     G = _chain(rng, 10)
     r = rng.standard_normal(G.shape[0])
     x = min_norm_lstsq(G, r)
     assert np.linalg.norm(x - np.linalg.pinv(G.toarray()) @ r) <= 1e-9 * np.linalg.norm(x)
-
-
-def test_a_failed_factorisation_falls_back_to_lsqr(monkeypatch):
-    monkeypatch.setattr(lstsq, "LSQR_MAX_COLUMNS", 0)
-
-    def singular(*a, **k):
-        raise RuntimeError("Factor is exactly singular")
-
-    monkeypatch.setattr(lstsq.spla, "splu", singular)
-    rng = np.random.default_rng(2)
-    G = _chain(rng, 10)
-    r = rng.standard_normal(G.shape[0])
-    assert np.linalg.norm(min_norm_lstsq(G, r) - np.linalg.pinv(G.toarray()) @ r) <= 1e-9 * np.linalg.norm(r)
 
 
 def test_empty_system():
