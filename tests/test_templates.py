@@ -226,3 +226,38 @@ def test_factor_without_basic_solutions_is_relearned(transported):
         theta = np.atleast_2d(prob.lift(inst, state))
         X = theta.T @ theta
         assert max(abs(c.value(X)) for c in out) < 1e-8 * np.abs(X).max()
+
+
+def test_templates_fitted_over_a_range_hold_over_it():
+    """Odometry r'[2]·ρ[2] at K = 5: fitted at σ = 0.001 alone a degree-2 polynomial matches it to FIT_RTOL,
+    and on a fresh instance at speed 4, σ = 0.1 its coefficients are off (relative error > FIT_RTOL).
+    Fitted over the points (speed 1, σ = 0.001) and (speed 4, σ = 0.316) the template equals re-learning there."""
+    from autotight.discovery.templates import _factor_samples
+
+    prob = load("discrete_trajectory")
+    pair = [("odometry", "r'[2]·rho[2]")]
+    narrow = learn_templates(prob, prob.parse_params({"K": 5, "sigma": 0.001}), pair, seed=0).templates["odometry"]
+    assert not isinstance(narrow, TransportTemplate) and narrow.degree == 2
+    points = [prob.parse_params({"K": 5, "speed": v, "sigma": s}) for v, s in ((1.0, 0.001), (4.0, 0.316))]
+    wide = learn_templates(prob, points, pair, seed=0)
+    assert "odometry" in wide.templates, wide.fallback
+    assert wide.templates["odometry"].check["points"] == 2
+    inst = prob.generate(prob.parse_params({"K": 6, "speed": 4.0, "sigma": 0.1}), np.random.default_rng(55))
+    model = prob.build(inst)
+    got, _ = _factor_samples(prob, inst, model, {"odometry": ["r'[2]·rho[2]"]}, np.random.default_rng(1),
+                             LearnOptions())
+    D = np.array([d for d, _ in got["odometry"]])
+    Y = np.array([y for _, y in got["odometry"]])
+    off = relative_error(narrow.dense(D, prob).reshape(len(Y), -1), Y).max()
+    ok = relative_error(wide.templates["odometry"].dense(D, prob).reshape(len(Y), -1), Y).max()
+    assert off > FIT_RTOL and ok <= FIT_RTOL, (off, ok)
+
+
+def test_a_range_sets_templates_are_fitted_over_its_points():
+    prob = load("discrete_trajectory")
+    ds = DiscoveredSet("discrete_trajectory", prob.parse_params({"K": 5, "sigma": 0.001}), 0, [], {},
+                       {"range": {"over": {"sigma": [0.001, 0.1], "speed": [1.0, 4.0]}}})
+    pts = ds.template_points(prob)
+    assert len(pts) == 4 and {p["K"] for p in pts} == {5}
+    assert {(p["sigma"], p["speed"]) for p in pts} == {(0.001, 1.0), (0.001, 4.0), (0.1, 1.0), (0.1, 4.0)}
+    assert DiscoveredSet("discrete_trajectory", {"K": 5}, 0, [], {}, {}).template_points(prob) == [{"K": 5}]

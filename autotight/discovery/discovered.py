@@ -104,15 +104,27 @@ class DiscoveredSet:
         return LearnOptions(**self.learn_options) if self.learn_options else LearnOptions()
 
     def template_set(self, problem: Problem, progress=None) -> TemplateSet:
-        """The templates (learned once, on fresh instances at the set's parameters, when not loaded)."""
+        """The templates (learned once, on fresh instances at ``template_points``, when not loaded)."""
         if self.templates is None:
             if self.groups != "factors":
                 self.templates = TemplateSet({}, {t: f"learned on groups {self.groups!r}, not factors: no template"
                                                   for t in sorted({t for t, _ in self.pairs})})
             else:
-                self.templates = learn_templates(problem, self.params, self.pairs, int(self.seed or 0),
-                                                 self.options(), progress=progress)
+                self.templates = learn_templates(problem, self.template_points(problem), self.pairs,
+                                                 int(self.seed or 0), self.options(), progress=progress)
         return self.templates
+
+    def template_points(self, problem: Problem) -> list[dict[str, Any]]:
+        """Where the templates are fitted and checked: the set's parameters, or, for a set discovered over a
+        range (``info["range"]["over"]``), every point of that range at the set's other parameters (its
+        learning size, for a set selected at another one)."""
+        from ..check import points_of
+
+        over = (self.info.get("range") or {}).get("over") or {}
+        if not over:
+            return [dict(self.params)]
+        fixed = {k: v for k, v in self.params.items() if k not in over}
+        return [full for full, _ in points_of(problem, fixed, over)]
 
     def _check(self, problem: Problem, model: Model | None) -> None:
         if problem.name != self.problem:

@@ -233,6 +233,13 @@ class RangeDiscoveryResult:
         return "\n".join(lines)
 
 
+def _n_added(res: PointResult, n_primary: int) -> int | None:
+    """Constraints beyond the primary ones on the point's held-out instances where the set was instantiated
+    (None when it was on none: "—" in the table, not a negative count)."""
+    made = [n for n, st in zip(res.n_constraints, res.statuses) if st != "not instantiated"]
+    return max(made) - n_primary if made else None
+
+
 def _n(v: int | None) -> str:
     return "—" if v is None else str(v)
 
@@ -331,17 +338,17 @@ def _learn_trainers(prob: Problem, points: list[tuple[dict, dict]], which: Seque
 
 
 def _learned_source(prob: Problem, params: dict[str, Any], seed: int, groups: Any, opts: LearnOptions,
-                    say: Callable) -> DiscoveredSet:
+                    say: Callable, over: dict[str, list] | None = None) -> DiscoveredSet:
     """Every pair learned on every factor of one instance at ``params`` (seed: ``training_seed(seed, 0, 0)``),
-    with its templates (learned at ``params``): the candidates that ``learn_params`` carries to the training
-    instances."""
+    with its templates (fitted at ``params`` over the range ``over``, ``DiscoveredSet.template_points``):
+    the candidates that ``learn_params`` carries to the training instances."""
     s = training_seed(seed, 0, 0)
     inst = prob.generate(params, s)
     model = prob.build(inst)
     cat = learn(prob, inst, model, seeds(s).constraints(), groups, opts)
     pairs = [p for p, cs in cat.by_pair().items() if _everywhere(model, p, cs)]
     say("learn", f"{len(pairs)} pairs at {params}; templates")
-    src = DiscoveredSet(prob.name, dict(params), int(seed), pairs, asdict(opts), {},
+    src = DiscoveredSet(prob.name, dict(params), int(seed), pairs, asdict(opts), {"range": {"over": over or {}}},
                         groups if isinstance(groups, str) else [list(g) for g in groups])
     src.template_set(prob)
     return src
@@ -501,7 +508,7 @@ def discover_range(problem: Problem | str, params: Mapping[str, Any] | None, ove
     source = None
     if lparams:
         source = timed("learn_s", _learned_source, prob, points[0][0] | tparams | lparams, int(seed), groups,
-                       learn_options, say)
+                       learn_options, say, {k: v for k, v in over_.items() if k not in lparams})
     common = (int(seed), groups, learn_options, n_random, say, source)
     trainers = timed("learn_s", _learn_trainers, prob, points, range(len(points)), tparams, range(int(n_train)),
                      *common)
@@ -553,10 +560,10 @@ def discover_range(problem: Problem | str, params: Mapping[str, Any] | None, ove
         n_prim = {i: len(prob.build(prob.generate(full, 0)).primary()) for i, (full, _) in enumerate(points)}
         for i, rp in enumerate(rpoints):
             rp.heldout = held["range"][i]
-            rp.n_learned = max(rp.heldout.n_constraints, default=n_prim[i]) - n_prim[i]
+            rp.n_learned = _n_added(rp.heldout, n_prim[i])
             if "paper" in held:
                 rp.paper = held["paper"][i]
-                rp.n_paper = max(rp.paper.n_constraints, default=n_prim[i]) - n_prim[i]
+                rp.n_paper = _n_added(rp.paper, n_prim[i])
     t_held = time.perf_counter() - t
     ex = None
     if reached:

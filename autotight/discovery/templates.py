@@ -183,13 +183,22 @@ def _fit(D: np.ndarray, Y: np.ndarray, degree: int) -> np.ndarray:
     return W
 
 
-def learn_templates(problem: Problem, params: dict[str, Any], pairs: Sequence[tuple[str, str]], seed: int,
-                    opts: LearnOptions = LearnOptions(), progress=None) -> TemplateSet:
+def learn_templates(problem: Problem, params: dict[str, Any] | Sequence[dict[str, Any]],
+                    pairs: Sequence[tuple[str, str]], seed: int, opts: LearnOptions = LearnOptions(),
+                    progress=None) -> TemplateSet:
     """Fit a template per factor type of ``pairs`` from instances with seeds ``seed + 1000 + i``.
 
+    ``params``: one parameter point, or several (a set discovered over a range): instance i is drawn at
+    point i mod P, and no fit is accepted before every point has given its factors.  A polynomial fitted
+    where the measurements vary little (σ = 0.001) can match a function that is no polynomial to
+    ``FIT_RTOL`` there and miss it at σ = 0.01 (discrete trajectory, odometry r'[2]·ρ[2]: 2.4e-8); over
+    the range's points it fails its fit instead, and the type gets its transport template.
     Instances are generated until, for every type, some degree fits the collected factors and predicts
     ``VALIDATE`` further ones to ``FIT_RTOL``, or the most features (degree 2) are exhausted.  Every kept
-    template is then checked on ``CHECK_INSTANCES`` fresh instances (``check_template``)."""
+    template is then checked on ``CHECK_INSTANCES`` fresh instances, and at least one per point
+    (``check_template``)."""
+    points = [dict(params)] if isinstance(params, dict) else [dict(p) for p in params]
+    params = points[0]
     t0 = time.perf_counter()
     wanted: dict[str, list[str]] = {}
     for t, i in pairs:
@@ -206,7 +215,7 @@ def learn_templates(problem: Problem, params: dict[str, Any], pairs: Sequence[tu
     k = 0
     while open_types and k < MAX_INSTANCES:
         rng = np.random.default_rng([seed, 1000 + k])
-        inst = problem.generate(params, np.random.default_rng(seed + 1000 + k))
+        inst = problem.generate(points[k % len(points)], np.random.default_rng(seed + 1000 + k))
         model = problem.build(inst)
         k += 1
         for t in list(open_types):
@@ -234,7 +243,7 @@ def learn_templates(problem: Problem, params: dict[str, Any], pairs: Sequence[tu
             p = D.shape[1]
             n_fit = len(Y) - VALIDATE
             for g in DEGREES:
-                if (g > 0 and p == 0) or n_fit < 3:
+                if (g > 0 and p == 0) or n_fit < 3 or k < len(points):  # every point's factors first
                     break
                 W = _fit(D[:n_fit], Y[:n_fit], g)
                 if relative_error(features(D, g) @ W, Y).max() <= FIT_RTOL:  # the last VALIDATE factors decide
@@ -258,20 +267,49 @@ def learn_templates(problem: Problem, params: dict[str, Any], pairs: Sequence[tu
         D0 = samples[t][0][0]
         templates[t] = TypeTemplate(t, wanted[t], *layout[t], int(D0.size), g, support, W[:, support],
                                     {"n_fit_factors": len(samples[t]), "fit_instances": k})
-    for t in sorted(set(wanted) - set(fitted)):
+    transports = _transports(problem, params, sorted(set(wanted) - set(fitted)), wanted, layout, seed, opts,
+                             fallback)
+    t1 = time.perf_counter()
+    templates |= transports
+    failed = _check_templates(problem, points, templates, wanted, seed, opts, fallback)
+    # a polynomial that fitted but failed its check (it matched a non-polynomial where it was fitted): transport
+    retry = _transports(problem, params, [t for t in failed if not isinstance(failed[t], TransportTemplate)],
+                        wanted, layout, seed, opts, fallback)
+    _check_templates(problem, points, retry, wanted, seed, opts, fallback)
+    templates |= retry
+    for tpl in templates.values():
+        tpl.check |= {"check_instances": max(CHECK_INSTANCES, len(points)), "fit_rtol": FIT_RTOL,
+                      "heldout_tol": opts.heldout_tol} | ({"points": len(points)} if len(points) > 1 else {})
+    return TemplateSet(templates, fallback, {"fit_s": t1 - t0, "check_s": time.perf_counter() - t1})
+
+
+def _transports(problem: Problem, params: dict[str, Any], types: Sequence[str], wanted: dict[str, list[str]],
+                layout: dict[str, tuple[list[str], list[int]]], seed: int, opts: LearnOptions,
+                fallback: dict[str, str]) -> dict[str, TransportTemplate]:
+    """Transport templates of ``types`` that the problem declares one for; each found leaves ``fallback``
+    (its reason kept as the template's ``check["polynomial"]``), each that fails says why there."""
+    out: dict[str, TransportTemplate] = {}
+    for t in types:
         if t in layout and t in problem.transport_types():
             try:
-                templates[t] = _transport_template(problem, params, t, wanted[t], layout[t], seed, opts)
+                out[t] = _transport_template(problem, params, t, wanted[t], layout[t], seed, opts)
             except AutotightError as e:
                 fallback[t] += f"; no transport template either: {e}"
                 continue
-            templates[t].check["polynomial"] = fallback.pop(t).replace("; learned per factor instead", "")
-    t1 = time.perf_counter()
-    t2 = time.perf_counter()
-    for c in range(CHECK_INSTANCES):
+            out[t].check["polynomial"] = fallback.pop(t).replace("; learned per factor instead", "")
+    return out
+
+
+def _check_templates(problem: Problem, points: list[dict[str, Any]], templates: dict, wanted: dict[str, list[str]],
+                     seed: int, opts: LearnOptions, fallback: dict[str, str]) -> dict:
+    """Check ``templates`` on fresh instances (seeds seed + 2000 + c, at least one per point) against
+    re-learning (``FIT_RTOL``) and on fresh states (``heldout_tol``); a failing one moves from ``templates`` to
+    ``fallback`` with its figures.  Returns the failed templates by type."""
+    failed = {}
+    for c in range(max(CHECK_INSTANCES, len(points))):
         if not templates:
             break
-        inst = problem.generate(params, np.random.default_rng(seed + 2000 + c))
+        inst = problem.generate(points[c % len(points)], np.random.default_rng(seed + 2000 + c))
         model = problem.build(inst)
         rng = np.random.default_rng([seed, 2000 + c])
         got, _ = _factor_samples(problem, inst, model, {t: wanted[t] for t in templates}, rng, opts)
@@ -290,10 +328,8 @@ def learn_templates(problem: Problem, params: dict[str, Any], pairs: Sequence[tu
                 fallback[t] = (f"the template of factor type {t!r} failed its check on a fresh instance "
                                f"(coefficients off by {err:.1e} relative, violation {worst:.1e}); learned per "
                                "factor instead")
-                del templates[t]
-    for tpl in templates.values():
-        tpl.check |= {"check_instances": CHECK_INSTANCES, "fit_rtol": FIT_RTOL, "heldout_tol": opts.heldout_tol}
-    return TemplateSet(templates, fallback, {"fit_s": t1 - t0, "check_s": time.perf_counter() - t2})
+                failed[t] = templates.pop(t)
+    return failed
 
 
 def _transport_template(problem: Problem, params: dict[str, Any], t: str, wanted: list[str],
