@@ -215,13 +215,14 @@ def learn_templates(problem: Problem, params: dict[str, Any] | Sequence[dict[str
     k = 0
     while open_types and k < MAX_INSTANCES:
         rng = np.random.default_rng([seed, 1000 + k])
-        inst = problem.generate(points[k % len(points)], np.random.default_rng(seed + 1000 + k))
+        point = points[k % len(points)]
+        inst = problem.generate(point, np.random.default_rng(seed + 1000 + k))
         model = problem.build(inst)
         k += 1
         for t in list(open_types):
             fs = [f for f in model.factors if f.type == t]
             if not fs:
-                fallback[t] = f"factor type {t!r} has no factor on an instance with params {params}"
+                fallback[t] = f"factor type {t!r} has no factor on an instance with params {point}"
                 open_types.discard(t)
             else:
                 layout[t] = (list(fs[0].roles), [model.variables.sizes[b] for b in fs[0].blocks])
