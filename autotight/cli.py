@@ -174,13 +174,12 @@ def build_parser() -> argparse.ArgumentParser:
     from .check_cli import register as register_check_module
     from .check_cmd import register as register_check
     from .discovery.cli import register as register_discover
+    from .discovery.templates_cmd import register as register_templates
     from .report.cli import register as register_report
 
-    from .discovery.templates_cmd import register as register_templates
-
-    for register in (register_discover, register_report, register_check, register_check_module, register_certify):
+    for register in (register_discover, register_report, register_check, register_check_module, register_certify,
+                     register_templates):
         register(sub, _add_problem_args)
-    register_templates(sub)
     return ap
 
 

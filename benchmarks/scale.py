@@ -14,12 +14,13 @@ seed).  The SDP uses our IPM (``--solver ipm``); local search: from the ground t
         [--seeds-at 1000] [--retemplate PATH]
 
 --seeds: the instance seeds of every run; --seeds-at: sizes that run with every seed (the others with the
-first).  Without --set (or when the file is missing) the set is discovered at size 5, seed 0, and saved
-there; --set takes any set file of the problem (e.g. reports/sets/discrete_trajectory_range.json, saved
-without a template for its factor type, so its "template" route re-learns every factor; ``--retemplate
-PATH`` learns its templates again first, transport templates included), and the JSON records where it
-was learned (``learned_at``).  Writes benchmarks/results/scale.json (pose averaging:
-scale_pose_averaging.json) with the versions and the load average around every run.
+first).  Without --set the problem's default file is used, and discovered at size 5, seed 0, when it is
+missing (another missing --set file is an error).  --set takes any set file of the problem (e.g.
+reports/sets/discrete_trajectory_range.json, saved without a template for its factor type, so its
+"template" route re-learns every factor; ``--retemplate PATH`` learns its templates again first,
+transport templates included), and the JSON records where it was learned (``learned_at``).  Writes
+benchmarks/results/scale.json (pose averaging: scale_pose_averaging.json) with the versions and the
+load average around every run.
 """
 
 from __future__ import annotations
@@ -114,9 +115,13 @@ def ensure_set(problem: str, path: Path) -> None:
         return
     if path.resolve() != SETS[problem].resolve():
         raise SystemExit(f"no set file at {path}")
-    env = dict(os.environ, PYTHONPATH=str(ROOT))
-    subprocess.run([sys.executable, "-m", "autotight.cli", "discover", problem, "-p", f"{SIZE[problem]}=5",
-                    "--no-progress", "--out", str(path)], check=True, env=env, stdout=subprocess.DEVNULL)
+    autotight("discover", problem, "-p", f"{SIZE[problem]}=5", "--no-progress", "--out", str(path), quiet=True)
+
+
+def autotight(*args: str, quiet: bool = False) -> None:
+    """Run the CLI of this checkout in a subprocess (raises when it fails)."""
+    subprocess.run([sys.executable, "-m", "autotight.cli", *args], check=True,
+                   env=dict(os.environ, PYTHONPATH=str(ROOT)), stdout=subprocess.DEVNULL if quiet else None)
 
 
 def main() -> None:
@@ -145,8 +150,7 @@ def main() -> None:
         return
     ensure_set(args.problem, Path(args.set))
     if args.retemplate:
-        subprocess.run([sys.executable, "-m", "autotight.cli", "templates", args.set, "--out", args.retemplate,
-                        "--force"], check=True, env=dict(os.environ, PYTHONPATH=str(ROOT)))
+        autotight("templates", args.set, "--out", args.retemplate, "--force")
         args.set = args.retemplate
     rows = []
     every = {int(k) for k in args.seeds_at.split(",") if k}

@@ -337,6 +337,12 @@ def _learn_trainers(prob: Problem, points: list[tuple[dict, dict]], which: Seque
     return out
 
 
+def _parsed(prob: Problem, values: dict[str, Any]) -> dict[str, Any]:
+    """Only the given parameters, each validated and parsed (``Problem.parse_params`` checks the names)."""
+    prob.parse_params(values)
+    return {k: prob.params[k].parse(k, v) for k, v in values.items()}
+
+
 def _learned_source(prob: Problem, params: dict[str, Any], seed: int, groups: Any, opts: LearnOptions,
                     say: Callable, over: dict[str, list] | None = None) -> DiscoveredSet:
     """Every pair learned on every factor of one instance at ``params`` (seed: ``training_seed(seed, 0, 0)``),
@@ -489,11 +495,7 @@ def discover_range(problem: Problem | str, params: Mapping[str, Any] | None, ove
     clash = [k for k in tparams if k in over_]
     if clash:
         raise ParameterError(f"parameter {clash[0]} is both varied and fixed for training")
-    prob.parse_params(tparams)  # validates the names and values
-    tparams = {k: prob.params[k].parse(k, v) for k, v in tparams.items()}
-    lparams = dict(learn_params or {})
-    prob.parse_params(lparams)
-    lparams = {k: prob.params[k].parse(k, v) for k, v in lparams.items()}
+    tparams, lparams = _parsed(prob, tparams), _parsed(prob, dict(learn_params or {}))
     points = points_of(prob, params, over_)
     fixed = {k: v for k, v in points[0][0].items() if k not in over_}
     t0 = time.perf_counter()

@@ -20,7 +20,8 @@ from .discovered import DiscoveredSet
 KEPT = ("variables", "d", "constraints_by_factor", "learning_instance", "summary")
 
 
-def register(sub: argparse._SubParsersAction) -> None:
+def register(sub: argparse._SubParsersAction, add_problem_args=None) -> None:
+    """The ``templates`` subcommand (``add_problem_args`` unused: the set file names its problem)."""
     p = sub.add_parser("templates", help="learn a saved constraint set's templates again (e.g. for factor types "
                                          "listed under 'fallback')")
     p.add_argument("set", help="a constraint-set file (from `discover --out`)")
