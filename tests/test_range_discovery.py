@@ -54,6 +54,23 @@ def test_reduction_is_irreducible_over_all_trainers_and_never_solves_a_set_twice
     assert run.n_solves < 2 ** 6
 
 
+def test_reduction_removes_on_the_hardest_instance_and_widens_only_where_the_result_breaks():
+    """Twelve instances, 48 pairs: ten need only "a", the hardest needs "a" and "b", one needs "c" as well.
+    A removal is solved on the probe (the hardest, then the one that broke), not on all twelve."""
+    pairs = [f"p{i}" for i in range(45)] + ["a", "b", "c"]
+    needs = {s: [{"a"}] for s in range(10)} | {10: [{"a", "b"}], 11: [{"a", "c"}]}
+    run = _Needs(needs)
+    trainers = [_trainer(s) for s in needs]
+    for tr in trainers:
+        tr.tight_sets.append(frozenset(pairs))
+    trainers[10].loose_sets.append(frozenset(["a"]))  # the hardest: a set of one pair is known loose on it
+    got, dropped = _reduce(run, trainers, pairs, lambda *a: None)
+    assert set(got) == {"a", "b", "c"} and dropped == []
+    assert run.calls[0][0] == 10  # the first removal is tried on the hardest instance
+    # before: every successful removal was solved on all twelve instances (≥ 12 per success)
+    assert run.n_solves <= 45
+
+
 class _Blind(_Needs):
     """_Needs whose solves of a loose set return no usable X (a NumericalError)."""
 
@@ -151,6 +168,33 @@ def test_validation_rounds_add_training_instances_the_set_is_then_tight_on():
     inst = prob.generate({"M": 3, "sigma": 1.0}, training_seed(0, 0, 1))
     assert solve_instance(prob, inst, res.constraint_set, n_random=2).outcome == "tight"
     assert res.solves_by_stage["validate"] == 1 and res.n_solves == sum(res.solves_by_stage.values())
+
+
+def test_validation_at_a_larger_size_grows_a_set_that_a_short_chain_selected():
+    """Discrete K = 4, σ = 0.316: one pair is tight there.  A validation chain of K = 12 breaks it; the set
+    is tightened on that chain and is tight on it, where the K = 4 selection is not."""
+    prob = at.load_problem("discrete_trajectory")
+    res = discover_range(prob, {"K": 4, "sigma": 0.316}, {}, 0, n_train=1, n_validate=1, validate_params={"K": 12},
+                         n_heldout=0, max_rounds=1)
+    assert res.validate_params == {"K": 12} and res.discovered.info["range"]["validate_params"] == {"K": 12}
+    assert res.validation[0]["new_instances"] == 1 and res.validation[0]["not_tight"] == 1
+    assert len(res.pairs) > len(res.greedy) and "+1 instances at {'K': 12}" in res.table()
+    inst = prob.generate({"K": 12, "sigma": 0.316}, training_seed(0, 0, 1))  # the validation chain
+
+    def outcome(pairs):
+        cs = ConstraintSet(type(res.discovered)(prob.name, {}, 0, pairs, res.discovered.learn_options))
+        return solve_instance(prob, inst, cs, n_random=2).outcome
+
+    assert outcome(res.pairs) == "tight" and outcome(res.greedy) != "tight"
+
+
+def test_validate_params_need_validation_instances_and_a_fixed_parameter():
+    with pytest.raises(ParameterError, match="n_validate"):
+        discover_range("pose_averaging", {"M": 2}, {"sigma": [0.1]}, validate_params={"M": 4})
+    with pytest.raises(ParameterError, match="validation"):
+        discover_range("pose_averaging", {"M": 2}, {"M": [2, 3]}, n_validate=1, validate_params={"M": 4})
+    with pytest.raises(ParameterError):
+        discover_range("pose_averaging", {"M": 2}, {"sigma": [0.1]}, n_validate=1, validate_params={"Q": 4})
 
 
 def test_learn_params_select_at_a_larger_size_what_was_learned_at_a_small_one(tmp_path):

@@ -78,7 +78,7 @@ def cmd_discover(args: argparse.Namespace) -> int:
     if args.out is not None:
         check_file(args.out, force=args.force)
     prob = load(args.problem)
-    ranged = bool(args.sigmas is not None or args.range or args.learn_param)
+    ranged = bool(args.sigmas is not None or args.range or args.learn_param or args.validate or args.validate_param)
     n_train = n_training(prob, args.train, ranged)
     if ranged or n_train > 1:
         from .range import cmd_discover_range

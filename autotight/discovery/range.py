@@ -19,17 +19,22 @@
    only the instances not yet tight are solved again (adding valid constraints keeps a tight
    relaxation tight).  A training instance that is not tight while no remaining pair cuts its
    solution cannot be made tight by the candidates: it is "not reached" and left out of the
-   rest.  A solve that returns no usable X (NumericalError at σ = 0.316 on discrete K = 20 with the
-   primary constraints) ranks nothing: every remaining pair is then added at once, and the
-   reduction removes those not needed.  A point none of whose training instances is reached is
-   reported as such.
+   rest.  A solve that returns no usable X (NumericalError at σ = 0.1 and 0.316 on discrete K = 20
+   with one pair) ranks nothing: the instances with a usable X rank the round, and the blind one is
+   solved again with the larger set.  Only when every loose instance is blind is every remaining
+   pair added at once (the reduction removes those not needed).  A point none of whose training
+   instances is reached is reported as such.
 4. **Reduce** over the reached training instances: pairs ordered by their largest normalised
    dual importance Σ|yᵢ|‖Aᵢ‖_F on any instance (least important first) are removed in blocks that
-   double after a success and halve after a failure, as in ``reduce.reduce_pairs``; a set counts
-   tight when it is tight on every reached instance.  Tightness is monotone in the set, so every
-   result is cached per instance: a set containing a known tight set is tight, a set inside a
-   known loose one is loose, and only sets that no known result decides are solved, the instance
-   that broke the last trial first.
+   double after a success and halve after a failure, as in ``reduce.reduce_pairs``.  A block
+   removal is tried on the *probe* instances only, at first the hardest one (the largest set known
+   not to be tight on it).  The result is then solved on the other instances; the first where it is
+   not tight joins the probe, gets back the fewest removed pairs that make it tight (ranked by their
+   violation of its solution, as in step 3), and the removal runs again on the probe.  So a
+   removal costs one solve per probe instance, not one per instance.  Tightness is monotone in the
+   set, so every result is cached per instance: a set containing a known tight set is tight, a set
+   inside a known loose one is loose, and only sets that no known result decides are solved, the
+   instance that broke the last trial first.
 5. **Irreducible**: removing any remaining pair breaks tightness on at least one reached training
    instance, checked by a solve on exactly that set (a pair whose removal turns out not to break
    it is dropped, and the check repeats).
@@ -173,6 +178,7 @@ class RangeDiscoveryResult:
     example: tuple[Model, list[Constraint]] | None = None
     validation: list[dict[str, int]] = field(default_factory=list)
     learn_params: dict[str, Any] = field(default_factory=dict)
+    validate_params: dict[str, Any] = field(default_factory=dict)
 
     @property
     def tight(self) -> bool:
@@ -190,7 +196,8 @@ class RangeDiscoveryResult:
 
     def summary(self) -> dict[str, Any]:
         return {"problem": self.problem, "params": self.params, "over": self.over, "train_params": self.train_params,
-                "learn_params": self.learn_params, "n_train": self.n_train, "seed": self.seed, "tight": self.tight,
+                "learn_params": self.learn_params, "validate_params": self.validate_params, "n_train": self.n_train,
+                "seed": self.seed, "tight": self.tight,
                 "n_candidate_pairs": len(self.candidates),
                 "not_learned_everywhere": [f"{t}:{i}" for t, i in self.not_everywhere],
                 "n_greedy_pairs": len(self.greedy), "validation_rounds": self.validation, "n_pairs": len(self.pairs),
@@ -201,6 +208,7 @@ class RangeDiscoveryResult:
 
     def table(self) -> str:
         s = self.summary()
+        at = f" at {self.validate_params}" if self.validate_params else ""
         lines = [f"problem {self.problem}  params {self.params}  over {self.over}"
                  + (f"  (training at {self.train_params})" if self.train_params else "") + f"  seed {self.seed}",
                  (f"{len(self.candidates)} candidate pairs learned once at {self.learn_params} and carried by their "
@@ -208,21 +216,21 @@ class RangeDiscoveryResult:
                   if self.learn_params else
                   f"{len(self.candidates)} candidate pairs learned on all {sum(len(p.reached) for p in self.points)} "
                   "training instances") + f"; greedy {len(self.greedy)} pairs"
-                 + "".join(f", +{r['new_instances']} instances ({r['not_tight']} not tight, +{r['pairs_added']} pairs)"
-                           for r in self.validation)
+                 + "".join(f", +{r['new_instances']} instances{at} ({r['not_tight']} not tight, "
+                           f"+{r['pairs_added']} pairs)" for r in self.validation)
                  + f" → {len(self.pairs)} pairs "
                  f"({'irreducible over the range' if self.irreducible else 'not verified irreducible'}); "
                  f"{self.n_solves} SDP solves ({', '.join(f'{k} {v}' for k, v in s['solves_by_stage'].items())}); "
                  f"{self.times.get('total_s', float('nan')):.1f} s", "",
-                 f"{'point':<18}{'trained':>9}{'range set':>11}{'tight (held-out)':>18}{'paper':>7}"
-                 f"{'tight (held-out)':>18}"]
+                 f"{'point':<18}{'trained':>9}{'range set':>11}{'tight (held-out)':>22}{'paper':>7}"
+                 f"{'tight (held-out)':>22}"]
         for p in self.points:
             label = ", ".join(f"{k}={v:g}" if isinstance(v, float) else f"{k}={v}" for k, v in p.varied.items()) \
                 or "params"
             tr = f"{sum(p.reached)}/{len(p.reached)}"
             hf = _frac(p.heldout)
             pf = _frac(p.paper)
-            lines.append(f"{label:<18}{tr:>9}{_n(p.n_learned):>11}{hf:>18}{_n(p.n_paper):>7}{pf:>18}")
+            lines.append(f"{label:<18}{tr:>9}{_n(p.n_learned):>11}{hf:>22}{_n(p.n_paper):>7}{pf:>22}")
         lines.append("")
         for p in self.points:
             for seed, ok, msg in zip(p.train_seeds, p.reached, p.messages):
@@ -398,48 +406,42 @@ def _tighten(run: _Run, trainers: list[Trainer], candidates: list[Pair], min_vio
         ranked = sorted((p for p in score if score[p] > min_violation), key=lambda p: -score[p])
         if not loose or not (ranked or blind):
             break
-        if blind:  # add every remaining candidate at once; the reduction removes those not needed
-            chosen += remaining
-        else:
+        if ranked:  # the instances with a usable X rank; a blind one is solved again with the larger set
             chosen += ranked[: 2 ** r]
             r += 1
+        else:  # only blind instances left: add every remaining candidate; the reduction removes those not needed
+            chosen += remaining
         loose = [tr for tr in loose if not run.solve(tr, chosen, "tighten")]
         say("tighten", f"{len(chosen)} pairs, {len(loose)} not tight")
     return chosen
 
 
 def _reduce(run: _Run, trainers: list[Trainer], chosen: list[Pair], say: Callable) -> tuple[list[Pair], list[Pair]]:
-    """Block removal over the reached trainers, then the irreducibility check (module docstring, 4–5)."""
+    """Block removal on the probe instances, widened where the result breaks, then the irreducibility check
+    over every reached trainer (module docstring, 4–5)."""
     imp: dict[Pair, float] = {p: 0.0 for p in chosen}
     for tr in trainers:
         for p, v in tr.importance().items():
             imp[p] = max(imp.get(p, 0.0), v)
-    pending = sorted(chosen, key=lambda p: imp[p])
+    probe = [_hardest(trainers)]
     current = list(chosen)
-    order = list(trainers)
-    tested_on: dict[Pair, frozenset] = {}
+    pending = sorted(chosen, key=lambda p: imp[p])
     breaker: dict[Pair, Trainer] = {}
+    while True:
+        current = _remove_blocks(run, probe, current, pending, breaker, say)
+        ok, bad = run.tight_on_all([tr for tr in trainers if tr not in probe], current, "reduce")
+        if ok:
+            break
+        probe.append(bad)  # type: ignore[arg-type]
+        current = _restore(run, bad, current, [p for p in chosen if p not in current])  # type: ignore[arg-type]
+        pending = sorted(current, key=lambda p: imp[p])
+    order = probe + [tr for tr in trainers if tr not in probe]
 
     def first(tr: Trainer | None) -> None:
         if tr is not None:
             order.remove(tr)
             order.insert(0, tr)
 
-    chunk = max(1, len(pending) // 2)
-    while pending:
-        c = min(chunk, len(pending))
-        block = set(pending[:c])
-        trial = [p for p in current if p not in block]
-        ok, bad = run.tight_on_all(order, trial, "reduce")
-        first(bad)
-        say("reduce", f"{len(current)} pairs")
-        if ok:
-            current, pending, chunk = trial, pending[c:], 2 * c
-        elif c == 1:
-            tested_on[pending[0]], breaker[pending[0]] = frozenset(current), bad
-            pending = pending[1:]
-        else:
-            chunk = c // 2
     dropped: list[Pair] = []
     changed = True
     while changed:
@@ -458,13 +460,64 @@ def _reduce(run: _Run, trainers: list[Trainer], chosen: list[Pair], say: Callabl
     return current, dropped
 
 
+def _hardest(trainers: list[Trainer]) -> Trainer:
+    """The trainer with the largest set known not to be tight on it (the first one when none is known)."""
+    return max(trainers, key=lambda tr: max((len(s) for s in tr.loose_sets), default=-1))
+
+
+def _remove_blocks(run: _Run, probe: list[Trainer], current: list[Pair], pending: list[Pair],
+                   breaker: dict[Pair, Trainer], say: Callable) -> list[Pair]:
+    """``current`` without the ``pending`` pairs (least important first) whose removal keeps it tight on every
+    ``probe`` trainer: blocks that double after a success and halve after a failure.  ``breaker`` gets, for each
+    pair found necessary, the trainer where removing it broke tightness."""
+    order = list(probe)
+    chunk = max(1, len(pending) // 2)
+    while pending:
+        c = min(chunk, len(pending))
+        block = set(pending[:c])
+        trial = [p for p in current if p not in block]
+        ok, bad = run.tight_on_all(order, trial, "reduce")
+        if bad is not None:  # the instance that broke the last trial first
+            order.remove(bad)
+            order.insert(0, bad)
+        say("reduce", f"{len(current)} pairs")
+        if ok:
+            current, pending, chunk = trial, pending[c:], 2 * c
+        elif c == 1:
+            breaker[pending[0]] = bad  # type: ignore[assignment]
+            pending = pending[1:]
+        else:
+            chunk = c // 2
+    return current
+
+
+def _restore(run: _Run, tr: Trainer, current: list[Pair], removed: list[Pair]) -> list[Pair]:
+    """``current`` plus the fewest ``removed`` pairs that the greedy needs to make ``tr`` tight again: ranked by
+    their violation of tr's last solution, 1, 2, 4, … at a time (all of them: the tightened set, tight on tr)."""
+    chosen, remaining, r = list(current), list(removed), 0
+    while remaining:
+        last = tr.last.sdp if tr.last is not None else None
+        if last is not None and last.X is not None and last.usable:
+            remaining.sort(key=lambda p: -tr.violation(last.X, p))
+            add, remaining = remaining[: 2 ** r], remaining[2 ** r:]
+            r += 1
+        else:
+            add, remaining = remaining, []
+        chosen += add
+        known = tr.known(frozenset(chosen))
+        if known or (known is None and run.solve(tr, chosen, "reduce")):
+            break
+    return chosen
+
+
 @single_blas_thread
 def discover_range(problem: Problem | str, params: Mapping[str, Any] | None, over: Mapping[str, Sequence[Any]],
                    seed: int = 0, *, n_train: int = 2, train_params: Mapping[str, Any] | None = None,
                    learn_params: Mapping[str, Any] | None = None,
                    n_heldout: int = 10, groups: Any = None, learn_options: LearnOptions = LearnOptions(),
                    criteria: Criteria = Criteria(), solver: Any = None, n_random: int = 2,
-                   n_validate: int = 0, max_rounds: int = 3, min_violation: float = 1e-7, compare: bool = True,
+                   n_validate: int = 0, validate_params: Mapping[str, Any] | None = None, max_rounds: int = 3,
+                   min_violation: float = 1e-7, compare: bool = True,
                    progress: Callable[[str, str], None] | None = None) -> RangeDiscoveryResult:
     """Learn, tighten and reduce one set over every point of ``over`` (see the module docstring).
 
@@ -480,6 +533,11 @@ def discover_range(problem: Problem | str, params: Mapping[str, Any] | None, ove
     n_validate: after the reduction, up to ``max_rounds`` times, learn ``n_validate`` more training
     instances per point that has a reached one; when the set is not tight on one of them, tighten
     from the set on them and reduce again over all training instances (0: no such rounds).
+
+    validate_params (e.g. ``{"K": 100}``, with n_validate ≥ 1): the validation instances take these
+    parameters: a set selected on K = 20 instances is checked, and tightened where it breaks, on
+    K = 100 ones before it is saved.  Validation instance t at point i has the training seed
+    ``training_seed(seed, i, t)``, t counting on from n_train.
     """
     prob = load(problem) if isinstance(problem, str) else problem
     groups = default_groups(prob, groups)
@@ -496,6 +554,12 @@ def discover_range(problem: Problem | str, params: Mapping[str, Any] | None, ove
     if clash:
         raise ParameterError(f"parameter {clash[0]} is both varied and fixed for training")
     tparams, lparams = _parsed(prob, tparams), _parsed(prob, dict(learn_params or {}))
+    vparams = _parsed(prob, dict(validate_params or {}))
+    clash = [k for k in vparams if k in over_]
+    if clash:
+        raise ParameterError(f"parameter {clash[0]} is both varied and fixed for validation")
+    if vparams and not n_validate:
+        raise ParameterError("validate_params needs n_validate ≥ 1 (--validate N)")
     points = points_of(prob, params, over_)
     fixed = {k: v for k, v in points[0][0].items() if k not in over_}
     t0 = time.perf_counter()
@@ -523,11 +587,11 @@ def discover_range(problem: Problem | str, params: Mapping[str, Any] | None, ove
     next_t = int(n_train)
     while n_validate and reached and len(rounds) < max_rounds:
         which = sorted({tr.point for tr in reached})
-        new = timed("learn_s", _learn_trainers, prob, points, which, tparams, range(next_t, next_t + n_validate),
-                    *common)
+        new = timed("learn_s", _learn_trainers, prob, points, which, tparams | vparams,
+                    range(next_t, next_t + n_validate), *common)
         next_t += n_validate
         trainers += new
-        candidates, not_everywhere = _candidates(trainers, tparams)
+        candidates, not_everywhere = _candidates(trainers, tparams | vparams)
         more = timed("tighten_s", _tighten, run, new, candidates, min_violation, say, pairs, "validate")
         loose = sum(frozenset(pairs) in tr.loose_sets for tr in new)
         rounds.append({"new_instances": len(new), "not_tight": loose, "pairs_added": len(more) - len(pairs)})
@@ -541,7 +605,7 @@ def discover_range(problem: Problem | str, params: Mapping[str, Any] | None, ove
                           [tr.message for tr in trainers if tr.point == i]) for i, (full, varied) in enumerate(points)]
     info = {"range": {"over": over_, "train_params": tparams, "learn_params": lparams,
                       "selected_at": dict(points[0][0]) if source is not None else None,
-                      "n_train": int(n_train), "validation": rounds,
+                      "n_train": int(n_train), "validation": rounds, "validate_params": vparams,
                       "training_seeds": "SeedSequence((seed, point, t, 1))",
                       "reached": {str(p.varied): p.reached for p in rpoints}},
             "criteria": asdict(criteria), "tight": bool(reached), "message": "discovered over a range"}
@@ -575,7 +639,8 @@ def discover_range(problem: Problem | str, params: Mapping[str, Any] | None, ove
     say("done", "")
     return RangeDiscoveryResult(prob.name, fixed, over_, tparams, int(n_train), int(seed), rpoints, candidates,
                                 not_everywhere, greedy, list(pairs), bool(reached), dropped,
-                                ds, run.n_solves, dict(run.by_stage), times, run.log, ex, rounds, lparams)
+                                ds, run.n_solves, dict(run.by_stage), times, run.log, ex, rounds, lparams,
+                                vparams)
 
 
 def add_range_args(p: argparse.ArgumentParser) -> None:
@@ -592,6 +657,9 @@ def add_range_args(p: argparse.ArgumentParser) -> None:
                    help="learn the candidates once on an instance with this parameter (e.g. K=5, repeatable) and "
                         "carry them to the training instances by their templates: select at -p K=1000 what was "
                         "learned at K=5")
+    p.add_argument("--validate-param", action="append", default=[], metavar="NAME=VALUE",
+                   help="with --validate: a parameter of the validation instances only, e.g. K=100: check the set "
+                        "on longer chains than it was selected on, and tighten it where it breaks (repeatable)")
     p.add_argument("--validate", type=int, default=0, metavar="N",
                    help="with --sigmas/--range: up to 3 rounds of N more training instances per point, tightening "
                         "again where the set is not tight on one (default 0)")
@@ -610,7 +678,8 @@ def cmd_discover_range(args: argparse.Namespace, groups: Any, n_train: int) -> i
         res = discover_range(prob, parse_assignments(args.param), parse_range(args.sigmas, args.range), args.seed,
                              n_train=n_train, train_params=parse_assignments(args.train_param),
                              learn_params=parse_assignments(args.learn_param),
-                             n_heldout=args.heldout, n_validate=args.validate, groups=groups,
+                             n_heldout=args.heldout, n_validate=args.validate,
+                             validate_params=parse_assignments(args.validate_param), groups=groups,
                              learn_options=LearnOptions(min_gap_decades=args.min_gap),
                              criteria=Criteria(gap_tol=args.gap_tol, accept=args.accept), progress=progress,
                              solver=solver_config(args))
