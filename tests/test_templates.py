@@ -191,6 +191,33 @@ def test_transport_applied_at_size_50_holds_and_equals_relearning(transported):
     assert max(abs(c.value(X)) for c in cons) < 1e-9 * np.abs(X).max()
 
 
+@pytest.mark.parametrize("factor_type", ["pose_meas", "odometry"])
+def test_carrying_only_what_the_wanted_solutions_need_equals_carrying_every_relation(factor_type):
+    """``carried_basic`` (B_F from the free monomials' columns, then |rows| combined relations carried) equals
+    ``basic(carry(...))`` (every relation carried whole) to rounding, NaN rows included (a singular B_F)."""
+    from autotight.discovery.transport import basic, carried_basic, carry
+
+    prob = load("discrete_trajectory")
+    inst = prob.generate(prob.parse_params({"K": 6}), np.random.default_rng(5))
+    model = prob.build(inst)
+    cat = learn(prob, inst, model, np.random.default_rng(3), "factors", LearnOptions(), types=[factor_type])
+    g = cat.groups[0]
+    f0 = model.factor(g.group.name)
+    D = np.array([model.factor(h.group.name).data for h in cat.groups])
+    n = int((np.sqrt(8 * g.coeffs.shape[0] + 1) - 1) / 2)  # m = n(n + 1)/2 local monomials
+    M0inv = np.linalg.inv(prob.transport(factor_type, f0.data, n))
+    Ms = M0inv @ np.array([prob.transport(factor_type, d, n) for d in D])
+    Ms = np.concatenate([Ms, np.zeros((1, n, n))])  # a factor where B_F is singular
+    rows = np.array([0, 3, len(g.free) - 1])
+    want, _ = basic(carry(g.coeffs, Ms), g.free, rows)
+    got, _ = carried_basic(g.coeffs, Ms, g.free, rows)
+    assert np.array_equal(np.isnan(got), np.isnan(want)) and np.isnan(got[-1]).all()
+    ok = ~np.isnan(want[:, 0, 0])
+    assert ok.sum() == len(D)
+    err = np.abs(got[ok] - want[ok]).max(axis=(1, 2)) / np.abs(want[ok]).max(axis=(1, 2))
+    assert err.max() <= 1e-12, err.max()
+
+
 def test_wrong_transport_falls_back_with_the_reason(monkeypatch):
     prob = load("discrete_trajectory")
     params = prob.parse_params({"K": 5})
