@@ -60,18 +60,31 @@ def discover(problem: str | ModuleType | Problem, params: dict[str, Any] | None 
     learned over the whole range (``autotight.discovery.range.discover_range``: options n_train,
     train_params, n_heldout, …) and a ``RangeDiscoveryResult`` is returned.  So it is too with
     ``n_train`` > 1, or when the problem's ``DEFAULT_TRAIN`` exceeds 1 and ``n_train`` is not given: the
-    set is then reduced over that many training instances of ``params``.
+    set is then reduced over that many training instances of ``params``.  So it is, finally, when the
+    problem module declares where a selection carries to any size (``CARRY``, see
+    ``autotight.discovery.carry``; e.g. discrete_trajectory at K = 5: learned at K = 5, selected on
+    K = 20 instances over the noise range) and no range option is given; ``carry=False`` selects at
+    ``params`` alone.
     """
+    from .discovery.carry import RANGE_OPTIONS, carry_plan
     from .discovery.pipeline import discover as _discover, n_training
 
     prob = _problem(problem)
-    over = options.pop("over", None)
-    n_train = n_training(prob, options.pop("n_train", None), over is not None)
-    if over is not None or n_train > 1:
+    carry = options.pop("carry", True)
+    plan = carry_plan(prob, params) if carry and not any(k in options for k in RANGE_OPTIONS) else None
+    over = plan.over if plan is not None else options.pop("over", None)
+    n_train = n_training(prob, options.pop("n_train", None), over is not None or plan is not None)
+    if plan is not None or over is not None or n_train > 1:
         from .discovery.range import discover_range
 
-        return discover_range(prob, params, over or {}, _seed(seed), n_train=n_train,
-                              solver=solver or SolverConfig(), **options)
+        if plan is not None:
+            params, options["learn_params"] = plan.params, plan.learn_params
+            options["n_validate"], options["validate_params"] = plan.n_validate, plan.validate_params
+        res = discover_range(prob, params, over or {}, _seed(seed), n_train=n_train,
+                             solver=solver or SolverConfig(), **options)
+        if plan is not None:
+            plan.mark(res)
+        return res
 
     return _discover(prob, params, _seed(seed), solver=solver or SolverConfig(), **options)
 

@@ -252,8 +252,22 @@ def check_problem(problem: Problem | str, params: dict[str, Any] | None = None, 
         c.run("recover", recover)
     c.run("local", local)
     c.run("identities", lambda: _identities(prob, inst, model, rng, out))
+    c.run("carry", lambda: _carry(prob, given, out))
     out.measurements["time_s"] = time.perf_counter() - t0
     return out
+
+
+def _carry(prob: Problem, given: dict[str, Any], out: ProblemCheck) -> None:
+    """A declared ``CARRY`` names parameters of the problem with valid values; report its plan at ``given``."""
+    from .discovery.carry import carry_plan, carry_spec
+
+    at_least, over, _ = carry_spec(prob)
+    if not at_least and not over:
+        out.passed.append("carry: no CARRY declared; plain discover selects at the given parameters")
+        return
+    plan = carry_plan(prob, given)
+    out.passed.append("carry: " + (plan.describe() if plan is not None else
+                                   "CARRY is valid; at these parameters plain discover selects where it learns"))
 
 
 def _identities(prob: Problem, inst: Instance, model: Model, rng: np.random.Generator, out: ProblemCheck) -> None:

@@ -44,7 +44,7 @@ CASES = [
     ("discover pose_averaging M=5", ["discover", "pose_averaging", "-p", "M=5", "--heldout", "2", "--json"],
      "discover"),
     ("discover discrete_trajectory K=20", ["discover", "discrete_trajectory", "-p", "K=20", "--heldout", "0",
-                                           "--json"], "discover"),
+                                           "--no-carry", "--json"], "discover"),
 ]
 
 

@@ -15,6 +15,7 @@ from ..outpaths import check_file, writing
 from ..pretty import polynomial
 from ..unbounded import compress
 from ..problem import load, parse_assignments
+from .carry import carry_plan
 from .learn import LearnOptions
 from .pipeline import DiscoveryResult, discover, n_training
 
@@ -33,6 +34,9 @@ def register(sub: argparse._SubParsersAction, add_problem_args: Callable) -> Non
     p.add_argument("--gap-tol", type=nonneg_float, default=1e-5,
                    help="relative cost gap counted as tight (default 1e-5)")
     add_accept_arg(p)
+    p.add_argument("--no-carry", action="store_true",
+                   help="select the set at -p alone, even where the problem module declares where a selection carries "
+                        "to any size (CARRY; e.g. discrete_trajectory: K ≥ 20 over the noise range)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     add_solver_args(p)
     from .range import add_range_args  # discovery over a range: --sigmas, --range, --train, --train-param
@@ -78,12 +82,14 @@ def cmd_discover(args: argparse.Namespace) -> int:
     if args.out is not None:
         check_file(args.out, force=args.force)
     prob = load(args.problem)
-    ranged = bool(args.sigmas is not None or args.range or args.learn_param or args.validate or args.validate_param)
-    n_train = n_training(prob, args.train, ranged)
-    if ranged or n_train > 1:
+    ranged = bool(args.sigmas is not None or args.range or args.train_param or args.learn_param or args.validate
+                  or args.validate_param)
+    plan = None if ranged or args.no_carry else carry_plan(prob, parse_assignments(args.param))
+    n_train = n_training(prob, args.train, ranged or plan is not None)
+    if ranged or plan is not None or n_train > 1:
         from .range import cmd_discover_range
 
-        return cmd_discover_range(args, _groups(args.groups), n_train)
+        return cmd_discover_range(args, _groups(args.groups), n_train, plan)
     params = prob.parse_params(parse_assignments(args.param))
     check_size(prob, params)
     check_count(prob, params, f"--heldout {args.heldout}", args.heldout, per_item=3, what="held-out instances")

@@ -69,6 +69,7 @@ from ..sdp.config import SolverConfig
 from ..threads import single_blas_thread
 from ..tightness import Criteria
 from ..unbounded import rank_out_of_reach
+from .carry import CarryPlan
 from .catalog import Pair, learn
 from .discovered import DiscoveredSet
 from .learn import LearnOptions
@@ -179,6 +180,7 @@ class RangeDiscoveryResult:
     validation: list[dict[str, int]] = field(default_factory=list)
     learn_params: dict[str, Any] = field(default_factory=dict)
     validate_params: dict[str, Any] = field(default_factory=dict)
+    carry: dict[str, Any] | None = None  # the problem module's carry-over plan, when it chose the range
 
     @property
     def tight(self) -> bool:
@@ -196,7 +198,8 @@ class RangeDiscoveryResult:
 
     def summary(self) -> dict[str, Any]:
         return {"problem": self.problem, "params": self.params, "over": self.over, "train_params": self.train_params,
-                "learn_params": self.learn_params, "validate_params": self.validate_params, "n_train": self.n_train,
+                "learn_params": self.learn_params, "validate_params": self.validate_params, "carry": self.carry,
+                "n_train": self.n_train,
                 "seed": self.seed, "tight": self.tight,
                 "n_candidate_pairs": len(self.candidates),
                 "not_learned_everywhere": [f"{t}:{i}" for t, i in self.not_everywhere],
@@ -665,24 +668,34 @@ def add_range_args(p: argparse.ArgumentParser) -> None:
                         "again where the set is not tight on one (default 0)")
 
 
-def cmd_discover_range(args: argparse.Namespace, groups: Any, n_train: int) -> int:
-    """``autotight discover PROBLEM --sigmas …`` (or ``--range NAME=…``, or ``--train N`` > 1 at one point):
-    the range table, JSON, --out."""
+def cmd_discover_range(args: argparse.Namespace, groups: Any, n_train: int, plan: CarryPlan | None = None) -> int:
+    """``autotight discover PROBLEM --sigmas …`` (or ``--range NAME=…``, or ``--train N`` > 1 at one point, or
+    the problem module's carry-over ``plan``): the range table, JSON, --out."""
     from ..check_cmd import parse_range
     from ..cli import solver_config
 
     from .cli import progress_bar
 
     prob = load(args.problem)
+    if plan is not None:
+        params, over, lparams = plan.params, plan.over, plan.learn_params
+        if not args.json:
+            print(plan.describe(), flush=True)
+    else:
+        params, over = parse_assignments(args.param), parse_range(args.sigmas, args.range)
+        lparams = parse_assignments(args.learn_param)
     with progress_bar(args) as progress:
-        res = discover_range(prob, parse_assignments(args.param), parse_range(args.sigmas, args.range), args.seed,
+        res = discover_range(prob, params, over, args.seed,
                              n_train=n_train, train_params=parse_assignments(args.train_param),
-                             learn_params=parse_assignments(args.learn_param),
-                             n_heldout=args.heldout, n_validate=args.validate,
-                             validate_params=parse_assignments(args.validate_param), groups=groups,
+                             learn_params=lparams,
+                             n_heldout=args.heldout, n_validate=plan.n_validate if plan else args.validate,
+                             validate_params=plan.validate_params if plan else parse_assignments(args.validate_param),
+                             groups=groups,
                              learn_options=LearnOptions(min_gap_decades=args.min_gap),
                              criteria=Criteria(gap_tol=args.gap_tol, accept=args.accept), progress=progress,
                              solver=solver_config(args))
+    if plan is not None:
+        plan.mark(res)
     if args.out:
         res.save(args.out)
     if args.json:
