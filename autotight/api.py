@@ -63,8 +63,8 @@ def discover(problem: str | ModuleType | Problem, params: dict[str, Any] | None 
     set is then reduced over that many training instances of ``params``.  So it is, finally, when the
     problem module declares where a selection carries to any size (``CARRY``, see
     ``autotight.discovery.carry``; e.g. discrete_trajectory at K = 5: learned at K = 5, selected on
-    K = 20 instances over the noise range) and no range option is given; ``carry=False`` selects at
-    ``params`` alone.
+    K = 20 instances over the noise range, checked at K = 200, with the IPM unless ``solver`` is given)
+    and no range option is given; ``carry=False`` selects at ``params`` alone.
     """
     from .discovery.carry import RANGE_OPTIONS, carry_plan
     from .discovery.pipeline import discover as _discover, n_training
@@ -80,6 +80,8 @@ def discover(problem: str | ModuleType | Problem, params: dict[str, Any] | None 
         if plan is not None:
             params, options["learn_params"] = plan.params, plan.learn_params
             options["n_validate"], options["validate_params"] = plan.n_validate, plan.validate_params
+            if solver is None and plan.solver:
+                solver = SolverConfig(backend=plan.solver)
         res = discover_range(prob, params, over or {}, _seed(seed), n_train=n_train,
                              solver=solver or SolverConfig(), **options)
         if plan is not None:

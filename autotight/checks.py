@@ -261,7 +261,7 @@ def _carry(prob: Problem, given: dict[str, Any], out: ProblemCheck) -> None:
     """A declared ``CARRY`` names parameters of the problem with valid values; report its plan at ``given``."""
     from .discovery.carry import carry_plan, carry_spec
 
-    at_least, over, _ = carry_spec(prob)
+    at_least, over, _, _ = carry_spec(prob)
     if not at_least and not over:
         out.passed.append("carry: no CARRY declared; plain discover selects at the given parameters")
         return

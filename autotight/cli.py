@@ -65,11 +65,13 @@ def constraints_arg(value: str | None, skip_invalid: bool = False):
     return ConstraintSet.load(value, skip_invalid=skip_invalid)
 
 
-def add_solver_args(p: argparse.ArgumentParser) -> None:
-    """``--solver``, ``--decompose`` and ``--scale``: the SDP backend of every solve of the command."""
-    p.add_argument("--solver", default="clarabel",
-                   help="SDP backend: clarabel (default), ipm (our interior-point method on clique blocks) or "
-                        "cvxpy:SCS, cvxpy:MOSEK, … (see autotight/sdp/registry.py)")
+def add_solver_args(p: argparse.ArgumentParser, default: str | None = "clarabel", note: str = "") -> None:
+    """``--solver``, ``--decompose`` and ``--scale``: the SDP backend of every solve of the command.  default
+    None: the command picks it (``solver_config(args, default_backend=…)``), ``note`` says how."""
+    p.add_argument("--solver", default=default,
+                   help="SDP backend: clarabel (default" + (f"; {note}" if note else "") + "), ipm (our "
+                        "interior-point method on clique blocks) or cvxpy:SCS, cvxpy:MOSEK, … (see "
+                        "autotight/sdp/registry.py)")
     p.add_argument("--decompose", action=argparse.BooleanOptionalAction, default=None,
                    help="Clarabel on our own clique cover (min-fill covers of the columns and of the variable "
                         "blocks, autotight/sdp/covers.py) instead of its built-in chordal decomposition "
@@ -89,14 +91,16 @@ def add_accept_arg(p: argparse.ArgumentParser) -> None:
                         "certificate of the best local solution")
 
 
-def solver_config(args: argparse.Namespace, **fields: Any):
-    """The ``SolverConfig`` of ``--solver``/``--decompose``/``--scale`` (validated before any work)."""
+def solver_config(args: argparse.Namespace, default_backend: str = "clarabel", **fields: Any):
+    """The ``SolverConfig`` of ``--solver``/``--decompose``/``--scale`` (validated before any work);
+    ``default_backend`` when --solver was not given."""
     from .errors import ParameterError
     from .sdp.config import SolverConfig
 
-    if args.decompose and args.solver.startswith("cvxpy"):
-        raise ParameterError(f"--decompose needs --solver clarabel or ipm, not {args.solver!r}")
-    return SolverConfig(backend=args.solver, decompose=args.decompose, scale=getattr(args, "scale", "auto"), **fields)
+    backend = args.solver or default_backend
+    if args.decompose and backend.startswith("cvxpy"):
+        raise ParameterError(f"--decompose needs --solver clarabel or ipm, not {backend!r}")
+    return SolverConfig(backend=backend, decompose=args.decompose, scale=getattr(args, "scale", "auto"), **fields)
 
 
 def cmd_solve(args: argparse.Namespace) -> int:

@@ -74,6 +74,7 @@ def one(problem: str, K: int, route: str, set_path: str, seed: int) -> dict:
     return {"K": K, "route": route, "seed": seed, "N": model.variables.N, "n_constraints": out.n_constraints,
             "n_set_constraints": len(cons), "generate_s": t1 - t0, "build_s": t2 - t1, "apply_s": t3 - t2,
             "sdp_s": out.times["sdp_total_s"], "sdp_solve_s": out.times["sdp_solve_s"],
+            "apply_over_sdp": (t3 - t2) / out.times["sdp_total_s"],
             "local_s": out.times["local_s"], "refine_s": out.times["refine_s"], "total_s": t4 - t0,
             "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
             "import_rss_mb": rss0 / 1024, "status": out.sdp.status, "log_svr": out.log_svr,
@@ -187,11 +188,13 @@ def growth_of(rows: list[dict]) -> dict:
 
 
 def learned_at(path: str, size: str) -> dict:
-    """The set file's learning size (and its range, for a set discovered over one)."""
+    """The set file's learning size (and its range, for a set discovered over one, and the carry-over plan
+    that chose where it was selected and checked)."""
     obj = json.loads(Path(path).read_text(encoding="utf-8"))
     out = {size: obj.get("params", {}).get(size)}
     over = obj.get("info", {}).get("range", {}).get("over")
-    return out | ({"range": over} if over else {})
+    carry = obj.get("info", {}).get("carry")
+    return out | ({"range": over} if over else {}) | ({"carry": carry} if carry else {})
 
 
 def write(args: argparse.Namespace, rows: list[dict], growth: dict) -> None:

@@ -37,7 +37,7 @@ def _with_carry(carry) -> Problem:
 def test_plan_learns_at_the_given_size_and_selects_where_the_module_says():
     plan = carry_plan(DISCRETE, {"K": 5})
     assert plan.learn_params == {"K": 5} and plan.params == {"K": 20} and plan.over == {"sigma": SIGMAS}
-    assert plan.validate_params == {"K": 200} and plan.n_validate == 1 and plan.fixed == {}
+    assert plan.validate_params == {"K": 200} and plan.n_validate == 1 and plan.fixed == {} and plan.solver == "ipm"
     assert "learned at K=5" in plan.describe() and "checked at K=200" in plan.describe()
     # a size above the minimum is kept (and learned there); a validation size below it is dropped
     big = carry_plan(DISCRETE, {"K": 300})
@@ -60,6 +60,7 @@ def test_plan_learns_at_the_given_size_and_selects_where_the_module_says():
     ({"at_least": {"K": 20}, "over": {"K": [5]}}, "both"),
     ({"size": {"K": 20}}, "keys among"),
     ({"at_least": {"K": 1}}, "K=1"),  # below the parameter's own bound (K ≥ 2)
+    ({"over": {"sigma": [0.1]}, "solver": "mosek"}, "'solver'"),
 ])
 def test_a_malformed_carry_is_a_definition_error(carry, match):
     with pytest.raises(ProblemDefinitionError, match=match):
@@ -72,7 +73,7 @@ def test_check_module_reports_the_plan_and_fails_a_malformed_carry():
     assert not any(f.startswith("carry:") for f in out.failures)
     bad = check_problem(_with_carry({"over": {"sigma": []}}), {"K": 3})
     assert any(f.startswith("carry:") and "CARRY['over']['sigma']" in f for f in bad.failures), bad.failures
-    assert carry_spec(_with_carry(None)) == ({}, {}, {})
+    assert carry_spec(_with_carry(None)) == ({}, {}, {}, None)
 
 
 @pytest.fixture
@@ -95,7 +96,10 @@ def test_cli_discover_at_k5_runs_the_carry_plan(captured, capsys):
     (c,) = captured
     assert c["params"] == {"K": 20} and c["over"] == {"sigma": SIGMAS} and c["learn_params"] == {"K": 5}
     assert c["n_validate"] == 1 and c["validate_params"] == {"K": 200} and c["n_train"] == 2
+    assert c["solver"].backend == "ipm"  # the module's advice
     assert "candidates learned at K=5" in capsys.readouterr().out
+    assert main(["discover", "discrete_trajectory", "-p", "K=5", "--solver", "clarabel", "--no-progress"]) == 0
+    assert captured[-1]["solver"].backend == "clarabel"  # the user's choice wins
 
 
 def test_cli_range_options_and_no_carry_leave_the_plan_out(captured, monkeypatch):
@@ -117,22 +121,28 @@ def test_python_discover_follows_the_same_plan(captured):
     at.discover("discrete_trajectory", {"K": 5}, n_heldout=0)
     c = captured[-1]
     assert c["params"] == {"K": 20} and c["learn_params"] == {"K": 5} and c["validate_params"] == {"K": 200}
+    assert c["solver"].backend == "ipm"
+    at.discover("discrete_trajectory", {"K": 5}, n_heldout=0, solver=at.SolverConfig(backend="clarabel"))
+    assert captured[-1]["solver"].backend == "clarabel"
     at.discover("discrete_trajectory", {"K": 5}, over={"sigma": [0.1]}, n_heldout=0)  # the caller's range
     assert captured[-1]["params"] == {"K": 5} and captured[-1]["over"] == {"sigma": [0.1]}
 
 
 def test_a_carried_discovery_on_short_chains_is_tight_where_it_was_checked():
     """The real flow at small sizes: learned at K = 3, selected at K = 5 (σ = 0.316), checked on a K = 12
-    chain, which breaks the K = 5 selection: the set grows until it is tight there.  The saved set records
-    the plan and keeps the K = 3 templates."""
+    chain (``discover_range``'s ``validate_params``), which breaks the K = 5 selection: the set grows until it
+    is tight there, where the selection alone is not.  The saved set records the plan and keeps the K = 3
+    templates."""
     prob = _with_carry({"at_least": {"K": 5}, "over": {"sigma": [0.316]}, "validate_at": {"K": 12}})
     res = at.discover(prob, {"K": 3}, n_heldout=0, n_train=1, max_rounds=1, n_random=0)
     ds = res.discovered
     assert ds.info["carry"] == {"selected_at": {"K": 5}, "over": {"sigma": [0.316]}, "learned_at": {"K": 3},
-                                "fixed_by_user": {}, "validated_at": {"K": 12}}
+                                "fixed_by_user": {}, "validated_at": {"K": 12}, "solver": None}
     assert json.loads(json.dumps(res.summary(), default=str))["carry"]["validated_at"] == {"K": 12}
     assert ds.params["K"] == 3 and set(ds.templates.templates) == {t for t, _ in ds.pairs}
     assert res.validation == [{"new_instances": 1, "not_tight": 1, "pairs_added": res.validation[0]["pairs_added"]}]
+    assert res.validate_params == {"K": 12} and ds.info["range"]["validate_params"] == {"K": 12}
+    assert len(res.pairs) > len(res.greedy) and "+1 instances at {'K': 12}" in res.table()
     checked = prob.generate({"K": 12, "sigma": 0.316}, res.points[0].train_seeds[-1])  # the validation chain
 
     def outcome(pairs):

@@ -170,24 +170,6 @@ def test_validation_rounds_add_training_instances_the_set_is_then_tight_on():
     assert res.solves_by_stage["validate"] == 1 and res.n_solves == sum(res.solves_by_stage.values())
 
 
-def test_validation_at_a_larger_size_grows_a_set_that_a_short_chain_selected():
-    """Discrete K = 4, σ = 0.316: one pair is tight there.  A validation chain of K = 12 breaks it; the set
-    is tightened on that chain and is tight on it, where the K = 4 selection is not."""
-    prob = at.load_problem("discrete_trajectory")
-    res = discover_range(prob, {"K": 4, "sigma": 0.316}, {}, 0, n_train=1, n_validate=1, validate_params={"K": 12},
-                         n_heldout=0, max_rounds=1)
-    assert res.validate_params == {"K": 12} and res.discovered.info["range"]["validate_params"] == {"K": 12}
-    assert res.validation[0]["new_instances"] == 1 and res.validation[0]["not_tight"] == 1
-    assert len(res.pairs) > len(res.greedy) and "+1 instances at {'K': 12}" in res.table()
-    inst = prob.generate({"K": 12, "sigma": 0.316}, training_seed(0, 0, 1))  # the validation chain
-
-    def outcome(pairs):
-        cs = ConstraintSet(type(res.discovered)(prob.name, {}, 0, pairs, res.discovered.learn_options))
-        return solve_instance(prob, inst, cs, n_random=2).outcome
-
-    assert outcome(res.pairs) == "tight" and outcome(res.greedy) != "tight"
-
-
 def test_validate_params_need_validation_instances_and_a_fixed_parameter():
     with pytest.raises(ParameterError, match="n_validate"):
         discover_range("pose_averaging", {"M": 2}, {"sigma": [0.1]}, validate_params={"M": 4})

@@ -7,7 +7,7 @@ on 5-pose chains is tight at K = 1000, while a selection on 20-pose chains over 
 (README, "Constraint-set files").  A module whose selection does not carry declares where it does::
 
     CARRY = {"at_least": {"K": 20}, "over": {"sigma": [0.001, 0.00316, 0.01, 0.0316, 0.1, 0.316]},
-             "validate_at": {"K": 200}}
+             "validate_at": {"K": 200}, "solver": "ipm"}
 
 Then ``discover`` without a range option (``--range``, ``--sigmas``, ``--train-param``,
 ``--learn-param``, ``--validate``…) runs the range flow (``discovery.range``) planned here:
@@ -22,7 +22,9 @@ Then ``discover`` without a range option (``--range``, ``--sigmas``, ``--train-p
   three rounds: ``discover_range``'s ``n_validate``, ``validate_params``).  Two sets can both be
   irreducible over the K = 20 instances, and only one carry: a set of one unary and four odometry pairs is
   tight there and at K = 100, and not at K = 200 with σ = 0.316 nor at K = 1000 with σ = 0.1, where the
-  six unary pairs of the other are.
+  six unary pairs of the other are;
+- every solve uses the ``solver`` backend unless the caller chose one (``--solver``; Python: ``solver=``):
+  the IPM for long chains, where Clarabel's own decomposition takes minutes per K = 200 solve.
 
 ``--no-carry`` (Python: ``discover(..., carry=False)``) selects at the given parameters alone.
 """
@@ -53,6 +55,7 @@ class CarryPlan:
     learn_params: dict[str, Any]
     fixed: dict[str, Any] = field(default_factory=dict)
     validate_params: dict[str, Any] = field(default_factory=dict)
+    solver: str | None = None
 
     @property
     def n_validate(self) -> int:
@@ -60,7 +63,7 @@ class CarryPlan:
 
     def record(self) -> dict[str, Any]:
         return {"selected_at": self.params, "over": self.over, "learned_at": self.learn_params,
-                "fixed_by_user": self.fixed, "validated_at": self.validate_params}
+                "fixed_by_user": self.fixed, "validated_at": self.validate_params, "solver": self.solver}
 
     def mark(self, result: Any) -> None:
         """Record the plan in a ``RangeDiscoveryResult``: its saved set's ``info["carry"]`` and its summary."""
@@ -75,25 +78,34 @@ class CarryPlan:
                 f"{', '.join(f'{k}={v}' for k, v in self.learn_params.items())}, the set selected at {size}"
                 + (f" over {over}" if over else "")
                 + (f", checked at {', '.join(f'{k}={v}' for k, v in self.validate_params.items())}"
-                   if self.validate_params else ""))
+                   if self.validate_params else "")
+                + (f", solved with {self.solver} unless --solver is given" if self.solver else ""))
         if self.fixed:
             given = ", ".join(f"{k}={v:g}" for k, v in self.fixed.items())
             text += f"; {given} given, so not varied (the set may not carry to other values)"
         return text + "; --no-carry selects at -p alone"
 
 
-KEYS = ("at_least", "over", "validate_at")
+KEYS = ("at_least", "over", "validate_at", "solver")
 
 
-def carry_spec(problem: Problem) -> tuple[dict[str, Any], dict[str, list[Any]], dict[str, Any]]:
-    """The module's ``CARRY`` as (at_least, over, validate_at), validated; empty dicts when it declares none."""
+def carry_spec(problem: Problem) -> tuple[dict[str, Any], dict[str, list[Any]], dict[str, Any], str | None]:
+    """The module's ``CARRY`` as (at_least, over, validate_at, solver), validated; empty when it declares none."""
     spec = getattr(problem.module, "CARRY", None)
     if spec is None:
-        return {}, {}, {}
+        return {}, {}, {}, None
     where = f"{problem.where()}: CARRY"
     if not isinstance(spec, Mapping) or set(spec) - set(KEYS):
         raise ProblemDefinitionError(f"{where} must be a dict with keys among {', '.join(KEYS)}, got {spec!r}")
-    at_least, over, validate_at = (dict(spec.get(k, {})) for k in KEYS)
+    at_least, over, validate_at = (dict(spec.get(k, {})) for k in KEYS[:3])
+    solver = spec.get("solver")
+    if solver is not None:
+        from ..sdp import SolverConfigError, check_solver
+
+        try:
+            check_solver(solver)
+        except SolverConfigError as e:
+            raise ProblemDefinitionError(f"{where}['solver']: {e}") from None
     for key, values in (("at_least", at_least), ("validate_at", validate_at)):
         for k, v in values.items():
             if k not in problem.params or isinstance(v, bool) or not isinstance(v, Real):
@@ -108,7 +120,7 @@ def carry_spec(problem: Problem) -> tuple[dict[str, Any], dict[str, list[Any]], 
     clash = sorted(set(at_least) & set(over))
     if clash:
         raise ProblemDefinitionError(f"{where}: parameter {clash[0]} is both in 'at_least' and in 'over'")
-    return at_least, over, validate_at
+    return at_least, over, validate_at, solver
 
 
 def _parsed(problem: Problem, where: str, name: str, value: Any) -> Any:
@@ -121,7 +133,7 @@ def _parsed(problem: Problem, where: str, name: str, value: Any) -> Any:
 def carry_plan(problem: Problem, given: Mapping[str, Any] | None) -> CarryPlan | None:
     """The range flow that selects a carrying set for a discovery at ``given`` (the ``-p`` parameters), or
     None when the module declares no ``CARRY``, or when ``given`` already is where a selection carries."""
-    at_least, over, validate_at = carry_spec(problem)
+    at_least, over, validate_at, solver = carry_spec(problem)
     if not at_least and not over:
         return None
     given = dict(given or {})
@@ -133,4 +145,4 @@ def carry_plan(problem: Problem, given: Mapping[str, Any] | None) -> CarryPlan |
     selected = full | raised
     validate = {k: v for k, v in validate_at.items() if v > selected[k]}
     return CarryPlan(given | raised, varied, {k: full[k] for k in at_least},
-                     {k: full[k] for k in over if k in given}, validate)
+                     {k: full[k] for k in over if k in given}, validate, solver)

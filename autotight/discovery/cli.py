@@ -38,7 +38,7 @@ def register(sub: argparse._SubParsersAction, add_problem_args: Callable) -> Non
                    help="select the set at -p alone, even where the problem module declares where a selection carries "
                         "to any size (CARRY; e.g. discrete_trajectory: K ≥ 20 over the noise range)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
-    add_solver_args(p)
+    add_solver_args(p, default=None, note="the carried discovery of a problem whose CARRY names a solver: that one")
     from .range import add_range_args  # discovery over a range: --sigmas, --range, --train, --train-param
 
     add_range_args(p)
@@ -89,7 +89,9 @@ def cmd_discover(args: argparse.Namespace) -> int:
     if ranged or plan is not None or n_train > 1:
         from .range import cmd_discover_range
 
-        return cmd_discover_range(args, _groups(args.groups), n_train, plan)
+        if plan is not None and plan.solver:
+            config = solver_config(args, default_backend=plan.solver)
+        return cmd_discover_range(args, _groups(args.groups), n_train, config, plan)
     params = prob.parse_params(parse_assignments(args.param))
     check_size(prob, params)
     check_count(prob, params, f"--heldout {args.heldout}", args.heldout, per_item=3, what="held-out instances")

@@ -668,11 +668,11 @@ def add_range_args(p: argparse.ArgumentParser) -> None:
                         "again where the set is not tight on one (default 0)")
 
 
-def cmd_discover_range(args: argparse.Namespace, groups: Any, n_train: int, plan: CarryPlan | None = None) -> int:
+def cmd_discover_range(args: argparse.Namespace, groups: Any, n_train: int, config: SolverConfig,
+                       plan: CarryPlan | None = None) -> int:
     """``autotight discover PROBLEM --sigmas …`` (or ``--range NAME=…``, or ``--train N`` > 1 at one point, or
     the problem module's carry-over ``plan``): the range table, JSON, --out."""
     from ..check_cmd import parse_range
-    from ..cli import solver_config
 
     from .cli import progress_bar
 
@@ -693,7 +693,7 @@ def cmd_discover_range(args: argparse.Namespace, groups: Any, n_train: int, plan
                              groups=groups,
                              learn_options=LearnOptions(min_gap_decades=args.min_gap),
                              criteria=Criteria(gap_tol=args.gap_tol, accept=args.accept), progress=progress,
-                             solver=solver_config(args))
+                             solver=config)
     if plan is not None:
         plan.mark(res)
     if args.out:
