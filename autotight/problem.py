@@ -27,8 +27,8 @@ and **may** define (the default is used otherwise)
 - ``TRANSPORTS: dict[str, Callable]``: per factor type, ``transport(data) -> M`` (n × n, n the factor's
   local columns, h first): a factor's columns θ satisfy the relations of measurement ``data`` exactly
   when Mθ satisfies those of the reference measurement (``autotight.discovery.transport``);
-- ``CARRY = {"at_least": {...}, "over": {...}}``: where a set selected by plain ``discover`` carries to
-  any size (``autotight.discovery.carry``).
+- ``CARRY = {"at_least": {...}, "over": {...}, "validate_at": {...}, "solver": str}`` (each key optional):
+  where a set selected by plain ``discover`` carries to any size (``autotight.discovery.carry``).
 
 A state is a ``dict[str, np.ndarray]`` in the problem's own terms.  h² = 1 (d = 1) or Θ_hh = I_d
 is added to the primary constraints for you (``Model.homogenisation``); ``lift`` fills h in when it
@@ -477,6 +477,10 @@ def _load_file(path: Path) -> Problem:
         raise ProblemDefinitionError(f"problem path {path} is a directory, not a .py file")
     if path.suffix != ".py":
         raise ProblemDefinitionError(f"problem path {path} is not a .py file")
+    import problems
+
+    if path.resolve().parent in {Path(d).resolve() for d in problems.__path__} and path.stem in available():
+        return load(path.stem)  # a shipped module: imported in its package (its relative imports work)
     mod_name = f"autotight_user_problem_{path.stem}"
     spec = importlib.util.spec_from_file_location(mod_name, path)
     if spec is None or spec.loader is None:
@@ -487,7 +491,9 @@ def _load_file(path: Path) -> Problem:
         spec.loader.exec_module(module)
     except Exception as e:
         sys.modules.pop(mod_name, None)
-        raise _import_failed(f"cannot import problem file {path}", e) from e
+        hint = " (a file is loaded on its own: import its package's helpers absolutely)" \
+            if isinstance(e, ImportError) and "relative import" in str(e) else ""
+        raise _import_failed(f"cannot import problem file {path}{hint}", e) from e
     return Problem(module)
 
 

@@ -261,6 +261,17 @@ def test_paths_that_are_not_python_modules(tmp_path):
         load(str(tmp_path / "nowhere.py"))
 
 
+def test_a_shipped_module_given_by_path_loads_in_its_package_and_a_lone_relative_import_is_explained(tmp_path):
+    """problems/discrete_trajectory.py imports its package's helpers relatively: by path it is the same module
+    as by name (it was an ImportError).  A user file with a relative import gets a one-line hint."""
+    path = Path(__file__).resolve().parents[1] / "problems" / "discrete_trajectory.py"
+    assert load(str(path)).module is load("discrete_trajectory").module
+    lone = tmp_path / "lone.py"
+    lone.write_text("from ._pose import POSE_ROLES  # noqa: F401\n")
+    with pytest.raises(ProblemModuleError, match="import its package's helpers absolutely.*relative import"):
+        load(str(lone))
+
+
 def test_a_missing_import_inside_the_module_names_the_module(tmp_path):
     path = _module(tmp_path, "ra_missing_dep", "import surely_not_installed_pkg  # noqa: F401\n")
     with pytest.raises(ProblemModuleError) as ei:
