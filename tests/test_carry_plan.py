@@ -155,12 +155,13 @@ def test_a_carried_discovery_on_short_chains_is_tight_where_it_was_checked():
     assert selected.outcome != "tight"  # the K = 5 selection alone
 
 
-def test_the_committed_set_of_plain_discover_at_k5_is_tight_where_a_k20_selection_alone_breaks():
+@pytest.mark.parametrize("K, sigma", [(50, 0.1), (200, 0.316)])
+def test_the_committed_set_of_plain_discover_at_k5_is_tight_where_a_k20_selection_alone_breaks(K, sigma):
     """benchmarks/results/scale_set_discrete_K5.json is the README's `autotight discover discrete_trajectory
     -p K=5 --out set.json`: learned at K = 5 (its templates, every one exact), selected on K = 20 over σ and
-    checked at K = 200, as its file records.  On a fresh K = 200 chain at σ = 0.316 it is tight, where the
-    set of one unary and four odometry pairs that the K = 20 selection alone returns is not (log SVR 1.4–1.6,
-    README, Limits)."""
+    checked at K = 200, as its file records.  It is tight on a fresh K = 50 chain at the default σ, and on a
+    fresh K = 200 chain at σ = 0.316, where the set of one unary and four odometry pairs that the K = 20
+    selection alone returns is not (log SVR 1.4–1.6, README, Limits)."""
     from pathlib import Path
 
     path = Path(__file__).resolve().parent.parent / "benchmarks" / "results" / "scale_set_discrete_K5.json"
@@ -168,6 +169,6 @@ def test_the_committed_set_of_plain_discover_at_k5_is_tight_where_a_k20_selectio
     assert rec["params"]["K"] == 5 and not rec["fallback"]
     assert rec["info"]["carry"]["selected_at"] == {"K": 20} and rec["info"]["carry"]["validated_at"] == {"K": 200}
     assert rec["info"]["range"]["over"]["sigma"] == SIGMAS
-    inst = DISCRETE.generate(DISCRETE.parse_params({"K": 200, "sigma": 0.316}), 31)
+    inst = DISCRETE.generate(DISCRETE.parse_params({"K": K, "sigma": sigma}), 31)
     out = solve_instance(DISCRETE, inst, ConstraintSet.load(path), config=at.SolverConfig(backend="ipm"), n_random=0)
     assert out.outcome == "tight" and out.log_svr > 5, out.verdict.reason
