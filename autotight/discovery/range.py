@@ -439,21 +439,15 @@ def _reduce(run: _Run, trainers: list[Trainer], chosen: list[Pair], say: Callabl
         current = _restore(run, bad, current, [p for p in chosen if p not in current])  # type: ignore[arg-type]
         pending = sorted(current, key=lambda p: imp[p])
     order = probe + [tr for tr in trainers if tr not in probe]
-
-    def first(tr: Trainer | None) -> None:
-        if tr is not None:
-            order.remove(tr)
-            order.insert(0, tr)
-
     dropped: list[Pair] = []
     changed = True
     while changed:
         changed = False
         for p in list(current):
             rest = [q for q in current if q != p]
-            first(breaker.get(p))
+            _to_front(order, breaker.get(p))
             ok, bad = run.tight_on_all(order, rest, "verify", exact=True)
-            first(bad)
+            _to_front(order, bad)
             if ok:  # numerically non-monotone: p is not needed after all
                 current.remove(p)
                 dropped.append(p)
@@ -461,6 +455,13 @@ def _reduce(run: _Run, trainers: list[Trainer], chosen: list[Pair], say: Callabl
                 break
             breaker[p] = bad  # type: ignore[assignment]
     return current, dropped
+
+
+def _to_front(order: list[Trainer], tr: Trainer | None) -> None:
+    """Move ``tr`` (if any) to the front of ``order``: the instance that broke the last trial is solved first."""
+    if tr is not None:
+        order.remove(tr)
+        order.insert(0, tr)
 
 
 def _hardest(trainers: list[Trainer]) -> Trainer:
@@ -480,9 +481,7 @@ def _remove_blocks(run: _Run, probe: list[Trainer], current: list[Pair], pending
         block = set(pending[:c])
         trial = [p for p in current if p not in block]
         ok, bad = run.tight_on_all(order, trial, "reduce")
-        if bad is not None:  # the instance that broke the last trial first
-            order.remove(bad)
-            order.insert(0, bad)
+        _to_front(order, bad)
         say("reduce", f"{len(current)} pairs")
         if ok:
             current, pending, chunk = trial, pending[c:], 2 * c
