@@ -78,8 +78,8 @@ def discover(problem: str | ModuleType | Problem, params: dict[str, Any] | None 
         from .discovery.range import discover_range
 
         if plan is not None:
-            params, options["learn_params"] = plan.params, plan.learn_params
-            options["n_validate"], options["validate_params"] = plan.n_validate, plan.validate_params
+            params = plan.params
+            options.update(plan.range_options())
             if solver is None and plan.solver:
                 solver = SolverConfig(backend=plan.solver)
         res = discover_range(prob, params, over or {}, _seed(seed), n_train=n_train,

@@ -141,9 +141,19 @@ def poly_to_sym(p: np.ndarray, n: int) -> sp.csr_array:
     return sp.csr_array((vals, (rows, cols)), shape=(n, n))
 
 
-def sym_to_poly(A: sp.spmatrix | sp.sparray | np.ndarray) -> np.ndarray:
-    """Inverse of ``poly_to_sym``: symmetric A → monomial coefficients (dense, n(n+1)/2)."""
-    n = A.shape[0]
+def polys_to_syms(P: np.ndarray, n: int) -> np.ndarray:
+    """``poly_to_sym`` for a batch, dense: coefficient vectors P (…, n(n+1)/2) → symmetric (…, n, n)."""
     i, j = triu_indices(n)
-    vals = np.asarray(sp.csr_array(A)[i, j]).ravel() if sp.issparse(A) else np.asarray(A)[i, j]
+    S = np.zeros((*P.shape[:-1], n, n))
+    S[..., i, j] = np.where(i != j, P / 2.0, P)
+    S[..., j, i] = S[..., i, j]
+    return S
+
+
+def sym_to_poly(A: sp.spmatrix | sp.sparray | np.ndarray) -> np.ndarray:
+    """Inverse of ``poly_to_sym``: symmetric A → monomial coefficients (dense, n(n+1)/2); a dense batch
+    (…, n, n) → (…, n(n+1)/2)."""
+    n = A.shape[-1]
+    i, j = triu_indices(n)
+    vals = np.asarray(sp.csr_array(A)[i, j]).ravel() if sp.issparse(A) else np.asarray(A)[..., i, j]
     return np.where(i == j, vals, 2.0 * vals)

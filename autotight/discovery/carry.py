@@ -66,9 +66,13 @@ class CarryPlan:
         return {"selected_at": self.params, "over": self.over, "learned_at": self.learn_params,
                 "fixed_by_user": self.fixed, "validated_at": self.validate_params, "solver": self.solver}
 
+    def range_options(self) -> dict[str, Any]:
+        """The options of ``discover_range`` beyond (params, over) that carry out the plan."""
+        return {"learn_params": self.learn_params, "n_validate": self.n_validate,
+                "validate_params": self.validate_params}
+
     def mark(self, result: Any) -> None:
-        """Record the plan in a ``RangeDiscoveryResult``: its saved set's ``info["carry"]`` and its summary."""
-        result.carry = self.record()
+        """Record the plan in a ``RangeDiscoveryResult``'s set (``info["carry"]``, also in its summary)."""
         result.discovered.info["carry"] = self.record()
 
     def describe(self) -> str:

@@ -180,7 +180,6 @@ class RangeDiscoveryResult:
     validation: list[dict[str, int]] = field(default_factory=list)
     learn_params: dict[str, Any] = field(default_factory=dict)
     validate_params: dict[str, Any] = field(default_factory=dict)
-    carry: dict[str, Any] | None = None  # the problem module's carry-over plan, when it chose the range
 
     @property
     def tight(self) -> bool:
@@ -198,7 +197,8 @@ class RangeDiscoveryResult:
 
     def summary(self) -> dict[str, Any]:
         return {"problem": self.problem, "params": self.params, "over": self.over, "train_params": self.train_params,
-                "learn_params": self.learn_params, "validate_params": self.validate_params, "carry": self.carry,
+                "learn_params": self.learn_params, "validate_params": self.validate_params,
+                "carry": self.discovered.info.get("carry"),
                 "n_train": self.n_train,
                 "seed": self.seed, "tight": self.tight,
                 "n_candidate_pairs": len(self.candidates),
@@ -677,22 +677,20 @@ def cmd_discover_range(args: argparse.Namespace, groups: Any, n_train: int, conf
 
     prob = load(args.problem)
     if plan is not None:
-        params, over, lparams = plan.params, plan.over, plan.learn_params
+        params, over, options = plan.params, plan.over, plan.range_options()
         if not args.json:
             print(plan.describe(), flush=True)
     else:
         params, over = parse_assignments(args.param), parse_range(args.sigmas, args.range)
-        lparams = parse_assignments(args.learn_param)
+        options = {"learn_params": parse_assignments(args.learn_param), "n_validate": args.validate,
+                   "validate_params": parse_assignments(args.validate_param)}
     with progress_bar(args) as progress:
         res = discover_range(prob, params, over, args.seed,
                              n_train=n_train, train_params=parse_assignments(args.train_param),
-                             learn_params=lparams,
-                             n_heldout=args.heldout, n_validate=plan.n_validate if plan else args.validate,
-                             validate_params=plan.validate_params if plan else parse_assignments(args.validate_param),
-                             groups=groups,
+                             n_heldout=args.heldout, groups=groups,
                              learn_options=LearnOptions(min_gap_decades=args.min_gap),
                              criteria=Criteria(gap_tol=args.gap_tol, accept=args.accept), progress=progress,
-                             solver=config)
+                             solver=config, **options)
     if plan is not None:
         plan.mark(res)
     if args.out:

@@ -33,26 +33,11 @@ import numpy as np
 
 from ..errors import AutotightError
 from ..problem import Problem
-from ..svec import triu_indices
+from ..svec import polys_to_syms, sym_to_poly, triu_indices
 from .nullspace import CLEAN, MAX_FREE_COND
 
 #: factors carried at once (bounds the (chunk, k, n, n) congruence array)
 CHUNK = 256
-
-
-def _symmetric(P: np.ndarray, n: int) -> np.ndarray:
-    """Symmetric matrices (…, n, n) of coefficient vectors P (…, m) over θ_iθ_j, i ≤ j (svec order, no √2)."""
-    ii, jj = triu_indices(n)
-    S = np.zeros((*P.shape[:-1], n, n))
-    S[..., ii, jj] = np.where(ii != jj, P / 2, P)
-    S[..., jj, ii] = S[..., ii, jj]
-    return S
-
-
-def _coefficients(C: np.ndarray) -> np.ndarray:
-    """Coefficient vectors (…, m) of the quadratic forms θᵀCθ, C (…, n, n) symmetric."""
-    ii, jj = triu_indices(C.shape[-1])
-    return np.where(ii != jj, 2.0, 1.0) * C[..., ii, jj]
 
 
 def carry(P: np.ndarray, Ms: np.ndarray) -> np.ndarray:
@@ -60,15 +45,15 @@ def carry(P: np.ndarray, Ms: np.ndarray) -> np.ndarray:
     → (c, k, m): the congruence Mᵀ A M of each relation's symmetric matrix A."""
     c, n = Ms.shape[0], Ms.shape[1]
     k = P.shape[1]
-    S = _symmetric(P.T, n)
+    S = polys_to_syms(P.T, n)
     AM = (S.reshape(k * n, n) @ Ms).reshape(c, k, n, n)  # A M, one product per factor
-    return _coefficients((np.swapaxes(AM, 2, 3).reshape(c, k * n, n) @ Ms).reshape(c, k, n, n))  # Mᵀ A M
+    return sym_to_poly((np.swapaxes(AM, 2, 3).reshape(c, k * n, n) @ Ms).reshape(c, k, n, n))  # Mᵀ A M
 
 
 def carry_each(P: np.ndarray, Ms: np.ndarray) -> np.ndarray:
     """As ``carry`` with relations of their own per factor: P (c, w, m), Ms (c, n, n) → (c, w, m)."""
-    S = _symmetric(P, Ms.shape[1])
-    return _coefficients(np.swapaxes(S @ Ms[:, None], 2, 3) @ Ms[:, None])
+    S = polys_to_syms(P, Ms.shape[1])
+    return sym_to_poly(np.swapaxes(S @ Ms[:, None], 2, 3) @ Ms[:, None])
 
 
 def carried_free(P: np.ndarray, Ms: np.ndarray, free: np.ndarray) -> np.ndarray:
@@ -80,7 +65,7 @@ def carried_free(P: np.ndarray, Ms: np.ndarray, free: np.ndarray) -> np.ndarray:
     k = P.shape[1]
     ii, jj = triu_indices(n)
     fi, fj = ii[free], jj[free]
-    S = _symmetric(P.T, n).reshape(k * n, n)
+    S = polys_to_syms(P.T, n).reshape(k * n, n)
     out = np.empty((c, k, len(free)))
     for j in np.unique(fj):
         at = np.nonzero(fj == j)[0]
