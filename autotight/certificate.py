@@ -43,6 +43,7 @@ import scipy.sparse.linalg as spla
 
 from .lstsq import min_norm_lstsq
 from .model import Constraint
+from .validity import VALID_RTOL, relative_violations
 
 #: below this many columns, eigenvalues are computed densely
 DENSE_MAX = 200
@@ -394,6 +395,10 @@ def certificate(Q: sp.sparray, constraints: Sequence[Constraint], y: np.ndarray,
     denom = max(abs(f_hat), floor * scale * Xhat_tr)
     rel = bound / denom if denom > 0 else (0.0 if bound <= 0 else np.inf)
     ok = bool(np.isfinite(bound) and rel <= tol)
+    worst = float(relative_violations(constraints, [Th]).max(initial=0.0))
+    if worst > VALID_RTOL:  # the bound assumes a feasible x̂ (p* ≤ f̂): none is proved for an infeasible one
+        ok, msg = False, (f"x̂ violates a constraint (relative violation {worst:.1e} > {VALID_RTOL:g}): "
+                          "the bound holds only for a feasible x̂")
     return Certificate(ok, bound, float(rel), lam, lam_lo, residual, float(np.max(np.abs(res_A), initial=0.0)),
                        f_hat, dual_value, T, time.perf_counter() - t0, f"{method}; λ_min: {how}", msg,
                        int(J.size), free_res)

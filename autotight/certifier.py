@@ -321,8 +321,9 @@ def certify_instance(problem, inst, constraints=None, *, start="truth", criteria
     of the full SDP's bracket test: gap_tol, and cost_atol for zero-cost candidates)."""
     from .constraint_set import resolve, set_name
     from .errors import ParameterError
-    from .pipeline import seeds
+    from .pipeline import LocalSearch, feasible_points, seeds
     from .tightness import Criteria
+    from .validity import check_valid
 
     criteria = Criteria() if criteria is None else criteria
     s = seeds(inst.seed if inst.seed is not None else 0)
@@ -348,6 +349,7 @@ def certify_instance(problem, inst, constraints=None, *, start="truth", criteria
     else:
         raise ParameterError(f"start must be 'truth', 'random' or a state dict, got {type(start).__name__}")
     local = problem.local_solve(inst, init)
+    check_valid(problem.name, cons, feasible_points(problem, inst, LocalSearch(local, []), s.validity()))
     cert = certify_model(model, cons, problem.lift(inst, local.state), tol=criteria.gap_tol,
                          floor=criteria.cost_atol / criteria.gap_tol, max_iter=max_iter)
     return CertifyRun(inst, set_name(constraints, model), cons, label, local, cert)

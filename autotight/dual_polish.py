@@ -30,7 +30,9 @@ proves nothing (it holds for any x̂): y′ is worth its lower bound
    H(y′)Θ̂ᵀ = 0 holds only to that accuracy too), the multipliers of (X_hh)_ii = 1 are lowered by the
    excess δ (δ/d each, ``lower_to_cost``): bᵀy drops to f(x̂) and H gains (δ/d)·I on the h block, so
    it is at least as PSD as before.  This is the complementarity ⟨H, X̂⟩ ≥ 0 that every dual feasible y
-   has at a feasible X̂, restored on the side where it costs no dual feasibility.
+   has at a feasible X̂, restored on the side where it costs no dual feasibility.  Only an excess that
+   the solve's accuracy explains is absorbed (``allowed_excess``); a larger one is left in place, and the
+   bracket then reports the solve as inconsistent (undecided) instead of closing.
 Either step is recorded: the solver's own dual cost stays in ``SDPResult.dual_cost_raw`` and the
 steps in ``SDPResult.message``; the certificate and the bracket use the y kept, whose λ_min is
 computed afresh.
@@ -75,6 +77,19 @@ def lower_to_cost(constraints: Sequence[Constraint], y: np.ndarray, excess: floa
     return out
 
 
+def allowed_excess(res: SDPResult, Q, constraints: Sequence[Constraint], lambda_lower: float, f_hat: float,
+                   tol: float, floor: float) -> float:
+    """The largest excess bᵀy − f(x̂) (f̂ = ``f_hat``) that step 2 may absorb: what the solve's own accuracy explains
+    (``tightness.accuracy``: |P − D|, the primal and the dual residual terms) plus the bracket's
+    tolerance tol·(|f(x̂)| + floor·s), s the cost's scale.  Beyond it the multipliers claim a bound above
+    a feasible cost that the solve's accuracy cannot account for: the solve is inconsistent (or x̂ is not
+    feasible for these constraints), and lowering would hide it."""
+    from .tightness import accuracy
+
+    acc = accuracy(res, Q, constraints, lambda_lower)
+    return float(acc.acc + tol * (abs(f_hat) + floor * acc.scale))
+
+
 def polished(Q, constraints: Sequence[Constraint], res: SDPResult, theta_hat: np.ndarray, *, d: int = 1,
              tol: float = 1e-6, floor: float = 1e-12) -> tuple[SDPResult, Certificate | None]:
     """``res`` with its multipliers polished by the rules of the module docstring at the best feasible
@@ -89,6 +104,7 @@ def polished(Q, constraints: Sequence[Constraint], res: SDPResult, theta_hat: np
         return res, cert
     As, _ = stack(constraints)
     y, steps = res.y, []
+    y0_lambda_lower = cert.lambda_lower
     y2 = polish_dual(Q, As, res.y, Th)
     if np.all(np.isfinite(y2)):
         # the trace bound depends on the data and x̂ only, not on y: computed once (8 s at discrete K = 1000)
@@ -104,7 +120,11 @@ def polished(Q, constraints: Sequence[Constraint], res: SDPResult, theta_hat: np
             steps.append(f"polished onto H(y)Θ̂ᵀ = 0 (‖δy‖ = {np.linalg.norm(y2 - y):.1e})")
             y, cert = y2, cert2
     excess = cert.dual_value - cert.cost
-    y3 = lower_to_cost(constraints, y, excess) if excess > 0 else None
+    allowed = allowed_excess(res, Q, constraints, y0_lambda_lower, cert.cost, tol, floor) if excess > 0 else 0.0
+    y3 = lower_to_cost(constraints, y, excess) if 0 < excess <= allowed else None
+    if excess > allowed:
+        steps.append(f"not lowered: bᵀy exceeds f(x̂) by {excess:.1e}, beyond the solve's accuracy {allowed:.1e} "
+                     "(an inconsistent solve)")
     if y3 is not None:
         cert = certificate(Q, constraints, y3, Th, d=d, tol=tol, floor=floor, trace=cert.trace,
                            method=cert.method.split(";")[0] + ", lowered to f(x̂)")

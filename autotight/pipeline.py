@@ -2,13 +2,17 @@
 
 ``solve_instance`` is what ``autotight.solve``, every trial of a report sweep and discovery's
 held-out check run.  Seeds (one scheme everywhere, see ``seeds``): an instance with seed s is
-``generate(params, default_rng(s))``; its random local starts draw from ``default_rng([s, 1])``
-and re-instantiating a learned set draws from ``default_rng([s, 2])``.
+``generate(params, default_rng(s))``; its random local starts draw from ``default_rng([s, 1])``,
+re-instantiating a learned set draws from ``default_rng([s, 2])`` and the fresh samples of the validity
+check from ``default_rng([s, 3])``.
 
-The upper bound U of a verdict is the lowest cost of a feasible point found: the local solves
-(from the ground truth and from random starts), the state recovered from the SDP solution, and
-one local solve started there.  When the SDP's estimate beats every local search, the random
-start counts as trapped and the relaxation can still be judged tight.
+Before any verdict every constraint of the SDP is evaluated at the feasible points held
+(``feasible_points``, ``autotight.validity``): a set that cuts one of them off is an
+``InvalidConstraintError``, never a verdict.  The upper bound U of a verdict is the lowest cost of a
+feasible point found: the local solves (from the ground truth and from random starts), the state
+recovered from the SDP solution (its own cost), and one local solve started there.  When the SDP's
+estimate beats every local search, the random start counts as trapped and the relaxation can still be
+judged tight.
 """
 
 from __future__ import annotations
@@ -34,6 +38,7 @@ from .threads import single_blas_thread
 from .tightness import Criteria, Verdict, judge
 from .unbounded import UnboundedRelaxation, is_unbounded, unbounded_blocks, unbounded_message
 from .validate import check_instance
+from .validity import check_valid
 
 #: relative cost excess over U above which a local solve counts as trapped in a worse minimum
 TRAP_RTOL = 1e-4
@@ -50,6 +55,9 @@ class Seeds:
 
     def constraints(self) -> np.random.Generator:
         return np.random.default_rng([self.instance, 2])
+
+    def validity(self) -> np.random.Generator:
+        return np.random.default_rng([self.instance, 3])
 
 
 def seeds(instance_seed: int) -> Seeds:
@@ -187,6 +195,24 @@ def dual_certificate(problem: Problem, inst: Instance, model: Model, cons: list,
                     floor=criteria.cost_atol / criteria.gap_tol)  # the bracket's absolute tolerance
 
 
+#: fresh feasible states (the module's sampler around the truth) on which every constraint is checked
+N_VALIDITY_SAMPLES = 2
+
+
+def feasible_points(problem: Problem, inst: Instance, local: LocalSearch,
+                    rng: np.random.Generator) -> dict[str, np.ndarray]:
+    """The lifted feasible points held before the SDP (label → Θ), on which ``validity.check_valid`` checks
+    every constraint: the ground truth, ``N_VALIDITY_SAMPLES`` fresh states of the sampler around it (drawn
+    from ``rng``), the local solution from the truth and those from random starts."""
+    points = {"the ground truth": problem.lift(inst, inst.truth)}
+    for k in range(N_VALIDITY_SAMPLES):
+        points[f"fresh feasible sample {k}"] = problem.lift(inst, problem.sample(inst, rng))
+    points["the local solution from the truth"] = problem.lift(inst, local.from_truth.state)
+    for k, r in enumerate(local.from_random):
+        points[f"the local solution from random start {k}"] = problem.lift(inst, r.state)
+    return points
+
+
 def block_scale_at(problem: Problem, inst: Instance, model: Model, state: dict[str, np.ndarray],
                    config: SolverConfig) -> np.ndarray | None:
     """The SDP's diagonal scaling D from the lifted ``state`` (``sdp.scaling.block_scale``), or
@@ -225,6 +251,7 @@ def solve_instance(problem: Problem, inst: Instance, constraints: ConstraintsLik
     t1 = time.perf_counter()
     local = local if local is not None else local_search(problem, inst, rng_local or s.local(), n_random)
     check_instance(problem, inst, model, local)  # NaN/inf data, or a cost that does not match its lifting
+    check_valid(problem.name, cons, feasible_points(problem, inst, local, s.validity()))
     t2 = time.perf_counter()
     scale = block_scale_at(problem, inst, model, local.best.state, config)
     res = sdp.solve_model(model, cons, config, scale)
@@ -250,7 +277,11 @@ def solve_instance(problem: Problem, inst: Instance, constraints: ConstraintsLik
             note = f"; recovery failed on a solution of rank > d: {e}"
         else:
             refined = problem.local_solve(inst, estimate)
-            best = min(best, refined, key=lambda r: r.cost)
+            rounded = LocalResult(estimate, problem.lifted_cost(inst, estimate, model), 0, True,
+                                  message="the SDP's estimate")
+            check_valid(problem.name, cons, {"the SDP's estimate": problem.lift(inst, estimate),
+                                             "the refined SDP estimate": problem.lift(inst, refined.state)})
+            best = min(best, refined, rounded, key=lambda r: r.cost)
     upper = best.cost
     res, cert = dual_certificate(problem, inst, model, cons, res, best, criteria)
     verdict = judge(res, upper, criteria, cert, Q=model.Q, constraints=cons, scale=scale)

@@ -35,6 +35,7 @@ from ..errors import AutotightError
 from ..model import Constraint, Model, canonical_coo
 from ..problem import Instance, Problem
 from ..svec import triu_indices
+from ..validity import VALID_RTOL
 from .learn import LearnOptions
 from .transport import Layout, TransportTemplate, reference_template
 
@@ -452,14 +453,20 @@ def apply_template(model: Model, tpl: TypeTemplate | TransportTemplate, coeffs: 
     return out
 
 
+def check_tolerance(saved: float) -> float:
+    """The tolerance of the check on fresh states: a set's own ``heldout_tol``, never looser than the
+    tool's ``validity.VALID_RTOL`` (a saved file cannot switch the check off; NaN counts as absent)."""
+    return float(saved) if 0 < saved <= VALID_RTOL else VALID_RTOL
+
+
 def apply_templates(problem: Problem, inst: Instance, model: Model, ts: TemplateSet, rng: np.random.Generator,
                     opts: LearnOptions, skip_invalid: bool = False,
                     n_check: int = 2) -> tuple[list[Constraint], list[str], list[str]]:
     """Every template's constraints on ``inst``, each checked on ``n_check`` fresh feasible states of ``inst``
     → (constraints, skipped "factor:identity", factors to re-learn).
 
-    A factor whose constraints violate the check (relative violation > ``opts.heldout_tol``) is a one-line
-    AutotightError naming it, unless ``skip_invalid`` (its constraints are then left out and listed).  A
+    A factor whose constraints violate the check (relative violation > ``check_tolerance(opts.heldout_tol)``)
+    is a one-line AutotightError naming it, unless ``skip_invalid`` (its constraints are then left out and listed).  A
     factor where a transport template has no basic solutions (its free monomials are ill-conditioned there,
     e.g. a measured position at the origin) is not an error: its constraints are left out and the factor
     is listed to be re-learned (``DiscoveredSet.apply``), as learning names such a factor's relations
@@ -468,6 +475,7 @@ def apply_templates(problem: Problem, inst: Instance, model: Model, ts: Template
     skipped: list[str] = []
     relearn: list[str] = []
     thetas = None
+    tol = check_tolerance(opts.heldout_tol)
     for tpl in ts.templates.values():
         fs, cols, D = factor_columns(model, tpl)
         if not fs:
@@ -479,13 +487,13 @@ def apply_templates(problem: Problem, inst: Instance, model: Model, ts: Template
         coeffs = tpl.coefficients(D, problem)
         viol = violations(tpl, cols, coeffs, thetas)
         none = np.isnan(viol).any(axis=1)  # no basic solutions on that factor
-        bad = np.argwhere((viol > opts.heldout_tol) & ~none[:, None])
+        bad = np.argwhere((viol > tol) & ~none[:, None])
         drop = {(fs[r].name, tpl.identities[a]) for r in np.flatnonzero(none) for a in range(len(tpl.identities))}
         relearn += [fs[r].name for r in np.flatnonzero(none)]
         if bad.size:
             r, a = bad[0]
             msg = (f"template {tpl.factor_type}:{tpl.identities[a]} fails its check on factor {fs[r].name} "
-                   f"(relative violation {viol[r, a]:.1e} > {opts.heldout_tol:g}; {len(bad)} factor identities fail)")
+                   f"(relative violation {viol[r, a]:.1e} > {tol:g}; {len(bad)} factor identities fail)")
             if not skip_invalid:
                 raise AutotightError(msg + "; pass --skip-invalid (skip_invalid=True) to leave them out")
             bad_pairs = {(fs[r].name, tpl.identities[a]) for r, a in bad}
