@@ -289,7 +289,9 @@ def check_sufficient(problem: str | Problem, constraints: ConstraintsLike = "pap
     res, n = solve_points(prob, {name: constraints}, points, int(instances), int(seed),
                           min_fraction=float(min_fraction), solver=solver, criteria=criteria, n_random=n_random,
                           on_result=on_result)
-    label = next((p.set_label for p in res[name] if p.set_label), set_name(constraints, None))  # type: ignore[arg-type]
+    label = next((p.set_label for p in res[name] if p.set_label), "")
+    if not label:  # no instance was solved (every one failed to instantiate the set)
+        label = "discovered" if isinstance(constraints, ConstraintSet) else (constraints or "default")
     return SufficiencyReport(prob.name, label, {k: v for k, v in points[0][0].items() if k not in over_}, over_,
                              int(instances), float(min_fraction), int(seed), res[name], n,
                              time.perf_counter() - t0, getattr(solver, "backend", "clarabel"), criteria.accept)
