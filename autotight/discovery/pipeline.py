@@ -163,12 +163,9 @@ def heldout_check(problem: Problem, params: dict[str, Any], seeds_: Sequence[int
 
 def default_train(problem: Problem) -> int:
     """The module's ``DEFAULT_TRAIN`` (training instances the set is reduced over; 1 if absent)."""
-    n = getattr(problem.module, "DEFAULT_TRAIN", 1)
-    if isinstance(n, bool) or not isinstance(n, int) or n < 1:
-        from ..errors import ProblemDefinitionError
+    from .. import module_parts
 
-        raise ProblemDefinitionError(f"{problem.name}: DEFAULT_TRAIN must be an int ≥ 1, got {n!r}")
-    return n
+    return module_parts.default_train(problem)
 
 
 def n_training(problem: Problem, n_train: int | None, ranged: bool) -> int:
@@ -184,7 +181,9 @@ def n_training(problem: Problem, n_train: int | None, ranged: bool) -> int:
 
 def default_groups(problem: Problem, groups: str | Sequence[Sequence[str]] | None) -> str | Sequence[Sequence[str]]:
     """``groups``, or when None the problem module's ``DEFAULT_GROUPS`` (else "factors")."""
-    return getattr(problem.module, "DEFAULT_GROUPS", "factors") if groups is None else groups
+    from .. import module_parts
+
+    return module_parts.default_groups(problem) if groups is None else groups
 
 
 @single_blas_thread
@@ -225,7 +224,9 @@ def discover(problem: Problem | str, params: dict[str, Any] | None = None, seed:
     oracle = Oracle(model, pairs, loc.best.cost, criteria, config,
                     best_theta=prob.lift(inst, loc.best.state))
     t = time.perf_counter()
-    start = getattr(prob.module, "DEFAULT_TIGHTEN", "greedy")  # the module's tightening start (tighten.tighten)
+    from .. import module_parts
+
+    start = module_parts.default_tighten(prob)  # the module's tightening start (tighten.tighten)
     tr = tighten(oracle, progress=lambda s: say("tighten", s), start=start)
     times["tighten_s"] = time.perf_counter() - t
     if tr.unbounded:
