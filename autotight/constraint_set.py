@@ -62,9 +62,11 @@ class ConstraintSet:
         return self.discovered.apply(problem, inst, model, rng, skip_invalid=self.skip_invalid)
 
     def save(self, path: str | Path, model: Model | None = None, constraints: Sequence[Constraint] | None = None,
-             extra: dict[str, Any] | None = None) -> None:
-        """Write the set as JSON; with ``model`` and ``constraints`` also the learning instance's constraints."""
-        self.discovered.save(path, model, None if constraints is None else list(constraints), extra)
+             extra: dict[str, Any] | None = None, replace: bool = False) -> Path:
+        """Write the set as JSON; with ``model`` and ``constraints`` also the learning instance's constraints.
+        An existing file is kept unless ``replace`` (the set is then saved beside it); returns the path written."""
+        return self.discovered.save(path, model, None if constraints is None else list(constraints), extra,
+                                    replace=replace)
 
     @classmethod
     def load(cls, path: str | Path, skip_invalid: bool = False) -> "ConstraintSet":

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from ..threads import single_blas_thread
 import time
+from pathlib import Path
 from dataclasses import asdict, dataclass, field
 from typing import Any, Callable, Sequence
 
@@ -83,9 +84,10 @@ class DiscoveryResult:
         """The discovered set, ready for ``autotight.solve(constraints=…)`` on any instance."""
         return ConstraintSet(self.discovered)
 
-    def save(self, path: str) -> None:
-        """The set as JSON with the learning instance's constraints and this run's summary."""
-        self.discovered.save(path, self.model, self.constraints, {"summary": self.summary()})
+    def save(self, path: str | Path, replace: bool = False) -> Path:
+        """The set as JSON with the learning instance's constraints and this run's summary; an existing file
+        is kept unless ``replace`` (``DiscoveredSet.save``).  Returns the path written."""
+        return self.discovered.save(path, self.model, self.constraints, {"summary": self.summary()}, replace=replace)
 
     def explanation(self) -> str:
         """Why the result is what it is, in one line (for rank acceptance that is not reached: why)."""

@@ -52,6 +52,7 @@ from __future__ import annotations
 import argparse
 import json
 import time
+from pathlib import Path
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import asdict, dataclass, field
 from typing import Any
@@ -190,10 +191,11 @@ class RangeDiscoveryResult:
     def constraint_set(self) -> ConstraintSet:
         return ConstraintSet(self.discovered)
 
-    def save(self, path: str) -> None:
-        """The set as JSON (``ConstraintSet.load`` reads it); the range is in ``info["range"]``."""
+    def save(self, path: str | Path, replace: bool = False) -> Path:
+        """The set as JSON (``ConstraintSet.load`` reads it); the range is in ``info["range"]``; an existing file
+        is kept unless ``replace`` (``DiscoveredSet.save``).  Returns the path written."""
         model, cons = self.example if self.example is not None else (None, None)
-        self.discovered.save(path, model, cons, {"summary": self.summary()})
+        return self.discovered.save(path, model, cons, {"summary": self.summary()}, replace=replace)
 
     def summary(self) -> dict[str, Any]:
         return {"problem": self.problem, "params": self.params, "over": self.over, "train_params": self.train_params,
@@ -693,12 +695,13 @@ def cmd_discover_range(args: argparse.Namespace, groups: Any, n_train: int, conf
                              solver=config, **options)
     if plan is not None:
         plan.mark(res)
-    if args.out:
-        res.save(args.out)
+    from .cli import save_out
+
+    written = save_out(res, args)
     if args.json:
         print(json.dumps(jsonable(res.summary()), ensure_ascii=False))
     else:
         print(res.table())
-        if args.out:
-            print(f"\nsaved to {args.out}")
+        if written:
+            print(f"\nsaved to {written}")
     return 0

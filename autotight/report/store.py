@@ -30,6 +30,8 @@ META_NAME = "meta.json"
 SETTING_DEFAULTS: dict[str, Any] = {"decompose": False}
 #: files a report writes besides meta.json (a folder holding one of them without meta.json is refused)
 OUTPUTS = (CSV_NAME, "report.md", "report.html", "trapped.png", "log_svr.png", "tight.png", "times.png")
+#: every name a report folder may hold before its meta.json exists (an interrupted first run, a discovered set)
+OWN_FILES = (META_NAME, *OUTPUTS, "discovered.json", ".lock")
 REPORT_TITLE = "# Tightness report"
 #: the statuses a solve can end with (Clarabel's, which the IPM and the cvxpy path map to), for --redo
 STATUSES = ("Solved", "AlmostSolved", "MaxIterations", "MaxTime", "NumericalError", "InsufficientProgress",
@@ -90,6 +92,11 @@ class Store:
             if foreign:
                 raise ReportError(f"{self.out / foreign[0]} exists without {META_NAME}; cannot check its settings — "
                                   "use another --out or remove it")
+            unrelated = sorted(p.name for p in self.out.iterdir() if p.name not in OWN_FILES
+                               and not (p.name.startswith(".") and p.name.endswith(".tmp")))
+            if unrelated:
+                raise ReportError(f"{self.out} holds files no report wrote ({', '.join(unrelated[:3])}"
+                                  f"{', …' if len(unrelated) > 3 else ''}); use an empty or new folder for --out")
             return
         self._compare(meta, _norm(identity))
 
