@@ -105,10 +105,14 @@ class Param:
                 v = tuple(float(s) for s in value.split(",") if s.strip())
             elif kind is int and isinstance(value, float) and not value.is_integer():
                 raise ValueError
+            elif kind in (int, float) and isinstance(value, (bool, np.bool_)):
+                raise ValueError  # True is not the number 1 here
             else:
                 v = kind(value)
         except (TypeError, ValueError):
             raise ParameterError(f"parameter {name}={value!r}: expected {kind.__name__}") from None
+        if kind is tuple and not all(math.isfinite(x) for x in v if isinstance(x, (int, float))):
+            raise ParameterError(f"parameter {name}={value!r}: entries must be finite")
         if kind in (int, float):
             if not math.isfinite(v):
                 raise ParameterError(f"parameter {name}={value!r}: must be finite")
@@ -254,6 +258,8 @@ class Problem:
     # ------------------------------------------------------------------ the parts
     def parse_params(self, given: dict[str, Any] | None = None) -> dict[str, Any]:
         """Defaults overridden by ``given``, each validated; unknown names are refused."""
+        if given is not None and not isinstance(given, Mapping):
+            raise ParameterError(f"parameters must be a dict {{name: value}}, got {_kind(given)} {given!r}")
         given = dict(given or {})
         unknown = [k for k in given if k not in self.params]
         if unknown:
@@ -535,5 +541,8 @@ def parse_assignments(items: list[str] | None) -> dict[str, str]:
         if "=" not in it:
             raise ParameterError(f"parameter {it!r} is not NAME=VALUE")
         k, v = it.split("=", 1)
+        if k.strip() in out:
+            raise ParameterError(f"parameter {k.strip()} is given twice ({k.strip()}={out[k.strip()]} and "
+                                 f"{it.strip()})")
         out[k.strip()] = v.strip()
     return out

@@ -39,6 +39,7 @@ from typing import Sequence
 import numpy as np
 import scipy.sparse as sp
 
+from .errors import ParameterError
 from .sdp.result import SDPResult
 
 ACCEPT = ("rank", "cost", "certified")
@@ -63,7 +64,16 @@ class Criteria:
 
     def __post_init__(self) -> None:
         if self.accept not in ACCEPT:
-            raise ValueError(f"accept must be one of {ACCEPT}, got {self.accept!r}")
+            raise CriteriaError(f"accept must be one of {', '.join(ACCEPT)}, got {self.accept!r}")
+        for k in ("min_log_svr", "gap_tol", "cost_atol", "cost_floor"):
+            v = getattr(self, k)
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not np.isfinite(v) or \
+                    (k != "min_log_svr" and v < 0):
+                raise CriteriaError(f"{k} must be a finite number{' ≥ 0' if k != 'min_log_svr' else ''}, got {v!r}")
+
+
+class CriteriaError(ParameterError, ValueError):
+    """Bad ``Criteria`` (an ``AutotightError``; a ValueError too, as it was before)."""
 
 
 def relative_gap(sdp_cost: float, local_cost: float, floor: float = 1e-9) -> float:
