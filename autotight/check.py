@@ -31,6 +31,7 @@ import numpy as np
 from .constraint_set import ConstraintSet, ConstraintsLike, set_name
 from .errors import AutotightError, ParameterError
 from .io import versions
+from .limits import check_count, check_size, count_arg
 from .pipeline import SolveResult, local_search, seeds, solve_instance
 from .problem import Problem, load
 from .tightness import Criteria
@@ -267,6 +268,7 @@ def check_sufficient(problem: str | Problem, constraints: ConstraintsLike = "pap
         raise ParameterError(f"min_fraction must be in [0, 1], got {min_fraction!r}")
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
         raise ParameterError(f"seed must be a non-negative int, got {seed!r}")
+    n_random = count_arg(n_random, "n_random")
     if constraints is None or isinstance(constraints, str):
         if constraints not in (None, "paper", "primary"):
             raise ParameterError(f"unknown constraint set {constraints!r}; use paper, primary or a saved set")
@@ -284,6 +286,10 @@ def check_sufficient(problem: str | Problem, constraints: ConstraintsLike = "pap
         varied = {k: v for k, v in (range_of(constraints) or {}).items() if k not in (params or {})}
     over_ = parse_over(prob, varied)
     points = points_of(prob, params, over_)
+    for full, _ in points:  # before any work: every point's SDP must fit, and the instances must finish
+        check_size(prob, full, solver)
+    check_count(prob, points[0][0], f"instances {instances}", int(instances) * len(points), per_item=2 + n_random,
+                what=f"instances ({len(points)} points)")
     t0 = time.perf_counter()
     name = "set" if isinstance(constraints, ConstraintSet) else (constraints or "default")
     res, n = solve_points(prob, {name: constraints}, points, int(instances), int(seed),

@@ -34,6 +34,7 @@ from typing import Any, Callable
 import numpy as np
 
 from .errors import AutotightError, ParameterError, ProblemDefinitionError
+from .limits import ONE_RUN_SECONDS, check_count, check_size, sample_seconds
 from .model import Constraint, Model
 from .problem import SAMPLE_TOL, Instance, Problem, State, load
 from .svec import as_theta
@@ -176,6 +177,9 @@ def check_problem(problem: Problem | str, params: dict[str, Any] | None = None, 
     else:
         given = dict(params)
     full = prob.parse_params(given)
+    check_size(prob, full)
+    check_count(prob, full, f"samples {n_samples}", n_samples, what="samples", budget=ONE_RUN_SECONDS,
+                seconds=sample_seconds)
     out = ProblemCheck(prob.name, prob.path, full, int(seed))
     if bad_check_params:
         out.failures.append(f"CHECK_PARAMS: {bad_check_params} (checked at the defaults of PARAMS instead)")

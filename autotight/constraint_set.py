@@ -70,9 +70,12 @@ class ConstraintSet:
 
     @classmethod
     def load(cls, path: str | Path, skip_invalid: bool = False) -> "ConstraintSet":
-        """A saved set (format 2, or format 1 whose templates are learned on first use)."""
+        """A saved set (format 2, or format 1 whose templates are learned on first use); a file that is not one,
+        or has a malformed field (``autotight.set_file``), is a ParameterError."""
+        from .cli_checks import check_set_file
         from .discovery.discovered import DiscoveredSet
 
+        check_set_file(path, option="constraint set")
         return cls(DiscoveredSet.load(path), skip_invalid)
 
 

@@ -89,15 +89,18 @@ def cmd_discover(args: argparse.Namespace) -> int:
                   or args.validate_param)
     plan = None if ranged or args.no_carry else carry_plan(prob, parse_assignments(args.param))
     n_train = n_training(prob, args.train, ranged or plan is not None)
+    fixed = prob.parse_params(parse_assignments(args.param))
+    check_count(prob, fixed, f"--train {n_train}", n_train, per_item=3, what="training instances per point")
+    check_count(prob, fixed, f"--validate {args.validate}", args.validate, per_item=3, what="validation instances")
+    check_count(prob, fixed, f"--heldout {args.heldout}", args.heldout, per_item=3, what="held-out instances")
     if ranged or plan is not None or n_train > 1:
         from .range import cmd_discover_range
 
         if plan is not None and plan.solver:
             config = solver_config(args, default_backend=plan.solver)
         return cmd_discover_range(args, _groups(args.groups), n_train, config, plan)
-    params = prob.parse_params(parse_assignments(args.param))
+    params = fixed
     check_size(prob, params)
-    check_count(prob, params, f"--heldout {args.heldout}", args.heldout, per_item=3, what="held-out instances")
     with progress_bar(args) as progress:
         res = discover(prob, params, args.seed, groups=_groups(args.groups),
                        learn_options=LearnOptions(min_gap_decades=args.min_gap),

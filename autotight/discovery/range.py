@@ -650,9 +650,10 @@ def discover_range(problem: Problem | str, params: Mapping[str, Any] | None, ove
 def add_range_args(p: argparse.ArgumentParser) -> None:
     """``discover``'s range options: --sigmas, --range, --train, --train-param."""
     from ..check_cmd import add_range_args as points_args
+    from ..cli_checks import nonneg_int, pos_int
 
     points_args(p)
-    p.add_argument("--train", type=int, default=None,
+    p.add_argument("--train", type=pos_int, default=None,
                    help="training instances per point (default 2 with --sigmas/--range; without them the "
                         "problem's DEFAULT_TRAIN, else 1: more than 1 reduces the set over that many instances)")
     p.add_argument("--train-param", action="append", default=[], metavar="NAME=VALUE",
@@ -664,7 +665,7 @@ def add_range_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--validate-param", action="append", default=[], metavar="NAME=VALUE",
                    help="with --validate: a parameter of the validation instances only, e.g. K=100: check the set "
                         "on longer chains than it was selected on, and tighten it where it breaks (repeatable)")
-    p.add_argument("--validate", type=int, default=0, metavar="N",
+    p.add_argument("--validate", type=nonneg_int, default=0, metavar="N",
                    help="with --sigmas/--range: up to 3 rounds of N more training instances per point, tightening "
                         "again where the set is not tight on one (default 0)")
 
