@@ -13,6 +13,8 @@ Checks, each with a named one-line message (``ProblemCheck.lines``):
 - ``identities``: two factors of one type learn the same identities (``discovery.learn``), so that a
   learned set carries over between factors and instances.  Factors of one type with different
   ``roles`` (e.g. roles left out) give a warning, not a failure;
+- ``data``: finite measurements, Q and constraints, and cost weights the solver resolves
+  (``autotight.validate.check_data``);
 - ``sample-spread``, ``random-state``, ``local-descent-perturbed``, ``errors``, ``marginal_log_svr`` and
   the declared values (``SIGMAS``, ``PAPER_CLAIM``, ``DEFAULT_*``, ``CHECK_PARAMS``): see
   ``autotight.checks_parts``.  Every part a module defines is called; a check that fails, or raises,
@@ -279,7 +281,17 @@ def check_problem(problem: Problem | str, params: dict[str, Any] | None = None, 
         if local_cost:
             more.check_perturbed_descent(prob, inst, model, start, local_cost[0], out, FEAS_TOL)
 
+    def data() -> None:
+        from .validate import check_data, cost_condition
+
+        check_data(prob, inst, model)
+        kappa = cost_condition(model)[0]
+        out.measurements["cost_condition"] = kappa
+        out.passed.append(f"data: finite measurements, Q and constraints; the cost's weights have condition "
+                          f"number {kappa:.2g} (autotight.validate)")
+
     local_cost: list[float] = []
+    c.run("data", data)
     c.run("sample-feasible", draw)
     if len(unlifted) == len(states) > 1:  # the samples exist
         c.run("sample-spread", lambda: more.check_spread(model, thetas, out))

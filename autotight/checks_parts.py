@@ -12,7 +12,8 @@
   primary constraints (relative violation ≤ ``checks.FEAS_TOL``).
 - ``local-descent-perturbed``: the local solver started at a random state ends at a cost below the
   start's by more than ``DESCENT_MARGIN`` relative (a solver that returns its start fails) and on the
-  primary constraints; ending above the local minimum from the truth is a warning (a trapped start).
+  primary constraints; whether it ends above the local minimum from the truth (a trapped start, normal
+  from a random start) is recorded as a measurement.
 - ``errors``: ``errors`` (the module's or the default) returns finite floats at the truth and a sample.
 - ``marginal_log_svr`` (when defined): a float at the rank-1 X = lift(truth)ᵀlift(truth), above
   ``tightness.Criteria().min_log_svr`` (a rank-1 X must read as rank 1); skipped above ``MAX_DENSE_X`` columns.
@@ -140,9 +141,8 @@ def check_perturbed_descent(prob: Problem, inst: Instance, model: Model, start: 
     if worst > feas_tol:
         out.failures.append(f"local-descent-perturbed: the local solution from a random state violates the primary "
                             f"constraints by {worst:.1e} (relative; tolerance {feas_tol:g})")
-    if ok and res.cost - truth_cost > TRAP_RTOL * max(abs(truth_cost), 1e-12):
-        out.warnings.append(f"local-descent-perturbed: from a random state the local solver ends at {res.cost:.6g}, "
-                            f"above the minimum {truth_cost:.6g} from the truth (a trapped start; fine if rare)")
+    out.measurements["trapped_from_random_start"] = float(res.cost - truth_cost > TRAP_RTOL * max(abs(truth_cost),
+                                                                                                1e-12))
 
 
 def check_errors(prob: Problem, inst: Instance, sample: State, out: Any) -> None:
