@@ -17,7 +17,7 @@ import numpy as np
 
 from .constraint_set import ConstraintsLike
 from .errors import ParameterError
-from .limits import check_random_starts, check_size, count_arg
+from .limits import check_count, check_random_starts, check_size, count_arg
 from .pipeline import SolveResult, solve_instance
 from .problem import Problem, load
 from .sdp.config import SolverConfig
@@ -118,6 +118,10 @@ def discover(problem: str | ModuleType | Problem, params: dict[str, Any] | None 
         _criteria(options["criteria"])
     full = prob.parse_params(params)
     check_size(prob, full, solver)
+    for name, per in (("n_heldout", 3), ("n_train", 3), ("n_validate", 3)):
+        if options.get(name) is not None:
+            n = count_arg(options[name], name)
+            check_count(prob, full, f"{name} {n}", n, per_item=per, what="instances")
     carry = options.pop("carry", True)
     plan = carry_plan(prob, params) if carry and not any(k in options for k in RANGE_OPTIONS) else None
     over = plan.over if plan is not None else options.pop("over", None)

@@ -111,6 +111,10 @@ def cmd_solve(args: argparse.Namespace) -> int:
     from .tightness import Criteria
     from .limits import check_size
 
+    from .errors import ParameterError
+
+    if args.skip_invalid and args.set in (None, "primary", "paper"):
+        raise ParameterError("--skip-invalid applies to a saved set (--set FILE); it does nothing here")
     config = solver_config(args)
     prob = load(args.problem)
     params = prob.parse_params(parse_assignments(args.param))

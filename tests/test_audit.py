@@ -132,6 +132,7 @@ def _cli_cases(tmp: Path, mods: dict[str, str]) -> dict[str, tuple[list[str], st
     r = tmp / "reports"
     return {
         "duplicate_param": (["solve", P, "-p", "M=3", "-p", "M=4"], "given twice", None),
+        "skip_invalid_without_file": (["solve", P, *SMALL, "--skip-invalid"], "--skip-invalid", None),
         "empty_solver": (["solve", P, *SMALL, "--solver", ""], "--solver", None),
         "samples_zero": (["check-module", P, "--samples", "0"], "--samples", None),
         "samples_negative": (["check-module", P, "--samples", "-1"], "--samples", None),
@@ -221,6 +222,7 @@ def _api_cases(tmp: Path):
         "discover_unknown_option": lambda: at.discover(P, {"M": 2}, bogus=1),
         "discover_range_option_alone": lambda: at.discover(P, {"M": 2}, max_rounds=1),
         "discover_heldout_negative": lambda: at.discover(P, {"M": 2}, n_heldout=-1),
+        "discover_train_huge": lambda: at.discover(P, {"M": 2}, n_train=10 ** 8),
         "certify_params_string": lambda: at.certify(P, "M=3"),
         "certify_size_huge": lambda: at.certify(P, {"M": 100000000}),
         "solve_size_huge": lambda: at.solve(P, {"M": 100000000}),
@@ -239,7 +241,7 @@ def _base(tmp: Path) -> Path:
 
 API_IDS = ["params_string", "solver_unknown", "solver_wrong_type", "n_random_string", "n_random_negative",
            "n_random_huge", "bool_as_int", "criteria_accept", "criteria_nan", "criteria_wrong_type",
-           "discover_unknown_option", "discover_range_option_alone", "discover_heldout_negative",
+           "discover_unknown_option", "discover_range_option_alone", "discover_heldout_negative", "discover_train_huge",
            "certify_params_string", "certify_size_huge", "solve_size_huge", "check_instances_string",
            "save_to_folder", "save_inside_a_file", "load_bad_set"]
 
