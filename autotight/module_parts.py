@@ -22,6 +22,8 @@ from collections.abc import Mapping, Sequence
 from numbers import Real
 from typing import Any, Callable
 
+import numpy as np
+
 from .errors import AutotightError, ProblemDefinitionError
 
 #: where discovery's tightening may start (``discovery.tighten.tighten``'s ``start``)
@@ -45,6 +47,8 @@ def sigmas(problem: Any, default: Sequence[float] = ()) -> tuple[float, ...]:
     v = getattr(problem.module, "SIGMAS", _MISSING)
     if v is _MISSING:
         return tuple(float(s) for s in default)
+    if isinstance(v, np.ndarray) and v.ndim == 1:
+        v = v.tolist()
     if isinstance(v, (str, bytes, Mapping)) or not isinstance(v, Sequence) or not len(v):
         raise _bad(problem, "SIGMAS", f"must be a non-empty list of noise levels, got {v!r}")
     bad = [s for s in v if not _number(s) or s <= 0]
