@@ -2,9 +2,11 @@
 
 - ``sample-spread``: the samples move.  The rank of the lifted samples' differences from the lifted
   truth, rank[vec(Θ_i) − vec(Θ_0)] (singular values above ``SPREAD_RTOL``·max(1, ‖Θ_0‖)), must reach
-  min(n, dim), n the samples and dim the variety's local dimension at the truth: the free entries of
-  Θ (all but the h block) minus the rank of the primary constraints' Jacobian there (rows normalised,
-  relative rank tolerance ``JACOBIAN_RTOL``).  When Θ has more than ``MAX_TANGENT`` free entries
+  min(n, dim), n the samples and dim the variety's local dimension at the truth as the primary
+  constraints give it: the free entries of Θ (all but the h block) minus the rank of their Jacobian
+  there (rows normalised, relative rank tolerance ``JACOBIAN_RTOL``; an upper bound on the true
+  dimension when some of the set is implied by the rest only to second order, as for matrix liftings
+  whose rows are tied by the h block).  When Θ has more than ``MAX_TANGENT`` free entries
   dim is not computed and min(n, 2) is required (samples that are not all equal).  A sampler that
   returns its nominal state, or one fixed state, fails; discovery would learn constraints valid at
   that point only.
