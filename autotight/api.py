@@ -8,10 +8,16 @@ the CLI, the report sweep and discovery all run through the same per-instance pi
 
 from __future__ import annotations
 
+import inspect
+from collections.abc import Mapping
 from types import ModuleType
 from typing import Any
 
+import numpy as np
+
 from .constraint_set import ConstraintsLike
+from .errors import ParameterError
+from .limits import check_count, check_random_starts, check_size, count_arg
 from .pipeline import SolveResult, solve_instance
 from .problem import Problem, load
 from .sdp.config import SolverConfig
@@ -28,11 +34,38 @@ def _problem(problem: str | ModuleType | Problem) -> Problem:
 
 
 def _seed(seed: Any) -> int:
-    if isinstance(seed, bool) or not isinstance(seed, (int,)) or seed < 0:
-        from .errors import ParameterError
-
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
         raise ParameterError(f"seed must be a non-negative int, got {seed!r}")
     return int(seed)
+
+
+def _params(params: Any) -> dict[str, Any] | None:
+    """``params`` as a dict (None: the defaults); a string such as "M=3" is refused."""
+    if params is None:
+        return None
+    if not isinstance(params, Mapping):
+        raise ParameterError(f"params must be a dict {{name: value}} (e.g. {{'M': 3}}), got "
+                             f"{type(params).__name__} {params!r}")
+    return dict(params)
+
+
+def solver_config(solver: Any) -> SolverConfig:
+    """``solver``: None (the default ``SolverConfig``), a backend name ("clarabel", "ipm", "cvxpy:SCS", …) or
+    a ``SolverConfig``; anything else is a ParameterError."""
+    if solver is None:
+        return SolverConfig()
+    if isinstance(solver, str):
+        return SolverConfig(backend=solver)  # an unknown or missing backend: SolverConfigError
+    if isinstance(solver, SolverConfig):
+        return solver
+    raise ParameterError(f"solver must be a backend name or a SolverConfig, got {type(solver).__name__}")
+
+
+def _criteria(criteria: Any) -> Criteria:
+    if not isinstance(criteria, Criteria):
+        raise ParameterError(f"criteria must be a Criteria (e.g. Criteria(accept='cost')), got "
+                             f"{type(criteria).__name__}")
+    return criteria
 
 
 def solve(problem: str | ModuleType | Problem, params: dict[str, Any] | None = None, seed: int = 0, *,
@@ -45,9 +78,12 @@ def solve(problem: str | ModuleType | Problem, params: dict[str, Any] | None = N
     or a list of ``Constraint``.  solver: a ``SolverConfig``.  n_random: random-start local solves.
     """
     prob = _problem(problem)
-    inst = prob.generate(params, _seed(seed))
-    return solve_instance(prob, inst, constraints, config=solver or SolverConfig(), criteria=criteria,
-                          n_random=n_random)
+    config, criteria = solver_config(solver), _criteria(criteria)
+    full = prob.parse_params(_params(params))
+    check_size(prob, full, config)
+    n_random = check_random_starts(prob, full, n_random)
+    inst = prob.generate(full, _seed(seed))
+    return solve_instance(prob, inst, constraints, config=config, criteria=criteria, n_random=n_random)
 
 
 def discover(problem: str | ModuleType | Problem, params: dict[str, Any] | None = None, seed: int = 0, *,
@@ -68,15 +104,29 @@ def discover(problem: str | ModuleType | Problem, params: dict[str, Any] | None 
     """
     from .discovery.carry import RANGE_OPTIONS, carry_plan
     from .discovery.pipeline import discover as _discover, n_training
+    from .discovery.range import discover_range
 
     prob = _problem(problem)
+    params = _params(params)
+    solver = None if solver is None else solver_config(solver)
+    known = (set(inspect.signature(_discover).parameters) | set(inspect.signature(discover_range).parameters)
+             | {"carry", "n_train"}) - {"problem", "params", "seed", "solver", "over_"}
+    unknown = sorted(set(options) - known)
+    if unknown:
+        raise ParameterError(f"discover: unknown option(s) {', '.join(unknown)}; known: {', '.join(sorted(known))}")
+    if "criteria" in options:
+        _criteria(options["criteria"])
+    full = prob.parse_params(params)
+    check_size(prob, full, solver)
+    for name, per in (("n_heldout", 3), ("n_train", 3), ("n_validate", 3)):
+        if options.get(name) is not None:
+            n = count_arg(options[name], name)
+            check_count(prob, full, f"{name} {n}", n, per_item=per, what="instances")
     carry = options.pop("carry", True)
     plan = carry_plan(prob, params) if carry and not any(k in options for k in RANGE_OPTIONS) else None
     over = plan.over if plan is not None else options.pop("over", None)
     n_train = n_training(prob, options.pop("n_train", None), over is not None or plan is not None)
     if plan is not None or over is not None or n_train > 1:
-        from .discovery.range import discover_range
-
         if plan is not None:
             params = plan.params
             options.update(plan.range_options())
@@ -88,6 +138,13 @@ def discover(problem: str | ModuleType | Problem, params: dict[str, Any] | None 
             plan.mark(res)
         return res
 
+    ranged_only = sorted(set(options) - set(inspect.signature(_discover).parameters))
+    if ranged_only:
+        raise ParameterError(f"discover: option(s) {', '.join(ranged_only)} apply to a discovery over a range "
+                             "(over={...}, or n_train > 1)")
+    for name in ("n_heldout", "n_random"):
+        if name in options:
+            options[name] = count_arg(options[name], name)
     return _discover(prob, params, _seed(seed), solver=solver or SolverConfig(), **options)
 
 
@@ -103,8 +160,13 @@ def certify(problem: str | ModuleType | Problem, params: dict[str, Any] | None =
     caps the Newton steps of the certificate's barrier method (no SDP is solved).
     """
     from .certifier import certify_instance
+    from .validate import check_data
 
     prob = _problem(problem)
-    inst = prob.generate(params, _seed(seed))
+    full = prob.parse_params(_params(params))
+    check_size(prob, full)
+    solver = None if solver is None else solver_config(solver)
+    inst = prob.generate(full, _seed(seed))
+    check_data(prob, inst, prob.build(inst))  # NaN/inf data, weights beyond the solver's reach
     max_iter = 50 if solver is None else int(getattr(solver, "max_iter", 50))
     return certify_instance(prob, inst, constraints, start=start, max_iter=max_iter).certificate

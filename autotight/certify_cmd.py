@@ -40,11 +40,16 @@ def cmd_certify(args: argparse.Namespace) -> int:
     from .io import jsonable, versions
     from .problem import load, parse_assignments
 
+    from .api import _seed
+    from .limits import check_size
+    from .validate import check_data
+
     start = start_arg(args.start)
     prob = load(args.problem)
-    from .api import _seed
-
-    inst = prob.generate(parse_assignments(args.param), _seed(args.seed))
+    params = prob.parse_params(parse_assignments(args.param))
+    check_size(prob, params)
+    inst = prob.generate(params, _seed(args.seed))
+    check_data(prob, inst, prob.build(inst))  # NaN/inf data, weights beyond the solver's reach
     cons = constraints_arg(args.set)
     run = certify_instance(prob, inst, cons, start=start)
     c = run.certificate

@@ -11,8 +11,8 @@ report sweep's trial seeds (``autotight.report.spec.trial_seeds``), so ``check -
 the instances of ``report --seed S`` over the same σ list; its local starts and the
 re-instantiation of a learned set use the generators of ``autotight.pipeline.seeds``.
 
-Counting: each instance's outcome is "tight", "undecided" or "not tight" (a solver failure, and a
-learned set that cannot be instantiated on the instance, are "not tight").  Undecided instances
+Counting: each instance's outcome is "tight", "undecided" or "not tight" (a learned set that cannot be
+instantiated on the instance is "not tight"; a solve that returned no usable solution is "undecided").  Undecided instances
 are left out of the fraction: fraction = tight / (instances − undecided), and a point passes when
 fraction ≥ min_fraction.  A point where every instance is undecided has no evidence and does not
 pass.  Undecided instances are listed separately and never count as failures.
@@ -31,6 +31,7 @@ import numpy as np
 from .constraint_set import ConstraintSet, ConstraintsLike, set_name
 from .errors import AutotightError, ParameterError
 from .io import versions
+from .limits import check_count, check_size, count_arg
 from .pipeline import SolveResult, local_search, seeds, solve_instance
 from .problem import Problem, load
 from .tightness import Criteria
@@ -267,6 +268,7 @@ def check_sufficient(problem: str | Problem, constraints: ConstraintsLike = "pap
         raise ParameterError(f"min_fraction must be in [0, 1], got {min_fraction!r}")
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
         raise ParameterError(f"seed must be a non-negative int, got {seed!r}")
+    n_random = count_arg(n_random, "n_random")
     if constraints is None or isinstance(constraints, str):
         if constraints not in (None, "paper", "primary"):
             raise ParameterError(f"unknown constraint set {constraints!r}; use paper, primary or a saved set")
@@ -284,12 +286,18 @@ def check_sufficient(problem: str | Problem, constraints: ConstraintsLike = "pap
         varied = {k: v for k, v in (range_of(constraints) or {}).items() if k not in (params or {})}
     over_ = parse_over(prob, varied)
     points = points_of(prob, params, over_)
+    for full, _ in points:  # before any work: every point's SDP must fit, and the instances must finish
+        check_size(prob, full, solver)
+    check_count(prob, points[0][0], f"instances {instances}", int(instances) * len(points), per_item=2 + n_random,
+                what=f"instances ({len(points)} points)")
     t0 = time.perf_counter()
     name = "set" if isinstance(constraints, ConstraintSet) else (constraints or "default")
     res, n = solve_points(prob, {name: constraints}, points, int(instances), int(seed),
                           min_fraction=float(min_fraction), solver=solver, criteria=criteria, n_random=n_random,
                           on_result=on_result)
-    label = next((p.set_label for p in res[name] if p.set_label), set_name(constraints, None))  # type: ignore[arg-type]
+    label = next((p.set_label for p in res[name] if p.set_label), "")
+    if not label:  # no instance was solved (every one failed to instantiate the set)
+        label = "discovered" if isinstance(constraints, ConstraintSet) else (constraints or "default")
     return SufficiencyReport(prob.name, label, {k: v for k, v in points[0][0].items() if k not in over_}, over_,
                              int(instances), float(min_fraction), int(seed), res[name], n,
                              time.perf_counter() - t0, getattr(solver, "backend", "clarabel"), criteria.accept)

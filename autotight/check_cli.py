@@ -12,6 +12,7 @@ import json
 from typing import Callable
 
 from .checks import check_problem
+from .cli_checks import pos_int
 from .io import jsonable
 from .problem import load, parse_assignments
 
@@ -21,7 +22,7 @@ def cmd_check_module(args: argparse.Namespace) -> int:
     params = parse_assignments(args.param) if args.param else None
     if params is not None:
         prob.parse_params(params)  # a bad parameter is bad input (exit 2), not a failed check
-    res = check_problem(prob, params, seed=args.seed, n_samples=args.samples)
+    res = check_problem(prob, params, seed=args.seed, n_samples=args.samples)  # refuses samples that cannot fit
     if args.json:
         print(json.dumps(jsonable(res.record()), ensure_ascii=False))
     else:
@@ -32,5 +33,5 @@ def cmd_check_module(args: argparse.Namespace) -> int:
 def register(sub: argparse._SubParsersAction, add_problem_args: Callable[[argparse.ArgumentParser], None]) -> None:
     p = sub.add_parser("check-module", help="check a problem module against the contract (docs/problem_contract.md)")
     add_problem_args(p)
-    p.add_argument("--samples", type=int, default=5, help="fresh samples per check (default 5)")
+    p.add_argument("--samples", type=pos_int, default=5, help="fresh samples per check (default 5)")
     p.set_defaults(func=cmd_check_module)

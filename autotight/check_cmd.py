@@ -11,6 +11,7 @@ import json
 from collections.abc import Callable
 from typing import Any
 
+from .cli_checks import pos_int
 from .errors import ParameterError
 from .io import jsonable
 from .problem import load, parse_assignments
@@ -52,7 +53,7 @@ def register(sub: argparse._SubParsersAction, add_problem_args: Callable) -> Non
     p.add_argument("--set", default=None, metavar="paper|primary|FILE",
                    help="paper, primary, or a saved set's JSON (default: paper if the problem has paper families)")
     add_range_args(p)
-    p.add_argument("--instances", type=int, default=10, help="fresh instances per point (default 10)")
+    p.add_argument("--instances", type=pos_int, default=10, help="fresh instances per point (default 10)")
     p.add_argument("--min-fraction", type=float, default=1.0,
                    help="a point passes when tight / (instances − undecided) ≥ this (default 1)")
     from .cli import add_accept_arg, add_solver_args

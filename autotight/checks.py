@@ -12,12 +12,19 @@ Checks, each with a named one-line message (``ProblemCheck.lines``):
 - ``local-descent``: the local solver started from the truth does not increase the cost;
 - ``identities``: two factors of one type learn the same identities (``discovery.learn``), so that a
   learned set carries over between factors and instances.  Factors of one type with different
-  ``roles`` (e.g. roles left out) give a warning, not a failure.
+  ``roles`` (e.g. roles left out) give a warning, not a failure;
+- ``data``: finite measurements, Q and constraints, and cost weights the solver resolves
+  (``autotight.validate.check_data``);
+- ``sample-spread``, ``random-state``, ``local-descent-perturbed``, ``errors``, ``marginal_log_svr`` and
+  the declared values (``SIGMAS``, ``PAPER_CLAIM``, ``DEFAULT_*``, ``CHECK_PARAMS``): see
+  ``autotight.checks_parts``.  Every part a module defines is called; a check that fails, or raises,
+  is one FAIL line and the other checks still run.
 
 Relative measures: a quadratic form's value ⟨A, ΘᵀΘ⟩ − b is divided by Σ|A_ij|‖θ_i‖‖θ_j‖ + |b|
 (``discovery.samples.residuals``: 0 when it holds exactly, ≤ 1 always); a state entry's
 difference by max(1, max |entry|).  An error raised by a module part (``ProblemModuleError`` or any
-``AutotightError``) fails the check that called it; other exceptions are bugs and propagate.
+``AutotightError``), or an exception raised while our code uses its result, fails the check that
+called it.  Bad input (``n_samples`` < 1, unknown parameters given) is a ``ParameterError``.
 """
 
 from __future__ import annotations
@@ -28,7 +35,8 @@ from typing import Any, Callable
 
 import numpy as np
 
-from .errors import AutotightError, ProblemDefinitionError
+from .errors import AutotightError, ParameterError, ProblemDefinitionError
+from .limits import ONE_RUN_SECONDS, check_count, check_size, sample_seconds
 from .model import Constraint, Model
 from .problem import SAMPLE_TOL, Instance, Problem, State, load
 from .svec import as_theta
@@ -142,6 +150,10 @@ class _Checker:
             fn()
         except AutotightError as e:
             self.out.failures.append(f"{name}: {str(e).splitlines()[0] if str(e) else type(e).__name__}")
+        except Exception as e:  # a module result our own code could not use: reported, the other checks still run
+            msg = str(e).splitlines()[0] if str(e) else ""
+            self.out.failures.append(f"{name}: {type(e).__name__}" + (f": {msg}" if msg else "")
+                                     + " (raised while checking this part)")
         self.out.measurements[f"{name}_s"] = time.perf_counter() - t0
 
     def verdict(self, name: str, ok: bool, good: str, bad: str) -> None:
@@ -152,10 +164,27 @@ class _Checker:
 def check_problem(problem: Problem | str, params: dict[str, Any] | None = None, seed: int = 0, n_samples: int = 5,
                   rng: np.random.Generator | None = None) -> ProblemCheck:
     """Run every check on one instance (``params``: default the module's CHECK_PARAMS, else PARAMS' defaults)."""
+    from . import checks_parts as more
+    from .module_parts import check_params
+
+    if isinstance(n_samples, bool) or not isinstance(n_samples, (int, np.integer)) or n_samples < 1:
+        raise ParameterError(f"samples must be an int ≥ 1, got {n_samples!r}")
     prob = load(problem)
-    given = dict(getattr(prob.module, "CHECK_PARAMS", {}) if params is None else params)
+    bad_check_params = ""
+    if params is None:
+        try:
+            given = check_params(prob)
+        except ProblemDefinitionError as e:  # reported as a failure; the other checks run at the defaults
+            given, bad_check_params = {}, str(e).splitlines()[0]
+    else:
+        given = dict(params)
     full = prob.parse_params(given)
+    check_size(prob, full)
+    check_count(prob, full, f"samples {n_samples}", n_samples, what="samples", budget=ONE_RUN_SECONDS,
+                seconds=sample_seconds)
     out = ProblemCheck(prob.name, prob.path, full, int(seed))
+    if bad_check_params:
+        out.failures.append(f"CHECK_PARAMS: {bad_check_params} (checked at the defaults of PARAMS instead)")
     rng = rng if rng is not None else np.random.default_rng([int(seed), 1])
     t0 = time.perf_counter()
     try:
@@ -226,6 +255,7 @@ def check_problem(problem: Problem | str, params: dict[str, Any] | None = None, 
 
     def local() -> None:
         res = prob.local_solve(inst, inst.truth)
+        local_cost.append(res.cost)
         c_truth = prob.cost(inst, inst.truth)
         rise = res.cost - c_truth
         out.measurements |= {"cost_truth": c_truth, "cost_local": res.cost, "local_iterations": float(res.iterations)}
@@ -246,11 +276,33 @@ def check_problem(problem: Problem | str, params: dict[str, Any] | None = None, 
                   f"the local solver reports cost {res.cost:.10g} but ⟨Q, lift lift ᵀ⟩ + offset at its result "
                   f"differs by {e:.1e} (relative; tolerance {COST_RTOL:g})")
 
+    def perturbed() -> None:
+        start = more.check_random_state(prob, inst, model, rng, out, FEAS_TOL)
+        if local_cost:
+            more.check_perturbed_descent(prob, inst, model, start, local_cost[0], out, FEAS_TOL)
+
+    def data() -> None:
+        from .validate import check_data, cost_condition
+
+        check_data(prob, inst, model)
+        kappa = cost_condition(model)[0]
+        out.measurements["cost_condition"] = kappa
+        out.passed.append(f"data: finite measurements, Q and constraints; the cost's weights have condition "
+                          f"number {kappa:.2g} (autotight.validate)")
+
+    local_cost: list[float] = []
+    c.run("data", data)
     c.run("sample-feasible", draw)
     if len(unlifted) == len(states) > 1:  # the samples exist
+        c.run("sample-spread", lambda: more.check_spread(model, thetas, out))
         c.run("cost", cost)
         c.run("recover", recover)
+        c.run("errors", lambda: more.check_errors(prob, inst, states[1], out))
     c.run("local", local)
+    c.run("random-state", perturbed)
+    if thetas:
+        c.run("marginal_log_svr", lambda: more.check_marginal(prob, inst, thetas[0], out))
+    c.run("declared", lambda: more.check_declared(prob, out))
     c.run("identities", lambda: _identities(prob, inst, model, rng, out))
     c.run("carry", lambda: _carry(prob, given, out))
     out.measurements["time_s"] = time.perf_counter() - t0

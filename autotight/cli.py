@@ -18,6 +18,7 @@ import numpy as np
 from .cli_checks import nonneg_int
 from .errors import AutotightError
 from .io import jsonable, versions
+from .limits import check_random_starts
 from .problem import available, load, parse_assignments
 
 
@@ -97,7 +98,9 @@ def solver_config(args: argparse.Namespace, default_backend: str = "clarabel", *
     from .errors import ParameterError
     from .sdp.config import SolverConfig
 
-    backend = args.solver or default_backend
+    backend = default_backend if args.solver is None else args.solver
+    if not backend.strip():
+        raise ParameterError("--solver '': give a backend (clarabel, ipm or cvxpy:NAME)")
     if args.decompose and backend.startswith("cvxpy"):
         raise ParameterError(f"--decompose needs --solver clarabel or ipm, not {backend!r}")
     return SolverConfig(backend=backend, decompose=args.decompose, scale=getattr(args, "scale", "auto"), **fields)
@@ -106,13 +109,17 @@ def solver_config(args: argparse.Namespace, default_backend: str = "clarabel", *
 def cmd_solve(args: argparse.Namespace) -> int:
     from .api import solve
     from .tightness import Criteria
-    from .limits import check_count, check_size
+    from .limits import check_size
 
+    from .errors import ParameterError
+
+    if args.skip_invalid and args.set in (None, "primary", "paper"):
+        raise ParameterError("--skip-invalid applies to a saved set (--set FILE); it does nothing here")
     config = solver_config(args)
     prob = load(args.problem)
     params = prob.parse_params(parse_assignments(args.param))
     check_size(prob, params, config)
-    check_count(prob, params, f"--random-starts {args.random_starts}", args.random_starts, what="local solves")
+    check_random_starts(prob, params, args.random_starts, "--random-starts")
     out = solve(prob, params, args.seed, constraints=constraints_arg(args.set, args.skip_invalid), solver=config,
                 n_random=args.random_starts, criteria=Criteria(accept=args.accept))
     inst = out.instance

@@ -4,13 +4,12 @@ Option types (``nonneg_int``, ``nonneg_float``) are argparse ``type=`` functions
 NaN or infinite value is refused with one line.  ``check_solver`` refuses a backend that is
 unknown or not installed (``cvxpy:NAME`` when cvxpy lacks NAME).  ``check_set_file`` reads a
 saved constraint set's JSON and refuses one that is not an object, lacks ``problem`` or
-``pairs``, or holds learn options that ``LearnOptions`` does not know.
+``pairs``, or has a malformed field (``autotight.set_file``).
 """
 
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 import math
 from pathlib import Path
@@ -35,6 +34,7 @@ def _number(kind: Callable[[str], Any], what: str, low: float, low_open: bool = 
 
 
 nonneg_int = _number(int, "an integer", 0)
+pos_int = _number(int, "an integer", 1)
 nonneg_float = _number(float, "a number", 0.0)
 pos_float = _number(float, "a number", 0.0, low_open=True)
 
@@ -54,7 +54,7 @@ def check_solver(name: str) -> str:
 def check_set_file(path: str | Path, option: str = "--set") -> dict[str, Any]:
     """The JSON object of a saved constraint set (``discover --out``), checked as the module docstring says."""
     from .discovery.discovered import FORMAT, FORMAT_V1
-    from .discovery.learn import LearnOptions
+    from .set_file import check_fields
 
     p = Path(path)
     if not p.is_file():
@@ -80,15 +80,9 @@ def check_set_file(path: str | Path, option: str = "--set") -> dict[str, Any]:
     opts = obj.get("learn_options", {})
     if not isinstance(opts, dict):
         raise ParameterError(f"{option} {path}: 'learn_options' must be an object")
-    known = {f.name for f in dataclasses.fields(LearnOptions)}
-    unknown = sorted(set(opts) - known)
-    if unknown:
-        raise ParameterError(f"{option} {path}: unknown learn option(s) {', '.join(unknown)}; "
-                             f"known: {', '.join(sorted(known))}")
-    try:
-        LearnOptions(**opts)
-    except (TypeError, ValueError) as e:
-        raise ParameterError(f"{option} {path}: bad learn options ({e})") from None
     if not isinstance(obj.get("params", {}), dict):
         raise ParameterError(f"{option} {path}: 'params' must be an object")
+    why = check_fields(obj)
+    if why:
+        raise ParameterError(f"{option} {path}: {why}")
     return obj

@@ -62,15 +62,20 @@ class ConstraintSet:
         return self.discovered.apply(problem, inst, model, rng, skip_invalid=self.skip_invalid)
 
     def save(self, path: str | Path, model: Model | None = None, constraints: Sequence[Constraint] | None = None,
-             extra: dict[str, Any] | None = None) -> None:
-        """Write the set as JSON; with ``model`` and ``constraints`` also the learning instance's constraints."""
-        self.discovered.save(path, model, None if constraints is None else list(constraints), extra)
+             extra: dict[str, Any] | None = None, replace: bool = False) -> Path:
+        """Write the set as JSON; with ``model`` and ``constraints`` also the learning instance's constraints.
+        An existing file is kept unless ``replace`` (the set is then saved beside it); returns the path written."""
+        return self.discovered.save(path, model, None if constraints is None else list(constraints), extra,
+                                    replace=replace)
 
     @classmethod
     def load(cls, path: str | Path, skip_invalid: bool = False) -> "ConstraintSet":
-        """A saved set (format 2, or format 1 whose templates are learned on first use)."""
+        """A saved set (format 2, or format 1 whose templates are learned on first use); a file that is not one,
+        or has a malformed field (``autotight.set_file``), is a ParameterError."""
+        from .cli_checks import check_set_file
         from .discovery.discovered import DiscoveredSet
 
+        check_set_file(path, option="constraint set")
         return cls(DiscoveredSet.load(path), skip_invalid)
 
 

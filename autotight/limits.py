@@ -11,9 +11,13 @@ N × N solution X, fitted to the peak RSS of ``autotight solve`` on rotation ave
 our clique cover (``--solver ipm``, ``--decompose``) keeps X on the cliques' pattern above
 ``DENSE_X_MAX`` columns: for it at most DENSE_X_MAX² entries of X count (``holds_dense_x``).
 
-Counts (``check_count``): trials, random starts, held-out instances: n × the measured time of one
-local solve from the ground truth (a lower bound: every item does at least that) must stay below
-``MAX_SECONDS``; counts up to ``COUNT_FREE`` are never timed.
+Counts (``check_count``): trials, instances, random starts, held-out and training instances, samples:
+n × the measured time of one item (by default one local solve from the ground truth, a lower bound:
+every item does at least that; ``local_solve_seconds(start="random")`` for random starts,
+``sample_seconds`` for samples) must stay below a budget: ``MAX_SECONDS`` for sweeps and discovery
+(report, check, discover), ``ONE_RUN_SECONDS`` for the work on one instance (``solve --random-starts``,
+``check-module --samples``).  Counts up to ``COUNT_FREE`` are never timed, so a refusal costs a
+few local solves (well under a second on the shipped problems).
 """
 
 from __future__ import annotations
@@ -36,6 +40,7 @@ PROBE_MIN = 64
 BYTES_PER_NONZERO = 3000.0
 BYTES_PER_DENSE_ENTRY = 100.0
 MAX_SECONDS = 24 * 3600.0
+ONE_RUN_SECONDS = 600.0
 COUNT_FREE = 1000
 
 
@@ -145,22 +150,51 @@ def _duration(s: float) -> str:
     return f"{s:.3g} s"
 
 
-def local_solve_seconds(problem: Any, params: dict[str, Any]) -> float:
-    """The time of one generate + local solve from the ground truth at ``params`` (seed 0)."""
+def local_solve_seconds(problem: Any, params: dict[str, Any], start: str = "truth") -> float:
+    """The time of one generate + local solve at ``params`` (seed 0) from the ground truth, or from a random
+    state (``start="random"``, the start of ``solve --random-starts``)."""
     t0 = time.perf_counter()
     inst = problem.generate(params, 0)
-    problem.local_solve(inst, inst.truth)
+    init = inst.truth if start == "truth" else problem.random_state(inst, np.random.default_rng(0))
+    problem.local_solve(inst, init)
     return time.perf_counter() - t0
 
 
+def sample_seconds(problem: Any, params: dict[str, Any], n: int = 3) -> float:
+    """The time of one sample + lift at ``params`` (seed 0; the mean of ``n``, after generate and build)."""
+    inst = problem.generate(params, 0)
+    problem.build(inst)
+    rng = np.random.default_rng(0)
+    t0 = time.perf_counter()
+    for _ in range(n):
+        problem.lift(inst, problem.sample(inst, rng))
+    return (time.perf_counter() - t0) / n
+
+
+def count_arg(n: Any, option: str, low: int = 0) -> int:
+    """``n`` as an int ≥ ``low`` (a bool, a float or a string is refused), else ParameterError naming ``option``."""
+    if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < low:
+        raise ParameterError(f"{option} must be an int ≥ {low}, got {n!r}")
+    return int(n)
+
+
 def check_count(problem: Any, params: dict[str, Any], option: str, n: int, per_item: float = 1.0,
-                what: str = "items") -> None:
-    """Refuse ``n`` items (each at least ``per_item`` local solves) that would take more than ``MAX_SECONDS``."""
+                what: str = "items", *, budget: float = MAX_SECONDS, seconds: Any = None) -> None:
+    """Refuse ``n`` items (each at least ``per_item`` × the time of ``seconds(problem, params)``, default one local
+    solve from the truth) that would take more than ``budget`` seconds."""
     if n <= COUNT_FREE:
         return
-    t = local_solve_seconds(problem, params)
+    t = (seconds or local_solve_seconds)(problem, params)
     total = n * per_item * t
-    if total > MAX_SECONDS:
-        raise SizeError(f"{option}: {n} {what} would take at least {_duration(total)} (one local solve alone "
-                        f"takes {t * 1e3:.3g} ms here); at most about {int(MAX_SECONDS / (per_item * t))} fit in "
-                        f"{_duration(MAX_SECONDS)}")
+    if total > budget:
+        raise SizeError(f"{option}: {n} {what} would take at least {_duration(total)} (one alone takes "
+                        f"{t * 1e3:.3g} ms here); at most about {int(budget / (per_item * t))} fit in "
+                        f"{_duration(budget)}")
+
+
+def check_random_starts(problem: Any, params: dict[str, Any], n: Any, option: str = "n_random") -> int:
+    """``n`` random-start local solves on one instance: an int ≥ 0 that fits in ``ONE_RUN_SECONDS``."""
+    n = count_arg(n, option)
+    check_count(problem, params, f"{option} {n}", n, what="random-start local solves", budget=ONE_RUN_SECONDS,
+                seconds=lambda p, q: local_solve_seconds(p, q, start="random"))
+    return n

@@ -6,6 +6,7 @@ place that cannot be written, and a disk with less than ``MIN_FREE_BYTES`` free;
 also refuses to replace an existing file unless asked (``force``).  ``writing`` turns an OSError
 while writing (a full disk, a read-only folder) into a one-line ``OutputError``.  ``folder_lock``
 holds an exclusive ``fcntl.flock`` on ``FOLDER/.lock`` so that two runs never write one folder.
+``save_json`` writes a result file the user named without ever replacing one that appeared meanwhile.
 """
 
 from __future__ import annotations
@@ -16,7 +17,7 @@ import os
 import shutil
 import tempfile
 from pathlib import Path
-from typing import Iterator
+from typing import Any, Iterator
 
 from .errors import AutotightError
 
@@ -88,6 +89,23 @@ def writing(path: str | os.PathLike) -> Iterator[None]:
     except OSError as e:
         what = "the disk is full" if e.errno == errno.ENOSPC else (e.strerror or str(e))
         raise OutputError(f"cannot write {path}: {what}") from e
+
+
+def save_json(path: str | os.PathLike, obj: Any, *, replace: bool = False, what: str = "the result") -> Path:
+    """Write ``obj`` as JSON to a file the user named (``io.write_json``): a folder or an empty path is an
+    ``OutputError``; replace=False never writes over a file that exists (the result is kept beside it,
+    with a warning saying where); an OSError while writing (no permission, a full disk) is an
+    ``OutputError``.  Returns the path written."""
+    from .io import write_json
+
+    if not str(path).strip():
+        raise OutputError(f"cannot save {what}: give a file name, not ''")
+    p = Path(path)
+    if p.is_dir():
+        raise OutputError(f"cannot save {what} to {p}: it is a folder; give a file name")
+    _nearest_existing(p.parent, "cannot save to", p)  # a path inside a file
+    with writing(p):
+        return write_json(p, obj, replace=replace)
 
 
 @contextlib.contextmanager

@@ -183,7 +183,7 @@ def marginal_svr(problem: Problem, inst: Instance, res: SDPResult) -> float | No
     """The module's ``marginal_log_svr(instance, X, cliques)`` when it defines one and X is usable."""
     if not has_marginal(problem) or not res.usable or res.X is None:
         return None
-    return float(problem.call("marginal_log_svr", inst, res.X, res.cliques))
+    return problem.marginal_log_svr(inst, res.X, res.cliques)
 
 
 def dual_certificate(problem: Problem, inst: Instance, model: Model, cons: list, res: SDPResult,

@@ -22,8 +22,12 @@ and **may** define (the default is used otherwise)
 - ``random_state(instance, rng) -> state``: default ``sample(instance, rng, truth, RANDOM_SPREAD)``;
 - ``errors(instance, state) -> dict[str, float]``: default ``default_errors`` (rotation-like entries →
   angle in degrees, poses → angle and translation, other arrays → RMS norm of the difference);
+- ``marginal_log_svr(instance, X, cliques) -> float``: log SVR of the module's own reduced X (reported beside
+  the plain log SVR);
 - ``SPREAD`` (0.5): the spread discovery samples with; ``RANDOM_SPREAD`` (π); ``SIGMAS`` (the noise levels
   of ``report``); ``CHECK_PARAMS`` (parameters for ``check-module``; default ``PARAMS``' defaults);
+  ``PAPER_CLAIM``, ``DEFAULT_GROUPS``, ``DEFAULT_TIGHTEN``, ``DEFAULT_TRAIN`` (``autotight.module_parts``
+  says what each holds and validates it where it is read);
 - ``TRANSPORTS: dict[str, Callable]``: per factor type, ``transport(data) -> M`` (n × n, n the factor's
   local columns, h first): a factor's columns θ satisfy the relations of measurement ``data`` exactly
   when Mθ satisfies those of the reference measurement (``autotight.discovery.transport``);
@@ -66,9 +70,11 @@ State = dict[str, np.ndarray]
 #: Parts every module must define.
 REQUIRED = ("PARAMS", "generate", "build", "lift", "sample", "local_solve", "recover")
 #: Parts with a default (``Problem`` derives them when absent).
-OPTIONAL = ("NAME", "DESCRIPTION", "cost", "random_state", "errors", "SPREAD", "RANDOM_SPREAD", "SIGMAS",
-            "CHECK_PARAMS", "TRANSPORTS", "CARRY")
-FUNCTIONS = ("generate", "build", "lift", "sample", "cost", "local_solve", "recover", "random_state", "errors")
+OPTIONAL = ("NAME", "DESCRIPTION", "cost", "random_state", "errors", "marginal_log_svr", "SPREAD", "RANDOM_SPREAD",
+            "SIGMAS", "PAPER_CLAIM", "DEFAULT_GROUPS", "DEFAULT_TIGHTEN", "DEFAULT_TRAIN", "CHECK_PARAMS",
+            "TRANSPORTS", "CARRY")
+FUNCTIONS = ("generate", "build", "lift", "sample", "cost", "local_solve", "recover", "random_state", "errors",
+             "marginal_log_svr")
 #: Default sampling spread (discovery's samples, check-module).
 SPREAD = 0.5
 #: Default spread of the derived ``random_state`` (a rotation by |N(0, π² I)| is far from the nominal).
@@ -99,10 +105,14 @@ class Param:
                 v = tuple(float(s) for s in value.split(",") if s.strip())
             elif kind is int and isinstance(value, float) and not value.is_integer():
                 raise ValueError
+            elif kind in (int, float) and isinstance(value, (bool, np.bool_)):
+                raise ValueError  # True is not the number 1 here
             else:
                 v = kind(value)
         except (TypeError, ValueError):
             raise ParameterError(f"parameter {name}={value!r}: expected {kind.__name__}") from None
+        if kind is tuple and not all(math.isfinite(x) for x in v if isinstance(x, (int, float))):
+            raise ParameterError(f"parameter {name}={value!r}: entries must be finite")
         if kind in (int, float):
             if not math.isfinite(v):
                 raise ParameterError(f"parameter {name}={value!r}: must be finite")
@@ -248,6 +258,8 @@ class Problem:
     # ------------------------------------------------------------------ the parts
     def parse_params(self, given: dict[str, Any] | None = None) -> dict[str, Any]:
         """Defaults overridden by ``given``, each validated; unknown names are refused."""
+        if given is not None and not isinstance(given, Mapping):
+            raise ParameterError(f"parameters must be a dict {{name: value}}, got {_kind(given)} {given!r}")
         given = dict(given or {})
         unknown = [k for k in given if k not in self.params]
         if unknown:
@@ -343,11 +355,17 @@ class Problem:
         out = self.call("errors", instance, state)
         if not isinstance(out, Mapping):
             raise self.fail("errors", f"returned {_kind(out)}, expected dict[str, float]")
-        try:
-            return {str(k): self._float("errors", v) for k, v in out.items()}
-        except ProblemModuleError:
-            bad = next(k for k, v in out.items() if not isinstance(v, (Real, np.number, np.ndarray)))
-            raise self.fail("errors", f"returned {_kind(out[bad])} for {bad!r}, expected dict[str, float]") from None
+        values = {}
+        for k, v in out.items():
+            try:
+                values[str(k)] = self._float("errors", v)
+            except ProblemModuleError:
+                raise self.fail("errors", f"returned {_kind(v)} for {k!r}, expected dict[str, float]") from None
+        return values
+
+    def marginal_log_svr(self, instance: Instance, X: Any, cliques: Any = None) -> float:
+        """The module's optional ``marginal_log_svr(instance, X, cliques)``: log SVR of its own reduced X."""
+        return self._float("marginal_log_svr", self.call("marginal_log_svr", instance, X, cliques))
 
 
 # ----------------------------------------------------------------------------- defaults for states
@@ -523,5 +541,8 @@ def parse_assignments(items: list[str] | None) -> dict[str, str]:
         if "=" not in it:
             raise ParameterError(f"parameter {it!r} is not NAME=VALUE")
         k, v = it.split("=", 1)
+        if k.strip() in out:
+            raise ParameterError(f"parameter {k.strip()} is given twice ({k.strip()}={out[k.strip()]} and "
+                                 f"{it.strip()})")
         out[k.strip()] = v.strip()
     return out

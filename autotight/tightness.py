@@ -22,11 +22,14 @@ nothing is divided by 0.  Then:
   not tight  if U − P > tol + acc (the SDP's value is below U by more than tolerance and accuracy), or
              the SDP is unbounded (DualInfeasible);
   undecided  otherwise (the solver stopped early or is less accurate than the gap being tested; also any
-             unusable solve): never counted as not tight.
+             unusable solve): never counted as not tight.  Also undecided, before the rest: a tolerance
+             at least the cost it tests, tol ≥ |U| > ``ROUNDOFF``·s (ill-conditioned weights make s,
+             hence tol, exceed the cost: the bracket would say nothing).
 The reported ``rel_gap`` is (U − P)/max(|U|, cost_floor).
 
 ``accept`` says which verdict counts as ``tight``: "rank" (rank and cost, the paper's; a low rank
-counts as not tight only when the bracket is tight and acc ≤ tol, else undecided), "cost" (the
+counts as not tight only when the bracket is tight, acc ≤ tol and the solver reached its own tolerance
+(status Solved), else undecided), "cost" (the
 bracket; with a certificate given, both the bracket and the certificate, and a certificate alone
 decides an undecided bracket), "certified" (the certificate of ``autotight.certificate`` alone).
 """
@@ -39,9 +42,12 @@ from typing import Sequence
 import numpy as np
 import scipy.sparse as sp
 
+from .errors import ParameterError
 from .sdp.result import SDPResult
 
 ACCEPT = ("rank", "cost", "certified")
+#: a cost below this × its scale is zero to rounding (the zero-cost instances cost_atol decides)
+ROUNDOFF = 100 * float(np.finfo(float).eps)
 TIGHT, NOT_TIGHT, UNDECIDED = "tight", "not tight", "undecided"
 
 
@@ -63,7 +69,16 @@ class Criteria:
 
     def __post_init__(self) -> None:
         if self.accept not in ACCEPT:
-            raise ValueError(f"accept must be one of {ACCEPT}, got {self.accept!r}")
+            raise CriteriaError(f"accept must be one of {', '.join(ACCEPT)}, got {self.accept!r}")
+        for k in ("min_log_svr", "gap_tol", "cost_atol", "cost_floor"):
+            v = getattr(self, k)
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not np.isfinite(v) or \
+                    (k != "min_log_svr" and v < 0):
+                raise CriteriaError(f"{k} must be a finite number{' ≥ 0' if k != 'min_log_svr' else ''}, got {v!r}")
+
+
+class CriteriaError(ParameterError, ValueError):
+    """Bad ``Criteria`` (an ``AutotightError``; a ValueError too, as it was before)."""
 
 
 def relative_gap(sdp_cost: float, local_cost: float, floor: float = 1e-9) -> float:
@@ -164,6 +179,9 @@ def bracket(res: SDPResult, upper: float, criteria: Criteria, acc: Accuracy) -> 
     U, P, D = float(upper), res.primal_cost, res.dual_cost
     L = D - acc.dual_correction
     tol = criteria.gap_tol * abs(U) + criteria.cost_atol * acc.scale
+    if tol >= abs(U) > ROUNDOFF * acc.scale:  # the gap tested would exceed the (nonzero) cost it tests
+        return UNDECIDED, L, tol, (f"ill-conditioned cost: the tolerance {tol:.2e} exceeds the cost U = {U:.3e} it "
+                                   f"tests (cost scale ‖Q‖·tr X = {acc.scale:.2e})")
     if L - U > tol + acc.acc:  # a lower bound above a feasible point's cost: the solve is wrong, flag it
         return UNDECIDED, L, tol, (f"inconsistent solve: its lower bound exceeds a feasible cost by {L - U:.3e} "
                                    f"(> tolerance {tol:.2e} + accuracy {acc.acc:.2e})")
@@ -200,10 +218,11 @@ def judge(res: SDPResult, upper: float, criteria: Criteria = Criteria(), certifi
     if criteria.accept == "rank":
         if cost_outcome == TIGHT and rank_tight:
             outcome = TIGHT
-        elif cost_outcome == NOT_TIGHT or (not rank_tight and cost_outcome == TIGHT and acc.acc <= tol):
+        elif cost_outcome == NOT_TIGHT or (not rank_tight and cost_outcome == TIGHT and acc.acc <= tol and res.solved):
             outcome = NOT_TIGHT
         else:
-            outcome = UNDECIDED  # the rank of an X solved less accurately than the gap tested says little
+            outcome = UNDECIDED  # the rank of an X solved less accurately than the gap tested, or not to the
+            # solver's own tolerance, says little
         if not rank_tight:
             reasons.append(f"log SVR {lsvr:.2f} ≤ {criteria.min_log_svr}")
     elif criteria.accept == "cost":

@@ -28,7 +28,9 @@ PARAMS = {
     "sigma": Param(0.1, "noise standard deviation of each φ_m (rad; ≤ 10: beyond a few rad the measurements are "
                         "uniform on SO(3))", low=0.0, high=10.0),
     "anisotropy": Param(1.0, "ratio of largest to smallest noise std per axis (W_m anisotropic if > 1; "
-                             "≤ 1e6: W_m reaches anisotropy²/σ²)", low=1.0, high=1e6),
+                             "≤ 1e6: W_m reaches anisotropy²/σ²; above about 1e4 its condition number "
+                             "anisotropy² exceeds what the SDP solver resolves and the instance is refused "
+                             "before the solve)", low=1.0, high=1e6),
 }
 
 

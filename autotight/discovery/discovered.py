@@ -20,8 +20,9 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..errors import AutotightError, LearningError
-from ..io import versions, write_json
+from ..io import versions
 from ..model import Constraint, Model, Variables
+from ..outpaths import save_json
 from ..pretty import polynomial
 from ..problem import Instance, Problem
 from .catalog import Pair, carry_over
@@ -170,9 +171,10 @@ class DiscoveredSet:
         return co.constraints
 
     def save(self, path: str | Path, model: Model | None = None, constraints: list[Constraint] | None = None,
-             extra: dict[str, Any] | None = None, problem: Problem | None = None) -> None:
+             extra: dict[str, Any] | None = None, problem: Problem | None = None, replace: bool = False) -> Path:
         """Write format 2; learns the templates first when they are missing (``problem``: default, the
-        problem module named by the set)."""
+        problem module named by the set).  replace=False never writes over an existing file
+        (``outpaths.save_json``: kept beside it instead); returns the path written."""
         if self.templates is None:
             from ..problem import load
 
@@ -196,7 +198,7 @@ class DiscoveredSet:
                                         + [r for g in groups.values() for r in g],
                                         "note": "every constraint of the learning instance's SDP: h², primary, learned"}
         obj |= extra or {}
-        write_json(path, obj)
+        return save_json(path, obj, replace=replace, what="the constraint set")
 
     @classmethod
     def load(cls, path: str | Path) -> "DiscoveredSet":

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from ..threads import single_blas_thread
 import time
+from pathlib import Path
 from dataclasses import asdict, dataclass, field
 from typing import Any, Callable, Sequence
 
@@ -83,9 +84,10 @@ class DiscoveryResult:
         """The discovered set, ready for ``autotight.solve(constraints=…)`` on any instance."""
         return ConstraintSet(self.discovered)
 
-    def save(self, path: str) -> None:
-        """The set as JSON with the learning instance's constraints and this run's summary."""
-        self.discovered.save(path, self.model, self.constraints, {"summary": self.summary()})
+    def save(self, path: str | Path, replace: bool = False) -> Path:
+        """The set as JSON with the learning instance's constraints and this run's summary; an existing file
+        is kept unless ``replace`` (``DiscoveredSet.save``).  Returns the path written."""
+        return self.discovered.save(path, self.model, self.constraints, {"summary": self.summary()}, replace=replace)
 
     def explanation(self) -> str:
         """Why the result is what it is, in one line (for rank acceptance that is not reached: why)."""
@@ -163,12 +165,9 @@ def heldout_check(problem: Problem, params: dict[str, Any], seeds_: Sequence[int
 
 def default_train(problem: Problem) -> int:
     """The module's ``DEFAULT_TRAIN`` (training instances the set is reduced over; 1 if absent)."""
-    n = getattr(problem.module, "DEFAULT_TRAIN", 1)
-    if isinstance(n, bool) or not isinstance(n, int) or n < 1:
-        from ..errors import ProblemDefinitionError
+    from .. import module_parts
 
-        raise ProblemDefinitionError(f"{problem.name}: DEFAULT_TRAIN must be an int ≥ 1, got {n!r}")
-    return n
+    return module_parts.default_train(problem)
 
 
 def n_training(problem: Problem, n_train: int | None, ranged: bool) -> int:
@@ -184,7 +183,9 @@ def n_training(problem: Problem, n_train: int | None, ranged: bool) -> int:
 
 def default_groups(problem: Problem, groups: str | Sequence[Sequence[str]] | None) -> str | Sequence[Sequence[str]]:
     """``groups``, or when None the problem module's ``DEFAULT_GROUPS`` (else "factors")."""
-    return getattr(problem.module, "DEFAULT_GROUPS", "factors") if groups is None else groups
+    from .. import module_parts
+
+    return module_parts.default_groups(problem) if groups is None else groups
 
 
 @single_blas_thread
@@ -225,7 +226,9 @@ def discover(problem: Problem | str, params: dict[str, Any] | None = None, seed:
     oracle = Oracle(model, pairs, loc.best.cost, criteria, config,
                     best_theta=prob.lift(inst, loc.best.state))
     t = time.perf_counter()
-    start = getattr(prob.module, "DEFAULT_TIGHTEN", "greedy")  # the module's tightening start (tighten.tighten)
+    from .. import module_parts
+
+    start = module_parts.default_tighten(prob)  # the module's tightening start (tighten.tighten)
     tr = tighten(oracle, progress=lambda s: say("tighten", s), start=start)
     times["tighten_s"] = time.perf_counter() - t
     if tr.unbounded:

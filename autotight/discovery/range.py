@@ -52,6 +52,7 @@ from __future__ import annotations
 import argparse
 import json
 import time
+from pathlib import Path
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import asdict, dataclass, field
 from typing import Any
@@ -190,10 +191,11 @@ class RangeDiscoveryResult:
     def constraint_set(self) -> ConstraintSet:
         return ConstraintSet(self.discovered)
 
-    def save(self, path: str) -> None:
-        """The set as JSON (``ConstraintSet.load`` reads it); the range is in ``info["range"]``."""
+    def save(self, path: str | Path, replace: bool = False) -> Path:
+        """The set as JSON (``ConstraintSet.load`` reads it); the range is in ``info["range"]``; an existing file
+        is kept unless ``replace`` (``DiscoveredSet.save``).  Returns the path written."""
         model, cons = self.example if self.example is not None else (None, None)
-        self.discovered.save(path, model, cons, {"summary": self.summary()})
+        return self.discovered.save(path, model, cons, {"summary": self.summary()}, replace=replace)
 
     def summary(self) -> dict[str, Any]:
         return {"problem": self.problem, "params": self.params, "over": self.over, "train_params": self.train_params,
@@ -648,9 +650,10 @@ def discover_range(problem: Problem | str, params: Mapping[str, Any] | None, ove
 def add_range_args(p: argparse.ArgumentParser) -> None:
     """``discover``'s range options: --sigmas, --range, --train, --train-param."""
     from ..check_cmd import add_range_args as points_args
+    from ..cli_checks import nonneg_int, pos_int
 
     points_args(p)
-    p.add_argument("--train", type=int, default=None,
+    p.add_argument("--train", type=pos_int, default=None,
                    help="training instances per point (default 2 with --sigmas/--range; without them the "
                         "problem's DEFAULT_TRAIN, else 1: more than 1 reduces the set over that many instances)")
     p.add_argument("--train-param", action="append", default=[], metavar="NAME=VALUE",
@@ -662,7 +665,7 @@ def add_range_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--validate-param", action="append", default=[], metavar="NAME=VALUE",
                    help="with --validate: a parameter of the validation instances only, e.g. K=100: check the set "
                         "on longer chains than it was selected on, and tighten it where it breaks (repeatable)")
-    p.add_argument("--validate", type=int, default=0, metavar="N",
+    p.add_argument("--validate", type=nonneg_int, default=0, metavar="N",
                    help="with --sigmas/--range: up to 3 rounds of N more training instances per point, tightening "
                         "again where the set is not tight on one (default 0)")
 
@@ -693,12 +696,13 @@ def cmd_discover_range(args: argparse.Namespace, groups: Any, n_train: int, conf
                              solver=config, **options)
     if plan is not None:
         plan.mark(res)
-    if args.out:
-        res.save(args.out)
+    from .cli import save_out
+
+    written = save_out(res, args)
     if args.json:
         print(json.dumps(jsonable(res.summary()), ensure_ascii=False))
     else:
         print(res.table())
-        if args.out:
-            print(f"\nsaved to {args.out}")
+        if written:
+            print(f"\nsaved to {written}")
     return 0

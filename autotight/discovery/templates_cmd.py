@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
+import warnings
 from pathlib import Path
 
 from ..outpaths import check_file, writing
@@ -39,8 +41,12 @@ def cmd_templates(args: argparse.Namespace) -> int:
     ds.templates = None
     ts = ds.template_set(prob)
     extra = {k: old[k] for k in KEPT if k in old} | {"templates_relearned_from": str(args.set)}
-    with writing(args.out):
-        ds.save(args.out, extra=extra, problem=prob)
+    with writing(args.out), warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # a diversion is the note below
+        written = ds.save(args.out, extra=extra, problem=prob, replace=args.force)
+    if Path(written) != Path(args.out):
+        print(f"autotight: note: {args.out} appeared meanwhile and is kept; the set is saved as {written}",
+              file=sys.stderr)
     for t, tpl in sorted(ts.templates.items()):
         how = "transport" if tpl.kind == "transport" else f"polynomial of degree {tpl.degree}"
         was = " (was re-learned per factor)" if t in before else ""

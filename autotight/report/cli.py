@@ -10,7 +10,7 @@ from pathlib import Path
 from typing import Any, Callable
 
 from ..extras import require
-from ..cli_checks import check_solver, nonneg_int
+from ..cli_checks import check_solver, nonneg_int, pos_int
 from ..io import jsonable
 from ..limits import check_count, check_size
 from ..problem import load, parse_assignments
@@ -43,7 +43,8 @@ def register(sub: Any, add_problem_args: Callable[[argparse.ArgumentParser], Non
                    help=f"constraint sets, a subset of {','.join(SETS)} "
                         "(default: primary, plus paper if the problem has paper families); file:PATH: a saved "
                         "constraint set (`discover --out`) as the discovered set")
-    p.add_argument("--jobs", "-j", type=int, default=None, help="local worker processes (default: all cores)")
+    p.add_argument("--jobs", "-j", type=pos_int, default=None,
+                   help="local worker processes (default: all cores; at most the cores and the trials to compute)")
     p.add_argument("--scheduler", metavar="ADDRESS", default=None,
                    help="run on a Dask distributed cluster at this scheduler address (e.g. tcp://host:8786)")
     p.add_argument("--out", metavar="DIR", default=None,
@@ -51,7 +52,7 @@ def register(sub: Any, add_problem_args: Callable[[argparse.ArgumentParser], Non
                         "sweep or files no report wrote is refused)")
     p.add_argument("--discovered", metavar="FILE", default=None,
                    help="a saved discovered-set JSON for the 'discovered' set (default: run discovery)")
-    p.add_argument("--limit", type=int, default=None, metavar="N",
+    p.add_argument("--limit", type=nonneg_int, default=None, metavar="N",
                    help="compute at most N missing trials now (the rest on a later run)")
     p.add_argument("--redo", metavar="STATUSES", default=None,
                    help="re-run the saved trials where any solve ended with one of these comma-separated "
@@ -88,8 +89,17 @@ def cmd_report(args: argparse.Namespace) -> int:
     fixed = prob.parse_params(spec.params)  # σ at its default
     check_count(prob, fixed, f"--trials {spec.trials}", spec.trials * len(spec.sigmas), per_item=2,
                 what=f"trials ({len(spec.sigmas)} noise levels)")
+    if args.discovered is not None and "discovered" not in spec.sets:
+        raise ReportError(f"--discovered {args.discovered}: the sweep has no 'discovered' set; add it to --sets "
+                          f"(e.g. --sets {','.join(spec.sets)},discovered)")
     out = Path(args.out) if args.out else Path("out") / prob.name
     jobs = _cores() if args.jobs is None else args.jobs
+    most = max(1, min(_cores(), len(spec.tasks()) if args.limit is None else max(args.limit, 1)))
+    if jobs > most:
+        if args.jobs is not None:
+            print(f"autotight: note: --jobs {args.jobs} capped at {most} (the cores here and the trials to compute)",
+                  file=sys.stderr)
+        jobs = most
     redo = [x.strip() for x in args.redo.split(",") if x.strip()] if args.redo is not None else []
     if args.redo is not None and not redo:
         raise ReportError("--redo '': give solver statuses, e.g. --redo NumericalError,InsufficientProgress")

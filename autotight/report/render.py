@@ -263,10 +263,11 @@ def paper_table(df: pd.DataFrame, sigmas: Sequence[float], claim: dict[str, Any]
 def _claim(meta: dict[str, Any]) -> dict[str, Any] | None:
     """The problem module's ``PAPER_CLAIM``, or None (no such attribute, or the module no longer loads)."""
     from ..errors import AutotightError
+    from ..module_parts import paper_claim
     from ..problem import load
 
     try:
-        return getattr(load(meta.get("source") or meta["problem"]).module, "PAPER_CLAIM", None)
+        return paper_claim(load(meta.get("source") or meta["problem"]))
     except AutotightError:
         return None
 

@@ -108,7 +108,9 @@ def trial_seeds(seed: int, sigma_index: int, trial: int) -> tuple[int, np.random
 
 def default_sigmas(problem: Problem) -> tuple[float, ...]:
     """The module's ``SIGMAS`` if it defines them, else 7 log-spaced levels over 1e-3 … 1."""
-    return tuple(float(s) for s in getattr(problem.module, "SIGMAS", DEFAULT_SIGMAS))
+    from .. import module_parts
+
+    return module_parts.sigmas(problem, DEFAULT_SIGMAS)
 
 
 def parse_sigmas(problem: Problem, text: str | Sequence[float] | None) -> tuple[float, ...]:
@@ -174,8 +176,11 @@ def make_spec(problem: Problem, source: str, params: dict[str, Any] | None = Non
               sets: str | Sequence[str] | None = None, seed: int = 0, discovered: str | None = None,
               **kw: Any) -> SweepSpec:
     """A validated sweep; ``sets`` defaults to primary plus paper when the problem has paper families."""
+    from .. import module_parts
+
     params = dict(params or {})
     require_sigma(problem)
+    module_parts.paper_claim(problem)  # a malformed claim is refused before the sweep, not after it
     if "sigma" in params:
         raise ReportError("sigma is swept by the report; give the noise levels with --sigmas")
     if trials < 1:

@@ -30,6 +30,8 @@ META_NAME = "meta.json"
 SETTING_DEFAULTS: dict[str, Any] = {"decompose": False}
 #: files a report writes besides meta.json (a folder holding one of them without meta.json is refused)
 OUTPUTS = (CSV_NAME, "report.md", "report.html", "trapped.png", "log_svr.png", "tight.png", "times.png")
+#: every name a report folder may hold before its meta.json exists (an interrupted first run, a discovered set)
+OWN_FILES = (META_NAME, *OUTPUTS, "discovered.json", ".lock")
 REPORT_TITLE = "# Tightness report"
 #: the statuses a solve can end with (Clarabel's, which the IPM and the cvxpy path map to), for --redo
 STATUSES = ("Solved", "AlmostSolved", "MaxIterations", "MaxTime", "NumericalError", "InsufficientProgress",
@@ -90,6 +92,11 @@ class Store:
             if foreign:
                 raise ReportError(f"{self.out / foreign[0]} exists without {META_NAME}; cannot check its settings — "
                                   "use another --out or remove it")
+            unrelated = sorted(p.name for p in self.out.iterdir() if p.name not in OWN_FILES
+                               and not (p.name.startswith(".") and p.name.endswith(".tmp")))
+            if unrelated:
+                raise ReportError(f"{self.out} holds files no report wrote ({', '.join(unrelated[:3])}"
+                                  f"{', …' if len(unrelated) > 3 else ''}); use an empty or new folder for --out")
             return
         self._compare(meta, _norm(identity))
 
@@ -156,11 +163,11 @@ class Store:
         if not isinstance(old, list) or old == self.columns or not _subsequence(old, self.columns):
             return []
         if self.csv.exists() and self.csv.stat().st_size:
-            lines = self.csv.read_text(encoding="utf-8").split("\n")
-            if next(csv.reader([lines[0]])) != old:
+            lines = self._lines()
+            if _row(lines[0]) != old:
                 return []  # not what meta.json says: left to the column check
             at = [old.index(c) if c in old else -1 for c in self.columns]
-            body = [r for r in (next(csv.reader([ln]), []) for ln in lines[1:] if ln) if len(r) == len(old)]
+            body = [r for r in (_row(ln) for ln in lines[1:] if ln) if len(r) == len(old)]
             self._rewrite([[r[i] if i >= 0 else "" for i in at] for r in body])
         meta["columns"] = list(self.columns)
         self._write_meta(meta)
@@ -192,24 +199,32 @@ class Store:
             with writing(self.csv):
                 atomic_write_text(self.csv, header_line)
             return []
-        text = self.csv.read_text(encoding="utf-8")
-        lines = text.split("\n")
+        lines = self._lines()
         damaged = lines[-1] != ""  # a torn last line has no newline
         lines = lines[:-1]
         if not lines:
             with writing(self.csv):
                 atomic_write_text(self.csv, header_line)
             return []
-        header = next(csv.reader([lines[0]]))
+        header = _row(lines[0])
         if header != self.columns:
             raise ReportError(f"{self.csv} has other columns than this sweep writes; use another --out")
-        parsed = [next(csv.reader([ln]), []) for ln in lines[1:]]
+        parsed = [_row(ln) for ln in lines[1:]]  # a line with bad bytes parses to [] and is dropped
         good = [r for r in parsed if len(r) == len(self.columns)]
         damaged |= len(good) != len(parsed)
         kept = self._complete(good)
         if damaged or len(kept) != len(good):
             self._rewrite(kept)
         return kept
+
+    def _lines(self) -> list[str]:
+        """The CSV's lines (the last is "" when the file ends with a newline); bytes that are not UTF-8
+        become U+FFFD, so the line holding them is dropped as damaged (``_row``)."""
+        try:
+            data = self.csv.read_bytes()
+        except OSError as e:
+            raise ReportError(f"cannot read {self.csv}: {e.strerror or e}") from None
+        return data.decode("utf-8", errors="replace").split("\n")
 
     def _complete(self, rows: list[list[str]]) -> list[list[str]]:
         """Rows of trials that have exactly one row per set (first occurrence of each trial kept)."""
@@ -274,6 +289,16 @@ class Store:
         order = sorted(rows, key=lambda r: (int(r[ii]), int(r[it]), self.sets.index(r[iset])))
         if order != rows:
             self._rewrite(order)
+
+
+def _row(line: str) -> list[str]:
+    """One CSV line's fields; [] for a line holding bytes that were not UTF-8 or a NUL (a damaged line)."""
+    if "\ufffd" in line or "\x00" in line:
+        return []
+    try:
+        return next(csv.reader([line]), [])
+    except csv.Error:
+        return []
 
 
 def load_trials(out: str | Path, trials: int | None = None) -> pd.DataFrame:
