@@ -35,7 +35,7 @@ LOOSE_K = 17
 
 
 def _instance(seed: int, **params):
-    """An instance of issue 4's setting (preset long_horizon: Δt = 1, random-walk twist), on which
+    """An instance of the long-horizon setting (preset long_horizon: Δt = 1, random-walk twist), on which
     the structural tests and the tightness boundary below were measured, with ϖ marginalised (the
     paper's SDP), unless params say otherwise."""
     return PROB.generate({"preset": "long_horizon", "marginalize": True, **params}, seed)
@@ -470,7 +470,7 @@ def test_marginal_log_svr_of_the_kept_solve_matches_the_marginalised_sdp(seed, s
     marg, marg_cost, kept, kept_cost = _marginal_svrs(seed, True, sigma=sigma)
     assert marg > 5 and kept > 5, (marg, kept)
     assert abs(kept - marg) <= MARGINAL_SVR_ATOL, (marg, kept)
-    # unscaled solves at σ = 0.01 agree to 1.4e-5 only (ξ_k blocks are σ² below the rest: issue 14)
+    # unscaled solves at σ = 0.01 agree to 1.4e-5 only (ξ_k blocks are σ² below the rest)
     assert abs(kept_cost - marg_cost) <= 5e-5 * marg_cost
 
 

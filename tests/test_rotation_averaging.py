@@ -1,4 +1,4 @@
-"""Rotation averaging (paper §3.1) end to end: issue 2's acceptance tests.
+"""Rotation averaging (paper §3.1) end to end.
 
 Tolerances and what they mean:
 - constraint residuals: |⟨A,X⟩ − b| / (‖A‖_F ‖X‖_F) ≤ 1e-10 (rounding gives ~1e-16);
