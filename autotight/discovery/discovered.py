@@ -173,17 +173,18 @@ class DiscoveredSet:
              extra: dict[str, Any] | None = None, problem: Problem | None = None) -> None:
         """Write format 2; learns the templates first when they are missing (``problem``: default, the
         problem module named by the set)."""
-        if self.templates is None:
+        templates = self.templates
+        if templates is None:
             from ..problem import load
 
-            self.template_set(problem or load(self.problem))
+            templates = self.template_set(problem or load(self.problem))
         obj: dict[str, Any] = {
             "format": FORMAT, "problem": self.problem, "params": self.params, "seed": self.seed,
             "versions": versions(), "learn_options": self.learn_options, "groups": self.groups,
             "pairs": [{"factor_type": t, "identity": i} for t, i in self.pairs], "info": self.info,
             "convention": CONVENTION,
         }
-        obj |= self.templates.record()
+        obj |= templates.record()
         if model is not None:
             obj["variables"] = variables_record(model)
             obj["d"] = model.d

@@ -5,7 +5,7 @@ from __future__ import annotations
 import hashlib
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable, Sequence
+from typing import AbstractSet, Any, Callable, Sequence
 
 from tqdm import tqdm
 
@@ -107,7 +107,7 @@ def run_sweep(spec: SweepSpec, out: str | Path, *, jobs: int = 1, scheduler: Any
         raise
 
 
-def check_redo(redo: Sequence[str], saved: set[str] = frozenset()) -> None:
+def check_redo(redo: Sequence[str], saved: AbstractSet[str] = frozenset()) -> None:
     """Every ``--redo`` entry is a solver status, a status saved in the folder, or "Error" (every failed trial)."""
     bad = [r for r in redo if r not in STATUSES and r != "Error" and r not in saved]
     if bad:
