@@ -749,8 +749,7 @@ def recover(inst: Instance, Theta: np.ndarray) -> dict:
 def errors(inst: Instance, state: dict) -> dict:
     """Largest rotation error (deg), RMS translation error and RMS twist error against the truth."""
     T, Tt = np.asarray(state["T"]), inst.truth["T"]
-    ang = [np.degrees(np.arccos(np.clip((np.trace(a[:3, :3] @ b[:3, :3].T) - 1) / 2, -1, 1))) for a, b in zip(T, Tt)]
-    out = {"rotation_deg_max": float(np.max(ang)),
+    out = {"rotation_deg_max": lie.rotation_error_deg(T[:, :3, :3], Tt[:, :3, :3]),
            "translation_rms": float(np.sqrt(np.mean(np.sum((T[:, :3, 3] - Tt[:, :3, 3]) ** 2, axis=1))))}
     if "w" in state:
         out["twist_rms"] = float(np.sqrt(np.mean(np.sum((np.asarray(state["w"]) - inst.truth["w"]) ** 2, axis=1))))

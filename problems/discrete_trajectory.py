@@ -282,7 +282,5 @@ def recover(inst: Instance, Theta: np.ndarray) -> dict:
 
 def errors(inst: Instance, state: dict) -> dict:
     """Largest rotation error (deg) and largest translation error ‖r_k − r_k,true‖ over the trajectory."""
-    Rs = np.einsum("kij,klj->kil", state["C"], inst.truth["C"])
-    ang = np.degrees(np.arccos(np.clip((np.trace(Rs, axis1=1, axis2=2) - 1) / 2, -1, 1)))
-    return {"rotation_deg": float(ang.max()),
+    return {"rotation_deg": lie.rotation_error_deg(state["C"], inst.truth["C"]),
             "translation": float(np.linalg.norm(state["r"] - inst.truth["r"], axis=1).max())}

@@ -408,8 +408,7 @@ def recover(inst: Instance, Theta: np.ndarray) -> dict:
 
 def errors(inst: Instance, state: dict) -> dict:
     """Rotation error (deg), translation error, and labels that differ from the generated ones."""
-    R = state["C"] @ inst.truth["C"].T
-    out = {"rotation_deg": float(np.degrees(np.arccos(np.clip((np.trace(R) - 1) / 2, -1, 1)))),
+    out = {"rotation_deg": lie.rotation_error_deg(state["C"], inst.truth["C"]),
            "translation": float(np.linalg.norm(state["r"] - inst.truth["r"]))}
     if "w" in state:
         out["labels_wrong"] = float(np.sum(np.asarray(state["w"]) != inst.truth["w"]))
