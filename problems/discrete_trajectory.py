@@ -60,7 +60,7 @@ PARAMS = {
 #: where a selection carries to any K (``autotight.discovery.carry``): plain ``discover -p K=5`` learns the
 #: candidates at K = 5, selects the set on chains of at least 20 poses over this noise range, and checks it on
 #: a chain of 200 poses per σ, tightening it where it breaks; with our IPM unless --solver is given.  Selected at
-#: K = 5 alone the set is one pair, tight at K = 30 but not at K = 100 (README, "Constraint-set files").
+#: K = 5 alone the set is one pair, tight at K = 30 but not at K = 100 (``docs/performance.md``).
 CARRY = {"at_least": {"K": 20}, "over": {"sigma": [0.001, 0.00316, 0.01, 0.0316, 0.1, 0.316]},
          "validate_at": {"K": 200}, "solver": "ipm"}
 

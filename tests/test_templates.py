@@ -125,7 +125,7 @@ def test_v1_file_loads(learned, tmp_path):
 
 def test_set_from_size5_applied_at_size50(learned):
     """Pose averaging: tight at M = 50 on two seeds.  Discrete trajectory: the K = 5 set (one R2-like pair)
-    is applied at K = 50 (50 valid constraints); it is not tight there (README "Constraint-set files")."""
+    is applied at K = 50 (50 valid constraints); it is not tight there (docs/performance.md)."""
     prob, params, ts, pair = learned
     cs = ConstraintSet(DiscoveredSet(prob.name, params, 0, [pair], templates=ts))
     size = "K" if "K" in params else "M"

@@ -1,6 +1,6 @@
 """A discovered set: (factor type, identity) pairs that carry over to any instance, saved as JSON.
 
-Format 2 (``autotight.constraint_set/2``, see README "Constraint-set files") is self-contained: the
+Format 2 (``autotight.constraint_set/2``, see ``docs/constraint_sets.md``) is self-contained: the
 problem and its parameters, the pairs, their templates (``templates``: coefficients as polynomials in a
 factor's measurement entries) or, for factor types without one, the reason and the settings to re-learn
 them per factor, the variable order with each block's size, offset and the factor roles it plays, the
