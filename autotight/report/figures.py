@@ -16,6 +16,7 @@ from matplotlib.axes import Axes
 from matplotlib.figure import Figure
 
 from ..outpaths import writing
+from .store import solved_rows
 
 COLORS = {"primary": "tab:blue", "paper": "tab:orange", "discovered": "tab:green"}
 LOG_SVR_CAP = 16.0
@@ -67,7 +68,7 @@ def _save(fig: Figure, path: Path) -> Path:
 
 def trapped(df: pd.DataFrame, sigmas: Sequence[float], path: Path, trap_rtol: float) -> Path:
     """Fraction of random-start local solves trapped above the global cost, with 95 % Wilson intervals."""
-    trials = _per_trial(df[~df["status"].astype(str).str.startswith("Error")])
+    trials = _per_trial(df[solved_rows(df)])
     fig, ax = _figure(5.6, 3.8)
     xs, p, lo, hi = [], [], [], []
     for i, s in enumerate(sigmas):
