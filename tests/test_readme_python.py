@@ -77,3 +77,10 @@ def test_toy_script_gives_the_readme_figures(capsys):
     assert figures["cost_primary"] < 1e-3 * figures["f_min"]  # the primary constraints alone: far below
     assert figures["cost_tight"] == pytest.approx(figures["f_min"], rel=1e-4)  # ac = b²: the global minimum
     assert figures["log_svr_tight"] > 5
+
+
+def test_performance_tables_are_those_the_results_give():
+    """docs/performance.md's tables are generated from benchmarks/results/*.json (a results file changed
+    without `python benchmarks/performance_table.py` fails here)."""
+    table = runpy.run_path(str(ROOT / "benchmarks" / "performance_table.py"))
+    assert table["main"](["--check"]) == 0
