@@ -1,6 +1,6 @@
 """autotight: find the redundant constraints that make Shor's SDP relaxation tight.
 
-The public API (see README, "Python"):
+The public API (see ``docs/api.md``):
 
 >>> import autotight as at
 >>> result = at.discover("pose_averaging", {"M": 5})                # learn, tighten, reduce, check

@@ -231,7 +231,7 @@ def trace_bound(Q: sp.sparray, As: Sequence[sp.sparray], b: np.ndarray, f_bar: f
                 Auu, Aub, Abb = D[np.ix_(free, free)], D[np.ix_(free, ~free)], D[np.ix_(~free, ~free)]
                 w = np.linalg.eigvalsh(Auu)
                 a = w[0] if is_cost else max(w[0], -w[-1])
-                n_ub, n_bb = np.linalg.norm(Aub), np.linalg.norm(Abb)
+                n_ub, n_bb = float(np.linalg.norm(Aub)), float(np.linalg.norm(Abb))
             else:  # a large item (the cost): its definite part from its connected components
                 A = sp.csr_array(A)
                 Auu = sp.csr_array(A[U][:, U])
@@ -262,6 +262,8 @@ def _item_block(A: sp.csr_array | None, r: np.ndarray | None = None, c: np.ndarr
     if A is not None:
         A = sp.coo_array(A)
         r, c, v = A.row, A.col, A.data
+    if r is None or c is None or v is None:
+        raise ValueError("_item_block needs a matrix or its (r, c, v) triplets")
     sup = np.unique(np.concatenate([r, c]))
     if sup.size > 60:
         return sup, None

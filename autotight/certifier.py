@@ -48,7 +48,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, replace
-from typing import Sequence
+from typing import TYPE_CHECKING, Any, Sequence
 
 import numpy as np
 import scipy.sparse as sp
@@ -56,6 +56,9 @@ import scipy.sparse.linalg as spla
 
 from .certificate import Certificate, certificate, polish_dual, stack
 from .model import Constraint, Model
+
+if TYPE_CHECKING:
+    from .problem import LocalResult
 
 #: candidate growth factors of τ per Newton step (the largest whose step is long enough is taken)
 TAU_FACTORS = (1000.0, 300.0, 100.0, 30.0, 10.0, 5.0, 3.0, 2.0, 1.5, 1.0)
@@ -125,7 +128,7 @@ class _Newton:
         self.indices = r[self.order].astype(np.int32)
         self.indptr = np.concatenate([[0], np.cumsum(np.bincount(c, minlength=M + 1))]).astype(np.int32)
         self.diag_pos = np.flatnonzero(r == c)
-        self.solver = None
+        self.solver: Any = None  # a qdldl.Solver after the first factorisation
 
     def factor(self, hvals: np.ndarray, h: np.ndarray, hll: float, beta: float):
         """A solver for the Newton matrix with barrier Hessian (hvals on the Schur pattern, h the λ
@@ -209,9 +212,9 @@ def phase_one(prog, Th: np.ndarray, *, alpha: float = 1.0, target: float = 1e-6,
             status = f"breakdown: {e}"
             break
         # Newton direction for −τλ − Σ log det S̃ + penalty:  Δ = Δ₀ + τ Δ₁ (affine in τ)
-        e = np.zeros(M + 1)
-        e[-1] = 1.0
-        d1, d0 = solve(e), solve(-g)
+        e_last = np.zeros(M + 1)
+        e_last[-1] = 1.0
+        d1, d0 = solve(e_last), solve(-g)
         dw1, dl1, dw0, dl0 = d1[:M], d1[M], d0[:M], d0[M]
         if not dl1 > 0:
             status = "breakdown: the Newton system is not positive definite"
@@ -309,7 +312,7 @@ class CertifyRun:
     constraint_set: str
     constraints: list
     start: str
-    local: object
+    local: LocalResult
     certificate: Certificate
 
 

@@ -146,11 +146,11 @@ class SufficiencyReport:
         lines += ["", f"{'PASSED' if self.passed else 'FAILED'}: {sum(p.passed for p in self.points)} of "
                       f"{len(self.points)} points reach {self.min_fraction:g}; {self.n_solves} SDP solves, "
                       f"{self.time_s:.1f} s"]
-        bad = next((p for p in self.points if p.with_outcome("not tight")), None)
-        if bad is not None:
-            ps = " ".join(f"-p {k}={v}" for k, v in bad.params.items())
+        failing = next((p for p in self.points if p.with_outcome("not tight")), None)
+        if failing is not None:
+            ps = " ".join(f"-p {k}={v}" for k, v in failing.params.items())
             cs = self.constraint_set if self.constraint_set in ("paper", "primary") else "FILE"
-            seed = bad.with_outcome('not tight')[0][0]
+            seed = failing.with_outcome('not tight')[0][0]
             lines.append(f"re-run one: autotight solve {self.problem} {ps} --seed {seed} "
                          f"--set {cs}")
         return "\n".join(lines)

@@ -40,7 +40,7 @@ def _add_problem_args(p: argparse.ArgumentParser) -> None:
 
 
 def cmd_list(args: argparse.Namespace) -> int:
-    rows = []
+    rows: list[dict[str, Any]] = []
     for name in available():
         prob = load(name)
         params = {k: {"default": p.default, "help": p.help} for k, p in prob.params.items()}

@@ -32,8 +32,8 @@ class ConstraintSet:
     """A learned constraint set: ``(factor type, identity)`` pairs of one problem.
 
     ``discovered`` is the saved form (``autotight.discovery.DiscoveredSet``); ``apply`` re-creates
-    the constraints on any instance of the problem.  ``save``/``load`` use JSON (see README,
-    "Constraint-set files").
+    the constraints on any instance of the problem.  ``save``/``load`` use JSON (see
+    ``docs/constraint_sets.md``).
     """
 
     discovered: Any  # autotight.discovery.DiscoveredSet (imported lazily: discovery imports this module's users)

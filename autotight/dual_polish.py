@@ -100,7 +100,7 @@ def polished(Q, constraints: Sequence[Constraint], res: SDPResult, theta_hat: np
         return res, None
     Th = np.asarray(theta_hat, dtype=float).reshape(d, -1)
     cert = certificate(Q, constraints, res.y, Th, d=d, tol=tol, floor=floor)
-    if not res.usable:
+    if not res.usable or res.X is None:
         return res, cert
     As, _ = stack(constraints)
     y, steps = res.y, []
@@ -110,7 +110,7 @@ def polished(Q, constraints: Sequence[Constraint], res: SDPResult, theta_hat: np
         # the trace bound depends on the data and x̂ only, not on y: computed once (8 s at discrete K = 1000)
         cert2 = certificate(Q, constraints, y2, Th, d=d, tol=tol, floor=floor, trace=cert.trace,
                             method="given y, polished")
-        trX = float(res.X.trace())
+        trX = float(res.X.trace())  # res.usable: X is there
         contradicts = cert.dual_value > cert.cost  # bᵀy above f(x̂): y is infeasible by at least that much
         better = (lower_bound(cert2, trX) > lower_bound(cert, trX)
                   or (contradicts and cert2.lambda_min >= cert.lambda_min))

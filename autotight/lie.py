@@ -193,7 +193,7 @@ def _cond(A: np.ndarray) -> float:
 def _check_cayley_invertible(C: np.ndarray) -> None:
     cond = _cond(C + np.eye(3))
     if cond > CAYLEY_COND_MAX:
-        angle = np.arccos(np.clip(0.5 * (np.trace(C) - 1.0), -1.0, 1.0))
+        angle = np.radians(rotation_error_deg(C, np.eye(3)))
         raise CayleySingularityError(
             f"Cayley map is singular: rotation angle is {angle:.6f} ≈ π (C + I is singular, "
             f"cond={cond:.3g} > {CAYLEY_COND_MAX:.0e}); re-choose the reference/nominal rotation"
@@ -525,3 +525,20 @@ def project_to_se3(T: np.ndarray) -> np.ndarray:
     if T.shape not in ((3, 4), (4, 4)):
         raise ValueError(f"T must have shape (4, 4) or (3, 4), got {T.shape}")
     return make_pose(project_to_so3(T[:3, :3]), T[:3, 3])
+
+
+def rotation_error_deg(C: np.ndarray, C_ref: np.ndarray) -> float:
+    """Rotation error in degrees: the angle θ of R = C C_refᵀ, the largest over a stack.
+
+    C, C_ref: rotations of the same shape, (d, d) or a stack (…, d, d), d ∈ {2, 3}.
+    θ = atan2(‖R − Rᵀ‖_F / (2√2), (tr R − (d − 2)) / 2) ∈ [0°, 180°]: exact for a rotation at every
+    angle (the arccos of the trace alone loses half the digits near 0 and π).  ValueError on bad shapes.
+    """
+    C, C_ref = np.asarray(C, dtype=float), np.asarray(C_ref, dtype=float)
+    if C.shape != C_ref.shape or C.ndim < 2 or C.shape[-1] != C.shape[-2] or C.shape[-1] not in (2, 3):
+        raise ValueError(f"rotation_error_deg needs two (…, d, d) stacks of equal shape with d in (2, 3), "
+                         f"got {C.shape} and {C_ref.shape}")
+    R = C @ np.swapaxes(C_ref, -1, -2)
+    cos = (np.trace(R, axis1=-2, axis2=-1) - (R.shape[-1] - 2)) / 2
+    sin = np.linalg.norm(R - np.swapaxes(R, -1, -2), axis=(-2, -1)) / (2 * np.sqrt(2))
+    return float(np.degrees(np.arctan2(sin, cos)).max())

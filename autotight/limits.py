@@ -25,7 +25,7 @@ from __future__ import annotations
 import os
 import time
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Sequence
 
 import numpy as np
 import scipy.sparse as sp
@@ -73,7 +73,7 @@ def _measure(problem: Any, params: dict[str, Any]) -> tuple[int, int]:
     return model.variables.N, nnz
 
 
-def _extrapolate(xs: list[float], ys: list[float], x: float) -> float:
+def _extrapolate(xs: Sequence[float], ys: Sequence[float], x: float) -> float:
     """The quadratic through (xs, ys) at x, its curvature clipped at 0 (growth at least linear)."""
     a2, a1, a0 = np.polyfit(np.asarray(xs, float), np.asarray(ys, float), 2)
     if a2 < 0:

@@ -78,7 +78,7 @@ def polynomial(A: sp.spmatrix | sp.sparray, V: Variables, b: float = 0.0, tol: f
                 continue
             if a == HOMOGENISING and V.d == 1:
                 for k in np.flatnonzero(np.abs(M[0]) > tol * scale):
-                    terms.append((M[0, k], _elem(b_, k, nb)))
+                    terms.append((M[0, k], _elem(b_, int(k), nb)))
                 continue
             if na == nb and na > 1 and np.allclose(M, M[0, 0] * np.eye(na), atol=tol * scale):
                 terms.append((M[0, 0], f"{symbol(a)}ᵀ{symbol(b_)}" if a != b_ else f"{symbol(a)}ᵀ{symbol(a)}"))

@@ -63,6 +63,7 @@ from typing import Any, Callable
 import numpy as np
 
 from .errors import AutotightError, ParameterError, ProblemDefinitionError, ProblemModuleError
+from .lie import rotation_error_deg
 from .model import Model, Variables
 
 State = dict[str, np.ndarray]
@@ -390,13 +391,6 @@ def _poses(a: np.ndarray) -> bool:
     return bool(np.allclose(a[..., k, :], last) and _rotations(a[..., :k, :k]))
 
 
-def _angle_deg(R: np.ndarray) -> float:
-    k = R.shape[0]
-    cos = (np.trace(R) - (k - 2)) / 2
-    sin = np.linalg.norm(R - R.T) / (2 * np.sqrt(2))
-    return float(np.degrees(np.arctan2(sin, cos)))
-
-
 def _rms(diff: np.ndarray) -> float:
     """RMS over the leading axis of the norm over the rest; the plain norm for a vector or scalar."""
     if diff.ndim <= 1:
@@ -422,13 +416,11 @@ def default_errors(state: State, truth: State) -> dict[str, float]:
         if s.shape != t.shape:
             continue
         if _rotations(t):
-            k = t.shape[-1]
-            pairs = zip(s.reshape(-1, k, k), t.reshape(-1, k, k))
-            out[f"{key}_deg"] = max(_angle_deg(a @ b.T) for a, b in pairs)
+            out[f"{key}_deg"] = rotation_error_deg(s, t)
         elif _poses(t):
             k = t.shape[-1] - 1
             S, Tt = s.reshape(-1, k + 1, k + 1), t.reshape(-1, k + 1, k + 1)
-            out[f"{key}_rotation_deg"] = max(_angle_deg(a[:k, :k] @ b[:k, :k].T) for a, b in zip(S, Tt))
+            out[f"{key}_rotation_deg"] = rotation_error_deg(S[:, :k, :k], Tt[:, :k, :k])
             out[f"{key}_translation"] = _rms(S[:, :k, k] - Tt[:, :k, k])
         else:
             out[f"{key}_err"] = _rms(s - t)

@@ -161,6 +161,8 @@ def scaled_frame(acc: Accuracy, res: SDPResult, Q, constraints: Sequence, D: np.
     from .certificate import dual_matrix, lambda_min, stack
     from .sdp import congruence
 
+    if res.X is None or res.y is None:  # no solution: nothing to re-bound
+        return acc
     D = np.asarray(D, float)
     As, _ = stack(constraints)
     lam_lo = lambda_min(congruence(sp.coo_array(dual_matrix(Q, As, res.y)), D))[1]
@@ -207,7 +209,8 @@ def judge(res: SDPResult, upper: float, criteria: Criteria = Criteria(), certifi
     """
     acc = accuracy(res, Q, constraints, None if certificate is None else certificate.lambda_lower)
     cost_outcome, L, tol, why = bracket(res, upper, criteria, acc)
-    if cost_outcome == UNDECIDED and scale is not None and acc.from_residuals and acc.dual_correction > 0:
+    if (cost_outcome == UNDECIDED and scale is not None and constraints is not None and acc.from_residuals
+            and acc.dual_correction > 0):
         acc = scaled_frame(acc, res, Q, constraints, scale)
         if acc.frame == "scaled":
             cost_outcome, L, tol, why = bracket(res, upper, criteria, acc)

@@ -82,13 +82,6 @@ def project_rotation(M: np.ndarray) -> np.ndarray:
     return (U * D) @ Vt
 
 
-def rotation_angle_deg(C: np.ndarray) -> float:
-    """Angle θ of a rotation in degrees: cos θ = (tr C − (d − 2))/2, sin θ = ‖C − Cᵀ‖_F/(2√2)."""
-    cos = (np.trace(C) - (C.shape[0] - 2)) / 2
-    sin = np.linalg.norm(C - C.T) / (2 * np.sqrt(2))
-    return float(np.degrees(np.arctan2(sin, cos)))
-
-
 # ----------------------------------------------------------------------------- liftings
 
 
@@ -397,7 +390,7 @@ def random_state(rng: np.random.Generator, truth: dict, scale: float) -> dict:
 def state_errors(state: dict, truth: dict) -> dict[str, float]:
     """Largest rotation error (deg), RMS position error, RMS landmark error (when present)."""
     C, Ct = np.asarray(state["C"]), np.asarray(truth["C"])
-    out = {"rotation_deg": max(rotation_angle_deg(c @ t.T) for c, t in zip(C, Ct)),
+    out = {"rotation_deg": lie.rotation_error_deg(C, Ct),
            "position": float(np.sqrt(np.mean(np.sum((np.asarray(state["r"]) - truth["r"]) ** 2, axis=1))))}
     if "l" in truth:
         out["landmark"] = float(np.sqrt(np.mean(np.sum((np.asarray(state["l"]) - truth["l"]) ** 2, axis=1))))

@@ -12,23 +12,11 @@ Lifting x = [h, (c_{k,1}, c_{k,2}, c_{k,3}, r_k)_k, (ρ_k, φ_k)_{measured k}, (
 and, when ``marginalize`` is False (the default), also ϖ_k (6 each).  With ``marginalize`` (the paper's SDP)
 ϖ is removed by the Schur complement: ``Model.cost`` = Q_xx − Q_xw Q_ww⁻¹ Q_wx, so ⟨Q, xxᵀ⟩ is the
 cost minimised over ϖ (h stays in x: the ϖ₀ prior gives linear terms; the constant sits on h²), and
-ϖ* = −Q_ww⁻¹ Q_wx x* is recovered after the solve.
-
-The Schur complement does *not* keep the chain sparsity: Q_ww⁻¹ is dense, so the cost couples h and
-every ξ_{k+1,k} with every other (by 2 − √3 ≈ 0.27 less per step for uniform Δt, never zero).
-With Q_c diagonal it couples only equal components, so entry by entry it is 6 dense (K−1)-cliques,
-which Clarabel's own (entry-level) chordal decomposition finds; any block-level cover needs one bag
-with h and every motion block (``marginalized_cliques``, largest bag 25 + 6(K−1)), which makes the
-clique-decomposed SDP far slower than Clarabel's own (K = 11: 49 s against 4.7 s; at K = 21 its
-dense cone blocks alone need 1.5 GB).  So ``Model.cliques`` is None when marginalising, and the
-chain {h, pose k, pose k+1, ξ_{k+1,k}, ϖ_k, ϖ_{k+1}} when ϖ is kept.  Both SDPs have the same
-optimum: with Q_ww ≻ 0, ⟨Q_full, X⟩ minimised over the ϖ rows and columns of X ⪰ 0 is ⟨S, X_xx⟩.
-So keeping ϖ and solving on a clique cover is the fast way to the marginalised SDP's answer, and it
-is the default: ``marginalize=False``, and the model advises the SDP layer to decompose
-(``Model.decompose``), which Clarabel then does on our cover unless ``--solver``/``--decompose`` say
-otherwise.  K = 21, σ = 0.001 / 0.1 / 1 on a quiet machine: 7 / 11 / 13 s on our cover, 31 / 55 / 43 s
-with Clarabel's own chordal decomposition of the same SDP, 104 / 150 / 149 s (2 GB) for the
-marginalised SDP (``autotight solve continuous_trajectory -p sigma=… [-p marginalize=true]``).
+ϖ* = −Q_ww⁻¹ Q_wx x* is recovered after the solve.  Both SDPs have the same optimum (with Q_ww ≻ 0,
+⟨Q_full, X⟩ minimised over the ϖ rows and columns of X ⪰ 0 is ⟨S, X_xx⟩), but only the ϖ-kept one
+keeps the chain sparsity, so ``Model.cliques`` is the chain {h, pose k, pose k+1, ξ_{k+1,k}, ϖ_k,
+ϖ_{k+1}} when ϖ is kept (and the model advises the SDP layer to decompose, ``Model.decompose``) and
+None when marginalising.
 
 Factors: "so3" per pose (orthonormality), "pose_meas" {h, C_k, r_k, ξ_k} per measured k (the 12
 Cayley rows of (I − ½ξ_k^∧) T_k = (I + ½ξ_k^∧) T̃_k), "motion" {h, pose k, pose k+1, ξ_{k+1,k}}
@@ -36,35 +24,20 @@ Cayley rows of (I − ½ξ_k^∧) T_k = (I + ½ξ_k^∧) T̃_k), "motion" {h, po
 r̃ = 0).  Paper families (notes §4): R1, R2, R4, R5, R7 per measured k; R3, R6, R8 per k < K−1.
 R7 uses c_ℓ × c_m = c_n, so it holds on SO(3) only, not on O(3).
 
-Settings (``preset``).  The paper (§5, Figs. 10–11) states K = 21, pose measurements at the start,
-middle and end, W_k = I/σ² and the σ range, and that every trial at a noise level uses "the geometry
-of the trajectory as in the left example of Figure 10".  It does **not** state the time step Δt, the
-power spectral density Q_c, the trajectory itself (Fig. 10 is a picture), or the prior on the first
-twist (ϖ̌₁, Q₁).  What we chose, and why:
+Settings (``preset``): the paper states K = 21, measurements at the start, middle and end, W_k = I/σ²
+and one trajectory geometry per noise level, but not Δt, Q_c, the trajectory or the prior on the
+first twist.  ``preset=paper`` (the default): Δt = 0.1 s, Q_c = I, Q₁ = 0.1² I with ϖ̌₀ ~ N(ϖ₀, Q₁)
+per seed, and one fixed smooth arc (constant body twist 1 m/s forward and 0.3 rad/s of yaw); a seed
+changes only the measurement noise and ϖ̌₀.  ``preset=long_horizon``: Δt = 1 s and a random-walk twist
+(TWIST_WANDER) with a random start rotation, a new geometry per seed.  A preset fills dt, geometry,
+qc, prior_sigma and motion; any of them given explicitly wins.
 
-- ``preset=paper`` (the default): Δt = 0.1 s, Q_c = I, Q₁ = 0.1² I with ϖ̌₀ ~ N(ϖ₀, Q₁) per seed,
-  and one fixed smooth arc ("arc": constant body twist 1 m/s forward and 0.3 rad/s of yaw, a fixed
-  start rotation), so K = 21 spans 2 s, 2 m and 0.6 rad, 0.03 rad per step; a seed changes only the
-  measurement noise and ϖ̌₀, as in the paper's 100 trials on one geometry.  Why Δt = 0.1: tightness
-  of R1–R8 at K = 21 is decided by the motion per step against the prior's stiffness, not by Δt
-  itself (Δt = 0.1 with Q_c = I is exactly Δt = 1 with Q_c = 0.001 I, the twist × 0.1 and Q₁ × 0.01).
-  Measured in issue 18 (random-walk twist, σ = 0.1): tight on 0/5 seeds at Δt = 1, 2/3 at 0.5, 3/3
-  at 0.25, 8/8 at 0.1 (and 5/5 at σ = 0.316, 10/10 at σ = 1).  With this preset at K = 21
-  (benchmarks/results/continuous_k21.json, seeds 0–4 per σ): tight 5/5 at every σ from 0.001 to 0.1
-  and 4/5 at σ = 0.316 and at σ = 1, log SVR on the marginalised X 7.7–10.8 on the tight trials.  On
-  the boundary map (reports/continuous_boundary) Δt = 0.1 is the only time step tight at σ = 1 (Δt ≥
-  0.25 gives gaps of 11–25 % there, Δt = 1 fails from σ = 0.316), while per-step rotations up to
-  0.6 rad and q_c from 0.01 to 10 stay tight at σ ≤ 0.316: Δt = 0.1 is the choice the map supports.
-- ``preset=long_horizon``: issue 4's setting, Δt = 1 s (a 20 s horizon at K = 21, about 6 rad of yaw)
-  and a twist that wanders as a random walk (TWIST_WANDER) with a random start rotation, a new
-  geometry per seed.  R1–R8 are not tight there at K = 21 (and at K ≥ 17 on most seeds).
-A preset fills dt, geometry, qc, prior_sigma and motion; any of them given explicitly wins.
+Log SVR is reported as the paper does, on the marginalised X, whichever formulation was solved:
+``marginal_log_svr(instance, X, cliques)`` (``marginal_X``: the x-block of the ϖ-kept X; a
+clique-decomposed X is first completed from its clique blocks by the maximum-determinant completion,
+``complete_psd``).
 
-Log SVR as the paper reports it, on the marginalised X, whichever formulation was solved:
-``marginal_log_svr(instance, X, cliques)`` (``marginal_X``: the x-block of the ϖ-kept X, by the
-Schur-complement argument above; a clique-decomposed X is first completed from its clique blocks by
-the maximum-determinant completion, ``complete_psd``, not by rank-1 factors, which would hide rank).
-The minimum over clique blocks reads lower (issue 18: 6.21 against 6.84 on one instance).
+Why these choices, with the measurements behind them: ``docs/continuous_trajectory_notes.md``.
 """
 
 from __future__ import annotations
@@ -138,7 +111,7 @@ class PresetParam(Param):
 PRESETS: dict[str, dict[str, Any]] = {
     # the paper's Fig. 11: K = 21 states over a 2 s horizon, one fixed smooth arc (see the module docstring)
     "paper": {"dt": 0.1, "geometry": "arc", "qc": 1.0, "prior_sigma": 0.1, "motion": 1.0},
-    # issue 4's setting: a 20 s horizon (about 6 rad of yaw over K = 21) and a new random-walk twist per seed
+    # a 20 s horizon (about 6 rad of yaw over K = 21) and a new random-walk twist per seed
     "long_horizon": {"dt": 1.0, "geometry": "random_walk", "qc": 1.0, "prior_sigma": 0.1, "motion": 1.0},
 }
 
@@ -401,7 +374,7 @@ def block_scale(inst: Instance) -> np.ndarray:
     r_k: the RMS measured translation entry; ξ_k: σ (its noise); ξ_{k+1,k}: Δt_k × the RMS prior
     twist entry (ρ and φ apart), at least the process-noise std √(Δt³/3 · q_c); ϖ_k: the RMS prior
     twist entry, at least the prior std.  Without it the ξ_k blocks are σ² smaller than the rest and
-    the solver resolves them poorly at small σ (issue 14)."""
+    the solver resolves them poorly at small σ."""
     d = _data(inst)
     V = _variables(d, not d.marginalize)
     D = np.ones(V.N)
@@ -776,8 +749,7 @@ def recover(inst: Instance, Theta: np.ndarray) -> dict:
 def errors(inst: Instance, state: dict) -> dict:
     """Largest rotation error (deg), RMS translation error and RMS twist error against the truth."""
     T, Tt = np.asarray(state["T"]), inst.truth["T"]
-    ang = [np.degrees(np.arccos(np.clip((np.trace(a[:3, :3] @ b[:3, :3].T) - 1) / 2, -1, 1))) for a, b in zip(T, Tt)]
-    out = {"rotation_deg_max": float(np.max(ang)),
+    out = {"rotation_deg_max": lie.rotation_error_deg(T[:, :3, :3], Tt[:, :3, :3]),
            "translation_rms": float(np.sqrt(np.mean(np.sum((T[:, :3, 3] - Tt[:, :3, 3]) ** 2, axis=1))))}
     if "w" in state:
         out["twist_rms"] = float(np.sqrt(np.mean(np.sum((np.asarray(state["w"]) - inst.truth["w"]) ** 2, axis=1))))

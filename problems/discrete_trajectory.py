@@ -60,7 +60,7 @@ PARAMS = {
 #: where a selection carries to any K (``autotight.discovery.carry``): plain ``discover -p K=5`` learns the
 #: candidates at K = 5, selects the set on chains of at least 20 poses over this noise range, and checks it on
 #: a chain of 200 poses per σ, tightening it where it breaks; with our IPM unless --solver is given.  Selected at
-#: K = 5 alone the set is one pair, tight at K = 30 but not at K = 100 (README, "Constraint-set files").
+#: K = 5 alone the set is one pair, tight at K = 30 but not at K = 100 (``docs/performance.md``).
 CARRY = {"at_least": {"K": 20}, "over": {"sigma": [0.001, 0.00316, 0.01, 0.0316, 0.1, 0.316]},
          "validate_at": {"K": 200}, "solver": "ipm"}
 
@@ -282,7 +282,5 @@ def recover(inst: Instance, Theta: np.ndarray) -> dict:
 
 def errors(inst: Instance, state: dict) -> dict:
     """Largest rotation error (deg) and largest translation error ‖r_k − r_k,true‖ over the trajectory."""
-    Rs = np.einsum("kij,klj->kil", state["C"], inst.truth["C"])
-    ang = np.degrees(np.arccos(np.clip((np.trace(Rs, axis1=1, axis2=2) - 1) / 2, -1, 1)))
-    return {"rotation_deg": float(ang.max()),
+    return {"rotation_deg": lie.rotation_error_deg(state["C"], inst.truth["C"]),
             "translation": float(np.linalg.norm(state["r"] - inst.truth["r"], axis=1).max())}

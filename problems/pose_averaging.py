@@ -147,6 +147,5 @@ def recover(inst: Instance, Theta: np.ndarray) -> dict:
 
 def errors(inst: Instance, state: dict) -> dict:
     """Rotation error (deg) and translation error ‖r − r_true‖ against the ground truth."""
-    R = state["C"] @ inst.truth["C"].T
-    return {"rotation_deg": float(np.degrees(np.arccos(np.clip((np.trace(R) - 1) / 2, -1, 1)))),
+    return {"rotation_deg": lie.rotation_error_deg(state["C"], inst.truth["C"]),
             "translation": float(np.linalg.norm(state["r"] - inst.truth["r"]))}

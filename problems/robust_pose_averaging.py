@@ -24,7 +24,7 @@ Lifting.  The cost term w_m ξ_mᵀW_mξ_m is cubic.  Two liftings (parameter ``
   ``affine.cayley_rows(gate=…)``): ½(h + w_m)(c_i − c̃_i h) − ½ uφ_m × (c_i + c̃_i h) = 0 and
   ½(h + w_m)(r − r̃ h) − ½ uφ_m × (r + r̃ h) − uρ_m h = 0.  Exact: w_m = 1 makes them ξ_m's Cayley rows,
   w_m = −1 makes u_m = 0 and the rows vanish.
-- **product** (the issue's first form, AutoTight's rPPR style): z_m = w_m·ξ_m beside ξ_m,
+- **product** (the first form, AutoTight's rPPR style): z_m = w_m·ξ_m beside ξ_m,
   x = [h, C, r, (ρ_m, φ_m, w_m, zρ_m, zφ_m)_m] (n = 13 + 13M), xᵀQx = Σ_m (ξ_mᵀWξ_m + ξ_mᵀWz_m)/β² + h² − w_m h;
   primary: orthonormality, ξ_m's Cayley rows, w_m² = h², z_m·h = w_m·ξ_m.
 
@@ -408,8 +408,7 @@ def recover(inst: Instance, Theta: np.ndarray) -> dict:
 
 def errors(inst: Instance, state: dict) -> dict:
     """Rotation error (deg), translation error, and labels that differ from the generated ones."""
-    R = state["C"] @ inst.truth["C"].T
-    out = {"rotation_deg": float(np.degrees(np.arccos(np.clip((np.trace(R) - 1) / 2, -1, 1)))),
+    out = {"rotation_deg": lie.rotation_error_deg(state["C"], inst.truth["C"]),
            "translation": float(np.linalg.norm(state["r"] - inst.truth["r"]))}
     if "w" in state:
         out["labels_wrong"] = float(np.sum(np.asarray(state["w"]) != inst.truth["w"]))

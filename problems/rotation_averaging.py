@@ -123,5 +123,4 @@ def recover(inst: Instance, Theta: np.ndarray) -> dict:
 
 
 def errors(inst: Instance, state: dict) -> dict:
-    R = state["C"] @ inst.truth["C"].T
-    return {"rotation_deg": float(np.degrees(np.arccos(np.clip((np.trace(R) - 1) / 2, -1, 1))))}
+    return {"rotation_deg": lie.rotation_error_deg(state["C"], inst.truth["C"])}

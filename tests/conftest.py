@@ -37,6 +37,22 @@ def relative_violation():
 
 
 @pytest.fixture(scope="session")
+def lifted_violations():
+    """|xᵀAx − b| / (‖A‖_F ‖xxᵀ‖_F) of each constraint at lifted points: x (N,) → (m,); a stack of
+    samples (S, N) → (S, m) (one sparse product per constraint for the whole stack).  The same
+    Cauchy-Schwarz scale as ``relative_violation``: rounding alone gives ~1e-16."""
+
+    def f(constraints, x: np.ndarray) -> np.ndarray:
+        X = np.atleast_2d(np.asarray(x, dtype=float))
+        sq = np.einsum("sn,sn->s", X, X)
+        out = np.array([np.abs(np.einsum("sn,sn->s", X, (c.A @ X.T).T) - c.b) / (sparse_norm(c.A) * sq)
+                        for c in constraints]).T
+        return out.reshape(np.shape(x)[:-1] + (len(constraints),))
+
+    return f
+
+
+@pytest.fixture(scope="session")
 def factor_cliques():
     """Clique index sets of a model: one per factor, the factor's own blocks (each starts with h).
 

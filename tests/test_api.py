@@ -27,7 +27,7 @@ def test_a_valueerror_in_build_raises_with_its_traceback(tmp_path):
 
 @pytest.mark.slow
 def test_pose_averaging_paper_set_at_low_noise_is_tight_on_10_seeds():
-    """σ = 0.001 (issue 14): the paper's R1 + R2 are tight (or certified) on ≥ 98 % of instances, and
+    """σ = 0.001: the paper's R1 + R2 are tight (or certified) on ≥ 98 % of instances, and
     no instance is judged "not tight" (undecided verdicts are allowed and reported)."""
     rep = assert_sufficient("pose_averaging", "paper", sigmas=[0.001], instances=10, params={"M": 10},
                             min_fraction=0.98, n_random=0)

@@ -1,4 +1,4 @@
-"""Bad input through the command line (issue 15): one line ``autotight: error: …``, exit 2, nothing written.
+"""Bad input through the command line: one line ``autotight: error: …``, exit 2, nothing written.
 
 Every case runs the CLI in a process of its own.  Most cases share one driver subprocess that
 imports autotight once and forks a child per case (each child runs ``autotight.cli.main`` with

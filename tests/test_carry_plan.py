@@ -157,11 +157,11 @@ def test_a_carried_discovery_on_short_chains_is_tight_where_it_was_checked():
 
 @pytest.mark.parametrize("K, sigma", [(50, 0.1), (200, 0.316)])
 def test_the_committed_set_of_plain_discover_at_k5_is_tight_where_a_k20_selection_alone_breaks(K, sigma):
-    """benchmarks/results/scale_set_discrete_K5.json is the README's `autotight discover discrete_trajectory
+    """benchmarks/results/scale_set_discrete_K5.json is `autotight discover discrete_trajectory
     -p K=5 --out set.json`: learned at K = 5 (its templates, every one exact), selected on K = 20 over σ and
     checked at K = 200, as its file records.  It is tight on a fresh K = 50 chain at the default σ, and on a
     fresh K = 200 chain at σ = 0.316, where the set of one unary and four odometry pairs that the K = 20
-    selection alone returns is not (log SVR 1.4–1.6, README, Limits)."""
+    selection alone returns is not (log SVR 1.4–1.6, docs/performance.md, "Limits")."""
     from pathlib import Path
 
     path = Path(__file__).resolve().parent.parent / "benchmarks" / "results" / "scale_set_discrete_K5.json"

@@ -67,7 +67,7 @@ def test_api_start_state_and_errors():
     ("pose_averaging", {"M": 10}, 3, "paper"),
     ("pose_averaging", {"M": 10}, 0, "primary"),
     ("rotation_averaging", {"M": 10}, 1, "primary"),
-    ("discrete_trajectory", {"K": 10}, 4, "paper"),
+    ("discrete_trajectory", {"K": 6}, 4, "paper"),
 ])
 def test_agrees_with_full_sdp(name, params, seed, cons):
     """certify (no SDP) and autotight.solve (full SDP, bracket test) reach the same verdict."""

@@ -1,4 +1,4 @@
-"""Discovery on pose averaging and rotation averaging (issue 3 acceptance)."""
+"""Discovery on pose averaging and rotation averaging."""
 
 from __future__ import annotations
 

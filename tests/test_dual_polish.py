@@ -75,7 +75,7 @@ def test_pipeline_dual_never_above_the_best_feasible_cost_on_tight_instances():
     p = load("pose_averaging")
     for sigma in (0.001, 0.1):
         for seed in range(3):
-            r = solve_instance(p, p.generate({"M": 10, "sigma": sigma}, seed), "paper")
+            r = solve_instance(p, p.generate({"M": 5, "sigma": sigma}, seed), "paper")
             assert r.verdict.outcome == "tight", (sigma, seed, r.verdict.reason)
             assert r.sdp.dual_cost - r.upper <= 1e-9 * max(abs(r.upper), r.verdict.tolerance), (sigma, seed)
             if np.isfinite(r.sdp.dual_cost_raw):

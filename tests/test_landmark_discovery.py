@@ -1,4 +1,4 @@
-"""Discovery on the landmark problems where Shor with the primary constraints is not tight (issue 6).
+"""Discovery on the landmark problems where Shor with the primary constraints is not tight.
 
 Cases (landmark SLAM, K = L = 3, σ = 1; found with benchmarks/landmark_liftings.py, whose table is in
 reports/landmark_liftings/README.md):
@@ -10,7 +10,7 @@ reports/landmark_liftings/README.md):
   columns of Θ separates SO(3) from O(3)); discovery reports "not tightenable".  The vector lifting
   learns handedness constraints (c_a × c_b = c_c) and is tight.
 
-Held-out verification as in the discovery issue: the set is re-instantiated with
+Held-out verification as in discovery: the set is re-instantiated with
 DiscoveredSet.instantiate on fresh instances at the same parameters (seeds seed+1 … seed+10) and each
 is judged against its best local solution (truth + 2 random starts).  What we find at σ = 1: the
 irreducible set is specific to its learning instance (it cuts that instance's reflection), so on these

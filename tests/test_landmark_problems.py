@@ -1,4 +1,4 @@
-"""Landmark problems of the lifting appendix (issue 6): terms, constraints, local solver, Shor tightness.
+"""Landmark problems of the lifting appendix: terms, constraints, local solver, Shor tightness.
 
 Tolerances: costs are compared relative to the cost itself (floating-point sums, 1e-10); constraint
 values relative to 1 (their constants are O(1)); SDP costs to 2e-7·max|Q_ij|, because Clarabel solves

@@ -334,3 +334,20 @@ def test_batched_exp_and_inverse_cayley_equal_the_single_pose_ones() -> None:
         lie.cay_inv_se3_batch(flip)
     with pytest.raises(ValueError, match="finite"):
         lie.exp_se3_batch(np.full((2, 6), np.nan))
+
+
+@pytest.mark.parametrize("angle", [1e-9, 1e-4, 0.3, 2.0, np.pi - 1e-7])
+def test_rotation_error_deg_is_the_angle_of_the_relative_rotation(angle: float) -> None:
+    rng = np.random.default_rng(3)
+    C_ref = lie.random_rotation(rng)
+    axis = rng.standard_normal(3)
+    C = lie.rotation_from_axis_angle(axis / np.linalg.norm(axis), angle) @ C_ref
+    # relative accuracy near 0 and π, where the arccos of the trace alone loses half the digits
+    assert lie.rotation_error_deg(C, C_ref) == pytest.approx(np.degrees(angle), rel=1e-8)
+    # the largest over a stack; 2-D rotations as well
+    assert lie.rotation_error_deg(np.stack([C_ref, C]), np.stack([C_ref, C_ref])) == pytest.approx(np.degrees(angle),
+                                                                                                    rel=1e-8)
+    c, s = np.cos(angle), np.sin(angle)
+    assert lie.rotation_error_deg(np.array([[c, -s], [s, c]]), np.eye(2)) == pytest.approx(np.degrees(angle), rel=1e-8)
+    with pytest.raises(ValueError):
+        lie.rotation_error_deg(np.eye(3), np.eye(2))

@@ -4,7 +4,7 @@ Hand-built constraints on a vector lifting (d = 1) and a matrix lifting (d = 3):
 aᵀb, entry-wise terms with axis names, h·x as x and h² as a constant, coefficient formatting
 (a coefficient that prints as 1 is left out, 4 significant digits, small entries dropped), the
 sign "−" everywhere (also for a constant term alone and for the right-hand side), Greek names
-with subscripts, and names that merely start like a Greek letter's (issue 19: w_3 is not ϖ_3).
+with subscripts, and names that merely start like a Greek letter's (w_3 is not ϖ_3).
 """
 
 from __future__ import annotations
@@ -73,7 +73,7 @@ def test_matrix_lifting_d3():
 def test_greek_names_need_the_whole_name_or_a_subscript():
     assert [symbol(n) for n in ("rho_3", "phi", "xi12", "varpi_1", "theta_k_2", "ell")] == \
         ["ρ_3", "φ", "ξ12", "ϖ_1", "θ_k_2", "ℓ"]
-    # issue 19 item 7: a block that only starts with w (or with a Greek name) is not Greek
+    # a block that only starts with w (or with a Greek name) is not Greek
     assert [symbol(n) for n in ("w_3", "w", "weight", "phil_2", "rhox", "c1", "T3_r", "p0_c1")] == \
         ["w_3", "w", "weight", "phil_2", "rhox", "c1", "T3_r", "p0_c1"]
     assert p3(Q(V3).add("w_3", "varpi_1", -2.0)) == "−2 w_3·ϖ_1 = 0"

@@ -210,10 +210,10 @@ def test_learn_params_select_at_a_larger_size_what_was_learned_at_a_small_one(tm
 
 
 def test_the_committed_set_learned_at_k5_and_selected_at_k20_is_tight_at_k100():
-    """The README's discrete carry-over file (benchmarks/results/scale_set_discrete_learnK5.json: learned at
+    """The discrete carry-over file (benchmarks/results/scale_set_discrete_learnK5.json: learned at
     K = 5, selected over σ on K = 20 instances): its templates are those of K = 5, every template is
     exact (no per-factor fallback), and on a fresh K = 100 instance (5× the selection size) it is tight,
-    where the set selected at K = 5 alone is not (README, Limits)."""
+    where the set selected at K = 5 alone is not (docs/performance.md, "Limits")."""
     from pathlib import Path
 
     from autotight.problem import load

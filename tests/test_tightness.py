@@ -34,7 +34,7 @@ def test_cost_slack_rule():
     assert "solver accuracy 5.00e-05 > tolerance 1.00e-05 (U − D = 4.000e-05)" in v.reason
     # a gap far outside the accuracy is decided
     assert judge(_res(0.5, 0.5 - 1e-6), U, c).outcome == "not tight"
-    # a lower bound above a feasible point's cost beyond the accuracy is flagged, never "tight" (issue 15)
+    # a lower bound above a feasible point's cost beyond the accuracy is flagged, never "tight"
     v = judge(_res(1.2 + 1e-13, 1.2), U, c)
     assert v.outcome == "undecided" and "inconsistent solve" in v.reason
     # low rank alone: not tight for accept="rank", tight for accept="cost"

@@ -1,4 +1,4 @@
-"""Discovery on trajectories (issue 4): per-factor learning on the discrete trajectory is tight with no
+"""Discovery on trajectories: per-factor learning on the discrete trajectory is tight with no
 more constraints than the paper's, every discovered constraint vanishes on fresh feasible samples, the
 set carries over to a held-out instance; per-factor learning on the continuous-time problem yields
 constraints that hold on fresh samples."""

@@ -4,7 +4,7 @@ A set is learned once and applied to instances of any size by evaluating its tem
 carries: every identity of a factor type is found on one small instance.  *Selection* need not: a
 discrete trajectory of 5 poses is tight with one pair, which is not tight at K = 100, and no selection
 on 5-pose chains is tight at K = 1000, while a selection on 20-pose chains over the noise range, checked
-on 200-pose chains, is (README, "Constraint-set files").  A module whose selection does not carry
+on 200-pose chains, is (``docs/performance.md``).  A module whose selection does not carry
 declares where it does::
 
     CARRY = {"at_least": {"K": 20}, "over": {"sigma": [0.001, 0.00316, 0.01, 0.0316, 0.1, 0.316]},

@@ -35,14 +35,14 @@ class Catalog:
     def by_pair(self) -> dict[Pair, list[Constraint]]:
         out: dict[Pair, list[Constraint]] = {}
         for c in self.candidates():
-            t, ident = c.identity.split(":", 1)
+            t, ident = str(c.identity).split(":", 1)  # a learned constraint is always named "type:identity"
             out.setdefault((t, ident), []).append(c)
         return out
 
     def basic(self, group: str) -> list[Constraint]:
         """Every basic solution of a group (spanned or not) that passed the held-out check."""
         g = next(x for x in self.groups if x.group.name == group)
-        return [g.constraint(j, self.model.variables.N) for j in np.flatnonzero(g.passed())]
+        return [g.constraint(int(j), self.model.variables.N) for j in np.flatnonzero(g.passed())]
 
     def rejected(self) -> list[tuple[str, str, float]]:
         return [(g.group.name, ident, v) for g in self.groups for ident, v in g.rejected()]
@@ -161,7 +161,7 @@ def carry_over(problem: Problem, inst: Instance, pairs: Sequence[Pair], rng: np.
         inaccurate = [g.identities[j] for j in wanted_here if not g.passed()[j]]
         renamed = [key[1] for key in want if key[0] == t and key[1] not in have] if g.near_degenerate else []
         if per_type.get(t) and (g.degenerate is not None or ((inaccurate or renamed) and g.whole is not None)):
-            src = g if g.degenerate is not None else g.whole
+            src = g.whole if g.degenerate is None and g.whole is not None else g
             why = g.degenerate or "; ".join(
                 ([f"identities {', '.join(inaccurate)} failed the held-out check"] if inaccurate else [])
                 + ([f"near-degenerate (smallest singular value kept {g.spectrum_rel[g.rank - 1]:.1e}), identities "

@@ -189,6 +189,6 @@ def table(res: DiscoveryResult) -> str:
     for f, cons in by_factor.items():
         lines.append(f"[{f}]")
         for c in cons:
-            like = res.resembles.get(c.name, "?")
-            lines.append(f"  ({c.identity}, like {like})  {polynomial(c.A, res.model.variables)}")
+            lines.append(f"  ({c.identity}, like {res.resembles.get(c.name, '?')})  "
+                         f"{polynomial(c.A, res.model.variables)}")
     return "\n".join(lines)

@@ -33,7 +33,7 @@ def span_residual(c: Constraint, basis: Sequence[Constraint], cols: np.ndarray) 
         return 1.0
     M = np.array(B).T
     coef, *_ = np.linalg.lstsq(M, v, rcond=None)
-    return float(np.linalg.norm(v - M @ coef) / max(np.linalg.norm(v), 1e-300))
+    return float(np.linalg.norm(v - M @ coef) / max(float(np.linalg.norm(v)), 1e-300))
 
 
 def _group_for(c: Constraint, cat: Catalog):

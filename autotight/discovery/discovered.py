@@ -1,6 +1,6 @@
 """A discovered set: (factor type, identity) pairs that carry over to any instance, saved as JSON.
 
-Format 2 (``autotight.constraint_set/2``, see README "Constraint-set files") is self-contained: the
+Format 2 (``autotight.constraint_set/2``, see ``docs/constraint_sets.md``) is self-contained: the
 problem and its parameters, the pairs, their templates (``templates``: coefficients as polynomials in a
 factor's measurement entries) or, for factor types without one, the reason and the settings to re-learn
 them per factor, the variable order with each block's size, offset and the factor roles it plays, the
@@ -175,17 +175,18 @@ class DiscoveredSet:
         """Write format 2; learns the templates first when they are missing (``problem``: default, the
         problem module named by the set).  replace=False never writes over an existing file
         (``outpaths.save_json``: kept beside it instead); returns the path written."""
-        if self.templates is None:
+        templates = self.templates
+        if templates is None:
             from ..problem import load
 
-            self.template_set(problem or load(self.problem))
+            templates = self.template_set(problem or load(self.problem))
         obj: dict[str, Any] = {
             "format": FORMAT, "problem": self.problem, "params": self.params, "seed": self.seed,
             "versions": versions(), "learn_options": self.learn_options, "groups": self.groups,
             "pairs": [{"factor_type": t, "identity": i} for t, i in self.pairs], "info": self.info,
             "convention": CONVENTION,
         }
-        obj |= self.templates.record()
+        obj |= templates.record()
         if model is not None:
             obj["variables"] = variables_record(model)
             obj["d"] = model.d

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field, replace
-from typing import Sequence
+from typing import Any, Sequence
 
 import numpy as np
 import scipy.sparse as sp
@@ -65,7 +65,7 @@ def adjacent_groups(model: Model, type_a: str, type_b: str, keep: Sequence[str] 
             if f.type in (type_a, type_b) and not set(keep) <= set(f.roles or f.blocks):
                 missing = sorted(set(keep) - set(f.roles or f.blocks))
                 raise ProblemDefinitionError(f"factor type {f.type!r} has no role(s) {missing}; "
-                                             f"roles are {list(f.roles)}")
+                                             f"roles are {list(f.roles or f.blocks)}")
     for i, fa in enumerate(fs):
         if fa.type != type_a:
             continue
@@ -171,10 +171,10 @@ class LearnedGroup:
         monomials, and with them the identities' names, may differ from a generic instance's."""
         return self.coeffs.shape[1] > 0 and self.rank > 0 and float(self.spectrum_rel[self.rank - 1]) < NEAR_DEGENERATE
 
-    def gaps(self) -> dict:
+    def gaps(self) -> dict[str, Any]:
         """The chosen spectral gap (decades, rank) and any ignored one below the roundoff floor."""
-        out = {"decades": float(self.gap_decades), "rank": int(self.rank)}
-        if self.ignored_gap_decades is not None:
+        out: dict[str, Any] = {"decades": float(self.gap_decades), "rank": int(self.rank)}
+        if self.ignored_gap_decades is not None and self.ignored_gap_rank is not None:
             out["ignored"] = {"decades": float(self.ignored_gap_decades), "rank": int(self.ignored_gap_rank)}
         return out
 

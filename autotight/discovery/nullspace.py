@@ -19,6 +19,7 @@ names the same relation on every factor of a type.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import scipy.linalg as sla
@@ -47,10 +48,10 @@ class Spectrum:
     ignored_gap_decades: float | None = None
     ignored_gap_rank: int | None = None  # the rank a cut at the ignored gap would have given
 
-    def gaps(self) -> dict:
+    def gaps(self) -> dict[str, Any]:
         """The chosen gap and the ignored one, as JSON-able numbers."""
-        out = {"decades": float(self.gap_decades), "rank": int(self.rank)}
-        if self.ignored_gap_decades is not None:
+        out: dict[str, Any] = {"decades": float(self.gap_decades), "rank": int(self.rank)}
+        if self.ignored_gap_decades is not None and self.ignored_gap_rank is not None:
             out["ignored"] = {"decades": float(self.ignored_gap_decades), "rank": int(self.ignored_gap_rank)}
         return out
 

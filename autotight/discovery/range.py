@@ -344,7 +344,8 @@ def _learn_trainers(prob: Problem, points: list[tuple[dict, dict]], which: Seque
             else:
                 pairs = {}
                 for c in source.apply(prob, inst, model, seeds(s).constraints(), skip_invalid=True):
-                    pairs.setdefault(tuple(c.identity.split(":", 1)), []).append(c)
+                    t_type, ident = str(c.identity).split(":", 1)  # a learned constraint is named "type:identity"
+                    pairs.setdefault((t_type, ident), []).append(c)
             out.append(Trainer(i, s, inst, model, loc, pairs))
             say("learn", f"{varied} #{t}")
     return out
@@ -385,9 +386,10 @@ def _tighten(run: _Run, trainers: list[Trainer], candidates: list[Pair], min_vio
         score: dict[Pair, float] = {}
         blind = False  # a loose trainer whose solve returned no usable X: nothing ranks the candidates
         for tr in loose:
-            X = tr.last.sdp.X if tr.last is not None else None
-            if X is None or not tr.last.sdp.usable:
-                status = tr.last.sdp.status if tr.last else "?"
+            last = tr.last
+            X = last.sdp.X if last is not None else None
+            if last is None or X is None or not last.sdp.usable:
+                status = last.sdp.status if last else "?"
                 if remaining:
                     blind = True
                 else:
@@ -395,7 +397,7 @@ def _tighten(run: _Run, trainers: list[Trainer], candidates: list[Pair], min_vio
                 continue
             v = {p: tr.violation(X, p) for p in remaining}
             if not v or max(v.values()) <= min_violation:
-                vd = tr.last.verdict
+                vd = last.verdict
                 why = ("its SDP solution is rank 1 but the cost gap is not closed (solver accuracy?)" if vd.rank_tight
                        else "no remaining candidate cuts its SDP solution")
                 if not vd.rank_tight:
@@ -502,7 +504,8 @@ def _restore(run: _Run, tr: Trainer, current: list[Pair], removed: list[Pair]) -
     while remaining:
         last = tr.last.sdp if tr.last is not None else None
         if last is not None and last.X is not None and last.usable:
-            remaining.sort(key=lambda p: -tr.violation(last.X, p))
+            X = last.X
+            remaining.sort(key=lambda p: -tr.violation(X, p))
             add, remaining = remaining[: 2 ** r], remaining[2 ** r:]
             r += 1
         else:

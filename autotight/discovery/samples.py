@@ -35,7 +35,8 @@ def draw(problem: Problem, inst: Instance, n: int, rng: np.random.Generator, spr
     """
     spread = problem.spread if spread is None else spread
     scale = max_growth * max(1.0, float(np.abs(as_theta(problem.lift(inst, inst.truth))).max()))
-    thetas, tries = [], 0
+    thetas: list[np.ndarray] = []
+    tries = 0
     while len(thetas) < n:
         tries += 1
         if tries > 10 * n + 100:

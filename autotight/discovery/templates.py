@@ -226,7 +226,7 @@ def learn_templates(problem: Problem, params: dict[str, Any] | Sequence[dict[str
                 fallback[t] = f"factor type {t!r} has no factor on an instance with params {point}"
                 open_types.discard(t)
             else:
-                layout[t] = (list(fs[0].roles), [model.variables.sizes[b] for b in fs[0].blocks])
+                layout[t] = (list(fs[0].roles or fs[0].blocks), [model.variables.sizes[b] for b in fs[0].blocks])
         got, issues = _factor_samples(problem, inst, model, {t: wanted[t] for t in open_types}, rng, opts)
         for t in list(open_types):
             samples[t] += got[t]
@@ -349,9 +349,10 @@ def _transport_template(problem: Problem, params: dict[str, Any], t: str, wanted
     if len(gs) < 2:
         raise AutotightError(f"fewer than 2 factors of type {t!r} have the identities {wanted} on an instance "
                              f"with params {params}")
-    data = [np.zeros(0) if model.factor(g.group.name).data is None else model.factor(g.group.name).data
-            for g in gs]
-    tpl = reference_template(problem, t, wanted, *layout, data[0], gs[0].coeffs, gs[0].free, gs[0].identities)
+    data = [np.zeros(0) if (x := model.factor(g.group.name).data) is None else x for g in gs]
+    free = gs[0].free
+    assert free is not None  # gs keeps the groups with free monomials
+    tpl = reference_template(problem, t, wanted, *layout, data[0], gs[0].coeffs, free, gs[0].identities)
     Y = np.array([g.coeffs[:, [g.identities.index(i) for i in wanted]].T.ravel() for g in gs[1:]])
     pred = tpl.solutions(np.array(data[1:]), problem).reshape(len(Y), -1)
     err = float(np.nan_to_num(relative_error(pred, Y), nan=np.inf).max())
@@ -364,7 +365,7 @@ def _transport_template(problem: Problem, params: dict[str, Any], t: str, wanted
 # ----------------------------------------------------------------------------- applying
 
 
-def factor_columns(model: Model, tpl: TypeTemplate) -> tuple[list, np.ndarray, np.ndarray]:
+def factor_columns(model: Model, tpl: TypeTemplate | TransportTemplate) -> tuple[list, np.ndarray, np.ndarray]:
     """(factors of the type, their local columns (n_f, n), their data (n_f, n_data)); AutotightError when
     the block layout or the data length does not fit the template."""
     fs = [f for f in model.factors if f.type == tpl.factor_type]
@@ -386,7 +387,8 @@ def factor_columns(model: Model, tpl: TypeTemplate) -> tuple[list, np.ndarray, n
     return fs, cols, D
 
 
-def violations(tpl: TypeTemplate, cols: np.ndarray, coeffs: np.ndarray, thetas: np.ndarray) -> np.ndarray:
+def violations(tpl: TypeTemplate | TransportTemplate, cols: np.ndarray, coeffs: np.ndarray,
+               thetas: np.ndarray) -> np.ndarray:
     """Largest relative violation |Σ p θ_iᵀθ_j| / Σ |p| ‖θ_i‖‖θ_j‖ over the samples, per (factor, identity)
     → (n_f, k).  thetas: (S, d, N)."""
     m = tpl.n_monomials

@@ -17,6 +17,7 @@ from pathlib import Path
 from ..outpaths import check_file, writing
 from ..problem import load
 from .discovered import DiscoveredSet
+from .templates import TypeTemplate
 
 #: records of the learning instance that are copied from the old file
 KEPT = ("variables", "d", "constraints_by_factor", "learning_instance", "summary")
@@ -48,7 +49,7 @@ def cmd_templates(args: argparse.Namespace) -> int:
         print(f"autotight: note: {args.out} appeared meanwhile and is kept; the set is saved as {written}",
               file=sys.stderr)
     for t, tpl in sorted(ts.templates.items()):
-        how = "transport" if tpl.kind == "transport" else f"polynomial of degree {tpl.degree}"
+        how = f"polynomial of degree {tpl.degree}" if isinstance(tpl, TypeTemplate) else "transport"
         was = " (was re-learned per factor)" if t in before else ""
         print(f"{t}: {len(tpl.identities)} identities, {how}{was}; re-learning error "
               f"{tpl.check.get('relearn_rel_error', float('nan')):.1e}")

@@ -161,7 +161,7 @@ class TransportTemplate(Layout):
     check: dict[str, Any] = field(default_factory=dict)
     kind: str = "transport"
 
-    def solutions(self, D: np.ndarray, problem: Problem) -> np.ndarray:
+    def solutions(self, D: np.ndarray, problem: Problem | None) -> np.ndarray:
         """The wanted basic solutions for factors with data D (n_f, n_data) → (n_f, k_wanted, m); NaN rows for
         a factor whose free monomials do not write its relations accurately (see ``basic``)."""
         if problem is None:

@@ -96,7 +96,7 @@ def _dask(fn: Callable[..., Any], calls: Sequence[tuple], scheduler: Any) -> Ite
     from distributed import as_completed
 
     with connect(scheduler) as client:
-        futures = []
+        futures: list[Any] = []
         try:
             futures = client.map(fn, *zip(*calls), pure=False) if calls else []
             for fut in as_completed(futures):

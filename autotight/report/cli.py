@@ -112,7 +112,7 @@ def cmd_report(args: argparse.Namespace) -> int:
         return 130
     meta = Store(out).meta() or {}
     files = render(out, meta)
-    rec = {"problem": prob.name, "params": spec.params, "sigmas": spec.sigmas, "trials": spec.trials,
+    rec: dict[str, Any] = {"problem": prob.name, "params": spec.params, "sigmas": spec.sigmas, "trials": spec.trials,
            "sets": spec.sets, "seed": spec.seed, "out": str(out), "total": summary.total,
            "done_before": summary.done_before, "computed": summary.computed, "failed": summary.failed,
            "complete": summary.complete, "files": sorted(p.name for p in files.values())}

@@ -16,6 +16,7 @@ from matplotlib.axes import Axes
 from matplotlib.figure import Figure
 
 from ..outpaths import writing
+from .store import solved_rows
 
 COLORS = {"primary": "tab:blue", "paper": "tab:orange", "discovered": "tab:green"}
 LOG_SVR_CAP = 16.0
@@ -67,7 +68,7 @@ def _save(fig: Figure, path: Path) -> Path:
 
 def trapped(df: pd.DataFrame, sigmas: Sequence[float], path: Path, trap_rtol: float) -> Path:
     """Fraction of random-start local solves trapped above the global cost, with 95 % Wilson intervals."""
-    trials = _per_trial(df[~df["status"].astype(str).str.startswith("Error")])
+    trials = _per_trial(df[solved_rows(df)])
     fig, ax = _figure(5.6, 3.8)
     xs, p, lo, hi = [], [], [], []
     for i, s in enumerate(sigmas):
@@ -76,7 +77,7 @@ def trapped(df: pd.DataFrame, sigmas: Sequence[float], path: Path, trap_rtol: fl
             k, n = int(t.sum()), len(t)
             a, b = _wilson(k, n)
             # max(0, ·): at k = n the interval can end a rounding error below k/n
-            xs.append(s), p.append(k / n), lo.append(max(0.0, k / n - a)), hi.append(max(0.0, b - k / n))
+            xs.append(s); p.append(k / n); lo.append(max(0.0, k / n - a)); hi.append(max(0.0, b - k / n))
     ax.errorbar(xs, p, yerr=[lo, hi], fmt="o-", color="tab:red", capsize=3, lw=1.5, ms=5,
                 label="random start")
     _sigma_axis(ax, sigmas)
@@ -113,7 +114,7 @@ def log_svr(df: pd.DataFrame, sigmas: Sequence[float], sets: Sequence[str], path
             if not v.size:
                 continue
             c = np.log10(s) + (k - (len(sets) - 1) / 2) * w
-            data.append(v), lo_e.append(10 ** (c - 0.42 * w)), hi_e.append(10 ** (c + 0.42 * w))
+            data.append(v); lo_e.append(10 ** (c - 0.42 * w)); hi_e.append(10 ** (c + 0.42 * w))
         if not data:
             continue
         lo_a, hi_a = np.array(lo_e), np.array(hi_e)

@@ -15,7 +15,7 @@ import pandas as pd
 from ..io import atomic_write_text
 from ..outpaths import writing
 from . import figures
-from .store import load_trials
+from .store import load_trials, solved_rows
 
 CAPTIONS = {
     "trapped": "Fraction of local solves from a random start that end above the global cost "
@@ -117,7 +117,7 @@ def tables(df: pd.DataFrame, sigmas: Sequence[float], sets: Sequence[str],
     """Constraint counts (with each set's pairs or families and its constraints beyond the primary
     ones when ``structure`` is given), fraction tight (``tight_caption``: ``tight_rule``'s, rank by
     default), median log SVR, median times, solver statuses."""
-    ok = df[~df["status"].astype(str).str.startswith("Error")]
+    ok = df[solved_rows(df)]
     per_trial = ok.drop_duplicates(["sigma_index", "trial"])
     counts = []
     for s in sets:
@@ -208,7 +208,7 @@ def bracket_table(df: pd.DataFrame, sigmas: Sequence[float], sets: Sequence[str]
     without L."""
     if "sdp_lower_bound" not in df.columns or not df["sdp_lower_bound"].notna().any():
         return None
-    ok = df[~df["status"].astype(str).str.startswith("Error") & df["sdp_lower_bound"].notna()]
+    ok = df[solved_rows(df) & df["sdp_lower_bound"].notna()]
     has_raw = "sdp_dual_raw" in ok.columns and ok["sdp_dual_raw"].notna().any()
     rows = []
     for i, sg in enumerate(sigmas):

@@ -155,7 +155,8 @@ def file_sets(sets: str | Sequence[str]) -> tuple[list[str], tuple[tuple[str, st
     """``file:PATH`` entries of ``--sets``: each a saved constraint set named by its file's stem (e.g.
     ``file:reports/pose_averaging/range_set.json`` → "range_set"); the names must be distinct and
     must not be primary, paper or discovered."""
-    names, files = [], []
+    names: list[str] = []
+    files: list[tuple[str, str]] = []
     for x in (sets.split(",") if isinstance(sets, str) else sets):
         x = x.strip()
         if x.startswith("file:"):

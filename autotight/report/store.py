@@ -37,6 +37,8 @@ REPORT_TITLE = "# Tightness report"
 STATUSES = ("Solved", "AlmostSolved", "MaxIterations", "MaxTime", "NumericalError", "InsufficientProgress",
             "PrimalInfeasible", "DualInfeasible", "AlmostPrimalInfeasible", "AlmostDualInfeasible",
             "CallbackTerminated", "Unsolved", "Failed")
+#: a trial that raised is saved with the status "Error: <exception type>: <message>" (``trial.run_trial``)
+ERROR = "Error"
 BOOL_COLUMNS = ("tight", "rank_tight", "cost_tight", "local_converged_truth", "local_converged_random", "trapped")
 
 
@@ -277,10 +279,10 @@ class Store:
         """The status of the first trial (by σ index, trial) when every saved trial failed, else None."""
         rows = self._load_rows()
         ist, ii, it = (self.columns.index(c) for c in ("status", "sigma_index", "trial"))
-        if not rows or not all(r[ist].startswith("Error") for r in rows):
+        if not rows or not all(is_error(r[ist]) for r in rows):
             return None
         first = min(rows, key=lambda r: (int(r[ii]), int(r[it])))
-        return first[ist].removeprefix("Error: ")
+        return first[ist].removeprefix(f"{ERROR}: ")
 
     def finalize(self) -> None:
         """Rewrite the CSV sorted by (σ index, trial, set) unless it already is."""
@@ -315,9 +317,19 @@ def load_trials(out: str | Path, trials: int | None = None) -> pd.DataFrame:
     return df
 
 
+def is_error(status: object) -> bool:
+    """Whether a saved status is that of a trial that raised (it starts with ``ERROR``)."""
+    return str(status).startswith(ERROR)
+
+
+def solved_rows(df: pd.DataFrame) -> pd.Series:
+    """Mask of the trials of ``df`` that did not raise (a solver status, whatever it is)."""
+    return ~df["status"].astype(str).str.startswith(ERROR)
+
+
 def redo_matches(status: str, redo: Sequence[str]) -> bool:
     """Whether a saved status is one of ``redo``: equal to an entry; "Error" or "Failed": every status so starting."""
-    return any(status == r or (r in ("Error", "Failed") and status.startswith(r)) for r in redo)
+    return any(status == r or (r in (ERROR, "Failed") and status.startswith(r)) for r in redo)
 
 
 def _starts_with(path: Path, prefix: str) -> bool:

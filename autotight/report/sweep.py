@@ -5,7 +5,7 @@ from __future__ import annotations
 import hashlib
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable, Sequence
+from typing import AbstractSet, Any, Callable, Sequence
 
 from tqdm import tqdm
 
@@ -15,7 +15,7 @@ from ..problem import Problem
 from ..outpaths import LOCK_NAME, check_folder, folder_lock, writing
 from .backends import connect, execute
 from .spec import ReportError, SweepSpec
-from .store import CSV_NAME, META_NAME, STATUSES, Store
+from .store import CSV_NAME, ERROR, META_NAME, STATUSES, Store, is_error
 from ..pipeline import has_marginal
 from .trial import columns, error_keys, run_trial
 
@@ -89,7 +89,7 @@ def run_sweep(spec: SweepSpec, out: str | Path, *, jobs: int = 1, scheduler: Any
                 for res in execute(run_trial, calls, jobs=jobs, scheduler=client):
                     store.append(res.rows)
                     computed += 1
-                    bad = str(res.rows[0]["status"]).startswith("Error")
+                    bad = is_error(res.rows[0]["status"])
                     failed += bad
                     kept |= not bad
                     bar.update()
@@ -107,9 +107,9 @@ def run_sweep(spec: SweepSpec, out: str | Path, *, jobs: int = 1, scheduler: Any
         raise
 
 
-def check_redo(redo: Sequence[str], saved: set[str] = frozenset()) -> None:
+def check_redo(redo: Sequence[str], saved: AbstractSet[str] = frozenset()) -> None:
     """Every ``--redo`` entry is a solver status, a status saved in the folder, or "Error" (every failed trial)."""
-    bad = [r for r in redo if r not in STATUSES and r != "Error" and r not in saved]
+    bad = [r for r in redo if r not in STATUSES and r != ERROR and r not in saved]
     if bad:
         raise ReportError(f"--redo {','.join(bad)}: not a solver status; use some of {', '.join(STATUSES)} "
                           "or Error (every failed trial)")

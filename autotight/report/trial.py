@@ -16,6 +16,7 @@ from ..errors import AutotightError
 from ..pipeline import has_marginal, is_trapped, local_search, solve_instance
 from ..problem import Instance, Problem
 from .spec import SweepSpec, trial_seeds
+from .store import ERROR
 
 KEY = ("sigma_index", "trial")
 BASE_COLUMNS = ("problem", "sigma_index", "sigma", "trial", "seed", "constraint_set", "n_constraints", "status",
@@ -63,7 +64,7 @@ def run_trial(spec: SweepSpec, sigma_index: int, trial: int, discovered: Any = N
         try:
             rows = _solve(problem, spec, sigma_index, trial, discovered)
         except (AutotightError, ValueError, ArithmeticError, np.linalg.LinAlgError) as e:
-            msg = f"Error: {type(e).__name__}: {e}".splitlines()[0]
+            msg = f"{ERROR}: {type(e).__name__}: {e}".splitlines()[0]
             seed, _, _ = trial_seeds(spec.seed, sigma_index, trial)
             rows = [_row(problem, spec, sigma_index, trial, seed, s, status=msg) for s in spec.sets]
         dt = time.perf_counter() - t0

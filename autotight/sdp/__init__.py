@@ -156,7 +156,7 @@ def congruence(A: sp.sparray, D: np.ndarray) -> sp.sparray:
     return A
 
 
-def _solve(Q: sp.spmatrix | sp.sparray, constraints: Sequence[Constraint], d: int, config: SolverConfig,
+def _solve(Q: sp.spmatrix | sp.sparray, constraints: Sequence[Constraint], d: int, config: SolverConfig | None,
            cliques: Sequence[np.ndarray] | None, scale: np.ndarray | None,
            block_sizes: Sequence[int] | None) -> SDPResult:
     config = SolverConfig() if config is None else config

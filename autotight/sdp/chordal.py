@@ -211,9 +211,8 @@ def entry_cliques(N: int, rows: np.ndarray, cols: np.ndarray, always: Sequence[i
                 key[u] = (fill(u), len(adj[u]))
                 heapq.heappush(heap, (key[u], u))
     uniq = [np.array(sorted(c), dtype=np.int64) for c in dict.fromkeys(cliques)]
-    uniq = [frozenset(c.tolist()) for c in maximal(uniq)]
     head = sorted(fixed)
-    return [np.array(head + sorted(c), dtype=np.int64) for c in uniq]
+    return [np.array(head + sorted(c.tolist()), dtype=np.int64) for c in maximal(uniq)]
 
 
 def block_cliques(sizes: Sequence[int], rows: np.ndarray, cols: np.ndarray) -> list[np.ndarray]:

@@ -158,7 +158,7 @@ class ClarabelBackend:
         return solve_dense(Q, As, b, d, config)  # one clique: the dense path
 
     def retries(self, config: SolverConfig, decomposed: bool, N: int) -> Retries:
-        out = []
+        out: Retries = []
         if config.regularization == "small":
             out.append(("default regularisation", replace(config, regularization="default"),
                         SMALL_RETRY_STATUSES if N <= RETRY_MAX_N else RETRY_STATUSES))

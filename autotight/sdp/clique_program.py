@@ -95,7 +95,8 @@ def complete_sparse(prog: "CliqueProgram", z: np.ndarray, d: int
     return X, svrs, Theta
 
 
-def complete_auto(prog: "CliqueProgram", z: np.ndarray, d: int) -> tuple[object, list[float], np.ndarray | None]:
+def complete_auto(prog: "CliqueProgram", z: np.ndarray, d: int
+                  ) -> tuple[np.ndarray | sp.csr_array | None, list[float], np.ndarray | None]:
     """Dense completion (``complete``) up to ``DENSE_X_MAX`` columns, else ``complete_sparse``."""
     if prog.N <= DENSE_X_MAX:
         X, svrs = prog.complete(z, d)

@@ -82,7 +82,7 @@ class CliqueCovers:
         for cl in candidates:
             unique.setdefault(tuple(tuple(c.tolist()) for c in cl), cl)
         return min(list(unique.values()) + self.own,
-                   key=lambda cl: iteration_cost([len(c) for c in cl], block_loads(cl, self.support)))
+                   key=lambda cl: iteration_cost([len(c) for c in cl], block_loads(cl, self.support).tolist()))
 
 
 def _check_cover(cover: list[np.ndarray], N: int, rows: np.ndarray, cols: np.ndarray) -> None:

@@ -26,11 +26,24 @@ from .schur_ipm import IPMBackend
 
 
 class Backend(Protocol):
-    name: str
-    decompose_default: bool
-    cover: str | None
-    fallback: str | None
-    errors: tuple[type[BaseException], ...]
+    """What a solver backend provides: its name, whether solves decompose by default, the clique-cover
+    policy it takes (None: none), the backend that re-solves an unusable result (None: none), the
+    exceptions that mean a failed solve, and ``check``, ``solve`` and ``retries``."""
+
+    @property
+    def name(self) -> str: ...
+
+    @property
+    def decompose_default(self) -> bool: ...
+
+    @property
+    def cover(self) -> str | None: ...
+
+    @property
+    def fallback(self) -> str | None: ...
+
+    @property
+    def errors(self) -> tuple[type[BaseException], ...]: ...
 
     def check(self, arg: str | None) -> None: ...
 

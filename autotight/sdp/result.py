@@ -35,7 +35,7 @@ class SDPResult:
     status: str
     solver: str
     d: int
-    X: np.ndarray | None
+    X: np.ndarray | sp.csr_array | None
     y: np.ndarray | None
     primal_cost: float
     dual_cost: float

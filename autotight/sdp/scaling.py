@@ -33,10 +33,10 @@ def block_scale(variables: Variables, theta_samples: Sequence[np.ndarray], floor
     if not 0 < floor_rel <= 1:
         raise ValueError(f"floor_rel must be in (0, 1], got {floor_rel}")
     N, d = variables.N, variables.d
-    T = [np.atleast_2d(np.asarray(t, float)) for t in theta_samples]
-    if any(t.shape != (d, N) for t in T):
-        raise ValueError(f"each lifted state must have shape ({N},) or ({d}, {N}); got {[t.shape for t in T]}")
-    T = np.concatenate(T, axis=0)  # (d · samples, N)
+    Ts = [np.atleast_2d(np.asarray(t, float)) for t in theta_samples]
+    if any(t.shape != (d, N) for t in Ts):
+        raise ValueError(f"each lifted state must have shape ({N},) or ({d}, {N}); got {[t.shape for t in Ts]}")
+    T = np.concatenate(Ts, axis=0)  # (d · samples, N)
     if not np.all(np.isfinite(T)):
         raise ValueError("the lifted states must be finite")
     names = [n for n in variables.names if n != HOMOGENISING]

@@ -42,7 +42,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
-from typing import Callable, Sequence
+from typing import Any, Callable, Sequence
 
 import numpy as np
 import scipy.sparse as sp
@@ -307,7 +307,7 @@ class _LDLPattern:
         self.indices = rows[order].astype(np.int32)
         self.indptr = np.concatenate([[0], np.cumsum(np.bincount(cols, minlength=M))]).astype(np.int32)
         self.M = M
-        self.solver = None
+        self.solver: Any = None  # a qdldl.Solver after the first factorisation
 
     def factor(self, upper_vals: np.ndarray) -> Callable[[np.ndarray], np.ndarray] | None:
         """upper_vals in the (row, column) order of the pattern given to __init__; None when a
@@ -451,6 +451,7 @@ def solve_blocks(F: sp.csc_matrix, c: np.ndarray, g: np.ndarray, sizes: list[int
         y = y + ad * dy
         Z = [Zg + ad * b for Zg, b in zip(Z, dZ)]
         gamma = 0.9 + 0.09 * min(ap, ad)
+    assert best is not None  # the loop body runs at least once
     err, Xb, yb, pobj, dobj, gap, pinf, dinf, _ = best
     if almost_solved(status, gap, pinf, dinf):
         message = f"{status}: {message}" if message else status
