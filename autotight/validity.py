@@ -94,11 +94,11 @@ def check_valid(problem_name: str, constraints: Sequence[Constraint], points: Ma
     primary = np.array([c.family in ("primary", "homogenisation") for c in constraints])
     bad_primary = (viol > rtol) & primary[None, :]
     if bad_primary.any():
-        p, k = np.unravel_index(np.argmax(np.where(bad_primary, viol, -1.0)), viol.shape)
+        p, k = (int(i) for i in np.unravel_index(np.argmax(np.where(bad_primary, viol, -1.0)), viol.shape))
         raise ProblemModuleError(f"{problem_name}: {labels[p]} is not feasible: it violates the primary constraint "
                                  f"{describe(constraints[k])} (relative violation {viol[p, k]:.2e} > {rtol:g})")
     bad = viol > rtol
-    p, k = np.unravel_index(np.argmax(np.where(bad, viol, -1.0)), viol.shape)
+    p, k = (int(i) for i in np.unravel_index(np.argmax(np.where(bad, viol, -1.0)), viol.shape))
     n_bad = int(bad.any(axis=0).sum())
     raise InvalidConstraintError(
         f"{problem_name}: constraint {describe(constraints[k])} does not hold at {labels[p]} (relative violation "
