@@ -55,9 +55,9 @@ def orthonormality(V: Variables, d: int, factor: str) -> list[Constraint]:
 
 
 def pose_from_vector(x: np.ndarray, V: Variables, d: int) -> tuple[np.ndarray, np.ndarray]:
-    """(C projected to SO(d), t) and the raw C from a lifted vector x (x[0] = h)."""
+    """(C projected to SO(d), t) and the raw C from a lifted vector x (x[0] = h; divided out when nonzero)."""
     x = np.asarray(x, float).reshape(-1)
-    x = x / x[0]
+    x = x / x[0] if x[0] != 0 else x  # h = 0 only on a factor of a rank > 1 solution: no rescaling
     C_raw = x[V.slice(C_BLOCK)].reshape(d, d, order="F")
     return lt.project_rotation(C_raw), x[V.slice(T_BLOCK)].copy(), C_raw
 

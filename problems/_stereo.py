@@ -40,7 +40,6 @@ from . import _pose_vector as pv
 
 LEVELS = ("no", "urT")
 FOCAL, CU, CV, BASELINE = 484.5, 322.0, 247.0, 0.24  # the peer's camera
-SPREAD = 0.2
 
 
 def params(n_landmarks: int, level: str) -> dict[str, Param]:

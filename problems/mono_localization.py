@@ -30,6 +30,9 @@ PARAMS = {
 }
 
 
+DEFAULT_TRAIN = 5
+
+
 def _variables(d: int) -> Variables:
     return Variables(pv.pose_blocks(d))
 
