@@ -30,7 +30,7 @@ PARAMS = {
 }
 
 
-DEFAULT_TRAIN = 5
+DEFAULT_TRAIN = 10
 
 
 def _variables(d: int) -> Variables:
