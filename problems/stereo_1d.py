@@ -6,16 +6,15 @@ with the substitution z_j = 1/(x − a_j):
     x_lift = [h, x, z_0, …, z_{N−1}],   primary constraints  x·z_j − a_j h·z_j = h²  (one per landmark).
 
 The peer's redundant relations: z_i − z_j = (a_i − a_j) z_i z_j, one per pair.  Factors: per landmark
-"stereo1d" (h, x, z_j) with the cost and the primary constraint (data a_j), and per pair (i, j), i < j,
-"stereo1d_pair" (h, z_i, z_j) with data (a_i, a_j) and no cost or constraint: a learning group, so that
-``factors`` learns the pair relations and templates carry them (their coefficients are linear in the
-data).  As in the peer, landmarks and x are uniform in [0, 1]; x keeps a distance ≥ ``gap`` from every
-landmark.
+"stereo1d" (h, x, z_j) with the cost and the primary constraint (data a_j); per cyclically consecutive
+pair (i, j) (``_stereo.pairs``: N pairs, not N(N − 1)/2) "stereo1d_pair" (h, z_i, z_j) with data
+(a_i, a_j) and no cost or constraint: a learning group, so that ``factors`` learns the pair relations.
+Both types carry by exact transports (``TRANSPORTS``): x ↦ x − a_j h for a landmark, z ↦ (a_i − a_j) z
+for a pair (a pair's basic solutions are rational in the data: no polynomial template fits them).
+As in the peer, landmarks and x are uniform in [0, 1]; x keeps a distance ≥ ``gap`` from every landmark.
 """
 
 from __future__ import annotations
-
-import itertools
 
 import numpy as np
 import scipy.sparse as sp
@@ -25,6 +24,8 @@ from autotight.errors import ParameterError
 from autotight.gauss_newton import gauss_newton
 from autotight.problem import Instance, LocalResult, Param
 
+from ._stereo import pairs
+
 NAME = "stereo_1d"
 DESCRIPTION = "1-D stereo localisation from inverse distances z_j = 1/(x − a_j) (AutoTight's stereo1d)."
 PARAMS = {
@@ -33,7 +34,6 @@ PARAMS = {
     "gap": Param(0.05, "smallest distance of x (truth and samples) from a landmark", low=0.0, low_open=True,
                  high=0.2),
 }
-SPREAD = 0.1
 MAX_TRIES = 1000
 
 
@@ -81,10 +81,27 @@ def build(inst: Instance) -> Model:
         factors.append(Factor(name, "stereo1d", ("h", "x", z), cost=Q,
                               constraints=[Constraint(A, 0.0, name=f"subst({j})", factor=name)],
                               roles=("h", "x", "z"), data=np.array([a[j]])))
-    for i, j in itertools.combinations(range(N), 2):
+    for i, j in pairs(N):
         factors.append(Factor(f"pair_{i}_{j}", "stereo1d_pair", ("h", z_block(i), z_block(j)),
                               roles=("h", "z_i", "z_j"), data=np.array([a[i], a[j]])))
     return Model(V, factors)
+
+
+def landmark_transport(data: np.ndarray) -> np.ndarray:
+    """M on [h, x, z] (type "stereo1d"): x ↦ x − a h, so x z = 1 + a z becomes x' z = 1 (reference a = 0)."""
+    M = np.eye(3)
+    M[1, 0] = -float(np.asarray(data).ravel()[0])
+    return M
+
+
+def pair_transport(data: np.ndarray) -> np.ndarray:
+    """M on [h, z_i, z_j] (type "stereo1d_pair"): z ↦ (a_i − a_j) z, so z_i − z_j = (a_i − a_j) z_i z_j
+    becomes z'_i − z'_j = z'_i z'_j (reference a_i − a_j = 1; singular only for coincident landmarks)."""
+    a_i, a_j = np.asarray(data, float).ravel()[:2]
+    return np.diag([1.0, a_i - a_j, a_i - a_j])
+
+
+TRANSPORTS = {"stereo1d": landmark_transport, "stereo1d_pair": pair_transport}
 
 
 def _x(state: dict) -> float:
