@@ -18,10 +18,11 @@ Primary constraints: CᵀC = I (factor "rotation"), per landmark the d rows of q
 "urT", h·w_j = u_j ⊗ t (d² rows).  The lifted variety at N = 3, d = 2 has 35 (level "no") and 191
 (level "urT") independent quadratic relations, as the peer prints.
 
-Factors: "rotation" (h, c); per landmark "stereo" (h, t, c, u_j[, w_j]) with data p_j; per cyclically
-consecutive pair "stereo_pair" (h, u_i[, w_i], u_j[, w_j]) with data (p_i, p_j), no cost or constraint: a
-learning group for the relations between two landmarks without the pose (the peer's cost-tight set at
-"urT" needs its [h, z_0, z_1] group).  At level
+Factors: "rotation" (h, c); per landmark "stereo" (h, t, c, u_j[, w_j]) with data p_j; at level "urT", per
+cyclically consecutive pair "stereo_pair" (h, u_i, w_i, u_j, w_j) with data (p_i, p_j), no cost or
+constraint: a learning group for the relations between two landmarks without the pose (the peer's
+cost-tight set at "urT" needs its [h, z_0, z_1] group).  At level "no" two landmarks' u have no quadratic
+relation, and their monomial data no clean spectral gap: no pair groups there.  At level
 "no" the factor's relations move with p_j by the change of variables t ↦ t + (p_jᵀ ⊗ I) vec C = q_j
 (``transport``), an exact template for any landmark.  At "urT" that map would need u ⊗ vec C
 (w' = u (t + C p)ᵀ), which the lifting does not hold: no transport there.
@@ -150,7 +151,7 @@ def build(inst: Instance) -> Model:
         factors.append(Factor(name, "stereo" if level == "no" else "stereo_urT", blocks + own,
                               cost=sum_quads(V, [(e, e, None)]), constraints=_primary(V, j, P[j], level, name),
                               roles=roles, data=P[j]))
-    for i, j in pairs(N):
+    for i, j in pairs(N) if level == "urT" else []:
         own_i = (u_block(i),) + ((w_block(i),) if level == "urT" else ())
         own_j = (u_block(j),) + ((w_block(j),) if level == "urT" else ())
         factors.append(Factor(f"pair_{i}_{j}", "stereo_pair", ("h",) + own_i + own_j,

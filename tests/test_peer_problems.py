@@ -10,14 +10,17 @@ per position; PPR: 20 + h²) are properties of the lifted variety, so a wrong li
 
 from __future__ import annotations
 
+import importlib.util
+import json
+import sys
+from pathlib import Path
+
 import numpy as np
 import pytest
 
 from autotight.checks import check_problem
-from autotight.discovery.nullspace import spectrum
 from autotight.discovery.samples import draw, relative_violation
 from autotight.problem import load
-from autotight.svec import monomials
 
 CASES = [
     ("range_only", {"dim": 2, "n_positions": 2}),
@@ -39,17 +42,19 @@ def _id(case: tuple[str, dict]) -> str:
     return case[0] + "".join(f"-{k}={v}" for k, v in case[1].items())
 
 
-def relation_count(name: str, params: dict, seed: int = 0, factor: int = 1) -> int:
-    """Independent quadratic relations of the whole lifted variety (nullity of the column-normalised
-    monomial data of `factor` × (number of monomials) samples)."""
-    prob = load(name)
-    inst = prob.generate(params, seed)
-    n = prob.lift(inst, inst.truth).size
-    m = n * (n + 1) // 2
-    bank = draw(prob, inst, factor * m + 20, np.random.default_rng(seed + 1), None)
-    Y = monomials(bank.thetas)
-    Yn = Y / np.linalg.norm(Y, axis=0)
-    return spectrum(Yn, 6.0).nullity
+def _benchmark():
+    """benchmarks/peer_benchmark.py as a module (it holds ``relation_count`` and the report generator)."""
+    path = Path(__file__).resolve().parent.parent / "benchmarks" / "peer_benchmark.py"
+    if "peer_benchmark" not in sys.modules:
+        spec = importlib.util.spec_from_file_location("peer_benchmark", path)
+        mod = importlib.util.module_from_spec(spec)
+        sys.modules["peer_benchmark"] = mod  # dataclasses look their module up there
+        spec.loader.exec_module(mod)
+    return sys.modules["peer_benchmark"]
+
+
+def relation_count(name: str, params: dict) -> int:
+    return _benchmark().relation_count(name, params)
 
 
 @pytest.mark.parametrize("case", CASES, ids=_id)
@@ -117,3 +122,20 @@ def test_robust_wahba_local_solver_finds_the_outliers():
     res = prob.local_solve(inst, prob.random_state(inst, np.random.default_rng(0)))
     assert np.array_equal(res.state["w"], inst.truth["w"])
     assert prob.errors(inst, res.state)["rotation_deg"] < 2.0
+
+
+def test_benchmark_report_numbers_come_from_its_run(tmp_path):
+    """The generator on one cheap problem: the report's held-out fraction is the one its own results.json
+    records, computed from the per-instance verdicts (not a constant), and the peer's figure is cited."""
+    bench = _benchmark()
+    assert bench.main(["--out", str(tmp_path), "--only", "wahba", "--instances", "3", "--carry-instances", "1"]) == 0
+    data = json.loads((tmp_path / "results.json").read_text())
+    row = data["rows"][0]
+    held = row["heldout"]
+    assert len(held["instances"]) == 3
+    assert held["rank_tight"] == sum(i["rank_tight"] for i in held["instances"]) / 3
+    assert row["relations"]["[h, t, vec C]"]["count"] == 20
+    report = (tmp_path / "report.md").read_text()
+    assert f"| wahba | 3 | {100 * held['accepted']:.0f} %" in report
+    assert "21 → 7" in report and "terminal_output.log" in report
+    assert (tmp_path / row["set_file"]).exists()
