@@ -25,7 +25,10 @@ cost-tight set at "urT" needs its [h, z_0, z_1] group).  At level "no" two landm
 relation, and their monomial data no clean spectral gap: no pair groups there.  At level
 "no" the factor's relations move with p_j by the change of variables t ↦ t + (p_jᵀ ⊗ I) vec C = q_j
 (``transport``), an exact template for any landmark.  At "urT" that map would need u ⊗ vec C
-(w' = u (t + C p)ᵀ), which the lifting does not hold: no transport there.
+(w' = u (t + C p)ᵀ), which the lifting does not hold; there the pose is rotated and scaled instead,
+(C, t) ↦ (C R, t/‖p‖) with R e_1 = p/‖p‖, which takes q to q/‖p‖ and maps u and w = u tᵀ linearly
+(``transport_urT``).  Pairs have no such map (one rotation and scale cannot take two landmarks to a
+fixed reference pair): they are learned per factor.
 """
 
 from __future__ import annotations
@@ -175,6 +178,38 @@ def transport(data: np.ndarray) -> np.ndarray:
     n = 1 + d + d * d + d
     M = np.eye(n)
     M[1:1 + d, 1 + d:1 + d + d * d] = np.kron(p[None, :], np.eye(d))
+    return M
+
+
+def rotation_to(v: np.ndarray) -> np.ndarray:
+    """A rotation R (d × d) with R e_1 = v/‖v‖."""
+    v = np.asarray(v, float) / np.linalg.norm(v)
+    if len(v) == 2:
+        return np.array([[v[0], -v[1]], [v[1], v[0]]])
+    a = np.eye(3)[int(np.argmin(np.abs(v)))]  # the axis least aligned with v
+    b = np.cross(v, a)
+    b /= np.linalg.norm(b)
+    return np.column_stack([v, np.cross(b, v), b])
+
+
+def transport_urT(data: np.ndarray) -> np.ndarray:
+    """M on [h, t, vec C, u, w = vec_row(u tᵀ)] (level "urT"): the pose (C, t) ↦ (C R, s t) with s = 1/‖p‖ and
+    R e_1 = p/‖p‖, so that q' = C R e_1 + s t = s q: landmark p becomes the reference e_1.  Then
+    u' = D u with D = diag(1, …, 1, 1/s) (u's last entry is 1/q_d) and w' = u' t'ᵀ = s D u tᵀ: every
+    block maps linearly (vec(C R) = (Rᵀ ⊗ I) vec C).  Singular only for a landmark at the world origin."""
+    p = np.asarray(data, float).ravel()
+    d = len(p)
+    sc = 1.0 / np.linalg.norm(p)
+    D = np.ones(d)
+    D[-1] = 1.0 / sc
+    blocks = [np.ones((1, 1)), sc * np.eye(d), np.kron(rotation_to(p).T, np.eye(d)), np.diag(D),
+              np.kron(np.diag(sc * D), np.eye(d))]
+    n = sum(b.shape[0] for b in blocks)
+    M = np.zeros((n, n))
+    o = 0
+    for b in blocks:
+        M[o:o + b.shape[0], o:o + b.shape[0]] = b
+        o += b.shape[0]
     return M
 
 

@@ -12,6 +12,6 @@ from . import _stereo
 NAME = "stereo_2d"
 DESCRIPTION = "Stereo-camera localisation in 2-D from known landmarks, substitution u = q/q_z (AutoTight)."
 PARAMS: dict[str, Param] = _stereo.params(3, "urT")
-TRANSPORTS = {"stereo": _stereo.transport}
+TRANSPORTS = {"stereo": _stereo.transport, "stereo_urT": _stereo.transport_urT}
 (generate, build, lift, cost, sample, random_state, local_solve, recover,
  errors) = _stereo.module_parts(NAME, 2)

@@ -111,9 +111,19 @@ def test_stereo_1d_relation_count():
     assert relation_count("stereo_1d", {"n_landmarks": 3}) == 6
 
 
-def test_stereo_transport_checked():
-    res = check_problem("stereo_2d", {"level": "no", "n_landmarks": 3}, seed=1)
-    assert any(line.startswith("PASS transport") for line in res.lines()), res.lines()
+@pytest.mark.parametrize("name", ["stereo_2d", "stereo_3d"])
+@pytest.mark.parametrize("level, factor_type", [("no", "stereo"), ("urT", "stereo_urT")])
+def test_stereo_transport_checked(name, level, factor_type):
+    """check-module carries one landmark's learned relations to another's by TRANSPORTS and compares them
+    with those learned there (1e-8 relative): the change of variables is exact at both levels."""
+    res = check_problem(name, {"level": level, "n_landmarks": 3}, seed=1)
+    assert any(line.startswith(f"PASS transport: TRANSPORTS['{factor_type}']") for line in res.lines()), res.lines()
+
+
+def test_stereo_1d_transports_checked():
+    res = check_problem("stereo_1d", {"n_landmarks": 4}, seed=2)
+    for t in ("stereo1d", "stereo1d_pair"):
+        assert any(line.startswith(f"PASS transport: TRANSPORTS['{t}']") for line in res.lines()), res.lines()
 
 
 def test_robust_wahba_local_solver_finds_the_outliers():
