@@ -35,6 +35,7 @@ from autotight.constraint_set import ConstraintSet  # noqa: E402
 from autotight.discovery.discovered import DiscoveredSet  # noqa: E402
 from autotight.discovery.nullspace import spectrum  # noqa: E402
 from autotight.discovery.samples import draw  # noqa: E402
+from autotight.errors import AutotightError, SolverError  # noqa: E402
 from autotight.io import jsonable, versions  # noqa: E402
 from autotight.svec import monomials  # noqa: E402
 from autotight.tightness import Criteria  # noqa: E402
@@ -115,12 +116,24 @@ def _verdict(r: Any) -> dict[str, Any]:
             "constraints_s": float(r.times.get("constraints_s", float("nan")))}
 
 
+def _solve(prob: Any, params: dict[str, Any], seed: int, constraints: Any, crit: Criteria) -> dict[str, Any]:
+    """One solve's verdict; a solve that fails (SolverError, e.g. NumericalError) is recorded as "failed"
+    with its message and counts as neither tight nor undecided."""
+    try:
+        return _verdict(api.solve(prob, params, seed, constraints=constraints, criteria=crit)) | {"seed": seed}
+    except SolverError as e:
+        return {"outcome": "failed", "rank_tight": False, "cost_tight": False, "certified": False,
+                "log_svr": float("nan"), "rel_gap": None, "status": str(e), "n_constraints": None,
+                "sdp_s": float("nan"), "constraints_s": float("nan"), "seed": seed}
+
+
 def _fractions(rows: list[dict[str, Any]]) -> dict[str, Any]:
     n = len(rows)
     return {"n": n, **{k: sum(r[k] for r in rows) / n if n else float("nan")
                        for k in ("rank_tight", "cost_tight", "certified")},
             "accepted": sum(r["outcome"] == "tight" for r in rows) / n if n else float("nan"),
-            "undecided": sum(r["outcome"] == "undecided" for r in rows)}
+            "undecided": sum(r["outcome"] == "undecided" for r in rows),
+            "failed": sum(r["outcome"] == "failed" for r in rows)}
 
 
 def _discovery_counts(res: Any) -> dict[str, Any]:
@@ -144,10 +157,15 @@ def run_spec(spec: Spec, out: Path, seed: int, n_inst: int, n_carry: int, log: A
     row: dict[str, Any] = {"key": spec.key, "problem": spec.problem, "params": params, "seed": seed,
                            "accept": spec.accept, "why_cost": spec.why_cost}
     log(f"[{spec.key}] primary")
-    row["primary"] = _verdict(api.solve(prob, params, seed, constraints="primary", criteria=crit))
+    row["primary"] = _solve(prob, params, seed, "primary", crit)
     log(f"[{spec.key}] discover")
     t0 = time.perf_counter()
-    res = api.discover(prob, params, seed, criteria=crit, progress=None)
+    try:
+        res = api.discover(prob, params, seed, criteria=crit, progress=None)
+    except AutotightError as e:  # recorded, and the other problems still run
+        row["discover_wall_s"] = time.perf_counter() - t0
+        row["error"] = f"{type(e).__name__}: {e}"
+        return row
     row["discover_wall_s"] = time.perf_counter() - t0
     path = out / "sets" / f"{spec.key}.json"
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -155,17 +173,17 @@ def run_spec(spec: Spec, out: Path, seed: int, n_inst: int, n_carry: int, log: A
     row["set_file"] = str(path.relative_to(out))
     row["discovery"] = _discovery_counts(res)
     cset = ConstraintSet.load(path)
-    row["default_instance"] = _verdict(api.solve(prob, params, seed, constraints=cset, criteria=crit))
+    row["default_instance"] = _solve(prob, params, seed, cset, crit)
     log(f"[{spec.key}] held-out ({n_inst})")
     seeds = [instance_seed(seed, 0, t) for t in range(n_inst)]
-    held = [_verdict(api.solve(prob, params, s, constraints=cset, criteria=crit)) | {"seed": s} for s in seeds]
+    held = [_solve(prob, params, s, cset, crit) for s in seeds]
     row["heldout"] = {"instances": held, **_fractions(held)}
     if spec.all_candidates:
         log(f"[{spec.key}] held-out, every learned candidate")
         pairs = list(res.catalog.by_pair()) if hasattr(res, "catalog") else list(res.candidates)
         every = ConstraintSet(DiscoveredSet(prob.name, params, seed, pairs, res.discovered.learn_options, {},
                                             res.discovered.groups))
-        rows = [_verdict(api.solve(prob, params, s, constraints=every, criteria=crit)) | {"seed": s} for s in seeds]
+        rows = [_solve(prob, params, s, every, crit) for s in seeds]
         row["heldout_all_candidates"] = {"instances": rows, "n_pairs": len(pairs), **_fractions(rows)}
     row["relations"] = {label: {"params": p, "count": relation_count(spec.problem, p, seed)}
                         for label, p in spec.relations.items()}
@@ -174,11 +192,10 @@ def run_spec(spec: Spec, out: Path, seed: int, n_inst: int, n_carry: int, log: A
         for size in sizes:
             log(f"[{spec.key}] carry {name} = {size}")
             p = params | {name: size}
-            rows = [_verdict(api.solve(prob, p, s, constraints=cset, criteria=crit)) | {"seed": s}
-                    for s in [instance_seed(seed, 1, t) for t in range(n_carry)]]
+            rows = [_solve(prob, p, s, cset, crit) for s in [instance_seed(seed, 1, t) for t in range(n_carry)]]
             row["carry"].append({"param": name, "value": size, "instances": rows, **_fractions(rows),
-                                 "constraints_s_median": float(np.median([r["constraints_s"] for r in rows])),
-                                 "sdp_s_median": float(np.median([r["sdp_s"] for r in rows]))})
+                                 "constraints_s_median": float(np.nanmedian([r["constraints_s"] for r in rows])),
+                                 "sdp_s_median": float(np.nanmedian([r["sdp_s"] for r in rows]))})
     return row
 
 
@@ -191,7 +208,8 @@ def _peer_cell(key: str, what: str) -> str:
     return "—" if v is None else str(v)
 
 
-def render(rows: list[dict[str, Any]], command: str, meta: dict[str, Any]) -> str:
+def render(all_rows: list[dict[str, Any]], command: str, meta: dict[str, Any]) -> str:
+    rows = [r for r in all_rows if "error" not in r]
     L = ["# AutoTight's benchmark problems in autotight", "",
          f"Generated in full by `{command}` ({meta['date']}, {meta['wall_s']:.0f} s on this machine; "
          "versions in results.json).  Every figure below comes from that run, except the peer's columns, "
@@ -218,13 +236,13 @@ def render(rows: list[dict[str, Any]], command: str, meta: dict[str, Any]) -> st
                  f"{r['discover_wall_s']:.1f} | {sdp_s:.1f} | {lr} | "
                  f"{_peer_cell(r['key'], 'total_s')} |")
     L += ["", "## Held-out instances (the seeds `autotight check` uses)", "",
-          "| problem | instances | accepted | rank-tight | cost-tight | certified | undecided | median SDP s "
-          "| peer's verdict |", "|---|---|---|---|---|---|---|---|---|"]
+          "| problem | instances | accepted | rank-tight | cost-tight | certified | undecided | solve failed "
+          "| median SDP s | peer's verdict |", "|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         h = r["heldout"]
-        med = np.median([i["sdp_s"] for i in h["instances"]])
+        med = np.nanmedian([i["sdp_s"] for i in h["instances"]])
         L.append(f"| {r['key']} | {h['n']} | {_pct(h['accepted'])} | {_pct(h['rank_tight'])} | "
-                 f"{_pct(h['cost_tight'])} | {_pct(h['certified'])} | {h['undecided']} | {med:.2f} | "
+                 f"{_pct(h['cost_tight'])} | {_pct(h['certified'])} | {h['undecided']} | {h['failed']} | {med:.2f} | "
                  f"{_peer_cell(r['key'], 'verdict')} |")
     for r in rows:
         if "heldout_all_candidates" in r:
@@ -232,7 +250,7 @@ def render(rows: list[dict[str, Any]], command: str, meta: dict[str, Any]) -> st
             L.append(f"| {r['key']}, every learned candidate ({h['n_pairs']} pairs, "
                      f"{h['instances'][0]['n_constraints']} constraints) | {h['n']} | {_pct(h['accepted'])} | "
                      f"{_pct(h['rank_tight'])} | {_pct(h['cost_tight'])} | {_pct(h['certified'])} | {h['undecided']} | "
-                     f"{np.median([i['sdp_s'] for i in h['instances']]):.2f} | |")
+                     f"{h['failed']} | {np.nanmedian([i['sdp_s'] for i in h['instances']]):.2f} | |")
     L += ["", "## Independent quadratic relations of the lifted variety (nullity of sampled monomial data)", "",
           "| problem | lifting | ours | the peer's printed count |", "|---|---|---|---|"]
     peer_rel = {"range_only_3d": {"one position": "20 (6 known + 14 learned templates)"},
@@ -242,14 +260,14 @@ def render(rows: list[dict[str, Any]], command: str, meta: dict[str, Any]) -> st
         for label, v in r.get("relations", {}).items():
             L.append(f"| {r['key']} | {label} | {v['count']} | {peer_rel.get(r['key'], {}).get(label, '—')} |")
     L += ["", "## Carry-over: the set learned at the default size, applied at larger sizes", "",
-          "| problem | size | instances | accepted | rank-tight | cost-tight | certified | constraints "
-          "| creating them s (median) | SDP s (median) | share |", "|---|---|---|---|---|---|---|---|---|---|---|"]
+          "| problem | size | instances | accepted | rank-tight | cost-tight | certified | solve failed | constraints "
+          "| creating them s (median) | SDP s (median) | share |", "|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         for c in r["carry"]:
             share = c["constraints_s_median"] / c["sdp_s_median"] if c["sdp_s_median"] > 0 else float("nan")
             L.append(f"| {r['key']} | {c['param']} = {c['value']} | {c['n']} | {_pct(c['accepted'])} | "
-                     f"{_pct(c['rank_tight'])} | {_pct(c['cost_tight'])} | {_pct(c['certified'])} | "
-                     f"{c['instances'][0]['n_constraints']} | {c['constraints_s_median']:.2f} | "
+                     f"{_pct(c['rank_tight'])} | {_pct(c['cost_tight'])} | {_pct(c['certified'])} | {c['failed']} | "
+                     f"{max((i['n_constraints'] or 0) for i in c['instances'])} | {c['constraints_s_median']:.2f} | "
                      f"{c['sdp_s_median']:.2f} | {_pct(share)} |")
     L += ["", "## Where ours differs from the peer, and why", ""]
     for r in rows:
@@ -257,6 +275,9 @@ def render(rows: list[dict[str, Any]], command: str, meta: dict[str, Any]) -> st
         note = d.get("explanation") or ("tight" if d["tight"] else "not tight")
         L.append(f"- **{r['key']}**: discovery {'TIGHT' if d['tight'] else 'NOT TIGHT'} ({r['accept']}): {note}."
                  + (f" Cost acceptance because {r['why_cost']}." if r["why_cost"] else ""))
+    for r in all_rows:
+        if "error" in r:
+            L.append(f"- **{r['key']}**: discovery raised after {r['discover_wall_s']:.0f} s: {r['error']}")
     L += ["", "## Sources of the peer's numbers", ""]
     for k, p in PEER.items():
         L.append(f"- {k}: {p.get('setting', '')} — {p['source']}")
