@@ -1,0 +1,104 @@
+"""A pose (C, t) in d = 2 or 3 dimensions as blocks of a vector lifting, for AutoTight's problems.
+
+Convention (AutoTight, Dümbgen et al. 2024): the pose maps a world point p to q = C p + t; the lifted
+blocks are ``t`` (d entries) and ``c`` = vec C (d² entries, columns stacked), so that
+q = [I_d, pᵀ ⊗ I_d] [t; c].  The only primary constraints on the pose are CᵀC = I (the determinant is
+dropped, as in the peer).  A state is {"C": (d, d), "t": (d,)} (plus problem-specific entries).
+
+Local solvers perturb C ← exp(ψ^∧) C, t ← t + δ (ψ of size 1 in 2D, 3 in 3D; ``_landmark_terms``).
+"""
+
+from __future__ import annotations
+
+from typing import Callable
+
+import numpy as np
+import scipy.sparse as sp
+
+from autotight.constraints import Affine, Constraint, QuadForm, Variables
+from autotight.gauss_newton import gauss_newton
+from autotight.problem import LocalResult
+
+from . import _landmark_terms as lt
+
+T_BLOCK, C_BLOCK = "t", "c"
+
+
+def pose_blocks(d: int) -> list[tuple[str, int]]:
+    """[("t", d), ("c", d²)]."""
+    return [(T_BLOCK, d), (C_BLOCK, d * d)]
+
+
+def pose_values(C: np.ndarray, t: np.ndarray) -> dict[str, np.ndarray]:
+    return {T_BLOCK: np.asarray(t, float).ravel(), C_BLOCK: np.asarray(C, float).ravel(order="F")}
+
+
+def point_map(p: np.ndarray) -> Affine:
+    """q = C p + t as an affine expression in the blocks (d rows)."""
+    p = np.asarray(p, float).ravel()
+    d = len(p)
+    return Affine({T_BLOCK: np.eye(d), C_BLOCK: np.kron(p[None, :], np.eye(d))})
+
+
+def orthonormality(V: Variables, d: int, factor: str) -> list[Constraint]:
+    """c_iᵀ c_j = δ_ij h² for i ≤ j (d(d+1)/2 constraints) on vec C."""
+    out = []
+    for i in range(d):
+        for j in range(i, d):
+            E = np.zeros((d, d))
+            E[i, j] = 1.0
+            qf = QuadForm(V).add(C_BLOCK, C_BLOCK, np.kron(E, np.eye(d)))
+            if i == j:
+                qf.const(-1.0)
+            out.append(Constraint(qf.matrix(), 0.0, name=f"orth({i},{j})", factor=factor))
+    return out
+
+
+def pose_from_vector(x: np.ndarray, V: Variables, d: int) -> tuple[np.ndarray, np.ndarray]:
+    """(C projected to SO(d), t) and the raw C from a lifted vector x (x[0] = h; divided out when nonzero)."""
+    x = np.asarray(x, float).reshape(-1)
+    x = x / x[0] if x[0] != 0 else x  # h = 0 only on a factor of a rank > 1 solution: no rescaling
+    C_raw = x[V.slice(C_BLOCK)].reshape(d, d, order="F")
+    return lt.project_rotation(C_raw), x[V.slice(T_BLOCK)].copy(), C_raw
+
+
+def sample_pose(rng: np.random.Generator, nominal: dict, spread: float) -> dict:
+    """C = exp(spread·ν^∧) C̄, t = t̄ + spread·n (ν, n ~ N(0, I))."""
+    C = np.asarray(nominal["C"], float)
+    d = C.shape[0]
+    return {"C": lt.exp_rot(spread * rng.standard_normal(lt.rot_dof(d)), d) @ C,
+            "t": np.asarray(nominal["t"], float) + spread * rng.standard_normal(d)}
+
+
+def point_jacobian(C: np.ndarray, p: np.ndarray) -> np.ndarray:
+    """∂(C p + t)/∂[ψ, δ] (d × (dof + d)) for C ← exp(ψ^∧) C, t ← t + δ."""
+    d = C.shape[0]
+    return np.hstack([lt.rot_jacobian(C @ p, d), np.eye(d)])
+
+
+def retract(state: dict, eps: np.ndarray) -> dict:
+    C = np.asarray(state["C"], float)
+    d = C.shape[0]
+    k = lt.rot_dof(d)
+    out = dict(state)
+    out["C"] = lt.exp_rot(eps[:k], d) @ C
+    out["t"] = np.asarray(state["t"], float) + eps[k:k + d]
+    return out
+
+
+def pose_gauss_newton(residual: Callable[[dict], tuple[np.ndarray, np.ndarray]], init: dict,
+                      max_iter: int = 200) -> LocalResult:
+    """Damped Gauss-Newton on SO(d) × R^d for cost ‖e‖², residual(state) -> (e, ∂e/∂[ψ, δ])."""
+
+    def linearize(state: dict) -> tuple[np.ndarray, np.ndarray, sp.dia_array]:
+        e, J = residual(state)
+        return e, J, sp.eye_array(e.size, format="dia")
+
+    start = {"C": np.asarray(init["C"], float), "t": np.asarray(init["t"], float)}
+    return gauss_newton(linearize, retract, start, max_iter=max_iter)
+
+
+def pose_errors(state: dict, truth: dict) -> dict[str, float]:
+    """Rotation error (deg) and translation error (same units as t)."""
+    return {"rotation_deg": lt.rotation_angle_deg(np.asarray(state["C"]) @ np.asarray(truth["C"]).T),
+            "translation": float(np.linalg.norm(np.asarray(state["t"]) - truth["t"]))}

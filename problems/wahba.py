@@ -1,0 +1,93 @@
+"""Point-to-point registration (Wahba's problem with translation; AutoTight's "PPR").
+
+Unknown pose (C, t), C ∈ SO(d), d = 2 or 3.  Known points p_i (world), measured in the sensor frame as
+y_i = C p_i + t + n_i, n_i ~ N(0, σ² I).  Cost  Σ_i ‖C p_i + t − y_i‖².
+
+Lifting x = [h, t, vec C] (n = 1 + d + d², ``_pose_vector``); primary constraints CᵀC = I.  The lifted
+variety (1, t, vec C) with C ∈ SO(3) has 20 independent quadratic relations (6 primary + 14 redundant:
+row orthonormality and c_i × c_j = c_k); the peer learns 21 with h² = 1 and keeps 7.
+
+One factor "registration" (h, t, c) holds the cost and the constraints (no data: its relations do not
+depend on the measurements).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from autotight.constraints import Factor, Model, Variables, const, sum_quads
+from autotight.problem import Instance, LocalResult, Param
+
+from . import _landmark_terms as lt
+from . import _pose_vector as pv
+
+NAME = "wahba"
+DESCRIPTION = "Point-to-point registration of one pose from known point pairs (AutoTight's PPR)."
+PARAMS = {
+    "dim": Param(3, "dimension d: 2 or 3"),
+    "n_points": Param(4, "number of point correspondences", low=1),
+    "sigma": Param(0.01, "measurement noise standard deviation", low=0.0),
+}
+PAPER_CLAIM = {"source": "AutoTight _results_test/terminal_output.log, PPR row (wahba_3d_no_no)",
+               "set": "paper", "default": "21 constraints → 7 required; rank-tight (SVR 8.8e9)"}
+
+
+def _variables(d: int) -> Variables:
+    return Variables(pv.pose_blocks(d))
+
+
+def generate(params: dict, rng: np.random.Generator) -> Instance:
+    d = lt.check_dim(params["dim"])
+    points = rng.standard_normal((params["n_points"], d))
+    C, t = lt.random_rotation(rng, d), rng.uniform(-1.0, 1.0, d)
+    y = points @ C.T + t + params["sigma"] * rng.standard_normal(points.shape)
+    return Instance(NAME, dict(params), {"points": points, "y": y}, {"C": C, "t": t})
+
+
+def build(inst: Instance) -> Model:
+    P, Y = inst.measurements["points"], inst.measurements["y"]
+    d = P.shape[1]
+    V = _variables(d)
+    residuals = [pv.point_map(p) - const(y) for p, y in zip(P, Y)]
+    Q = sum_quads(V, [(e, e, None) for e in residuals])
+    return Model(V, [Factor("registration", "pose", ("h", pv.T_BLOCK, pv.C_BLOCK), cost=Q,
+                            constraints=pv.orthonormality(V, d, "registration"))])
+
+
+def lift(inst: Instance, state: dict) -> np.ndarray:
+    return _variables(len(state["t"])).assemble(pv.pose_values(state["C"], state["t"]))
+
+
+def _residual(inst: Instance, state: dict) -> tuple[np.ndarray, np.ndarray]:
+    P, Y = inst.measurements["points"], inst.measurements["y"]
+    C, t = np.asarray(state["C"], float), np.asarray(state["t"], float)
+    e = (P @ C.T + t - Y).ravel()
+    return e, np.vstack([pv.point_jacobian(C, p) for p in P])
+
+
+def cost(inst: Instance, state: dict) -> float:
+    e, _ = _residual(inst, state)
+    return float(e @ e)
+
+
+def sample(inst: Instance, rng: np.random.Generator, nominal: dict, spread: float) -> dict:
+    return pv.sample_pose(rng, nominal, spread)
+
+
+def random_state(inst: Instance, rng: np.random.Generator) -> dict:
+    d = inst.measurements["points"].shape[1]
+    return {"C": lt.random_rotation(rng, d), "t": rng.uniform(-1.0, 1.0, d)}
+
+
+def local_solve(inst: Instance, init: dict, max_iter: int = 200) -> LocalResult:
+    return pv.pose_gauss_newton(lambda s: _residual(inst, s), init, max_iter)
+
+
+def recover(inst: Instance, Theta: np.ndarray) -> dict:
+    d = inst.measurements["points"].shape[1]
+    C, t, C_raw = pv.pose_from_vector(Theta, _variables(d), d)
+    return {"C": C, "t": t, "det_raw": np.array(np.linalg.det(C_raw))}
+
+
+def errors(inst: Instance, state: dict) -> dict:
+    return pv.pose_errors(state, inst.truth)
