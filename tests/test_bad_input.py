@@ -78,7 +78,7 @@ def broken_module(folder: Path, variant: str) -> Path:
 DRIVER = r"""
 import json, os, sys, time, traceback
 import numpy, scipy, pandas, matplotlib, cvxpy, distributed  # imported once, before forking
-import autotight.cli, autotight.report.render, autotight.report.sweep, autotight.discovery.pipeline
+import autotight.cli, autotight.report.render, autotight.report.sweep, autotight.discovery.engine
 import problems.rotation_averaging
 cases, parallel = json.load(open(sys.argv[1])), int(sys.argv[3])
 results, running = {}, {}
