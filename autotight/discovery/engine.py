@@ -22,7 +22,8 @@ those sizes as well.
    ``max_solves`` SDP solver calls are spent: the result then records that validation failed.
 6. The set (``DiscoveredSet``) is saved with the evidence of every round (``DiscoveryResult.record``).
 
-Seeds (``trainers``): training SeedSequence((seed, i, t, 1)), held-out SeedSequence((seed, i, t, 2)) with t
+Seeds (``trainers``): training ``seed`` for the first instance at the first point, else
+SeedSequence((seed, i, t, 1)); held-out SeedSequence((seed, i, t, 2)) with t
 counting on over the rounds, so every batch is fresh and none is one of ``check``'s instances.
 """
 

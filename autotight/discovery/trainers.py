@@ -7,7 +7,9 @@ with its block scaling and verdict), counts the solver calls per stage and cache
 instance: tightness is monotone in the constraint set, so a set containing a known tight set is tight
 and a set inside a known loose one is loose.
 
-Seeds: training instance t at point i has the seed SeedSequence((seed, i, t, 1)); held-out instances
+Seeds: the first training instance at the first point has the discovery's seed (it is the instance
+``solve --seed`` solves there); training instance t at point i otherwise has SeedSequence((seed, i, t, 1));
+held-out instances
 SeedSequence((seed, i, t, 2)) (``heldout_seed``); ``check`` uses SeedSequence((seed, i, t)), so none of
 a discovery's instances is one of ``check``'s.
 """
@@ -24,13 +26,17 @@ from ..model import Constraint, Model, frobenius
 from ..pipeline import LocalSearch, SolveResult, local_search, seeds, solve_instance
 from ..problem import Instance, Problem
 from ..tightness import Criteria
+from ..unbounded import is_unbounded
 from .catalog import Catalog, Pair, learn
 from .discovered import DiscoveredSet
 from .learn import LearnOptions
 
 
 def training_seed(seed: int, point: int, trial: int) -> int:
-    """Seed of training instance ``trial`` at point ``point``: SeedSequence((seed, point, trial, 1))."""
+    """Seed of training instance ``trial`` at point ``point``: ``seed`` itself for the first one (the instance
+    ``solve --seed SEED`` solves at the first point), else SeedSequence((seed, point, trial, 1))."""
+    if point == 0 and trial == 0:
+        return int(seed)
     return int(np.random.SeedSequence([seed, point, trial, 1]).generate_state(1, np.uint32)[0])
 
 
@@ -120,7 +126,8 @@ class Solves:
         if tight:
             tr.tight_result, tr.tight_pairs = r, chosen
         self.log.append({"stage": stage, "point": tr.point, "seed": tr.seed, "n_pairs": len(chosen),
-                         "outcome": r.outcome, "log_svr": r.log_svr, "status": r.sdp.status})
+                         "outcome": r.outcome, "log_svr": r.log_svr, "status": r.sdp.status,
+                         "unbounded": is_unbounded(r.sdp)})
         return tight
 
     def tight_on_all(self, trainers: list[Trainer], chosen: Sequence[Pair], stage: str,
