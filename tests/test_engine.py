@@ -91,11 +91,11 @@ class _Blind(_Needs):
 def test_a_solve_without_usable_x_adds_every_candidate_and_the_reduction_prunes():
     """Discrete K = 20 at σ = 0.316 fails with the primary constraints (NumericalError): nothing ranks
     the candidates, so all are added, and the reduction keeps only what is needed."""
-    from autotight.discovery.range import _tighten
+    from autotight.discovery.select import tighten
 
     run = _Blind({1: [{"b", "d"}], 2: [{"z"}]})  # trainer 2 needs a pair that is not a candidate
     trainers = [_trainer(1), _trainer(2)]
-    chosen = _tighten(run, trainers, list("abcde"), 1e-7, lambda *a: None)
+    chosen = tighten(run, trainers, list("abcde"), lambda *a: None)
     assert set(chosen) == set("abcde") and trainers[0].reached
     assert not trainers[1].reached and "NumericalError with every candidate added" in trainers[1].message
     pairs, _ = _reduce(run, [trainers[0]], chosen, lambda *a: None)
@@ -179,9 +179,10 @@ def test_failing_heldout_instances_become_training_instances_the_set_is_then_tig
     prob = at.load_problem("pose_averaging")
     res = discover(prob, {"M": 3, "sigma": 1.0}, 0, n_heldout=6, min_fraction=1.0, max_rounds=3, compare=False)
     rounds = res.validation["rounds"]
-    failing = [s for r in rounds[:-1] for p in r["points"] for s in p["failing_seeds"]]
+    failing = [s for r in rounds if r["taken_in"] for p in r["points"] for s in p["failing_seeds"]]
     taken = [tr.seed for tr in res.trainers if tr.origin == "held-out"]
-    assert failing and taken == failing  # every failing held-out instance of a round that was not the last
+    assert failing and taken == failing  # every failing held-out instance of a round that takes them in
+    assert all(r["taken_in"] for r in rounds[:-1])  # every round but the last
     assert sum(r["taken_in"] for r in rounds) == len(taken)
     seen = [s for r in rounds for s in [heldout_seed(0, 0, 6 * (r["round"] - 1) + t) for t in range(6)]]
     assert len(seen) == len(set(seen))  # every round is a fresh batch

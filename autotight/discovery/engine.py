@@ -17,9 +17,13 @@ those sizes as well.
    the set in parallel (``heldout``: ``jobs``/``scheduler``).  A point passes as in ``check``: tight /
    (instances − undecided) ≥ ``min_fraction``.
 5. **Close the loop**: every held-out instance the set fails becomes a training instance; the set is
-   tightened from where it is on them and reduced again over all training instances, and a fresh batch is
-   drawn.  It stops when a batch passes at every point, or after ``max_rounds`` batches, or once
-   ``max_solves`` SDP solver calls are spent: the result then records that validation failed.
+   tightened from where it is on them (its pairs stay: dropping them to fit the new instances would lose
+   what the earlier batches showed; the added pairs are reduced over all training instances), and the
+   points with a failing instance get a fresh batch (the set only grows and tightness is monotone in the
+   set, so a batch without failures stays tight).  It stops when every point's latest batch has no failing
+   instance, or when ``max_rounds`` rounds or ``max_solves`` SDP solver calls are spent.  The set is
+   validated when every point's latest batch passes at ``min_fraction`` (a passing batch's failing
+   instances are still taken in); otherwise the result records that validation failed.
 6. The set (``DiscoveredSet``) is saved with the evidence of every round (``DiscoveryResult.record``).
 
 Seeds (``trainers``): training ``seed`` for the first instance at the first point, else
@@ -175,34 +179,40 @@ def discover(problem: Problem | str, params: Mapping[str, Any] | None = None, se
         return ds
 
     rounds: list[dict[str, Any]] = []
-    last: dict[str, list] = {}
+    last: list[Any] = [None] * len(check_points)  # per point its latest batch (a PointResult)
     ds = timed("templates_s", make_set, pairs)
     next_t = [0] * len(check_points)
     validated: bool | None = None
     stop = ""
     while n_heldout and not unreached:
-        batch = [[heldout_seed(seed, i, next_t[i] + t) for t in range(n_heldout)] for i in range(len(check_points))]
-        next_t = [n + n_heldout for n in next_t]
-        sets: dict[str, Any] = {"set": ConstraintSet(ds)}
-        held, n = timed("heldout_s", solve_batch, prob, sets, check_points, batch, min_fraction=float(min_fraction),
-                        criteria=criteria, config=config, n_random=1, jobs=jobs, scheduler=scheduler)
+        # a point whose latest batch had no failing instance is done: the set only grows from here on, and
+        # tightness is monotone in the set, so that batch stays tight
+        todo = [i for i, pr in enumerate(last) if pr is None or pr.count("not tight") or not pr.passed]
+        batch = [[heldout_seed(seed, i, next_t[i] + t) for t in range(n_heldout)] if i in todo else []
+                 for i in range(len(check_points))]
+        next_t = [n + len(b) for n, b in zip(next_t, batch)]
+        held, n = timed("heldout_s", solve_batch, prob, {"set": ConstraintSet(ds)}, check_points, batch,
+                        min_fraction=float(min_fraction), criteria=criteria, config=config, n_random=1, jobs=jobs,
+                        scheduler=scheduler)
         run.count("heldout", n)
-        last = held
-        failing = [(i, s) for i, pr in enumerate(held["set"]) for s, _, _ in pr.with_outcome("not tight")]
-        passed = all(pr.passed for pr in held["set"])
-        rounds.append(round_record(len(rounds), held["set"], len(pairs), passed))
-        say("validate", f"round {len(rounds)}: {'passed' if passed else f'{len(failing)} not tight'}")
-        if passed:
-            validated = True
+        for i in todo:
+            last[i] = held["set"][i]
+        failing = [(i, s) for i in todo for s, _, _ in last[i].with_outcome("not tight")]
+        passed = all(pr.passed for pr in last)
+        rounds.append(round_record(len(rounds), [last[i] for i in todo], len(pairs), passed))
+        say("validate", f"round {len(rounds)}: {'passed' if passed else 'not passed'}, {len(failing)} not tight")
+        if not failing:  # every point's latest batch without a failure (or only undecided ones left)
+            validated = passed
+            if not passed:
+                stop = "held-out instances undecided by the solver's accuracy; none failed"
             break
+        spent = ""
         if len(rounds) >= max_rounds:
-            validated, stop = False, f"{max_rounds} held-out rounds spent (max_rounds)"
-            break
-        if max_solves is not None and run.n_solves >= max_solves:
-            validated, stop = False, f"{run.n_solves} SDP solver calls spent (max_solves {max_solves})"
-            break
-        if not failing:  # only undecided instances keep the batch from passing: nothing to learn from
-            validated, stop = False, "held-out instances undecided by the solver's accuracy; none failed"
+            spent = f"{max_rounds} held-out rounds spent (max_rounds)"
+        elif max_solves is not None and run.n_solves >= max_solves:
+            spent = f"{run.n_solves} SDP solver calls spent (max_solves {max_solves})"
+        if spent and not passed:
+            validated, stop = False, spent
             break
         new = [timed("learn_s", make_trainer, prob, check_points[i][0], i, s, groups, learn_options, n_random,
                      source, "held-out") for i, s in failing]
@@ -212,20 +222,21 @@ def discover(problem: Problem | str, params: Mapping[str, Any] | None = None, se
         reached = [tr for tr in trainers if tr.reached]
         rounds[-1]["taken_in"] = len(new)
         rounds[-1]["not_reached"] = len(trainers) - len(reached)
-        if len(more) > len(pairs):
-            pairs, d2 = timed("reduce_s", reduce, run, reached, more, say)
+        if len(more) > len(pairs):  # the pairs added for the new instances, reduced; the set's own pairs stay
+            pairs, d2 = timed("reduce_s", reduce, run, reached, more, say, keep=pairs)
             dropped += d2
-        rounds[-1]["n_pairs_after"] = len(pairs)
-        ds = timed("templates_s", make_set, pairs)
-    if compare and last and validated is not None:  # the paper's families on the last batch's instances
-        model0 = trainers[0].model
-        if model0.paper:
-            batch = [list(pr.seeds) for pr in last["set"]]
-            paper, n = timed("heldout_s", solve_batch, prob, {"paper": "paper"}, check_points, batch,
-                             min_fraction=float(min_fraction), criteria=criteria, config=config, n_random=1,
-                             jobs=jobs, scheduler=scheduler)
-            run.count("paper", n)
-            last["paper"] = paper["paper"]
+            rounds[-1]["n_pairs_after"] = len(pairs)
+            ds = timed("templates_s", make_set, pairs)
+        if spent:  # the last batch passed; its failing instances were taken in (the set only grew)
+            validated = True
+            break
+    paper: list[Any] = [None] * len(check_points)
+    if compare and validated is not None and trainers[0].model.paper:  # on each point's latest batch
+        got, n = timed("heldout_s", solve_batch, prob, {"paper": "paper"}, check_points,
+                       [list(pr.seeds) for pr in last], min_fraction=float(min_fraction), criteria=criteria,
+                       config=config, n_random=1, jobs=jobs, scheduler=scheduler)
+        run.count("paper", n)
+        paper = got["paper"]
     validation = {"passed": validated, "min_fraction": float(min_fraction), "n_heldout": n_heldout,
                   "max_rounds": max_rounds, "max_solves": max_solves, "rounds": rounds,
                   "message": _validation_message(validated, stop, rounds, n_heldout, unreached)}
@@ -235,7 +246,7 @@ def discover(problem: Problem | str, params: Mapping[str, Any] | None = None, se
         mine = [tr for tr in trainers if tr.point == i]
         precs.append(PointRecord(i, varied, full, [tr.seed for tr in mine], [tr.reached for tr in mine],
                                  [tr.message for tr in mine], [tr.origin for tr in mine],
-                                 last["set"][i] if last else None, last["paper"][i] if "paper" in last else None,
+                                 last[i], paper[i],
                                  carried=i >= len(points)))
     first = next((tr for tr in trainers if tr.catalog is not None), None)
     span, like = {}, {}
@@ -257,7 +268,9 @@ def _validation_message(validated: bool | None, stop: str, rounds: list[dict], n
     if not n_heldout:
         return "not validated (no held-out instances)"
     if validated:
-        return f"validated: a fresh held-out batch passed at every point (round {len(rounds)})"
+        taken = sum(r.get("taken_in", 0) for r in rounds)
+        return (f"validated: every point's latest fresh held-out batch passed ({len(rounds)} round(s), {taken} "
+                "failing held-out instance(s) taken in)")
     worst = min(((p["fraction"], p) for p in rounds[-1]["points"] if not p["passed"]),
                 key=lambda x: float("inf") if x[0] != x[0] else x[0], default=(None, None))[1]
     where = f" (worst {worst['varied'] or 'point'}: {worst['tight']} tight of {worst['instances']})" if worst else ""

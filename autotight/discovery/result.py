@@ -97,7 +97,7 @@ class DiscoveryResult:
 
     @property
     def validated(self) -> bool | None:
-        """True: a fresh held-out batch passed at every point; False: the budget ran out first; None: no
+        """True: every point's latest fresh held-out batch passed; False: the budget ran out first; None: no
         validation (no held-out instances, or the set is not tight on its training instances)."""
         return self.validation["passed"]
 

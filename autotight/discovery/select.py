@@ -108,16 +108,19 @@ def tighten(run: Solves, trainers: list[Trainer], candidates: list[Pair], say: S
     return chosen
 
 
-def reduce(run: Solves, trainers: list[Trainer], chosen: list[Pair], say: Say) -> tuple[list[Pair], list[Pair]]:
-    """An irreducible subset of ``chosen`` tight on every trainer, and the pairs dropped by the final check
-    (module docstring)."""
+def reduce(run: Solves, trainers: list[Trainer], chosen: list[Pair], say: Say,
+           keep: Sequence[Pair] = ()) -> tuple[list[Pair], list[Pair]]:
+    """A subset of ``chosen`` tight on every trainer from which no pair outside ``keep`` can be removed, and the
+    pairs dropped by the final check (module docstring).  ``keep``: pairs that stay (a validated set that the
+    closed loop grows: removing its pairs to fit the new instances would lose what the earlier ones showed)."""
+    kept = set(keep)
     imp: dict[Pair, float] = {p: 0.0 for p in chosen}
     for tr in trainers:
         for p, v in tr.importance().items():
             imp[p] = max(imp.get(p, 0.0), v)
     probe = [_hardest(trainers)]
     current = list(chosen)
-    pending = sorted(chosen, key=lambda p: imp[p])
+    pending = sorted((p for p in chosen if p not in kept), key=lambda p: imp[p])
     breaker: dict[Pair, Trainer] = {}
     while True:
         current = _remove_blocks(run, probe, current, pending, breaker, say)
@@ -126,13 +129,13 @@ def reduce(run: Solves, trainers: list[Trainer], chosen: list[Pair], say: Say) -
             break
         probe.append(bad)
         current = _restore(run, bad, current, [p for p in chosen if p not in current])
-        pending = sorted(current, key=lambda p: imp[p])
+        pending = sorted((p for p in current if p not in kept), key=lambda p: imp[p])
     order = probe + [tr for tr in trainers if tr not in probe]
     dropped: list[Pair] = []
     changed = True
     while changed:
         changed = False
-        for p in list(current):
+        for p in [q for q in current if q not in kept]:
             rest = [q for q in current if q != p]
             _to_front(order, breaker.get(p))
             ok, bad = run.tight_on_all(order, rest, "verify", exact=True)
