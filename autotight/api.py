@@ -88,29 +88,22 @@ def solve(problem: str | ModuleType | Problem, params: dict[str, Any] | None = N
 
 def discover(problem: str | ModuleType | Problem, params: dict[str, Any] | None = None, seed: int = 0, *,
              solver: Any = None, **options: Any):
-    """Learn, tighten, reduce and check a constraint set on ``problem`` at ``params``.
+    """Learn a constraint set on ``problem`` at ``params`` (over every point of ``over=…``) and validate it on
+    fresh held-out instances, taking every failing one in, until a held-out batch passes.
 
-    Returns a ``DiscoveryResult``; its ``constraint_set`` is what ``solve(constraints=…)`` takes.
-    ``options`` are those of ``autotight.discovery.pipeline.discover`` (groups, learn_options,
-    criteria, n_heldout, n_random, progress, …).  With ``over={"sigma": [...], ...}`` the set is
-    learned over the whole range (``autotight.discovery.range.discover_range``: options n_train,
-    train_params, n_heldout, …) and a ``RangeDiscoveryResult`` is returned.  So it is too with
-    ``n_train`` > 1, or when the problem's ``DEFAULT_TRAIN`` exceeds 1 and ``n_train`` is not given: the
-    set is then reduced over that many training instances of ``params``.  So it is, finally, when the
-    problem module declares where a selection carries to any size (``CARRY``, see
-    ``autotight.discovery.carry``; e.g. discrete_trajectory at K = 5: learned at K = 5, selected on
-    K = 20 instances over the noise range, checked at K = 200, with the IPM unless ``solver`` is given)
-    and no range option is given; ``carry=False`` selects at ``params`` alone.
+    Returns a ``DiscoveryResult`` (``autotight.discovery.result``; fields in docs/discovery.md): its
+    ``constraint_set`` is what ``solve(constraints=…)`` takes, ``save(path)`` writes it, ``validated`` says
+    whether a fresh held-out batch passed.  ``options`` are those of ``autotight.discovery.engine.discover``
+    (over, n_train, n_heldout, min_fraction, max_rounds, max_solves, carry_to, groups, learn_options,
+    criteria, n_random, compare, jobs, scheduler, progress).  solver: a ``SolverConfig`` (None: Clarabel, or
+    the backend a problem's ``CARRY_TO`` hint names).
     """
-    from .discovery.carry import RANGE_OPTIONS, carry_plan
-    from .discovery.pipeline import discover as _discover, n_training
-    from .discovery.range import discover_range
+    from .discovery.engine import discover as _discover
 
     prob = _problem(problem)
     params = _params(params)
     solver = None if solver is None else solver_config(solver)
-    known = (set(inspect.signature(_discover).parameters) | set(inspect.signature(discover_range).parameters)
-             | {"carry", "n_train"}) - {"problem", "params", "seed", "solver", "over_"}
+    known = set(inspect.signature(_discover).parameters) - {"problem", "params", "seed", "solver"}
     unknown = sorted(set(options) - known)
     if unknown:
         raise ParameterError(f"discover: unknown option(s) {', '.join(unknown)}; known: {', '.join(sorted(known))}")
@@ -118,34 +111,13 @@ def discover(problem: str | ModuleType | Problem, params: dict[str, Any] | None 
         _criteria(options["criteria"])
     full = prob.parse_params(params)
     check_size(prob, full, solver)
-    for name, per in (("n_heldout", 3), ("n_train", 3), ("n_validate", 3)):
+    for name, per in (("n_heldout", 3), ("n_train", 3)):
         if options.get(name) is not None:
-            n = count_arg(options[name], name)
-            check_count(prob, full, f"{name} {n}", n, per_item=per, what="instances")
-    carry = options.pop("carry", True)
-    plan = carry_plan(prob, params) if carry and not any(k in options for k in RANGE_OPTIONS) else None
-    over = plan.over if plan is not None else options.pop("over", None)
-    n_train = n_training(prob, options.pop("n_train", None), over is not None or plan is not None)
-    if plan is not None or over is not None or n_train > 1:
-        if plan is not None:
-            params = plan.params
-            options.update(plan.range_options())
-            if solver is None and plan.solver:
-                solver = SolverConfig(backend=plan.solver)
-        res = discover_range(prob, params, over or {}, _seed(seed), n_train=n_train,
-                             solver=solver or SolverConfig(), **options)
-        if plan is not None:
-            plan.mark(res)
-        return res
-
-    ranged_only = sorted(set(options) - set(inspect.signature(_discover).parameters))
-    if ranged_only:
-        raise ParameterError(f"discover: option(s) {', '.join(ranged_only)} apply to a discovery over a range "
-                             "(over={...}, or n_train > 1)")
-    for name in ("n_heldout", "n_random"):
-        if name in options:
             options[name] = count_arg(options[name], name)
-    return _discover(prob, params, _seed(seed), solver=solver or SolverConfig(), **options)
+            check_count(prob, full, f"{name} {options[name]}", options[name], per_item=per, what="instances")
+    if "n_random" in options:
+        options["n_random"] = count_arg(options["n_random"], "n_random")
+    return _discover(prob, params, _seed(seed), solver=solver, **options)
 
 
 def certify(problem: str | ModuleType | Problem, params: dict[str, Any] | None = None, seed: int = 0, *,

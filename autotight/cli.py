@@ -63,7 +63,11 @@ def constraints_arg(value: str | None, skip_invalid: bool = False):
     from .constraint_set import ConstraintSet
 
     check_set_file(value)
-    return ConstraintSet.load(value, skip_invalid=skip_invalid)
+    cs = ConstraintSet.load(value, skip_invalid=skip_invalid)
+    warning = cs.discovered.validation_warning()
+    if warning:
+        print(f"warning: {value}: {warning}", file=sys.stderr)
+    return cs
 
 
 def add_solver_args(p: argparse.ArgumentParser, default: str | None = "clarabel", note: str = "") -> None:

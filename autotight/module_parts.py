@@ -6,8 +6,8 @@ A module may declare (``docs/problem_contract.md``):
 - ``PAPER_CLAIM``: what the paper reports, shown by ``report``: a dict with optional ``source``,
   ``set`` and ``default`` (strings) and ``by_sigma`` ({σ > 0: text});
 - ``DEFAULT_GROUPS``: discovery's learning groups, "factors", "whole", "adjacent:…" or a list of block-name lists;
-- ``DEFAULT_TIGHTEN``: where discovery's tightening starts, "greedy" or "all";
-- ``DEFAULT_TRAIN``: discovery's training instances, an int ≥ 1;
+- ``CARRY_TO``: a hint of the sizes a discovered set must also pass at, ``{"params": {name: value},
+  "solver": backend}`` (``solver`` optional);
 - ``CHECK_PARAMS``: the parameters ``check-module`` uses, valid by ``PARAMS``.
 
 Each reader returns the value (or the default when the module does not declare it) and raises
@@ -26,8 +26,6 @@ import numpy as np
 
 from .errors import AutotightError, ProblemDefinitionError
 
-#: where discovery's tightening may start (``discovery.tighten.tighten``'s ``start``)
-TIGHTEN_STARTS = ("greedy", "all")
 #: keys ``PAPER_CLAIM`` may hold
 CLAIM_KEYS = ("source", "set", "default", "by_sigma")
 
@@ -98,20 +96,21 @@ def default_groups(problem: Any) -> Any:
                                           f"got {v!r}")
 
 
-def default_tighten(problem: Any) -> str:
-    """``DEFAULT_TIGHTEN`` ("greedy" when absent)."""
-    v = getattr(problem.module, "DEFAULT_TIGHTEN", "greedy")
-    if v not in TIGHTEN_STARTS:
-        raise _bad(problem, "DEFAULT_TIGHTEN", f"must be one of {', '.join(TIGHTEN_STARTS)}, got {v!r}")
-    return str(v)
-
-
-def default_train(problem: Any) -> int:
-    """``DEFAULT_TRAIN`` (1 when absent)."""
-    v = getattr(problem.module, "DEFAULT_TRAIN", 1)
-    if isinstance(v, bool) or not isinstance(v, int) or v < 1:
-        raise _bad(problem, "DEFAULT_TRAIN", f"must be an int ≥ 1, got {v!r}")
-    return v
+def carry_to(problem: Any) -> tuple[dict[str, Any], str | None]:
+    """``CARRY_TO`` as (parameters a discovered set must also pass at, each parsed; suggested backend or
+    None); ({}, None) when absent."""
+    spec = getattr(problem.module, "CARRY_TO", None)
+    if spec is None:
+        return {}, None
+    if (not isinstance(spec, Mapping) or set(spec) - {"params", "solver"} or not isinstance(spec.get("params"), Mapping)
+            or not isinstance(spec.get("solver", ""), str)):
+        raise _bad(problem, "CARRY_TO", f"must be {{'params': {{name: value}}, 'solver': backend}}, got {spec!r}")
+    values = dict(spec["params"])
+    try:
+        problem.parse_params(values)
+    except AutotightError as e:
+        raise _bad(problem, "CARRY_TO", f"is invalid: {str(e).splitlines()[0]}") from None
+    return {k: problem.params[k].parse(k, v) for k, v in values.items()}, spec.get("solver")
 
 
 def check_params(problem: Any) -> dict[str, Any]:
@@ -129,5 +128,5 @@ def check_params(problem: Any) -> dict[str, Any]:
 #: every declared value with its reader, in the order check-module reports them
 READERS: dict[str, Callable[[Any], Any]] = {
     "SIGMAS": sigmas, "PAPER_CLAIM": paper_claim, "DEFAULT_GROUPS": default_groups,
-    "DEFAULT_TIGHTEN": default_tighten, "DEFAULT_TRAIN": default_train, "CHECK_PARAMS": check_params,
+    "CARRY_TO": carry_to, "CHECK_PARAMS": check_params,
 }

@@ -26,13 +26,13 @@ and **may** define (the default is used otherwise)
   the plain log SVR);
 - ``SPREAD`` (0.5): the spread discovery samples with; ``RANDOM_SPREAD`` (π); ``SIGMAS`` (the noise levels
   of ``report``); ``CHECK_PARAMS`` (parameters for ``check-module``; default ``PARAMS``' defaults);
-  ``PAPER_CLAIM``, ``DEFAULT_GROUPS``, ``DEFAULT_TIGHTEN``, ``DEFAULT_TRAIN`` (``autotight.module_parts``
+  ``PAPER_CLAIM``, ``DEFAULT_GROUPS``, ``CARRY_TO`` (``autotight.module_parts``
   says what each holds and validates it where it is read);
 - ``TRANSPORTS: dict[str, Callable]``: per factor type, ``transport(data) -> M`` (n × n, n the factor's
   local columns, h first): a factor's columns θ satisfy the relations of measurement ``data`` exactly
   when Mθ satisfies those of the reference measurement (``autotight.discovery.transport``);
-- ``CARRY = {"at_least": {...}, "over": {...}, "validate_at": {...}, "solver": str}`` (each key optional):
-  where a set selected by plain ``discover`` carries to any size (``autotight.discovery.carry``).
+- ``CARRY_TO = {"params": {name: value}, "solver": backend}``: a hint that a discovered set of this problem
+  should carry to instances of these sizes: ``discover`` validates there too (``autotight.discovery.engine``).
 
 A state is a ``dict[str, np.ndarray]`` in the problem's own terms.  h² = 1 (d = 1) or Θ_hh = I_d
 is added to the primary constraints for you (``Model.homogenisation``); ``lift`` fills h in when it
@@ -72,8 +72,7 @@ State = dict[str, np.ndarray]
 REQUIRED = ("PARAMS", "generate", "build", "lift", "sample", "local_solve", "recover")
 #: Parts with a default (``Problem`` derives them when absent).
 OPTIONAL = ("NAME", "DESCRIPTION", "cost", "random_state", "errors", "marginal_log_svr", "SPREAD", "RANDOM_SPREAD",
-            "SIGMAS", "PAPER_CLAIM", "DEFAULT_GROUPS", "DEFAULT_TIGHTEN", "DEFAULT_TRAIN", "CHECK_PARAMS",
-            "TRANSPORTS", "CARRY")
+            "SIGMAS", "PAPER_CLAIM", "DEFAULT_GROUPS", "CHECK_PARAMS", "TRANSPORTS", "CARRY_TO")
 FUNCTIONS = ("generate", "build", "lift", "sample", "cost", "local_solve", "recover", "random_state", "errors",
              "marginal_log_svr")
 #: Default sampling spread (discovery's samples, check-module).

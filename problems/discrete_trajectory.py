@@ -57,12 +57,10 @@ PARAMS = {
     "climb": Param(0.1, "vertical distance per step (makes the path a helix)"),
 }
 
-#: where a selection carries to any K (``autotight.discovery.carry``): plain ``discover -p K=5`` learns the
-#: candidates at K = 5, selects the set on chains of at least 20 poses over this noise range, and checks it on
-#: a chain of 200 poses per σ, tightening it where it breaks; with our IPM unless --solver is given.  Selected at
-#: K = 5 alone the set is one pair, tight at K = 30 but not at K = 100 (``docs/performance.md``).
-CARRY = {"at_least": {"K": 20}, "over": {"sigma": [0.001, 0.00316, 0.01, 0.0316, 0.1, 0.316]},
-         "validate_at": {"K": 200}, "solver": "ipm"}
+#: a hint (``autotight.discovery.engine``): a learned set should carry to long chains, so ``discover`` also
+#: validates it on held-out chains of 200 poses (every failing one becomes a training instance), with our IPM
+#: unless --solver is given.  Selected at K = 5 alone the set is one pair, not tight at K = 100.
+CARRY_TO = {"params": {"K": 200}, "solver": "ipm"}
 
 #: each factor type's learned relations move with its measurement (``Factor.data``) by this change of
 #: variables (``autotight.discovery.transport``): templates for relations that no low-degree polynomial fits

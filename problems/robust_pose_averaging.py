@@ -58,12 +58,12 @@ pairs couple every measurement with every other).  Product: consecutive pairs wi
 w_m, z_m, ξ_{m+1}, w_{m+1}, z_{m+1}; 27 columns) on the path cover {h, C, r, m's blocks, m+1's}.
 No paper families.
 
-Discovery: ``DEFAULT_GROUPS`` ("factors"), and the set is reduced over ``DEFAULT_TRAIN`` = 3 training
-instances (``discover`` runs the range flow at one point): one instance's irreducible set is too small
-for others.  Measured (M = 6, 1 outlier, σ = 0.05, seed 0, quiet 2-core machine):
+Discovery: ``DEFAULT_GROUPS`` ("factors"); one instance's irreducible set is too small for others, so
+``discover``'s held-out rounds take failing instances in until a fresh batch passes.  Measured before that
+loop, with three training instances (M = 6, 1 outlier, σ = 0.05, seed 0, quiet 2-core machine):
 ``autotight discover robust_pose_averaging --accept cost``: 45 candidate pairs, 2 pairs kept (30
 constraints), 27 SDP solves, certified cost-tight on 10 of 10 held-out instances, 54 s; with one
-training instance (``--train 1``) 2 pairs, 7 of 10.  The product lifting's discovery ends "undecided"
+training instance 2 pairs, 7 of 10.  The product lifting's discovery ends "undecided"
 (AlmostSolved with all 944 candidates, nothing certified), 8 s.
 
 Sampling discrete variables: ``sample`` must cover every value of each discrete variable and their
@@ -138,14 +138,6 @@ PAPER_CLAIM = {"source": "AutoTight's published robust point registration (rPPR)
                "set": "discovered",
                "default": "rPPR: cost-tight (relative duality gap 1.1e-6, SVR 34), 925 of 1771 learned constraints, "
                           "148 s"}
-#: discovery reduces the set over this many training instances (``discover`` then runs the range flow at
-#: one point): the irreducible set of one instance is too small for others (M = 6, σ = 0.05: 7 of 10
-#: held-out instances certified with 1 training instance, 10 of 10 with 3)
-DEFAULT_TRAIN = 3
-#: single-instance discovery (``--train 1``) starts tightening from every candidate once bounded
-#: (``discovery.tighten``): on the product lifting the violation ranking was not selective (the greedy
-#: rounds added every pair, one solve per doubling)
-DEFAULT_TIGHTEN = "all"
 #: the brute-force local solver enumerates 2^M labellings: refused above this M
 MAX_BRUTE_FORCE = 12
 

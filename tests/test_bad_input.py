@@ -82,7 +82,7 @@ try:
     import distributed  # the dask extra, when installed
 except ImportError:
     pass
-import autotight.cli, autotight.report.render, autotight.report.sweep, autotight.discovery.pipeline
+import autotight.cli, autotight.report.render, autotight.report.sweep, autotight.discovery.engine
 import problems.rotation_averaging
 cases, parallel = json.load(open(sys.argv[1])), int(sys.argv[3])
 results, running = {}, {}

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from autotight.discovery import learn
-from autotight.discovery.oracle import Oracle
-from autotight.discovery.tighten import bounding_pairs, tighten
+from autotight.discovery.select import bounding_pairs, tighten
+from autotight.discovery.trainers import Solves, Trainer
 from autotight.problem import load
 from autotight.pipeline import local_search
 from autotight.sdp import solve_model as solve_sdp
@@ -97,17 +97,19 @@ def test_greedy_bounds_the_unbounded_blocks_first():
     rng = np.random.default_rng(1)
     loc = local_search(PROB, inst, rng, 0)
     cat = learn(PROB, inst, model, rng, "factors")
-    oracle = Oracle(model, cat.by_pair(), loc.best.cost, Criteria(accept="cost"))
-    tr = tighten(oracle, max_rounds=4)
-    assert tr.primary_unbounded and not tr.unbounded
-    rounds = [e for e in oracle.log if e["stage"] == "tighten"]
+    tr = Trainer(0, 0, inst, model, loc, cat.by_pair(), cat)
+    run = Solves(PROB, None, Criteria(accept="cost"))
+    chosen = tighten(run, [tr], list(tr.pairs), lambda *a: None)
+    primary = unbounded_blocks(model, solve_sdp(model, model.primary()))
+    assert run.log[0]["stage"] == "primary" and run.log[0]["unbounded"] and primary
+    rounds = [e for e in run.log if e["stage"] == "tighten"]
     # while unbounded, every pair added bounds a block that was unbounded (a diagonal entry on it) ...
-    assert bounding_pairs(oracle, tr.chosen[:1], tr.primary_unbounded) == tr.chosen[:1]
+    assert bounding_pairs(tr, chosen[:1], primary) == chosen[:1]
     n_unb = next(k for k, e in enumerate(rounds) if not e["unbounded"])  # rounds that stayed unbounded
-    added = tr.chosen[: 2 ** (n_unb + 1) - 1]
-    assert bounding_pairs(oracle, added, tr.primary_unbounded) == added
+    added = chosen[: 2 ** (n_unb + 1) - 1]
+    assert bounding_pairs(tr, added, primary) == added
     # ... and within 4 rounds the relaxation is bounded
-    assert not is_unbounded(tr.sdp) and n_unb < 4
+    assert n_unb < 4
 
 
 def test_solve_with_primary_constraints_names_the_unbounded_blocks(capsys):
@@ -132,10 +134,12 @@ def test_per_measurement_relations_leave_a_gap_to_the_brute_force_optimum():
     model = PROB.build(inst)
     loc = local_search(PROB, inst, np.random.default_rng([0, 1]), 2)
     cat = learn(PROB, inst, model, np.random.default_rng([0, 2]), "factors", types=["so3", "robust_meas"])
-    oracle = Oracle(model, cat.by_pair(), loc.best.cost, Criteria(accept="cost"))
-    v, res = oracle.solve(list(oracle.pairs))
-    assert not is_unbounded(res) and res.usable
-    assert not v.tight and 0.02 < v.rel_gap < 0.2  # 5.4 % at seed 0
+    from autotight.pipeline import solve_instance
+
+    r = solve_instance(PROB, inst, list(cat.candidates()), criteria=Criteria(accept="cost"), model=model, local=loc,
+                       raise_unbounded=False)
+    assert not is_unbounded(r.sdp) and r.sdp.usable
+    assert not r.tight and 0.02 < r.verdict.rel_gap < 0.2  # 5.4 % at seed 0
 
 
 def test_product_lifting_has_zero_cost_recession_directions_that_the_gated_one_removes():
@@ -206,40 +210,28 @@ def test_certificate_needs_h_to_vanish_on_recession_columns():
     assert not bad.certified and bad.free_residual > 1e-4 and "recession columns" in bad.message
 
 
-def test_discover_reduces_over_training_instances_and_certifies_heldout_ones():
-    """Plain discover with the module's DEFAULT_TRAIN = 3: the range flow at one point; the set it
-    keeps certifies held-out instances (also re-checked here on a fresh one)."""
+def test_discover_validates_on_heldout_instances_and_certifies_a_fresh_one():
+    """discover with cost acceptance: the set is tight on every training instance (failing held-out instances
+    taken in), a fresh held-out batch passes, and a fresh instance is certified with it."""
     from autotight import ConstraintSet, discover, solve
 
     res = discover("robust_pose_averaging", {"M": 5}, 0, criteria=Criteria(accept="cost"), n_heldout=4)
-    s = res.summary()
-    assert s["n_train"] == 3 and s["over"] == {} and res.tight and s["irreducible"]
+    s = res.record()
+    assert s["over"] == {} and res.tight and s["irreducible"] and res.validated
     assert 1 <= s["n_pairs"] <= 10 and s["n_solves"] == sum(s["solves_by_stage"].values())
-    assert s["points"][0]["heldout_fraction"] == 1.0
+    assert s["points"][0]["heldout"]["passed"]
     fresh = solve("robust_pose_averaging", {"M": 5}, seed=99, constraints=ConstraintSet(res.discovered),
                   criteria=Criteria(accept="cost"))
     assert fresh.tight and fresh.certificate.certified and fresh.certificate.rel_bound <= 1e-6
 
 
 def test_rank_acceptance_says_why_rank_one_is_not_reached():
-    from autotight.discovery.pipeline import discover
+    from autotight.discovery.engine import discover
 
     res = discover(PROB, {"M": 3}, 0, n_heldout=0, compare=False)
-    text = res.explanation()
+    text = res.points[0].messages[0]
     assert not res.tight and "rank 1 is out of reach" in text and "block(s) r " in text
-    assert "use --accept cost" in text
-
-
-def test_default_train_is_validated():
-    from types import SimpleNamespace
-
-    from autotight.discovery.pipeline import default_train
-    from autotight.errors import ProblemDefinitionError
-
-    assert default_train(PROB) == 3 and default_train(load("pose_averaging")) == 1
-    for bad in (0, 2.0, True):
-        with pytest.raises(ProblemDefinitionError, match="DEFAULT_TRAIN must be an int ≥ 1"):
-            default_train(SimpleNamespace(name="p", module=SimpleNamespace(DEFAULT_TRAIN=bad)))
+    assert "use --accept cost" in text and text in res.table()
 
 
 def test_carry_over_to_a_near_degenerate_instance_uses_the_whole_nullspace_of_its_groups():

@@ -1,50 +1,66 @@
-"""``autotight discover PROBLEM``: progress, the comparison table, JSON output."""
+"""``autotight discover PROBLEM``: the engine (``discovery.engine``) with progress, a table, JSON and --out.
+
+Exit codes: 0 when the set is validated (or validation was not asked for), 1 when validation failed
+(one line on stderr; the set is still saved and records it), 2 for bad input.  --out is checked before
+any work; if writing it still fails at the end, the set is written next to the current folder instead
+and the message says where.
+"""
 
 from __future__ import annotations
 
 import argparse
-from contextlib import contextmanager
 import json
 import sys
 import warnings
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Callable, Iterator
 
 from ..cli import add_accept_arg, add_solver_args, solver_config
-from ..cli_checks import nonneg_float, nonneg_int, pos_float
+from ..cli_checks import nonneg_float, nonneg_int, pos_float, pos_int
+from ..errors import AutotightError
 from ..io import jsonable
 from ..limits import check_count, check_size
 from ..outpaths import check_file
-from ..pretty import polynomial
-from ..unbounded import compress
 from ..problem import load, parse_assignments
-from .carry import carry_plan
+from .engine import carry_hint, discover
 from .learn import LearnOptions
-from .pipeline import DiscoveryResult, discover, n_training
+from .result import DiscoveryResult
 
 
 def register(sub: argparse._SubParsersAction, add_problem_args: Callable) -> None:
-    p = sub.add_parser("discover", help="learn, tighten and reduce redundant constraints; compare with the paper")
+    from ..check_cmd import add_range_args
+
+    p = sub.add_parser("discover", help="learn, tighten and reduce redundant constraints until held-out "
+                                        "instances pass; compare with the paper")
     add_problem_args(p)
+    add_range_args(p)
     p.add_argument("--out", default=None, help="save the discovered set as JSON to this file (checked before the work)")
     p.add_argument("--force", action="store_true", help="overwrite --out if it exists")
     p.add_argument("--groups", default=None, help="the problem's DEFAULT_GROUPS or 'factors' (default), 'whole', "
                    "'adjacent:TYPE+TYPE' (unions of neighbouring factors), comma-joined, or explicit blocks 'a,b;c,d'")
+    p.add_argument("--train", type=pos_int, default=1, help="training instances per point (default 1)")
     p.add_argument("--heldout", type=nonneg_int, default=10,
-                   help="held-out instances for the sufficiency check (default 10)")
+                   help="held-out instances per point and round (default 10; 0: no validation)")
+    p.add_argument("--min-fraction", type=float, default=0.9,
+                   help="a point passes when tight / (held-out − undecided) ≥ this, as in check (default 0.9)")
+    p.add_argument("--max-rounds", type=pos_int, default=5,
+                   help="held-out rounds at most; each round's failures become training instances (default 5)")
+    p.add_argument("--max-solves", type=pos_int, default=None, help="SDP solver calls at most (default: no limit)")
+    p.add_argument("--carry-to", action="append", default=[], metavar="NAME=VALUE",
+                   help="a size the set must pass at too, e.g. K=200 (repeatable; default: the problem's "
+                        "CARRY_TO hint)")
+    p.add_argument("--no-carry", action="store_true", help="ignore the problem's CARRY_TO hint")
+    p.add_argument("--jobs", "-j", type=pos_int, default=1, help="worker processes for the held-out solves (default 1)")
+    p.add_argument("--scheduler", metavar="ADDRESS", default=None,
+                   help="run the held-out solves on a Dask cluster at this scheduler address")
     p.add_argument("--min-gap", type=pos_float, default=6.0,
                    help="spectral gap in decades that decides the rank (default 6)")
     p.add_argument("--gap-tol", type=nonneg_float, default=1e-5,
                    help="relative cost gap counted as tight (default 1e-5)")
     add_accept_arg(p)
-    p.add_argument("--no-carry", action="store_true",
-                   help="select the set at -p alone, even where the problem module declares where a selection carries "
-                        "to any size (CARRY; e.g. discrete_trajectory: K ≥ 20 over the noise range)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
-    add_solver_args(p, default=None, note="the carried discovery of a problem whose CARRY names a solver: that one")
-    from .range import add_range_args  # discovery over a range: --sigmas, --range, --train, --train-param
-
-    add_range_args(p)
+    add_solver_args(p, default=None, note="with a CARRY_TO hint that names a backend: that one")
     p.set_defaults(func=cmd_discover)
 
 
@@ -78,117 +94,62 @@ def progress_bar(args: argparse.Namespace) -> Iterator[Callable[[str, str], None
             bar.close()
 
 
+def fallback_path(problem: str, seed: int) -> Path:
+    """A new file name in the current folder for a set whose --out could not be written."""
+    base = Path.cwd() / f"discovered-{Path(problem).stem}-seed{seed}"
+    k = 0
+    while (p := base.with_name(base.name + (f"-{k}" if k else "") + ".json")).exists():
+        k += 1
+    return p
+
+
+def save_or_fallback(res: DiscoveryResult, out: str, replace: bool = False) -> tuple[Path, str]:
+    """Write ``res`` to ``out`` (over an existing file only with ``replace``; a file that appeared there
+    during the run is kept and the set saved beside it); if writing fails, next to the current folder.
+    Returns (path written, '' or why it is not ``out``)."""
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # the diversion is reported by the caller
+            written = Path(res.save(out, replace=replace))
+        return written, "" if written == Path(out) else f"{out} appeared while discovery ran and is kept"
+    except (OSError, AutotightError) as e:
+        first = (str(e).splitlines() or [type(e).__name__])[0]
+        alt = fallback_path(res.problem, res.seed)
+        return Path(res.save(alt)), f"cannot write {out} ({first})"
+
+
 def cmd_discover(args: argparse.Namespace) -> int:
+    from ..check_cmd import parse_range
     from ..tightness import Criteria
 
-    config = solver_config(args)
     if args.out is not None:
         check_file(args.out, force=args.force)
     prob = load(args.problem)
-    ranged = bool(args.sigmas is not None or args.range or args.train_param or args.learn_param or args.validate
-                  or args.validate_param)
-    plan = None if ranged or args.no_carry else carry_plan(prob, parse_assignments(args.param))
-    n_train = n_training(prob, args.train, ranged or plan is not None)
-    fixed = prob.parse_params(parse_assignments(args.param))
-    check_count(prob, fixed, f"--train {n_train}", n_train, per_item=3, what="training instances per point")
-    check_count(prob, fixed, f"--validate {args.validate}", args.validate, per_item=3, what="validation instances")
-    check_count(prob, fixed, f"--heldout {args.heldout}", args.heldout, per_item=3, what="held-out instances")
-    if ranged or plan is not None or n_train > 1:
-        from .range import cmd_discover_range
-
-        if plan is not None and plan.solver:
-            config = solver_config(args, default_backend=plan.solver)
-        return cmd_discover_range(args, _groups(args.groups), n_train, config, plan)
-    params = fixed
-    check_size(prob, params)
+    hint, backend = carry_hint(prob)
+    carry = {} if args.no_carry else (parse_assignments(args.carry_to) if args.carry_to else None)
+    config = solver_config(args, default_backend=backend if carry is None and hint and backend else "clarabel")
+    params = prob.parse_params(parse_assignments(args.param))
+    check_size(prob, params, config)
+    check_count(prob, params, f"--heldout {args.heldout}", args.heldout, per_item=3, what="held-out instances")
+    check_count(prob, params, f"--train {args.train}", args.train, per_item=3, what="training instances per point")
     with progress_bar(args) as progress:
-        res = discover(prob, params, args.seed, groups=_groups(args.groups),
-                       learn_options=LearnOptions(min_gap_decades=args.min_gap),
-                       criteria=Criteria(gap_tol=args.gap_tol, accept=args.accept), n_heldout=args.heldout,
-                       progress=progress, solver=config)
-    written = save_out(res, args)
+        res = discover(prob, parse_assignments(args.param), args.seed, over=parse_range(args.sigmas, args.range),
+                       n_train=args.train, n_heldout=args.heldout, min_fraction=args.min_fraction,
+                       max_rounds=args.max_rounds, max_solves=args.max_solves, carry_to=carry,
+                       groups=_groups(args.groups), learn_options=LearnOptions(min_gap_decades=args.min_gap),
+                       criteria=Criteria(gap_tol=args.gap_tol, accept=args.accept), solver=config,
+                       jobs=args.jobs, scheduler=args.scheduler, progress=progress)
+    where, failed = (None, "") if not args.out else save_or_fallback(res, args.out, replace=args.force)
     if args.json:
-        print(json.dumps(jsonable(res.summary()), ensure_ascii=False))
+        print(json.dumps(jsonable(res.record()), ensure_ascii=False))
     else:
-        print(table(res))
-        if written:
-            print(f"\nsaved to {written}")
+        print(res.table())
+        if where is not None:
+            print(f"\nsaved to {where}")
+    if failed:
+        print(f"error: {failed}; the set is saved to {where} instead", file=sys.stderr)
+        return 2
+    if res.validated is False:
+        print(f"error: {res.validation['message']}", file=sys.stderr)
+        return 1
     return 0
-
-
-def save_out(res, args: argparse.Namespace) -> Path | None:
-    """Save ``res`` to ``--out`` (replacing a file only with ``--force``); a file that appeared there during
-    the run is kept and the set saved beside it, with a note on stderr.  The path written, or None."""
-    if not args.out:
-        return None
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
-        written = Path(res.save(args.out, replace=args.force))
-    diverted = written != Path(args.out)
-    if diverted:
-        print(f"autotight: note: {args.out} appeared while discovery ran and is kept; the set is saved as {written}",
-              file=sys.stderr)
-    for w in caught:  # other warnings pass on; the one about the diversion is the note above
-        if not (diverted and str(written) in str(w.message)):
-            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
-    return written
-
-
-def _num(x) -> str:
-    return "—" if x is None else f"{x:.1e}"
-
-
-def _frac(h) -> str:
-    return f"{h.fraction:.0%} of {len(h.seeds)}" if h is not None and h.seeds else "—"
-
-
-def _primary_frac(h) -> str:
-    return f"{h.primary_fraction:.0%} of {len(h.seeds)}" if h is not None and h.primary_tight else ""
-
-
-def table(res: DiscoveryResult) -> str:
-    """The comparison with the paper, and the discovered constraints grouped by factor."""
-    s = res.summary()
-    lines = [f"problem {res.problem}  params {res.params}  seed {res.seed}",
-             f"learned per group: {len(res.catalog.groups)} groups, {s['n_candidates']} new candidates in "
-             f"{s['n_candidate_pairs']} (factor type, identity) pairs, {s['n_rejected_heldout']} rejected on held-out "
-             "samples",
-             f"smallest spectral gap: {min(s['spectral_gaps'].values()):.1f} decades",
-             f"result: {'TIGHT' if res.tight else 'NOT TIGHT'} ({res.accept}) — {res.explanation()}",
-             f"log SVR {res.final_log_svr:.2f} (primary alone {s['log_svr_primary']:.2f}); final relative cost gap "
-             f"{_num(s['final_rel_gap'])}, status {s['final_status']}; {res.n_solves} SDP solver calls "
-             f"({res.times.get('sdp_s', 0.0):.1f} s)",
-             *([f"primary constraints alone: unbounded in {compress(res.tightened.primary_unbounded)}"]
-               if res.tightened.primary_unbounded else []),
-             *([f"ignored spectral gaps below roundoff in {len(s['spectral_gaps_ignored'])} group(s) "
-                f"(largest {max(g['decades'] for g in s['spectral_gaps_ignored'].values()):.1f} decades)"]
-               if s['spectral_gaps_ignored'] else []), "",
-             f"{'set':<28}{'constraints':>12}{'in learned span':>18}{'tight (learn inst.)':>21}"
-             f"{'tight (held-out)':>18}",
-             f"{'primary':<28}{s['n_primary']:>12}{'yes':>18}{str(res.tightened.primary_verdict.tight):>21}"
-             f"{_primary_frac(res.heldout):>18}"]
-    for fam, info in res.paper_span.items():
-        r = info["max_residual"]
-        span = f"{'yes' if r < 1e-8 else 'NO'} ({r:.0e})"
-        lines.append(f"{'paper ' + fam:<28}{info['count']:>12}{span:>18}")
-    if res.paper_tight is not None:
-        ph = res.paper_heldout
-        lines.append(f"{'paper (all families)':<28}{s['n_paper']:>12}{'':>18}{str(res.paper_tight):>21}"
-                     f"{_frac(ph):>18}")
-    like = sorted(set(res.resembles.values()))
-    label = "discovered (irreducible)" if s["irreducible"] else "discovered" if s["minimal_is_reduced"] \
-        else "greedy (NOT reduced)"
-    lines.append(f"{label:<28}"
-                 f"{s['n_minimal']:>12}{'':>18}{str(res.tight):>21}"
-                 f"{_frac(res.heldout):>18}")
-    lines.append(f"  {len(res.discovered.pairs)} pairs; resembles: {', '.join(like) or '—'}")
-    lines.append("")
-    by_factor: dict[str, list] = {}
-    for c in res.constraints:
-        by_factor.setdefault(c.factor or "", []).append(c)
-    for f, cons in by_factor.items():
-        lines.append(f"[{f}]")
-        for c in cons:
-            lines.append(f"  ({c.identity}, like {res.resembles.get(c.name, '?')})  "
-                         f"{polynomial(c.A, res.model.variables)}")
-    return "\n".join(lines)

@@ -101,6 +101,14 @@ class DiscoveredSet:
     templates: TemplateSet | None = None
     d: int | None = None
 
+    def validation_warning(self) -> str:
+        """'' or one line: the discovery that saved this set ran out of budget before a held-out batch passed
+        (``info["validation"]``, written by ``autotight.discovery.engine``)."""
+        v = self.info.get("validation") if isinstance(self.info, dict) else None
+        if isinstance(v, dict) and v.get("passed") is False:
+            return f"this set failed validation when it was discovered ({v.get('message', '')})"
+        return ""
+
     def options(self) -> LearnOptions:
         return LearnOptions(**self.learn_options) if self.learn_options else LearnOptions()
 

@@ -173,9 +173,9 @@ def prepare_discovered(spec: SweepSpec, problem: Problem, out: Path,
     if not saved.is_file():
         params = problem.parse_params(spec.params)  # σ at the problem's default
         log(f"running discovery for {problem.name} at {params} (seed {spec.seed}); saving it to {saved}")
-        # the module's DEFAULT_TRAIN applies; the report's set is selected at its own parameters (no CARRY)
+        # the report's set is selected and validated at its own parameters (no CARRY_TO hint)
         res = discover(problem, params, seed=spec.seed, criteria=spec.criteria, solver=spec.solver_config(),
-                       carry=False)
+                       carry_to={})
         with writing(saved):
             res.save(saved)
     return ConstraintSet(DiscoveredSet.load(saved)), {"source": "discover", "seed": spec.seed, "sha256": _sha256(saved)}

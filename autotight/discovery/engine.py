@@ -1,0 +1,266 @@
+"""The discovery engine: learn → tighten and reduce on training instances → validate on held-out
+instances → close the loop → one set with its evidence.
+
+``discover(problem, params, seed, over=…)`` (``autotight.discover``, ``autotight discover``) runs every
+case the same way: one point is a range of one point, ``n_train`` is the number of training instances
+per point, and a set that must carry to other sizes (``carry_to``, e.g. ``{"K": 200}``) is validated at
+those sizes as well.
+
+1. **Points** are the product of ``over`` on top of ``params`` (``autotight.check.points_of``); each
+   has ``n_train`` training instances (seeds: ``trainers``).  With ``carry_to`` every point also gets a
+   validation point at the same values with the ``carry_to`` parameters.
+2. **Learn** the candidates per factor type on each training instance (with ``carry_to``: once, at the
+   first point, with their templates, which carry every candidate to instances of any size).
+3. **Tighten and reduce** on the training instances (``select``), every solve through
+   ``autotight.pipeline.solve_instance``: the function ``solve`` and ``check`` use.
+4. **Validate**: ``n_heldout`` fresh held-out instances at every point (and validation point), solved with
+   the set in parallel (``heldout``: ``jobs``/``scheduler``).  A point passes as in ``check``: tight /
+   (instances − undecided) ≥ ``min_fraction``.
+5. **Close the loop**: every held-out instance the set fails becomes a training instance; the set is
+   tightened from where it is on them (its pairs stay: dropping them to fit the new instances would lose
+   what the earlier batches showed; the added pairs are reduced over all training instances), and the
+   points with a failing instance get a fresh batch (the set only grows and tightness is monotone in the
+   set, so a batch without failures stays tight).  It stops when every point's latest batch has no failing
+   instance, or when ``max_rounds`` rounds or ``max_solves`` SDP solver calls are spent.  The set is
+   validated when every point's latest batch passes at ``min_fraction`` (a passing batch's failing
+   instances are still taken in); otherwise the result records that validation failed.
+6. The set (``DiscoveredSet``) is saved with the evidence of every round (``DiscoveryResult.record``).
+
+Seeds (``trainers``): training ``seed`` for the first instance at the first point, else
+SeedSequence((seed, i, t, 1)); held-out SeedSequence((seed, i, t, 2)) with t
+counting on over the rounds, so every batch is fresh and none is one of ``check``'s instances.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import asdict
+from typing import Any
+
+import numpy as np
+
+from ..check import parse_over, points_of
+from .. import module_parts
+from ..constraint_set import ConstraintSet
+from ..errors import ParameterError
+from ..problem import Problem, load
+from ..sdp.config import SolverConfig
+from ..threads import single_blas_thread
+from ..tightness import Criteria
+from ..unbounded import UnboundedRelaxation
+from .compare import paper_in_span, resemblance
+from .discovered import DiscoveredSet
+from .heldout import solve_batch
+from .learn import LearnOptions
+from .result import DiscoveryResult, PointRecord, round_record
+from .select import reduce, tighten
+from .trainers import Solves, Trainer, candidates, heldout_seed, learned_source, make_trainer, training_seed
+
+
+def default_groups(problem: Problem, groups: Any) -> Any:
+    """``groups``, or when None the problem module's ``DEFAULT_GROUPS`` (else "factors")."""
+    return module_parts.default_groups(problem) if groups is None else groups
+
+
+def carry_hint(problem: Problem) -> tuple[dict[str, Any], str | None]:
+    """The module's optional ``CARRY_TO`` hint as (parameters a set must also pass at, suggested backend)."""
+    return module_parts.carry_to(problem)
+
+
+def _parsed(prob: Problem, values: dict[str, Any]) -> dict[str, Any]:
+    """Only the given parameters, each validated and parsed (``Problem.parse_params`` checks the names)."""
+    prob.parse_params(values)
+    return {k: prob.params[k].parse(k, v) for k, v in values.items()}
+
+
+def _count(name: str, v: Any, low: int) -> int:
+    if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < low:
+        raise ParameterError(f"{name} must be an int ≥ {low}, got {v!r}")
+    return int(v)
+
+
+@single_blas_thread
+def discover(problem: Problem | str, params: Mapping[str, Any] | None = None, seed: int = 0, *,
+             over: Mapping[str, Sequence[Any]] | None = None, n_train: int = 1, n_heldout: int = 10,
+             min_fraction: float = 0.9, max_rounds: int = 5, max_solves: int | None = None,
+             carry_to: Mapping[str, Any] | None = None, groups: Any = None,
+             learn_options: LearnOptions = LearnOptions(), criteria: Criteria = Criteria(),
+             solver: SolverConfig | None = None, n_random: int = 2, compare: bool = True, jobs: int = 1,
+             scheduler: Any = None, progress: Callable[[str, str], None] | None = None) -> DiscoveryResult:
+    """Discover one set for ``problem`` at ``params`` (over every point of ``over``) that passes validation.
+
+    n_train: training instances per point.  n_heldout: held-out instances per point and round (0: no
+    validation).  min_fraction: the pass rule of ``check``.  max_rounds: held-out batches at most;
+    max_solves: SDP solver calls at most (None: no limit); either spent, validation has failed.
+    carry_to: parameters (e.g. ``{"K": 200}``) at which the set must pass too (None: the module's
+    ``CARRY_TO`` hint, if any; ``{}``: none).  groups: learning groups (None: the module's
+    ``DEFAULT_GROUPS``, else "factors").  criteria: what counts as tight (``criteria.accept``).  solver: the
+    ``SolverConfig`` of every SDP solve.  compare: solve the paper's families on the last held-out batch too.
+    jobs/scheduler: where held-out instances run (``heldout``).  progress(stage, text) is called as work
+    proceeds.  Raises ``UnboundedRelaxation`` when no learned candidate bounds an unbounded relaxation.
+    """
+    prob = load(problem) if isinstance(problem, str) else problem
+    seed = _count("seed", seed, 0)
+    n_train, n_heldout, max_rounds = _count("n_train", n_train, 1), _count("n_heldout", n_heldout, 0), \
+        _count("max_rounds", max_rounds, 1)
+    if max_solves is not None:
+        max_solves = _count("max_solves", max_solves, 1)
+    if not 0.0 <= float(min_fraction) <= 1.0:
+        raise ParameterError(f"min_fraction must be in [0, 1], got {min_fraction!r}")
+    _count("jobs", jobs, 1)
+    groups = default_groups(prob, groups)
+    say = progress or (lambda stage, text: None)
+    over_ = parse_over(prob, over)
+    hint, backend = carry_hint(prob)
+    carry = hint if carry_to is None else _parsed(prob, dict(carry_to))
+    config = solver if solver is not None else SolverConfig(**({"backend": backend} if carry_to is None and hint
+                                                               and backend else {}))
+    clash = sorted(set(carry) & set(over_))
+    if clash:
+        raise ParameterError(f"parameter {clash[0]} is both varied and a size the set must carry to")
+    points = points_of(prob, params, over_)
+    carry = {k: v for k, v in carry.items() if any(full[k] != v for full, _ in points)}
+    fixed = {k: v for k, v in points[0][0].items() if k not in over_}
+    check_points = points + [(full | carry, varied | carry) for full, varied in points] if carry else list(points)
+    t0 = time.perf_counter()
+    tm = {"learn_s": 0.0, "tighten_s": 0.0, "reduce_s": 0.0, "templates_s": 0.0, "heldout_s": 0.0}
+
+    def timed(key: str, f: Callable, *a: Any, **k: Any) -> Any:
+        t = time.perf_counter()
+        out = f(*a, **k)
+        tm[key] += time.perf_counter() - t
+        return out
+
+    source = None
+    if carry:  # learned once, carried to every instance by its templates
+        source = timed("learn_s", learned_source, prob, points[0][0], seed, groups, learn_options,
+                       {k: v for k, v in over_.items()}, say)
+    trainers: list[Trainer] = []
+    for i, (full, varied) in enumerate(points):
+        for t in range(n_train):
+            trainers.append(timed("learn_s", make_trainer, prob, full, i, training_seed(seed, i, t), groups,
+                                  learn_options, n_random, source))
+            say("learn", f"{varied} #{t}")
+    run = Solves(prob, config, criteria)
+    cands = candidates(trainers, source is not None)
+    greedy = timed("tighten_s", tighten, run, trainers, cands, say)
+    unreached = [tr for tr in trainers if not tr.reached]
+    if unreached and all("unbounded" in tr.message for tr in unreached) and len(unreached) == len(trainers):
+        from ..unbounded import unbounded_blocks
+
+        tr = unreached[0]
+        raise UnboundedRelaxation(tr.message, unbounded_blocks(tr.model, tr.last.sdp) if tr.last else [])
+    pairs, dropped = (timed("reduce_s", reduce, run, trainers, greedy, say) if greedy and not unreached
+                      else (list(greedy), []))
+    info = {"range": {"over": over_, "n_train": n_train, "carry_to": carry,
+                      "training_seeds": "SeedSequence((seed, point, t, 1))",
+                      "heldout_seeds": "SeedSequence((seed, point, t, 2))"},
+            "criteria": asdict(criteria)}
+
+    def make_set(chosen: list) -> DiscoveredSet:
+        ds = DiscoveredSet(prob.name, dict(points[0][0]), seed, list(chosen), asdict(learn_options), dict(info),
+                           groups if isinstance(groups, str) else [list(g) for g in groups])
+        if source is not None:
+            ds.templates = source.template_set(prob).restricted(chosen)
+        elif chosen:
+            ds.template_set(prob)
+        return ds
+
+    rounds: list[dict[str, Any]] = []
+    last: list[Any] = [None] * len(check_points)  # per point its latest batch (a PointResult)
+    ds = timed("templates_s", make_set, pairs)
+    next_t = [0] * len(check_points)
+    validated: bool | None = None
+    stop = ""
+    while n_heldout and not unreached:
+        # a point whose latest batch had no failing instance is done: the set only grows from here on, and
+        # tightness is monotone in the set, so that batch stays tight
+        todo = [i for i, pr in enumerate(last) if pr is None or pr.count("not tight") or not pr.passed]
+        batch = [[heldout_seed(seed, i, next_t[i] + t) for t in range(n_heldout)] if i in todo else []
+                 for i in range(len(check_points))]
+        next_t = [n + len(b) for n, b in zip(next_t, batch)]
+        held, n = timed("heldout_s", solve_batch, prob, {"set": ConstraintSet(ds)}, check_points, batch,
+                        min_fraction=float(min_fraction), criteria=criteria, config=config, n_random=1, jobs=jobs,
+                        scheduler=scheduler)
+        run.count("heldout", n)
+        for i in todo:
+            last[i] = held["set"][i]
+        failing = [(i, s) for i in todo for s, _, _ in last[i].with_outcome("not tight")]
+        passed = all(pr.passed for pr in last)
+        rounds.append(round_record(len(rounds), [last[i] for i in todo], len(pairs), passed))
+        say("validate", f"round {len(rounds)}: {'passed' if passed else 'not passed'}, {len(failing)} not tight")
+        if not failing:  # every point's latest batch without a failure (or only undecided ones left)
+            validated = passed
+            if not passed:
+                stop = "held-out instances undecided by the solver's accuracy; none failed"
+            break
+        spent = ""
+        if len(rounds) >= max_rounds:
+            spent = f"{max_rounds} held-out rounds spent (max_rounds)"
+        elif max_solves is not None and run.n_solves >= max_solves:
+            spent = f"{run.n_solves} SDP solver calls spent (max_solves {max_solves})"
+        if spent and not passed:
+            validated, stop = False, spent
+            break
+        new = [timed("learn_s", make_trainer, prob, check_points[i][0], i, s, groups, learn_options, n_random,
+                     source, "held-out") for i, s in failing]
+        trainers += new
+        cands = candidates(trainers, source is not None)
+        more = timed("tighten_s", tighten, run, new, cands, say, pairs, "validate")
+        reached = [tr for tr in trainers if tr.reached]
+        rounds[-1]["taken_in"] = len(new)
+        rounds[-1]["not_reached"] = len(trainers) - len(reached)
+        if len(more) > len(pairs):  # the pairs added for the new instances, reduced; the set's own pairs stay
+            pairs, d2 = timed("reduce_s", reduce, run, reached, more, say, keep=pairs)
+            dropped += d2
+            rounds[-1]["n_pairs_after"] = len(pairs)
+            ds = timed("templates_s", make_set, pairs)
+        if spent:  # the last batch passed; its failing instances were taken in (the set only grew)
+            validated = True
+            break
+    paper: list[Any] = [None] * len(check_points)
+    if compare and validated is not None and trainers[0].model.paper:  # on each point's latest batch
+        got, n = timed("heldout_s", solve_batch, prob, {"paper": "paper"}, check_points,
+                       [list(pr.seeds) for pr in last], min_fraction=float(min_fraction), criteria=criteria,
+                       config=config, n_random=1, jobs=jobs, scheduler=scheduler)
+        run.count("paper", n)
+        paper = got["paper"]
+    validation = {"passed": validated, "min_fraction": float(min_fraction), "n_heldout": n_heldout,
+                  "max_rounds": max_rounds, "max_solves": max_solves, "rounds": rounds,
+                  "message": _validation_message(validated, stop, rounds, n_heldout, unreached)}
+    ds.info["validation"] = validation
+    precs = []
+    for i, (full, varied) in enumerate(check_points):
+        mine = [tr for tr in trainers if tr.point == i]
+        precs.append(PointRecord(i, varied, full, [tr.seed for tr in mine], [tr.reached for tr in mine],
+                                 [tr.message for tr in mine], [tr.origin for tr in mine],
+                                 last[i], paper[i],
+                                 carried=i >= len(points)))
+    first = next((tr for tr in trainers if tr.catalog is not None), None)
+    span, like = {}, {}
+    if compare and first is not None and first.model.paper:
+        span = paper_in_span(first.catalog)
+        like = {c.name: resemblance(c, first.catalog) for p in pairs for c in first.pairs.get(p, [])}
+    tm["sdp_training_s"] = run.sdp_s
+    tm["total_s"] = time.perf_counter() - t0
+    say("done", "")
+    return DiscoveryResult(prob, fixed, over_, carry, seed, n_train, precs, cands, greedy, list(pairs),
+                           not unreached, dropped, ds, validation, run.n_solves, dict(run.by_stage), tm, run.log,
+                           trainers, span, like, criteria.accept)
+
+
+def _validation_message(validated: bool | None, stop: str, rounds: list[dict], n_heldout: int,
+                        unreached: list[Trainer]) -> str:
+    if unreached:
+        return "not validated: the set is not tight on every training instance"
+    if not n_heldout:
+        return "not validated (no held-out instances)"
+    if validated:
+        taken = sum(r.get("taken_in", 0) for r in rounds)
+        return (f"validated: every point's latest fresh held-out batch passed ({len(rounds)} round(s), {taken} "
+                "failing held-out instance(s) taken in)")
+    worst = min(((p["fraction"], p) for p in rounds[-1]["points"] if not p["passed"]),
+                key=lambda x: float("inf") if x[0] != x[0] else x[0], default=(None, None))[1]
+    where = f" (worst {worst['varied'] or 'point'}: {worst['tight']} tight of {worst['instances']})" if worst else ""
+    return f"validation FAILED: {stop}{where}"

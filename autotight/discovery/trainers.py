@@ -1,0 +1,191 @@
+"""Training instances of a discovery and the one way they are solved.
+
+A ``Trainer`` is one training instance: its candidate pairs (learned on it, or carried to it by the
+templates of a set learned elsewhere) and every tightness result known for it.  ``Solves`` runs every
+training solve through ``autotight.pipeline.solve_instance`` (the function ``solve`` and ``check`` use,
+with its block scaling and verdict), counts the solver calls per stage and caches each result per
+instance: tightness is monotone in the constraint set, so a set containing a known tight set is tight
+and a set inside a known loose one is loose.
+
+Seeds: the first training instance at the first point has the discovery's seed (it is the instance
+``solve --seed`` solves there); training instance t at point i otherwise has SeedSequence((seed, i, t, 1));
+held-out instances
+SeedSequence((seed, i, t, 2)) (``heldout_seed``); ``check`` uses SeedSequence((seed, i, t)), so none of
+a discovery's instances is one of ``check``'s.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+import numpy as np
+
+from ..model import Constraint, Model, frobenius
+from ..pipeline import LocalSearch, SolveResult, local_search, seeds, solve_instance
+from ..problem import Instance, Problem
+from ..tightness import Criteria
+from ..unbounded import is_unbounded
+from .catalog import Catalog, Pair, learn
+from .discovered import DiscoveredSet
+from .learn import LearnOptions
+
+
+def training_seed(seed: int, point: int, trial: int) -> int:
+    """Seed of training instance ``trial`` at point ``point``: ``seed`` itself for the first one (the instance
+    ``solve --seed SEED`` solves at the first point), else SeedSequence((seed, point, trial, 1))."""
+    if point == 0 and trial == 0:
+        return int(seed)
+    return int(np.random.SeedSequence([seed, point, trial, 1]).generate_state(1, np.uint32)[0])
+
+
+def heldout_seed(seed: int, point: int, trial: int) -> int:
+    """Seed of held-out instance ``trial`` at point ``point``: SeedSequence((seed, point, trial, 2))."""
+    return int(np.random.SeedSequence([seed, point, trial, 2]).generate_state(1, np.uint32)[0])
+
+
+@dataclass
+class Trainer:
+    """One training instance: its candidate pairs and every tightness result known for it."""
+
+    point: int
+    seed: int
+    inst: Instance
+    model: Model
+    local: LocalSearch
+    pairs: dict[Pair, list[Constraint]]
+    catalog: Catalog | None = None  # what was learned on it (None: carried by templates)
+    origin: str = "training"  # "training", or "held-out" for a failing held-out instance taken in
+    reached: bool = True
+    message: str = ""
+    tight_sets: list[frozenset] = field(default_factory=list)
+    loose_sets: list[frozenset] = field(default_factory=list)
+    last: SolveResult | None = None
+    tight_result: SolveResult | None = None  # the last tight solve, with its pairs in order
+    tight_pairs: list[Pair] = field(default_factory=list)
+
+    def known(self, chosen: frozenset, exact: bool = False) -> bool | None:
+        """Tightness with ``chosen`` if a known result decides it (monotonicity), else None.
+
+        exact: a loose result decides only for exactly this set (a tight one still for any subset)."""
+        if any(t <= chosen for t in self.tight_sets):
+            return True
+        if any((chosen == s) if exact else (chosen <= s) for s in self.loose_sets):
+            return False
+        return None
+
+    def violation(self, X: np.ndarray, pair: Pair) -> float:
+        """max over the pair's constraints on this instance of |⟨A,X⟩| / (‖A‖_F ‖X‖_F)."""
+        nx = frobenius(X)
+        return max(abs(c.value(X)) / (np.sqrt((c.A.multiply(c.A)).sum()) * nx) for c in self.pairs[pair])
+
+    def importance(self) -> dict[Pair, float]:
+        """Σ|yᵢ|‖Aᵢ‖_F per pair of the last tight solve, normalised to sum 1 over its pairs."""
+        out = {p: 0.0 for p in self.tight_pairs}
+        res = self.tight_result.sdp if self.tight_result is not None else None
+        if res is None or res.y is None:
+            return out
+        k = len(self.model.primary())
+        for p in self.tight_pairs:
+            for c in self.pairs[p]:
+                out[p] += abs(float(res.y[k])) * float(np.sqrt((c.A.multiply(c.A)).sum()))
+                k += 1
+        total = sum(out.values())
+        return {p: v / total for p, v in out.items()} if total > 0 else out
+
+
+class Solves:
+    """The training solves of one discovery: counts per stage, a log, the per-instance cache."""
+
+    def __init__(self, problem: Problem, config: Any, criteria: Criteria):
+        self.problem, self.config, self.criteria = problem, config, criteria
+        self.n_solves = 0
+        self.by_stage: dict[str, int] = {}
+        self.sdp_s = 0.0
+        self.log: list[dict[str, Any]] = []
+
+    def count(self, stage: str, n: int) -> None:
+        self.n_solves += n
+        self.by_stage[stage] = self.by_stage.get(stage, 0) + n
+
+    def solve(self, tr: Trainer, chosen: Sequence[Pair], stage: str) -> bool:
+        """Solve ``tr`` with the primary constraints and ``chosen`` (``solve_instance``); True when tight.
+        An unbounded SDP is judged not tight here (its ray ranks the pairs that bound it)."""
+        chosen = list(chosen)
+        cons = [c for p in chosen for c in tr.pairs.get(p, [])]
+        r = solve_instance(self.problem, tr.inst, cons, config=self.config, criteria=self.criteria,
+                           model=tr.model, local=tr.local, raise_unbounded=False)
+        self.count(stage, max(1, len(r.attempts)))
+        self.sdp_s += r.times.get("sdp_total_s", 0.0)
+        if r.refined is not None and r.refined.cost < tr.local.best.cost:  # a better feasible point: a lower U
+            tr.local = LocalSearch(tr.local.from_truth, [*tr.local.from_random, r.refined])
+        tight = r.outcome == "tight"
+        (tr.tight_sets if tight else tr.loose_sets).append(frozenset(chosen))
+        tr.last = r
+        if tight:
+            tr.tight_result, tr.tight_pairs = r, chosen
+        self.log.append({"stage": stage, "point": tr.point, "seed": tr.seed, "n_pairs": len(chosen),
+                         "outcome": r.outcome, "log_svr": r.log_svr, "status": r.sdp.status,
+                         "unbounded": is_unbounded(r.sdp)})
+        return tight
+
+    def tight_on_all(self, trainers: list[Trainer], chosen: Sequence[Pair], stage: str,
+                     exact: bool = False) -> tuple[bool, Trainer | None]:
+        """Tight on every trainer (cached results first; the first one to break is returned)."""
+        key = frozenset(chosen)
+        for tr in trainers:
+            known = tr.known(key, exact)
+            if known is None:
+                known = self.solve(tr, chosen, stage)
+            if not known:
+                return False, tr
+        return True, None
+
+
+def candidates(trainers: list[Trainer], carried: bool) -> list[Pair]:
+    """Pairs known on every training instance, in the first one's order.  carried (training at other sizes than
+    learning): only pairs learned on every factor of their type (else their name is factor-specific)."""
+    everywhere = set.intersection(*(set(tr.pairs) for tr in trainers))
+    if carried:
+        everywhere = {p for p in everywhere if all(on_every_factor(tr.model, p, tr.pairs[p]) for tr in trainers)}
+    return [p for p in trainers[0].pairs if p in everywhere]
+
+
+def on_every_factor(model: Model, pair: Pair, constraints: Sequence[Constraint]) -> bool:
+    """Whether every factor of the pair's type has it (a pair found on some factors only does not carry)."""
+    return len({c.factor for c in constraints}) == len(model.factor_types().get(pair[0], ()))
+
+
+def make_trainer(prob: Problem, params: dict[str, Any], point: int, seed: int, groups: Any, opts: LearnOptions,
+                 n_random: int, source: DiscoveredSet | None = None, origin: str = "training") -> Trainer:
+    """The instance (params, seed) with its candidate pairs: learned on it, or (``source``) every pair of a set
+    learned elsewhere, its templates evaluated on this instance."""
+    inst = prob.generate(params, seed)
+    model = prob.build(inst)
+    loc = local_search(prob, inst, seeds(seed).local(), n_random)
+    cat = None
+    if source is None:
+        cat = learn(prob, inst, model, seeds(seed).constraints(), groups, opts)
+        pairs = cat.by_pair()
+    else:
+        pairs = {}
+        for c in source.apply(prob, inst, model, seeds(seed).constraints(), skip_invalid=True):
+            pairs.setdefault(tuple(c.identity.split(":", 1)), []).append(c)
+    return Trainer(point, seed, inst, model, loc, pairs, cat, origin)
+
+
+def learned_source(prob: Problem, params: dict[str, Any], seed: int, groups: Any, opts: LearnOptions,
+                   over: dict[str, list] | None, say: Callable[[str, str], None]) -> DiscoveredSet:
+    """Every pair learned on every factor of one instance at ``params`` (seed ``training_seed(seed, 0, 0)``),
+    with its templates fitted at ``params`` over ``over``: what carries candidates to other sizes."""
+    s = training_seed(seed, 0, 0)
+    inst = prob.generate(params, s)
+    model = prob.build(inst)
+    cat = learn(prob, inst, model, seeds(s).constraints(), groups, opts)
+    pairs = [p for p, cs in cat.by_pair().items() if on_every_factor(model, p, cs)]
+    say("learn", f"{len(pairs)} pairs at {params}; templates")
+    src = DiscoveredSet(prob.name, dict(params), int(seed), pairs, asdict(opts), {"range": {"over": over or {}}},
+                        groups if isinstance(groups, str) else [list(g) for g in groups])
+    src.template_set(prob)
+    return src

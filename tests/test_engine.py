@@ -1,0 +1,299 @@
+"""The discovery engine (autotight.discovery.engine): one flow for a point, a range and a carried set;
+tight on every training instance, irreducible over them, validated on fresh held-out instances with every
+failing one taken in, saved with its evidence, and passing `check` where it was validated."""
+
+from __future__ import annotations
+
+import json
+import textwrap
+
+import pytest
+
+import autotight as at
+from autotight.check import instance_seed
+from autotight.cli import main
+from autotight.constraint_set import ConstraintSet
+from autotight.discovery.engine import discover
+from autotight.discovery.result import DiscoveryResult
+from autotight.discovery.select import reduce as _reduce
+from autotight.discovery.trainers import Solves, Trainer, heldout_seed, training_seed
+from autotight.errors import ParameterError
+from autotight.pipeline import solve_instance
+from autotight.tightness import Criteria
+
+
+class _Needs(Solves):
+    """A fake solver: trainer s is tight with a set iff the set contains one of needs[s] (monotone)."""
+
+    def __init__(self, needs: dict[int, list[set[str]]]):
+        super().__init__(None, None, Criteria())  # type: ignore[arg-type]
+        self.needs = needs
+        self.calls: list[tuple[int, frozenset]] = []
+
+    def solve(self, tr, chosen, stage):
+        key = frozenset(chosen)
+        self.calls.append((tr.seed, key))
+        self.n_solves += 1
+        tight = any(n <= key for n in self.needs[tr.seed])
+        (tr.tight_sets if tight else tr.loose_sets).append(key)
+        return tight
+
+
+def _trainer(seed: int) -> Trainer:
+    return Trainer(0, seed, None, None, None, {})  # type: ignore[arg-type]
+
+
+def test_reduction_is_irreducible_over_all_trainers_and_never_solves_a_set_twice():
+    needs = {1: [{"a", "b"}, {"c"}], 2: [{"b"}], 3: [{"d", "e"}, {"a", "b"}]}
+    run = _Needs(needs)
+    trainers = [_trainer(s) for s in needs]
+    for tr in trainers:  # the greedy's final tight result on each trainer
+        tr.tight_sets.append(frozenset("abcdef"))
+    pairs, dropped = _reduce(run, trainers, list("abcdef"), lambda *a: None)
+    final = set(pairs)
+    assert all(any(n <= final for n in needs[s]) for s in needs)  # tight on every trainer
+    for p in final:  # removing any pair breaks tightness on at least one trainer
+        assert any(not any(n <= final - {p} for n in needs[s]) for s in needs)
+    assert "f" not in final and dropped == []  # f is needed nowhere
+    assert len(run.calls) == len(set(run.calls))  # the cache never re-solves a set on a trainer
+    assert run.n_solves < 2 ** 6
+
+
+def test_reduction_removes_on_the_hardest_instance_and_widens_only_where_the_result_breaks():
+    """Twelve instances, 48 pairs: ten need only "a", the hardest needs "a" and "b", one needs "c" as well.
+    A removal is solved on the probe (the hardest, then the one that broke), not on all twelve."""
+    pairs = [f"p{i}" for i in range(45)] + ["a", "b", "c"]
+    needs = {s: [{"a"}] for s in range(10)} | {10: [{"a", "b"}], 11: [{"a", "c"}]}
+    run = _Needs(needs)
+    trainers = [_trainer(s) for s in needs]
+    for tr in trainers:
+        tr.tight_sets.append(frozenset(pairs))
+    trainers[10].loose_sets.append(frozenset(["a"]))  # the hardest: a set of one pair is known loose on it
+    got, dropped = _reduce(run, trainers, pairs, lambda *a: None)
+    assert set(got) == {"a", "b", "c"} and dropped == []
+    assert run.calls[0][0] == 10  # the first removal is tried on the hardest instance
+    # before: every successful removal was solved on all twelve instances (≥ 12 per success)
+    assert run.n_solves <= 45
+
+
+class _Blind(_Needs):
+    """_Needs whose solves of a loose set return no usable X (a NumericalError)."""
+
+    def solve(self, tr, chosen, stage):
+        from types import SimpleNamespace
+
+        tight = super().solve(tr, chosen, stage)
+        tr.last = SimpleNamespace(sdp=SimpleNamespace(X=None, usable=tight, status="Solved" if tight else
+                                                      "NumericalError"))
+        return tight
+
+
+def test_a_solve_without_usable_x_adds_every_candidate_and_the_reduction_prunes():
+    """Discrete K = 20 at σ = 0.316 fails with the primary constraints (NumericalError): nothing ranks
+    the candidates, so all are added, and the reduction keeps only what is needed."""
+    from autotight.discovery.select import tighten
+
+    run = _Blind({1: [{"b", "d"}], 2: [{"z"}]})  # trainer 2 needs a pair that is not a candidate
+    trainers = [_trainer(1), _trainer(2)]
+    chosen = tighten(run, trainers, list("abcde"), lambda *a: None)
+    assert set(chosen) == set("abcde") and trainers[0].reached
+    assert not trainers[1].reached and "NumericalError with every candidate added" in trainers[1].message
+    pairs, _ = _reduce(run, [trainers[0]], chosen, lambda *a: None)
+    assert set(pairs) == {"b", "d"}
+
+
+def test_training_heldout_and_check_seeds_differ():
+    train = {training_seed(0, i, t) for i in range(5) for t in range(2)}
+    held = {heldout_seed(0, i, t) for i in range(5) for t in range(50)}
+    check = {instance_seed(0, i, t) for i in range(5) for t in range(10)}
+    assert not train & held and not train & check and not held & check
+
+
+def test_range_set_is_tight_irreducible_saved_with_evidence_and_passes_check(tmp_path, capsys):
+    """Pose averaging M = 3 over σ ∈ {0.01, 0.316}: one training instance per σ, save, then `check` the file."""
+    out = tmp_path / "range.json"
+    assert main(["discover", "pose_averaging", "-p", "M=3", "--sigmas", "0.01,0.316", "--heldout", "3",
+                 "--json", "--out", str(out)]) == 0
+    s = json.loads(capsys.readouterr().out)
+    assert s["tight"] and s["irreducible"] and s["validated"] is True and s["n_pairs"] >= 1
+    assert all(all(p["reached"]) for p in s["points"])
+    last = s["validation"]["rounds"][-1]
+    assert last["passed"] and all(p["instances"] == 3 for p in last["points"])
+    for p in s["points"]:
+        ev = p["heldout"]
+        assert ev["instances"] == 3 and ev["tight"] + ev["undecided"] + ev["not_tight"] == 3
+        assert ev["not_tight"] == len(ev["failing_seeds"]) and ev["passed"]
+    assert s["n_solves"] == sum(s["solves_by_stage"].values())
+    cs = ConstraintSet.load(out)
+    assert cs.discovered.info["range"]["over"] == {"sigma": [0.01, 0.316]}
+    assert cs.discovered.info["validation"]["passed"] is True
+    assert len(cs) == s["n_pairs"]
+    # the saved set passes `check` at every σ it was learned for (its recorded range is the default)
+    assert main(["check", "pose_averaging", "-p", "M=3", "--set", str(out), "--instances", "3", "--seed", "5"]) == 0
+    table = capsys.readouterr().out
+    assert "sigma=0.01" in table and "sigma=0.316" in table and "PASSED" in table
+
+
+def test_each_pair_is_needed_on_some_training_instance():
+    """Irreducibility re-checked independently, through the pipeline, on the training instances."""
+    prob = at.load_problem("pose_averaging")
+    res = at.discover(prob, {"M": 3}, seed=1, over={"sigma": [0.1, 1.0]}, n_heldout=0)
+    assert isinstance(res, DiscoveryResult) and res.tight and res.pairs and res.validated is None
+    insts = [prob.generate({"M": 3, "sigma": sg}, training_seed(1, i, 0)) for i, sg in enumerate([0.1, 1.0])]
+    sets = [ConstraintSet(type(res.discovered)(prob.name, {}, 1, pairs, res.discovered.learn_options))
+            for pairs in [res.pairs] + [[q for q in res.pairs if q != p] for p in res.pairs]]
+
+    def tight(cs, inst):
+        return solve_instance(prob, inst, cs, n_random=2).outcome == "tight"
+
+    assert all(tight(sets[0], inst) for inst in insts)
+    for cs in sets[1:]:
+        assert not all(tight(cs, inst) for inst in insts)
+
+
+def test_a_range_no_candidate_can_tighten_is_reported_point_by_point():
+    """Learning on the rotation blocks only: no candidate closes pose averaging's gap; nothing is validated."""
+    res = discover("pose_averaging", {"M": 2}, over={"sigma": [0.1]}, groups=[("c1", "c2", "c3")])
+    assert not res.tight and res.pairs == [] and res.validated is None
+    assert res.points[0].reached == [False]
+    assert res.points[0].messages[0].startswith("not tight with 0 pairs")
+    assert "not reached at sigma=0.1" in res.table()
+
+
+def test_bad_input():
+    with pytest.raises(ParameterError, match="both"):
+        discover("pose_averaging", {"M": 2}, over={"M": [2, 3]})
+    with pytest.raises(ParameterError, match="n_train"):
+        discover("pose_averaging", None, over={"sigma": [0.1]}, n_train=0)
+    with pytest.raises(ParameterError, match="min_fraction"):
+        discover("pose_averaging", None, min_fraction=1.5)
+    with pytest.raises(ParameterError, match="unknown parameter"):
+        discover("discrete_trajectory", {"K": 5}, carry_to={"Q": 5})
+    assert main(["discover", "pose_averaging", "--range", "sigma"]) == 2
+    assert main(["discover", "pose_averaging", "-p", "M=2", "--train", "0"]) == 2
+
+
+def test_failing_heldout_instances_become_training_instances_the_set_is_then_tight_on():
+    """σ = 1, every held-out instance must pass: the first rounds fail, their failing instances are taken in,
+    and the final set is tight on each of them (and on every training instance)."""
+    prob = at.load_problem("pose_averaging")
+    res = discover(prob, {"M": 3, "sigma": 1.0}, 0, n_heldout=6, min_fraction=1.0, max_rounds=3, compare=False)
+    rounds = res.validation["rounds"]
+    failing = [s for r in rounds if r["taken_in"] for p in r["points"] for s in p["failing_seeds"]]
+    taken = [tr.seed for tr in res.trainers if tr.origin == "held-out"]
+    assert failing and taken == failing  # every failing held-out instance of a round that takes them in
+    assert all(r["taken_in"] for r in rounds[:-1])  # every round but the last
+    assert sum(r["taken_in"] for r in rounds) == len(taken)
+    seen = [s for r in rounds for s in [heldout_seed(0, 0, 6 * (r["round"] - 1) + t) for t in range(6)]]
+    assert len(seen) == len(set(seen))  # every round is a fresh batch
+    for tr in res.trainers:
+        assert tr.reached and solve_instance(prob, tr.inst, res.constraint_set, n_random=2).outcome == "tight"
+    if res.validated:
+        assert rounds[-1]["passed"] and res.points[0].heldout.passed
+    else:
+        assert len(rounds) == 3 and "FAILED" in res.validation["message"]
+
+
+def test_a_spent_budget_exits_1_records_the_failure_and_solve_warns(tmp_path, capsys):
+    """One round at σ = 1 where every held-out instance must pass: validation fails; the set is still saved,
+    records it, and `solve --set` warns."""
+    out = tmp_path / "set.json"
+    code = main(["discover", "pose_averaging", "-p", "M=3", "-p", "sigma=1", "--heldout", "6", "--min-fraction", "1",
+                 "--max-rounds", "1", "--out", str(out), "--no-progress"])
+    cap = capsys.readouterr()
+    assert code == 1 and cap.err.count("\n") == 1 and "validation FAILED" in cap.err
+    rec = json.loads(out.read_text(encoding="utf-8"))
+    assert rec["info"]["validation"]["passed"] is False and rec["summary"]["validated"] is False
+    assert main(["solve", "pose_averaging", "-p", "M=3", "--set", str(out)]) in (0, 1)
+    assert "failed validation" in capsys.readouterr().err
+
+
+MODULE = textwrap.dedent("""
+    from problems.pose_averaging import *  # noqa: F401,F403
+    NAME = "my_pose"
+""")
+
+
+def test_a_problem_module_given_by_path_is_discovered_saved_and_solved(tmp_path, capsys, monkeypatch):
+    path = tmp_path / "my_pose.py"
+    path.write_text(MODULE, encoding="utf-8")
+    out = tmp_path / "set.json"
+    monkeypatch.chdir(tmp_path)
+    assert main(["discover", str(path), "-p", "M=3", "--heldout", "2", "--out", str(out), "--no-progress"]) == 0
+    assert "saved to" in capsys.readouterr().out
+    rec = json.loads(out.read_text(encoding="utf-8"))
+    assert rec["problem"] == "my_pose" and rec["templates"] is not None
+    assert main(["solve", str(path), "-p", "M=4", "--seed", "3", "--set", str(out), "--json"]) == 0
+    obj = json.loads(capsys.readouterr().out)
+    assert obj["tight"] and obj["n_constraints"] > 0
+
+
+def test_a_failed_write_at_the_end_keeps_the_set_next_to_the_current_folder(tmp_path, capsys, monkeypatch):
+    from autotight.discovery import cli as dcli
+
+    res = discover("pose_averaging", {"M": 2}, n_heldout=0)
+    monkeypatch.chdir(tmp_path)
+    where, failed = dcli.save_or_fallback(res, str(tmp_path / "missing" / "x" / "set.json.d" / "\0bad"))
+    assert failed and where.parent == tmp_path and where.is_file()
+    assert ConstraintSet.load(where).pairs == res.pairs
+
+
+def _same(a: dict, b: dict) -> None:
+    """Two records equal but for times and versions."""
+    drop = ("times", "versions")
+    assert {k: v for k, v in a.items() if k not in drop} == {k: v for k, v in b.items() if k not in drop}
+
+
+def test_jobs_and_a_dask_cluster_give_the_same_set_and_record():
+    from autotight.io import jsonable
+
+    kw = dict(over={"sigma": [0.1, 1.0]}, n_heldout=3, compare=False)
+    one = jsonable(discover("pose_averaging", {"M": 3}, 2, jobs=1, **kw).record())
+    two = jsonable(discover("pose_averaging", {"M": 3}, 2, jobs=2, **kw).record())
+    _same(one, two)
+    distributed = pytest.importorskip("distributed")
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as lc:
+        with distributed.Client(lc) as client:
+            dask = jsonable(discover("pose_averaging", {"M": 3}, 2, scheduler=client, **kw).record())
+    _same(one, dask)
+
+
+def test_a_set_carried_to_a_larger_size_is_validated_there(tmp_path):
+    """Learned at K = 5 and carried by its templates to held-out K = 12 chains: the set passes there, and the
+    saved set's templates are those of K = 5."""
+    from autotight.discovery.discovered import DiscoveredSet
+    from autotight.problem import load
+
+    res = discover("discrete_trajectory", {"K": 5, "sigma": 0.1}, 0, carry_to={"K": 12}, n_heldout=3,
+                   solver=at.SolverConfig(backend="ipm"), compare=False)
+    assert res.tight and res.pairs and res.carry_to == {"K": 12} and res.validated
+    assert [p.carried for p in res.points] == [False, True] and res.points[1].params["K"] == 12
+    assert res.points[1].heldout.passed
+    path = tmp_path / "set.json"
+    res.save(str(path))
+    ds = DiscoveredSet.load(path)
+    assert ds.params["K"] == 5 and set(ds.templates.templates) == {t for t, _ in res.pairs}
+    prob = load("discrete_trajectory")
+    inst = prob.generate(prob.parse_params({"K": 12, "sigma": 0.1}), 7)
+    out = solve_instance(prob, inst, ConstraintSet(ds), config=at.SolverConfig(backend="ipm"), n_random=0)
+    assert out.tight, out.verdict.reason
+
+
+def test_the_committed_set_learned_at_k5_and_selected_at_k20_is_tight_at_k100():
+    """The README's discrete carry-over file (benchmarks/results/scale_set_discrete_learnK5.json: learned at
+    K = 5, selected over σ on K = 20 instances): its templates are those of K = 5, every template is
+    exact (no per-factor fallback), and on a fresh K = 100 instance (5× the selection size) it is tight,
+    where the set selected at K = 5 alone is not (README, Limits)."""
+    from pathlib import Path
+
+    from autotight.problem import load
+
+    path = Path(__file__).resolve().parent.parent / "benchmarks" / "results" / "scale_set_discrete_learnK5.json"
+    cs = ConstraintSet.load(path)
+    rec = json.loads(path.read_text(encoding="utf-8"))
+    assert rec["params"]["K"] == 5 and rec["info"]["range"]["selected_at"]["K"] == 20
+    assert rec["info"]["range"]["over"]["sigma"][-1] == 0.316 and not rec["fallback"]
+    prob = load("discrete_trajectory")
+    inst = prob.generate(prob.parse_params({"K": 100, "sigma": 0.1}), 11)
+    out = solve_instance(prob, inst, cs, config=at.SolverConfig(backend="ipm"), n_random=0)
+    assert out.verdict.outcome == "tight" and out.verdict.log_svr > 5, out.verdict.reason
