@@ -403,15 +403,16 @@ def certificate(Q: sp.sparray, constraints: Sequence[Constraint], y: np.ndarray,
     excess = float(np.sum(Th.T * HT) + y @ res_A)  # f(x̂) − bᵀy (exact identity)
     denom = max(abs(f_hat), floor * scale * Xhat_tr)
     budget = tol * denom - excess  # the largest correction that can still certify
-    if free_res <= FREE_ATOL and not correction <= budget and budget > 0:
+    if free_res <= FREE_ATOL and correction > 0 and budget > 0:  # the strict dual, where it can do better
         E = homogenising_matrix(constraints)
         if E is not None:
             from .strict_dual import strict_dual
 
             Hk, Ek, Thk = (H, E, Th) if K is None else (H[K][:, K], sp.csc_array(E)[K][:, K], Th[:, K])
-            sd = strict_dual(Hk, Ek, Thk, delta_max=budget)
+            sd = strict_dual(Hk, Ek, Thk, delta_max=min(budget, correction))
             if sd.ok and sd.delta < correction:
-                correction, argument, delta, msg = sd.delta, "strict dual", sd.delta, ""
+                correction, delta, msg = sd.delta, sd.delta, ""
+                argument = "strict dual" if sd.delta > 0 else "H ⪰ 0 (LDLᵀ inertia)"
                 assumptions = (f"LDLᵀ inertia of H + δ·E_h in the Jacobi frame with margin {sd.margin:.1e} "
                                f"(smallest pivot {sd.min_pivot:.1e}, {sd.tries} factorisation(s)): exact up to "
                                "roundoff of that size; no trace bound")
