@@ -2,7 +2,7 @@
 
 A camera at r ∈ ℝ² looks along +y at J known landmarks p_j (depths p_j,y − r_y > 0) and measures the
 image coordinate u_j = (p_j,x − r_x)/(p_j,y − r_y) with noise: z_j = u_j + σ·ε_j; a position prior
-r̃ = r + σ_r·ε (σ_r = ``PRIOR_SIGMA``) bounds r.
+r̃ = r + σ_r·ε (σ_r: parameter ``prior_sigma``) bounds r.
 
 Lifting (the stereo-style substitution, with a product block):  x = [h, r, (u_j, w_j)_j],
 w_j = u_j·r ∈ ℝ² (N = 3 + 3J).  Cost Σ_j (z_j − u_j)²/σ² + ‖r − r̃‖²/σ_r².
@@ -26,9 +26,9 @@ NAME = "free_columns_bearing"
 PARAMS = {
     "J": Param(4, "number of landmarks", low=3),
     "sigma": Param(0.01, "noise std of the image coordinates", low=0.0, low_open=True),
+    "prior_sigma": Param(0.3, "noise std of the position prior (at 10 the primary relaxation is not tight)",
+                         low=0.0, low_open=True),
 }
-#: noise std of the position prior
-PRIOR_SIGMA = 10.0
 #: the smallest depth p_j,y − r_y a sample may have
 MIN_DEPTH = 1.0
 
@@ -39,7 +39,7 @@ def generate(params: dict, rng: np.random.Generator) -> Instance:
     p = np.column_stack([rng.uniform(-3.0, 3.0, J), rng.uniform(4.0, 8.0, J)])
     u = (p[:, 0] - r[0]) / (p[:, 1] - r[1])
     z = u + sigma * rng.standard_normal(J)
-    prior = r + PRIOR_SIGMA * rng.standard_normal(2)
+    prior = r + params["prior_sigma"] * rng.standard_normal(2)
     return Instance(NAME, dict(params), {"p": p, "z": z, "prior": prior}, {"r": r})
 
 
@@ -50,8 +50,8 @@ def _variables(J: int) -> Variables:
 def build(inst: Instance) -> Model:
     p, z, sigma = inst.measurements["p"], inst.measurements["z"], float(inst.params["sigma"])
     V = _variables(len(z))
-    rp = inst.measurements["prior"]
-    prior = QuadForm(V).add("r", "r", 1.0).linear("r", -2.0 * rp).const(rp @ rp).matrix() / PRIOR_SIGMA ** 2
+    rp, sr = inst.measurements["prior"], float(inst.params["prior_sigma"])
+    prior = QuadForm(V).add("r", "r", 1.0).linear("r", -2.0 * rp).const(rp @ rp).matrix() / sr ** 2
     factors = [Factor("prior", "prior", ("h", "r"), cost=sp_csr(prior), data=rp)]
     for j in range(len(z)):
         u, w = f"u_{j}", f"w_{j}"
@@ -77,7 +77,7 @@ def sp_csr(A):
 def _residuals(inst: Instance, r: np.ndarray) -> np.ndarray:
     """The whitened residuals: (z_j − u_j(r))/σ, then (r − r̃)/σ_r."""
     return np.concatenate([(inst.measurements["z"] - _u(inst, r)) / float(inst.params["sigma"]),
-                           (r - inst.measurements["prior"]) / PRIOR_SIGMA])
+                           (r - inst.measurements["prior"]) / float(inst.params["prior_sigma"])])
 
 
 def _u(inst: Instance, r: np.ndarray) -> np.ndarray:

@@ -84,6 +84,10 @@ class Oracle:
             res, cert = polished(self.model.Q, cons, res, self.best_theta, d=self.model.d, tol=self.criteria.gap_tol,
                                  floor=self.criteria.cost_atol / self.criteria.gap_tol)
         v = judge(res, self.best_local, self.criteria, cert, Q=self.model.Q, constraints=cons)
+        if not v.tight and cert is not None and cert.recession:  # name the blocks nothing bounds
+            from ..unbounded import rank_out_of_reach
+
+            v.reason += f"; {rank_out_of_reach(self.model, cons)}"
         self.log.append({"stage": stage, "n_pairs": n_pairs, "status": res.status, "log_svr": res.log_svr,
                          "rel_gap": v.rel_gap, "tight": self.ok(v), "calls": calls,
                          "unbounded": is_unbounded(res)})
