@@ -64,7 +64,6 @@ def psd_by_inertia(H: sp.sparray, margin: float | None = None) -> tuple[bool, fl
     import qdldl
 
     H = sp.csc_array(H)
-    n = H.shape[0]
     if H.nnz == 0:
         return True, 0.0, ""
     top = float(abs(H).max())
