@@ -84,7 +84,7 @@ def face_multipliers(Q: sp.sparray, As: Sequence[sp.sparray], y: np.ndarray, the
 def face_certificate(Q: sp.sparray, constraints, y: np.ndarray, theta_hat: np.ndarray, cert, *, d: int = 1,
                      tol: float = 1e-6, floor: float = 1e-12, trace: float | None = None):
     """(y, its Certificate, a note): the multipliers on the face (``face_multipliers``) and their
-    certificate when they prove a smaller bound than ``cert`` (that of y); else (y, cert, "")."""
+    certificate when it certifies and ``cert`` (that of y) does not; else (y, cert, "")."""
     from .certificate import certificate, stack
 
     As, _ = stack(constraints)
@@ -94,7 +94,7 @@ def face_certificate(Q: sp.sparray, constraints, y: np.ndarray, theta_hat: np.nd
     yf, face = got
     cf = certificate(Q, constraints, yf, np.asarray(theta_hat, dtype=float).reshape(d, -1), d=d, tol=tol,
                      floor=floor, trace=trace, method=cert.method.split(";")[0] + ", on the face")
-    if not (cf.certified and not cert.certified) and not cf.bound < cert.bound:
+    if not (cf.certified and not cert.certified):  # kept only where it proves what y does not
         return y, cert, ""
     why = (f"{face.free.size} column(s) set aside: the cost has no entry on them and no constraint that "
            f"leaves them out has a diagonal entry there; the multipliers of the {face.touching.size} "
