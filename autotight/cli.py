@@ -115,6 +115,13 @@ def cmd_solve(args: argparse.Namespace) -> int:
     params = prob.parse_params(parse_assignments(args.param))
     check_size(prob, params, config)
     check_count(prob, params, f"--random-starts {args.random_starts}", args.random_starts, what="local solves")
+    if args.verify == "certificate":  # the certificate of the local solution first; the SDP only if it fails
+        from .certify_cmd import certificate_first
+
+        done = certificate_first(args, prob, params, constraints_arg(args.set, args.skip_invalid),
+                                 Criteria(accept=args.accept))
+        if done is not None:
+            return done
     out = solve(prob, params, args.seed, constraints=constraints_arg(args.set, args.skip_invalid), solver=config,
                 n_random=args.random_starts, criteria=Criteria(accept=args.accept))
     inst = out.instance
@@ -175,6 +182,10 @@ def build_parser() -> argparse.ArgumentParser:
     add_solver_args(p)
     add_accept_arg(p)
     p.add_argument("--random-starts", type=nonneg_int, default=1, help="random-start local solves (default 1)")
+    p.add_argument("--verify", default="sdp", choices=["sdp", "certificate"],
+                   help="sdp (default): solve the SDP and judge it; certificate: certify the local solution from "
+                        "the ground truth first, as `autotight certify` does, and solve the SDP only when that "
+                        "is not certified (docs/certificates.md)")
     p.set_defaults(func=cmd_solve)
     from .certify_cmd import register as register_certify
     from .check_cli import register as register_check_module
