@@ -51,6 +51,10 @@ DENSE_MAX = 200
 #: all 10·n iterations, each a sparse solve: discrete K = 200, 2 × 48 000 solves, 115 of a 125 s run.
 #: The lower bound is confirmed by LDLᵀ inertia whatever Lanczos returns.
 LANCZOS_MAXITER = 5000
+#: x̂ counts as feasible when every |⟨Aᵢ,X̂⟩ − bᵢ| ≤ this × (‖Aᵢ‖_F‖X̂‖_F + |bᵢ|) (the tolerance to which
+#: problem modules' samples satisfy their constraints is 1e-8, docs/problem_contract.md); else nothing
+#: is certified: p* ≤ f(x̂) needs x̂ to be a point of the relaxation
+FEASIBLE_RTOL = 1e-7
 #: H's entries on recession columns count as zero up to this multiple of max|H| (module docstring)
 FREE_ATOL = 1e-12
 #: from this many columns on, ``lambda_min`` shifts to NEAR_SHIFT·max|H| below zero and factors H − σI
@@ -421,6 +425,14 @@ def certificate(Q: sp.sparray, constraints: Sequence[Constraint], y: np.ndarray,
     bound = excess + correction
     rel = bound / denom if denom > 0 else (0.0 if bound <= 0 else np.inf)
     ok = bool(np.isfinite(bound) and rel <= tol)
+    a_norm = np.sqrt(np.bincount(owner, weights=v * v, minlength=len(As)))
+    infeasible = np.abs(res_A) / (a_norm * np.linalg.norm(Th @ Th.T) + np.abs(b) + 1e-300)
+    if infeasible.size and infeasible.max() > FEASIBLE_RTOL:  # p* then bounds nothing x̂ is a point of
+        i = int(np.argmax(infeasible))
+        ok, msg = False, "; ".join(filter(None, [msg, (
+            f"x̂ violates constraint {constraints[i].name or i} by {infeasible[i]:.1e} relative (> "
+            f"{FEASIBLE_RTOL:.0e}): it is not a point of this relaxation, so the bound says nothing about it "
+            "(a constraint of the set that does not hold on the problem's feasible points?)")]))
     face = ""
     if J.size:
         face = (f"{J.size} column(s) set aside: neither the cost nor any constraint has a diagonal entry on them "

@@ -28,7 +28,8 @@ The reported ``rel_gap`` is (U − P)/max(|U|, cost_floor).
 ``accept`` says which verdict counts as ``tight``: "rank" (rank and cost, the paper's; a low rank
 counts as not tight only when the bracket is tight and acc ≤ tol, else undecided), "cost" (the
 bracket; with a certificate given, both the bracket and the certificate, and a certificate alone
-decides an undecided bracket), "certified" (the certificate of ``autotight.certificate`` alone).
+decides a bracket left undecided by the solver's accuracy, never an inconsistent solve), "certified"
+(the certificate of ``autotight.certificate`` alone).
 """
 
 from __future__ import annotations
@@ -209,7 +210,7 @@ def judge(res: SDPResult, upper: float, criteria: Criteria = Criteria(), certifi
     elif criteria.accept == "cost":
         outcome = cost_outcome
         if cert is not None:
-            if cert and cost_outcome != NOT_TIGHT:
+            if cert and cost_outcome != NOT_TIGHT and not why.startswith("inconsistent"):
                 outcome = TIGHT
             elif not cert and cost_outcome == TIGHT:
                 outcome = UNDECIDED
