@@ -109,3 +109,16 @@ def test_cost_acceptance_on_the_face(prior_sigma, tight):
         assert not r.tight and not r.certificate.certified
         assert r.verdict.rel_gap > 1e-2
         assert "w_*" in r.verdict.reason
+
+
+def test_discover_accepts_cost_tight_with_free_columns(capsys):
+    """`discover --accept cost` on the bearing module (free product columns w_j,x): cost-tight and
+    certified on the training instance, and on ≥ 90 % of the held-out instances."""
+    from autotight.cli import main
+    import json
+
+    assert main(["discover", MODULE, "--accept", "cost", "--no-progress", "--json"]) == 0
+    rec = json.loads(capsys.readouterr().out)
+    assert rec["tight"] is True and rec["accept"] == "cost" and rec["final_cost_tight"] is True
+    assert rec["heldout_tight_fraction"] >= 0.9 and rec["heldout_instances"] >= 10
+    assert abs(rec["final_rel_gap"]) <= 1e-5
