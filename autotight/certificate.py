@@ -76,6 +76,9 @@ class Certificate:
     primal_residual: max |⟨Aᵢ,X̂⟩ − bᵢ| (x̂'s infeasibility).  trace: the bound T on tr(X), None when the
     constraints imply none.  method: how y and λ_min were obtained.  recession: the number of recession
     columns J (module docstring), on which H must vanish; free_residual: max|H_{J,·}| / max|H|.
+    argument: what proves the bound ("H ⪰ 0", "trace bound", "strict dual", or "" when nothing does);
+    assumptions: what the argument assumed, in words; delta: the strict dual's δ (``strict_dual``);
+    face: the columns set aside (H vanishes on them) and why, "" when none.
     """
 
     certified: bool
@@ -93,6 +96,10 @@ class Certificate:
     message: str = ""
     recession: int = 0
     free_residual: float = 0.0
+    argument: str = ""
+    assumptions: str = ""
+    delta: float = 0.0
+    face: str = ""
 
     def record(self) -> dict:
         return {k: getattr(self, k) for k in self.__dataclass_fields__}
@@ -382,25 +389,62 @@ def certificate(Q: sp.sparray, constraints: Sequence[Constraint], y: np.ndarray,
     if T is None and lam_lo < 0:
         T = trace_bound(Q, As, b, 2 * abs(f_hat) + floor * scale * Xhat_tr, columns=K)
     neg = max(-lam_lo, 0.0)
-    msg = ""
+    msg, argument, delta = "", "", 0.0
+    roundoff = "the LDLᵀ factorisation's roundoff (λ_min's lower bound)"
+    assumptions = roundoff
     if free_res > FREE_ATOL:
         correction, msg = np.inf, (f"H does not vanish on the {J.size} recession columns (max |H_J·| = "
                                    f"{free_res:.1e} of max |H|)")
     elif neg == 0.0:
-        correction = 0.0
+        correction, argument = 0.0, "H ⪰ 0"
     elif T is None:
         correction, msg = np.inf, "λ_min(H) < 0 and no trace bound follows from the constraints"
     else:
-        correction = neg * T
+        correction, argument = neg * T, "trace bound"
+        assumptions = f"{roundoff}; tr X ≤ {T:.3e} on the sublevel set of 2|f(x̂)|"
     dual_value = float(b @ y)
-    bound = float(np.sum(Th.T * HT) + y @ res_A + correction)
+    excess = float(np.sum(Th.T * HT) + y @ res_A)  # f(x̂) − bᵀy (exact identity)
     denom = max(abs(f_hat), floor * scale * Xhat_tr)
+    budget = tol * denom - excess  # the largest correction that can still certify
+    if free_res <= FREE_ATOL and correction > 0 and budget > 0:  # the strict dual, where it can do better
+        E = homogenising_matrix(constraints)
+        if E is not None:
+            from .strict_dual import strict_dual
+
+            Hk, Ek, Thk = (H, E, Th) if K is None else (H[K][:, K], sp.csc_array(E)[K][:, K], Th[:, K])
+            sd = strict_dual(Hk, Ek, Thk, delta_max=min(budget, correction))
+            if sd.ok and sd.delta < correction:
+                correction, delta, msg = sd.delta, sd.delta, ""
+                argument = "strict dual" if sd.delta > 0 else "H ⪰ 0 (LDLᵀ inertia)"
+                assumptions = (f"LDLᵀ inertia of H + δ·E_h in the Jacobi frame with margin {sd.margin:.1e} "
+                               f"(smallest pivot {sd.min_pivot:.1e}, {sd.tries} factorisation(s)): exact up to "
+                               "roundoff of that size; no trace bound")
+            elif not sd.ok:
+                msg = "; ".join(filter(None, [msg, f"strict dual: {sd.message}"]))
+    bound = excess + correction
     rel = bound / denom if denom > 0 else (0.0 if bound <= 0 else np.inf)
     ok = bool(np.isfinite(bound) and rel <= tol)
-    worst = float(relative_violations(constraints, [Th]).max(initial=0.0))
-    if worst > VALID_RTOL:  # the bound assumes a feasible x̂ (p* ≤ f̂): none is proved for an infeasible one
-        ok, msg = False, (f"x̂ violates a constraint (relative violation {worst:.1e} > {VALID_RTOL:g}): "
-                          "the bound holds only for a feasible x̂")
+    infeasible = relative_violations(constraints, [Th])[0] if len(constraints) else np.zeros(0)
+    if infeasible.size and infeasible.max() > VALID_RTOL:  # p* then bounds nothing x̂ is a point of
+        i = int(np.argmax(infeasible))
+        ok, msg = False, "; ".join(filter(None, [msg, (
+            f"x̂ violates constraint {constraints[i].name or i} by {infeasible[i]:.1e} relative (> "
+            f"{VALID_RTOL:.0e}): it is not a point of this relaxation, so the bound says nothing about it "
+            "(a constraint of the set that does not hold on the problem's feasible points?)")]))
+    face = ""
+    if J.size:
+        face = (f"{J.size} column(s) set aside: neither the cost nor any constraint has a diagonal entry on them "
+                f"(X can grow there at no cost); H vanishes on them to {free_res:.1e} of max |H|")
+        assumptions += "; H vanishes on the columns set aside"
     return Certificate(ok, bound, float(rel), lam, lam_lo, residual, float(np.max(np.abs(res_A), initial=0.0)),
                        f_hat, dual_value, T, time.perf_counter() - t0, f"{method}; λ_min: {how}", msg,
-                       int(J.size), free_res)
+                       int(J.size), free_res, argument if np.isfinite(bound) else "", assumptions, delta, face)
+
+
+def homogenising_matrix(constraints: Sequence[Constraint]) -> sp.csc_array | None:
+    """E_h = Σ Aᵢ over the constraints (X_hh)_ii = 1 (family "homogenisation", b = 1), None if there are
+    none: lowering each of their d multipliers by δ/d adds (δ/d)·E_h to H and lowers bᵀy by δ."""
+    rows = [c.A for c in constraints if c.family == "homogenisation" and c.b == 1.0]
+    if not rows:
+        return None
+    return sp.csc_array(sum(sp.csc_array(A) for A in rows))

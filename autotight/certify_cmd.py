@@ -65,12 +65,48 @@ def cmd_certify(args: argparse.Namespace) -> int:
         print(f"constraints: {rec['constraint_set']} ({rec['n_constraints']})  local solve from {run.start}: "
               f"cost {run.local.cost:.10g} ({run.local.iterations} it)")
         print(f"{'CERTIFIED' if c.certified else 'NOT CERTIFIED'}: f(x̂) − p* ≤ {c.bound:.3e} "
-              f"(relative {c.rel_bound:.3e})  λ_min(H) ≥ {c.lambda_lower:.3e}")
+              f"(relative {c.rel_bound:.3e})  λ_min(H) ≥ {c.lambda_lower:.3e}"
+              + (f"  by {c.argument}" if c.argument else ""))
+        if c.assumptions and c.certified:
+            print(f"assuming: {c.assumptions}")
+        if c.face:
+            print(f"face: {c.face}")
         if c.message:
             print(c.message)
         print(f"method: {c.method}")
         print(f"time: {c.time_s:.3f}s")
     return 0 if c.certified else 1
+
+
+def certificate_first(args: argparse.Namespace, prob: Any, params: dict, constraints: Any, criteria: Any) -> int | None:
+    """``solve --verify certificate``: certify the local solution from the ground truth first
+    (``certify_instance``, the path of ``autotight certify``); when it is certified, print that and return
+    0 without solving the SDP; else None (the caller solves the SDP, whose verdict then decides)."""
+    from .api import _seed
+    from .certifier import certify_instance
+    from .io import jsonable, versions
+
+    inst = prob.generate(params, _seed(args.seed))
+    run = certify_instance(prob, inst, constraints, start="truth", criteria=criteria)
+    c = run.certificate
+    if not c.certified:
+        if not args.json:
+            print(f"certificate of the local solution: not certified ({c.message or 'bound above tolerance'}); "
+                  "solving the SDP")
+        return None
+    rec = {"problem": prob.name, "params": inst.params, "seed": inst.seed, "verify": "certificate",
+           "outcome": "tight", "certified": True, "constraint_set": run.constraint_set,
+           "n_constraints": len(run.constraints), "local_cost": run.local.cost, "certificate": c.record()}
+    if args.json:
+        print(json.dumps(jsonable(rec | {"estimate": run.local.state, "versions": versions()}), ensure_ascii=False))
+    else:
+        print(f"problem {prob.name}  params {inst.params}  seed {inst.seed}")
+        print(f"constraints: {rec['constraint_set']} ({rec['n_constraints']})  local solve from the ground truth: "
+              f"cost {run.local.cost:.10g}")
+        print(f"CERTIFIED ({c.argument}): f(x̂) − p* ≤ {c.bound:.3e} (relative {c.rel_bound:.3e}); the SDP was not "
+              f"solved (--verify certificate)")
+        print(f"method: {c.method}")
+    return 0
 
 
 def register(sub: Any, add_problem_args: Callable[[argparse.ArgumentParser], None]) -> None:

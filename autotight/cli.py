@@ -92,8 +92,10 @@ def add_solver_args(p: argparse.ArgumentParser, default: str | None = "clarabel"
 def add_accept_arg(p: argparse.ArgumentParser) -> None:
     """``--accept rank|cost|certified``: what counts as tight (``tightness.Criteria.accept``)."""
     p.add_argument("--accept", default="rank", choices=["rank", "cost", "certified"],
-                   help="what counts as tight: rank d and cost (default), the cost bracket only, or a dual "
-                        "certificate of the best local solution")
+                   help="what counts as tight: rank d and cost (default); cost: the cost bracket closed to "
+                        "tolerance and a dual certificate of the best local solution (on the face of the bounded "
+                        "columns where some columns are free; a certificate alone also decides a bracket the "
+                        "solver's accuracy leaves open); certified: the dual certificate alone")
 
 
 def solver_config(args: argparse.Namespace, default_backend: str = "clarabel", **fields: Any):
@@ -124,6 +126,13 @@ def cmd_solve(args: argparse.Namespace) -> int:
     params = prob.parse_params(parse_assignments(args.param))
     check_size(prob, params, config)
     check_random_starts(prob, params, args.random_starts, "--random-starts")
+    if args.verify == "certificate":  # the certificate of the local solution first; the SDP only if it fails
+        from .certify_cmd import certificate_first
+
+        done = certificate_first(args, prob, params, constraints_arg(args.set, args.skip_invalid),
+                                 Criteria(accept=args.accept))
+        if done is not None:
+            return done
     out = solve(prob, params, args.seed, constraints=constraints_arg(args.set, args.skip_invalid), solver=config,
                 n_random=args.random_starts, criteria=Criteria(accept=args.accept))
     inst = out.instance
@@ -184,6 +193,10 @@ def build_parser() -> argparse.ArgumentParser:
     add_solver_args(p)
     add_accept_arg(p)
     p.add_argument("--random-starts", type=nonneg_int, default=1, help="random-start local solves (default 1)")
+    p.add_argument("--verify", default="sdp", choices=["sdp", "certificate"],
+                   help="sdp (default): solve the SDP and judge it; certificate: certify the local solution from "
+                        "the ground truth first, as `autotight certify` does, and solve the SDP only when that "
+                        "is not certified (docs/certificates.md)")
     p.set_defaults(func=cmd_solve)
     from .certify_cmd import register as register_certify
     from .check_cli import register as register_check_module

@@ -119,6 +119,11 @@ def polished(Q, constraints: Sequence[Constraint], res: SDPResult, theta_hat: np
                                                                                            cert.cost)):
             steps.append(f"polished onto H(y)Θ̂ᵀ = 0 (‖δy‖ = {np.linalg.norm(y2 - y):.1e})")
             y, cert = y2, cert2
+    if not cert.certified:  # the face of the bounded columns (autotight.face)
+        from .face import face_certificate
+
+        y, cert, note = face_certificate(Q, constraints, y, Th, cert, d=d, tol=tol, floor=floor, trace=cert.trace)
+        steps += [note] if note else []
     excess = cert.dual_value - cert.cost
     allowed = allowed_excess(res, Q, constraints, y0_lambda_lower, cert.cost, tol, floor) if excess > 0 else 0.0
     y3 = lower_to_cost(constraints, y, excess) if 0 < excess <= allowed else None

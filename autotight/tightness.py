@@ -31,7 +31,8 @@ The reported ``rel_gap`` is (U − P)/max(|U|, cost_floor).
 counts as not tight only when the bracket is tight, acc ≤ tol and the solver reached its own tolerance
 (status Solved), else undecided), "cost" (the
 bracket; with a certificate given, both the bracket and the certificate, and a certificate alone
-decides an undecided bracket), "certified" (the certificate of ``autotight.certificate`` alone).
+decides a bracket left undecided by the solver's accuracy, never an inconsistent solve), "certified"
+(the certificate of ``autotight.certificate`` alone).
 """
 
 from __future__ import annotations
@@ -231,7 +232,7 @@ def judge(res: SDPResult, upper: float, criteria: Criteria = Criteria(), certifi
     elif criteria.accept == "cost":
         outcome = cost_outcome
         if cert is not None:
-            if cert and cost_outcome != NOT_TIGHT:
+            if cert and cost_outcome != NOT_TIGHT and not why.startswith("inconsistent"):
                 outcome = TIGHT
             elif not cert and cost_outcome == TIGHT:
                 outcome = UNDECIDED

@@ -77,3 +77,16 @@ def test_agrees_with_full_sdp(name, params, seed, cons):
     assert cert.certified == (full.outcome == "tight"), (full.outcome, cert)
     if cert.certified:  # the certified point's cost is the SDP's value, to the certified bound
         assert abs(cert.cost - full.sdp.primal_cost) <= 1e-4 * abs(cert.cost)
+
+
+def test_solve_verify_certificate_skips_the_sdp_only_when_certified(capsys):
+    """`solve --verify certificate`: a certified local solution ends the command without an SDP (its
+    bound ≤ tolerance and the local cost in the record); a non-tight set falls through to the SDP."""
+    assert main(["solve", "pose_averaging", "-p", "M=5", "--seed", "1", "--verify", "certificate", "--json"]) == 0
+    rec = json.loads(capsys.readouterr().out)
+    assert rec["verify"] == "certificate" and rec["certified"] is True and "sdp_cost" not in rec
+    assert rec["certificate"]["rel_bound"] <= 1e-5 and rec["certificate"]["argument"]
+    assert abs(rec["certificate"]["cost"] - rec["local_cost"]) <= 1e-9 * max(1.0, rec["local_cost"])
+    main(["solve", "pose_averaging", "-p", "M=10", "--set", "primary", "--verify", "certificate", "--json"])
+    rec = json.loads(capsys.readouterr().out)
+    assert "sdp_cost" in rec and rec["outcome"] != "tight"
