@@ -233,6 +233,19 @@ class Constraint:
         return float(np.dot(A.data, vals) - self.b)
 
 
+def constraint_values(As: Sequence[sp.coo_array], X: np.ndarray | sp.sparray) -> np.ndarray:
+    """⟨A_i, X⟩ for COO matrices A_i, in one gather of X's entries (X dense, or sparse holding at least
+    the A_i's entries)."""
+    if not len(As):
+        return np.zeros(0)
+    rows = np.concatenate([A.row for A in As])
+    cols = np.concatenate([A.col for A in As])
+    data = np.concatenate([A.data for A in As])
+    owner = np.repeat(np.arange(len(As)), [A.data.size for A in As])
+    vals = np.asarray(sp.csr_array(X)[rows, cols]).ravel() if sp.issparse(X) else np.asarray(X)[rows, cols]
+    return np.bincount(owner, weights=data * vals, minlength=len(As))
+
+
 def frobenius(X: np.ndarray | sp.csr_array) -> float:
     """‖X‖_F of a dense X, or of the entries a sparse X holds (its cliques' pattern)."""
     return float(spla.norm(X)) if sp.issparse(X) else float(np.linalg.norm(X))

@@ -285,9 +285,17 @@ def random_state(inst: Instance, rng: np.random.Generator) -> dict:
 # ----------------------------------------------------------------------------- local solver
 
 
-def linearize(inst: Instance, Ts: np.ndarray) -> tuple[np.ndarray, sp.csr_array, sp.csr_array]:
+def weight(inst: Instance) -> sp.csr_array:
+    """The block-diagonal weight of the stacked residuals of ``linearize`` (sparse)."""
+    m = inst.measurements
+    return block_weight(np.concatenate([np.asarray(m["W"]), np.asarray(m["W_rel"])]), dense_max=0)
+
+
+def linearize(inst: Instance, Ts: np.ndarray, W: sp.csr_array | None = None
+              ) -> tuple[np.ndarray, sp.csr_array, sp.csr_array]:
     """Stacked residuals e = [ξ_0 … ξ_{K−1}, ξ_{1,0} … ξ_{K−1,K−2}] (6(2K−1),), sparse Jacobian w.r.t.
-    ε = [ε_0 … ε_{K−1}] for T_k = cay(ε_k^∧) T_op,k (6(2K−1) × 6K), and the block-diagonal weight."""
+    ε = [ε_0 … ε_{K−1}] for T_k = cay(ε_k^∧) T_op,k (6(2K−1) × 6K), and the block-diagonal weight
+    (``weight``; given as W, it is not built again)."""
     m = inst.measurements
     Ts = np.asarray(Ts)
     K = len(Ts)
@@ -297,8 +305,7 @@ def linearize(inst: Instance, Ts: np.ndarray) -> tuple[np.ndarray, sp.csr_array,
     brow = np.concatenate([np.arange(K), K + np.arange(K - 1), K + np.arange(K - 1)])
     bcol = np.concatenate([np.arange(K), np.arange(K - 1), np.arange(1, K)])
     J = block_sparse(brow, bcol, np.concatenate([J_u, J1, J2]), (6 * (2 * K - 1), 6 * K))
-    W = block_weight(np.concatenate([np.asarray(m["W"]), np.asarray(m["W_rel"])]), dense_max=0)
-    return np.concatenate([xi_u.ravel(), xi_b.ravel()]), J, W
+    return np.concatenate([xi_u.ravel(), xi_b.ravel()]), J, weight(inst) if W is None else W
 
 
 def retract(Ts: np.ndarray, eps: np.ndarray) -> np.ndarray:
@@ -309,7 +316,8 @@ def retract(Ts: np.ndarray, eps: np.ndarray) -> np.ndarray:
 def local_solve(inst: Instance, init: dict, max_iter: int = 200) -> LocalResult:
     """Gauss-Newton (App. A.4, LM-damped) on the sparse stacked system (HᵀWH) ε = −HᵀW e."""
     _count(inst)
-    res = gauss_newton(lambda Ts: linearize(inst, Ts), retract, _poses(init), max_iter=max_iter)
+    W = weight(inst)  # the same at every iterate
+    res = gauss_newton(lambda Ts: linearize(inst, Ts, W), retract, _poses(init), max_iter=max_iter)
     res.state = _state(res.state)
     return res
 
