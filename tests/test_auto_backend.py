@@ -41,3 +41,18 @@ def test_large_model_size_check_counts_a_sparse_x():
 def test_effective_tol_of_an_unresolved_config_is_its_tol():
     assert sdp.effective_tol(SolverConfig(tol=1e-9)) == 1e-9
     assert np.isclose(sdp.effective_tol(SolverConfig(tol=1e-9).for_size(10 ** 5)), 1e-7)
+
+
+def test_clarabel_kkt_solver_by_size_and_faer_agrees(monkeypatch):
+    from autotight.sdp import clarabel_direct
+
+    assert clarabel_direct.kkt_solver(clarabel_direct.FAER_MIN_N - 1) == "qdldl"
+    assert clarabel_direct.kkt_solver(clarabel_direct.FAER_MIN_N) == "faer"
+    prob = at.load_problem("rotation_averaging")
+    model = prob.build(prob.generate({}, 0))
+    config = SolverConfig(backend="clarabel", tol=1e-9)
+    qdldl = sdp.solve_model(model, model.primary(), config)
+    monkeypatch.setattr(clarabel_direct, "FAER_MIN_N", 1)
+    faer = sdp.solve_model(model, model.primary(), config)
+    assert qdldl.status == faer.status == "Solved"
+    assert abs(faer.primal_cost - qdldl.primal_cost) <= 1e-7 * abs(qdldl.primal_cost)
