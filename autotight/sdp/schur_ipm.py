@@ -31,8 +31,8 @@ S is sparse (S_il ≠ 0 only when constraints i and l touch a common block), ass
 the entries its constraints touch (``_Schur.assemble``), equilibrated to a unit diagonal,
 regularised by ``SCHUR_REG`` and factorised by sparse LDLᵀ (qdldl, Apache-2.0: AMD ordering and
 symbolic analysis once per solve, a numeric refactorisation per iteration); SuperLU with partial
-pivoting takes over, for the rest of the solve, once a pivot is not positive.  One refinement step is kept only when it lowers
-the residual.  Per iteration this costs about ``iteration_cost`` (a ranking used to choose the
+pivoting takes over, for the rest of the solve, once a pivot is not positive.  One refinement step is
+kept only when it lowers the residual.  Per iteration this costs about ``iteration_cost`` (a ranking used to choose the
 cover, not a prediction).  Everything works on full row-major vec(·) of each block; the svec data
 of ``clique_program`` is mapped once by ``svec_to_vec``.  Measurements and the variants tried are
 in benchmarks/README.md.
