@@ -66,3 +66,21 @@ def test_batched_discrete_build_equals_direct(monkeypatch):
     # the batched model's constraints hold at the true state's lifting
     x = prob.lift(inst, prob.local_solve(inst, inst.truth).state).ravel()
     assert max(abs(c.value(np.outer(x, x))) for c in cb) < 1e-9
+
+
+def test_batched_pose_averaging_build_equals_direct(monkeypatch):
+    import problems.pose_averaging as pa
+
+    prob = at.load_problem("pose_averaging")
+    inst = prob.generate({"M": 9, "sigma": 0.2}, 5)
+    batched = pa._build_batched(inst)
+    monkeypatch.setattr(pa, "BATCH_MIN_MEASUREMENTS", 10 ** 9)
+    direct = prob.build(inst)
+    ca, cb = direct.all_constraints(), batched.all_constraints()
+    assert [(c.name, c.family, c.factor, c.b) for c in ca] == [(c.name, c.family, c.factor, c.b) for c in cb]
+    for a, b in zip(ca, cb):
+        assert np.array_equal(a.A.row, b.A.row) and np.array_equal(a.A.col, b.A.col)
+        assert np.abs(a.A.data - b.A.data).max() <= 1e-14 * np.abs(a.A.data).max()
+    assert abs(direct.Q - batched.Q).max() < 1e-14
+    assert [(f.name, f.type, f.blocks, f.roles) for f in direct.factors] == \
+        [(f.name, f.type, f.blocks, f.roles) for f in batched.factors]
