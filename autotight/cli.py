@@ -70,13 +70,13 @@ def constraints_arg(value: str | None, skip_invalid: bool = False):
     return cs
 
 
-def add_solver_args(p: argparse.ArgumentParser, default: str | None = "clarabel", note: str = "") -> None:
+def add_solver_args(p: argparse.ArgumentParser, default: str | None = "auto", note: str = "") -> None:
     """``--solver``, ``--decompose`` and ``--scale``: the SDP backend of every solve of the command.  default
     None: the command picks it (``solver_config(args, default_backend=…)``), ``note`` says how."""
     p.add_argument("--solver", default=default,
-                   help="SDP backend: clarabel (default" + (f"; {note}" if note else "") + "), ipm (our "
-                        "interior-point method on clique blocks) or cvxpy:SCS, cvxpy:MOSEK, … (see "
-                        "autotight/sdp/registry.py)")
+                   help="SDP backend: auto (default" + (f"; {note}" if note else "") + ": ipm from 1000 "
+                        "columns of X on, else clarabel), clarabel, ipm (our interior-point method on clique "
+                        "blocks) or cvxpy:SCS, cvxpy:MOSEK, … (see autotight/sdp/registry.py)")
     p.add_argument("--decompose", action=argparse.BooleanOptionalAction, default=None,
                    help="Clarabel on our own clique cover (min-fill covers of the columns and of the variable "
                         "blocks, autotight/sdp/covers.py) instead of its built-in chordal decomposition "
@@ -98,7 +98,7 @@ def add_accept_arg(p: argparse.ArgumentParser) -> None:
                         "solver's accuracy leaves open); certified: the dual certificate alone")
 
 
-def solver_config(args: argparse.Namespace, default_backend: str = "clarabel", **fields: Any):
+def solver_config(args: argparse.Namespace, default_backend: str = "auto", **fields: Any):
     """The ``SolverConfig`` of ``--solver``/``--decompose``/``--scale`` (validated before any work);
     ``default_backend`` when --solver was not given."""
     from .errors import ParameterError

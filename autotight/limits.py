@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import os
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any, Sequence
 
 import numpy as np
@@ -32,7 +32,7 @@ import scipy.sparse as sp
 
 from .errors import ParameterError
 from .sdp import BACKENDS, decomposes
-from .sdp.config import SolverConfig
+from .sdp.config import AUTO, SolverConfig
 from .sdp.result import DENSE_X_MAX
 
 PROBE_FACTOR = 4
@@ -63,7 +63,9 @@ class SizeEstimate:
 def holds_dense_x(config: SolverConfig | None) -> bool:
     """Whether a solve with ``config`` may hold X dense: every solve but one on our clique cover
     (``--solver ipm``, or ``--decompose``), whose X above DENSE_X_MAX columns is sparse."""
-    return config is None or not (decomposes(config) and BACKENDS[config.backend_name].cover is not None)
+    if config is None or config.backend == AUTO:  # "auto": as the size resolves it (``check_size``)
+        return True
+    return not (decomposes(config) and BACKENDS[config.backend_name].cover is not None)
 
 
 def _measure(problem: Any, params: dict[str, Any]) -> tuple[int, int]:
@@ -134,6 +136,8 @@ def check_size(problem: Any, params: dict[str, Any], config: SolverConfig | None
     est = estimate_size(problem, params, holds_dense_x(config))
     if est is None:
         return None
+    if config is not None and est.dense_x and config.backend == AUTO:  # what "auto" picks at this size
+        est = replace(est, dense_x=holds_dense_x(config.for_size(int(est.N))))
     avail = available_memory()
     if est.bytes > avail:
         given = ", ".join(f"{k}={params[k]}" for k in probed(problem, params))

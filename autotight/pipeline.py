@@ -246,6 +246,7 @@ def solve_instance(problem: Problem, inst: Instance, constraints: ConstraintsLik
     s = seeds(inst.seed if inst.seed is not None else 0)
     t0 = time.perf_counter()
     model = model if model is not None else problem.build(inst)
+    config = config.for_size(model.variables.N)  # "auto" picks the backend by the model's size
     tm = time.perf_counter()
     cons = resolve(constraints, problem, inst, model, rng_constraints or s.constraints())
     t1 = time.perf_counter()

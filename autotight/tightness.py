@@ -144,10 +144,11 @@ def accuracy(res: SDPResult, Q=None, constraints: Sequence | None = None,
         scale = max(res.cost_scale, abs(P), abs(D))
         return Accuracy(gap_pd + 10 * np.finfo(float).eps * scale, 0.0, scale, gap_pd, 0.0, False)
     from .certificate import dual_matrix, lambda_min, stack
+    from .model import constraint_values
 
     As, b = stack(constraints)
     X = res.X
-    r = np.array([float(A.data @ X[A.row, A.col]) for A in As]) - b  # COO: no per-constraint N×N work
+    r = constraint_values(As, X) - b  # COO: no per-constraint N×N work
     primal_term = float(np.abs(res.y) @ np.abs(r))
     trX = float(X.trace())  # dense or sparse (X on the cliques' pattern)
     lam_lo = lambda_min(dual_matrix(Q, As, res.y))[1] if lambda_lower is None else lambda_lower

@@ -12,6 +12,14 @@ seed).  The SDP uses our IPM (``--solver ipm``); local search: from the ground t
     nice -n 19 python benchmarks/scale.py [--problem discrete_trajectory|pose_averaging] [--set FILE]
         [--sizes 10,30,100,300,1000] [--relearn 10,30,100] [--paper 100,300,1000] [--seeds 0]
         [--seeds-at 1000] [--retemplate PATH]
+    nice -n 19 python benchmarks/scale.py --versus OLD_CHECKOUT [--problem …] [--sizes 100,1000,10000]
+        [--new-only 10000] [--solver ipm|default] [--out FILE]
+
+--versus: this checkout against another (e.g. a worktree of the commit before, with its own .venv): every
+size solved by both, interleaved, each in a fresh process through ``autotight.solve`` (what ``autotight
+solve -p SIZE=… --set FILE`` runs, one random local start), with per-stage times (``SolveResult.times``),
+peak RSS, the outcome, the SDP cost and the load average; the summary holds the growth exponents between
+consecutive sizes, the ratios new/old and the relative difference of the SDP costs.
 
 --seeds: the instance seeds of every run; --seeds-at: sizes that run with every seed (the others with the
 first).  Without --set the problem's default file is used, and discovered at size 5, seed 0, when it is
@@ -140,6 +148,11 @@ def main() -> None:
     ap.add_argument("--timeout", type=float, default=1800.0)
     ap.add_argument("--out", default=None, help="default: benchmarks/results/scale.json (discrete), "
                                                 "scale_pose_averaging.json (pose)")
+    ap.add_argument("--versus", default=None, metavar="DIR",
+                    help="compare with the checkout at DIR (its .venv's python): every size and seed solved by both, "
+                         "interleaved, each in a fresh process, through `autotight solve`'s API (n_random 1)")
+    ap.add_argument("--solver", default="ipm", help="with --versus: the backend of both ('default': each one's own)")
+    ap.add_argument("--new-only", default="", help="with --versus: sizes run by this checkout only")
     ap.add_argument("--one", type=int, default=None, help=argparse.SUPPRESS)
     ap.add_argument("--route", default="template", help=argparse.SUPPRESS)
     args = ap.parse_args()
@@ -148,6 +161,9 @@ def main() -> None:
     seeds = [int(s) for s in args.seeds.split(",") if s]
     if args.one is not None:
         print(json.dumps(one(args.problem, args.one, args.route, args.set, seeds[0])))
+        return
+    if args.versus:
+        versus(args)
         return
     ensure_set(args.problem, Path(args.set))
     if args.retemplate:
@@ -211,6 +227,105 @@ def write(args: argparse.Namespace, rows: list[dict], growth: dict) -> None:
     Path(args.out).write_text(json.dumps(obj, indent=1, default=str), encoding="utf-8")
     if growth:
         print(f"wrote {args.out}")
+
+
+# ----------------------------------------------------------------------------- this checkout against another
+
+
+def solve_one(problem: str, size: int, set_path: str, seed: int, solver: str) -> dict:
+    """``autotight solve PROBLEM -p SIZE=size --set set_path --seed seed [--solver solver]`` in this process,
+    through the public API only (it runs against older checkouts too): its times, peak RSS and result."""
+    t0 = time.perf_counter()
+    import autotight as at
+    from autotight.constraint_set import ConstraintSet
+
+    config = at.SolverConfig() if solver == "default" else at.SolverConfig(backend=solver)
+    r = at.solve(problem, {SIZE[problem]: size}, seed, constraints=ConstraintSet.load(set_path), solver=config)
+    return {"size": size, "seed": seed, "N": r.sdp.X.shape[0] if r.sdp.X is not None else None,
+            "n_constraints": r.n_constraints, "solver": r.sdp.solver, "status": r.sdp.status,
+            "outcome": r.outcome, "tight": r.tight, "log_svr": r.log_svr, "sdp_cost": r.sdp.primal_cost,
+            "sdp_dual_cost": r.sdp.dual_cost, "upper_bound": r.upper, "times": r.times,
+            "total_s": time.perf_counter() - t0,
+            "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}
+
+
+def versus_child(root: Path, python: str, problem: str, size: int, set_path: str, seed: int, solver: str,
+                 timeout: float) -> dict:
+    """``solve_one`` in a fresh process of the checkout at ``root`` (its own interpreter ``python``)."""
+    load0 = os.getloadavg()
+    t0 = time.perf_counter()
+    code = (f"import sys, json; sys.path.insert(0, {str(HERE)!r}); import scale; "
+            f"print(json.dumps(scale.solve_one({problem!r}, {size}, {set_path!r}, {seed}, {solver!r}), default=str))")
+    try:
+        p = subprocess.run(["nice", "-n", "10", python, "-c", code], capture_output=True, text=True,
+                           env=dict(os.environ, PYTHONPATH=str(root)), cwd=str(root), timeout=timeout)
+    except subprocess.TimeoutExpired:
+        return {"size": size, "seed": seed, "error": f"timeout after {timeout:g} s"}
+    rec = ({"error": (p.stderr.strip().splitlines() or ["?"])[-1]} if p.returncode != 0
+           else json.loads(p.stdout.strip().splitlines()[-1]))
+    return {"size": size, "seed": seed} | rec | {"process_wall_s": time.perf_counter() - t0, "loadavg_before": load0,
+                                                 "loadavg_after": os.getloadavg()}
+
+
+def versus(args: argparse.Namespace) -> None:
+    """Every (size, seed) solved by this checkout and by ``--versus`` (the commit before), interleaved (this one
+    first, then the other, size by size), each in a fresh process; growth exponents of each between
+    consecutive sizes, the ratio new/old of every time and the relative difference of the SDP costs."""
+    import math
+
+    old_root = Path(args.versus).resolve()
+    old_python = str(old_root / ".venv" / "bin" / "python") if (old_root / ".venv").exists() else sys.executable
+    sizes = [int(k) for k in args.sizes.split(",") if k]
+    skip_old = {int(k) for k in args.new_only.split(",") if k}
+    seeds = [int(s) for s in args.seeds.split(",") if s]
+    rows: list[dict] = []
+    for size in sizes:
+        for seed in seeds:
+            for version, root, python in (("new", ROOT, sys.executable), ("old", old_root, old_python)):
+                if version == "old" and size in skip_old:
+                    continue
+                r = versus_child(root, python, args.problem, size, args.set, seed, args.solver, args.timeout)
+                r["version"] = version
+                rows.append(r)
+                t = r.get("times", {})
+                print(f"{version:>3} {SIZE[args.problem]}={size:<6} seed {seed}  " + (
+                    f"error: {r['error']}" if "error" in r else
+                    f"total {r['total_s']:7.1f} s  build {t.get('build_s', 0):6.2f}  local {t.get('local_s', 0):6.2f}  "
+                    f"SDP {t.get('sdp_total_s', 0):7.2f}  refine {t.get('refine_s', 0):6.2f}  RSS "
+                    f"{r['peak_rss_mb']:6.0f} MB  {r['outcome']}  cost {r['sdp_cost']:.10g}")
+                    + f"  load {r['loadavg_before'][0]:.1f}", flush=True)
+                write_versus(args, rows, {})
+    summary: dict = {"growth": {}, "pairs": []}
+    for version in ("new", "old"):
+        ok = {r["size"]: r for r in rows if r["version"] == version and "error" not in r and r["seed"] == seeds[0]}
+        summary["growth"][version] = {f"{a}->{b}": {k: math.log(ok[b][k] / ok[a][k]) / math.log(b / a)
+                                                   for k in ("total_s", "peak_rss_mb")}
+                                      for a, b in zip(sizes, sizes[1:]) if a in ok and b in ok}
+    for size in sizes:
+        for seed in seeds:
+            new = next((r for r in rows if r["version"] == "new" and r["size"] == size and r["seed"] == seed), None)
+            old = next((r for r in rows if r["version"] == "old" and r["size"] == size and r["seed"] == seed), None)
+            if not new or not old or "error" in new or "error" in old:
+                continue
+            keys = [k for k in new["times"] if k in old["times"] and old["times"][k]]
+            summary["pairs"].append({
+                "size": size, "seed": seed, "same_outcome": new["outcome"] == old["outcome"],
+                "sdp_cost_rel_diff": abs(new["sdp_cost"] - old["sdp_cost"]) / max(abs(old["sdp_cost"]), 1e-300),
+                "ratio_total": new["total_s"] / old["total_s"], "ratio_rss": new["peak_rss_mb"] / old["peak_rss_mb"],
+                "ratio_times": {k: new["times"][k] / old["times"][k] for k in keys}})
+    print(json.dumps(summary, indent=1))
+    write_versus(args, rows, summary)
+
+
+def write_versus(args: argparse.Namespace, rows: list[dict], summary: dict) -> None:
+    from autotight.io import versions
+
+    obj = {"benchmark": "scale_versus", "problem": args.problem, "size_param": SIZE[args.problem],
+           "set": Path(args.set).name, "solver": args.solver, "versus": str(args.versus), "seeds": args.seeds,
+           "command": "python benchmarks/scale.py " + " ".join(sys.argv[1:]), "rows": rows, "summary": summary,
+           "versions": versions(), "cpu_count": os.cpu_count(), "loadavg_end": os.getloadavg()}
+    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
+    Path(args.out).write_text(json.dumps(obj, indent=1, default=str), encoding="utf-8")
 
 
 if __name__ == "__main__":

@@ -34,6 +34,7 @@ from autotight.gauss_newton import block_sparse, block_weight, gauss_newton
 from autotight.model import Factor, Model, Variables
 from autotight.problem import Instance, LocalResult, Param
 
+from . import _pose_batch as pb
 from ._cayley import draw_valid
 from ._pose import (POSE_ROLES, XI_ROLES, binary_cayley, binary_transport, declare_pose, declare_xi, pose_blocks,
                     pose_from_x, pose_orthonormality, r1_unary, r2_unary, r3_binary, unary_cayley, unary_transport,
@@ -147,8 +148,15 @@ def cliques(K: int) -> list[tuple[str, ...]]:
     return out
 
 
+#: from this many poses on, ``build`` makes each factor type's constraints and costs for all factors at once
+#: (``_pose_batch``; entries equal to rounding); below, factor by factor
+BATCH_MIN_POSES = 32
+
+
 def build(inst: Instance) -> Model:
     K = _count(inst)
+    if K >= BATCH_MIN_POSES:
+        return _build_batched(inst)
     m = inst.measurements
     V = _variables(K)
     factors: list[Factor] = []
@@ -171,6 +179,46 @@ def build(inst: Instance) -> Model:
                               constraints=binary_cayley(V, p1, p2, m["T_rel"][k], s, name), roles=ODOMETRY_ROLES,
                               data=m["T_rel"][k][:3, :]))
         paper["R3"] += r3_binary(V, p1, p2, m["T_rel"][k], s, name, factor=name)
+    return Model(V, factors, paper=paper, cliques=cliques(K))
+
+
+def _build_batched(inst: Instance) -> Model:
+    """``build`` with every factor type made at once (``_pose_batch``): the same model up to rounding."""
+    K = _count(inst)
+    m = inst.measurements
+    V = _variables(K)
+    N = V.N
+    poses = [pose_blocks(pose_prefix(k)) for k in range(K)]
+    un_cols = np.array([V.index(("h", *poses[k], *xi_blocks(unary_name(k)))) for k in range(K)])
+    bi_cols = np.array([V.index(("h", *poses[k], *poses[k + 1], *xi_blocks(binary_name(k)))) for k in range(K - 1)])
+    rot_cols = un_cols[:, :10]
+    D_un, D_bi = pb.pose_data(m["T_meas"]), pb.pose_data(m["T_rel"])
+    W_un, W_bi = np.asarray(m["W"], float).reshape(K, 36), np.asarray(m["W_rel"], float).reshape(K - 1, 36)
+    rot_names, un_names = [f"rotation_{k}" for k in range(K)], [f"meas_{k}" for k in range(K)]
+    bi_names = [f"odom_{binary_name(k)}" for k in range(K - 1)]
+    un_subs = [{pb.POSE1: pose_prefix(k), pb.XI: unary_name(k), pb.NAME: un_names[k]} for k in range(K)]
+    bi_subs = [{pb.POSE1: pose_prefix(k), pb.POSE2: pose_prefix(k + 1), pb.XI: binary_name(k), pb.NAME: bi_names[k]}
+               for k in range(K - 1)]
+    rot = pb.rotation_batch().constraints(np.zeros((K, 0)), rot_cols, N, rot_names, pb.renamer(un_subs))
+    un = pb.unary_cayley_batch().constraints(D_un, un_cols, N, un_names, pb.renamer(un_subs))
+    bi = pb.binary_cayley_batch().constraints(D_bi, bi_cols, N, bi_names, pb.renamer(bi_subs))
+    un_cost = pb.unary_cost_batch().matrices(W_un, un_cols, N)
+    bi_cost = pb.binary_cost_batch().matrices(W_bi, bi_cols, N)
+    factors: list[Factor] = []
+    for k in range(K):
+        factors.append(Factor(rot_names[k], "so3", ("h", *poses[k][:3]), constraints=rot[k],
+                              roles=("h", "c1", "c2", "c3")))
+        factors.append(Factor(un_names[k], "pose_meas", ("h", *poses[k], *xi_blocks(unary_name(k))),
+                              cost=un_cost[k][0], constraints=un[k], roles=("h", *POSE_ROLES, *XI_ROLES),
+                              data=m["T_meas"][k][:3, :]))
+    for k in range(K - 1):
+        factors.append(Factor(bi_names[k], "odometry", ("h", *poses[k], *poses[k + 1], *xi_blocks(binary_name(k))),
+                              cost=bi_cost[k][0], constraints=bi[k], roles=ODOMETRY_ROLES,
+                              data=m["T_rel"][k][:3, :]))
+    flat = lambda per: [c for cs in per for c in cs]  # noqa: E731
+    paper = {"R1": flat(pb.r1_batch().constraints(D_un, un_cols, N, un_names, pb.renamer(un_subs))),
+             "R2": flat(pb.r2_batch().constraints(D_un, un_cols, N, un_names, pb.renamer(un_subs))),
+             "R3": flat(pb.r3_batch().constraints(D_bi, bi_cols, N, bi_names, pb.renamer(bi_subs)))}
     return Model(V, factors, paper=paper, cliques=cliques(K))
 
 
@@ -235,9 +283,17 @@ def random_state(inst: Instance, rng: np.random.Generator) -> dict:
 # ----------------------------------------------------------------------------- local solver
 
 
-def linearize(inst: Instance, Ts: np.ndarray) -> tuple[np.ndarray, sp.csr_array, sp.csr_array]:
+def weight(inst: Instance) -> sp.csr_array:
+    """The block-diagonal weight of the stacked residuals of ``linearize`` (sparse)."""
+    m = inst.measurements
+    return block_weight(np.concatenate([np.asarray(m["W"]), np.asarray(m["W_rel"])]), dense_max=0)
+
+
+def linearize(inst: Instance, Ts: np.ndarray, W: sp.csr_array | None = None
+              ) -> tuple[np.ndarray, sp.csr_array, sp.csr_array]:
     """Stacked residuals e = [ξ_0 … ξ_{K−1}, ξ_{1,0} … ξ_{K−1,K−2}] (6(2K−1),), sparse Jacobian w.r.t.
-    ε = [ε_0 … ε_{K−1}] for T_k = cay(ε_k^∧) T_op,k (6(2K−1) × 6K), and the block-diagonal weight."""
+    ε = [ε_0 … ε_{K−1}] for T_k = cay(ε_k^∧) T_op,k (6(2K−1) × 6K), and the block-diagonal weight
+    (``weight``; given as W, it is not built again)."""
     m = inst.measurements
     Ts = np.asarray(Ts)
     K = len(Ts)
@@ -247,8 +303,7 @@ def linearize(inst: Instance, Ts: np.ndarray) -> tuple[np.ndarray, sp.csr_array,
     brow = np.concatenate([np.arange(K), K + np.arange(K - 1), K + np.arange(K - 1)])
     bcol = np.concatenate([np.arange(K), np.arange(K - 1), np.arange(1, K)])
     J = block_sparse(brow, bcol, np.concatenate([J_u, J1, J2]), (6 * (2 * K - 1), 6 * K))
-    W = block_weight(np.concatenate([np.asarray(m["W"]), np.asarray(m["W_rel"])]), dense_max=0)
-    return np.concatenate([xi_u.ravel(), xi_b.ravel()]), J, W
+    return np.concatenate([xi_u.ravel(), xi_b.ravel()]), J, weight(inst) if W is None else W
 
 
 def retract(Ts: np.ndarray, eps: np.ndarray) -> np.ndarray:
@@ -259,7 +314,8 @@ def retract(Ts: np.ndarray, eps: np.ndarray) -> np.ndarray:
 def local_solve(inst: Instance, init: dict, max_iter: int = 200) -> LocalResult:
     """Gauss-Newton (App. A.4, LM-damped) on the sparse stacked system (HᵀWH) ε = −HᵀW e."""
     _count(inst)
-    res = gauss_newton(lambda Ts: linearize(inst, Ts), retract, _poses(init), max_iter=max_iter)
+    W = weight(inst)  # the same at every iterate
+    res = gauss_newton(lambda Ts: linearize(inst, Ts, W), retract, _poses(init), max_iter=max_iter)
     res.state = _state(res.state)
     return res
 

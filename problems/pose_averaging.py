@@ -22,6 +22,7 @@ from autotight.gauss_newton import block_weight, gauss_newton
 from autotight.model import Factor, Model, Variables
 from autotight.problem import Instance, LocalResult, Param
 
+from . import _pose_batch as pb
 from ._cayley import draw_valid
 from ._pose import (POSE_ROLES, XI_ROLES, declare_pose, declare_xi, pose_blocks, pose_from_x, pose_orthonormality,
                     pose_values, r1_unary, r2_unary, unary_cayley, unary_residuals, unary_transport, weighted_cost,
@@ -59,9 +60,16 @@ def _variables(M: int) -> Variables:
     return Variables(declare_pose() + [b for m in range(M) for b in declare_xi(str(m))])
 
 
+#: from this many measurements on, ``build`` makes the measurement factors' constraints and costs all at once
+#: (``_pose_batch``; entries equal to rounding); below, one by one
+BATCH_MIN_MEASUREMENTS = 32
+
+
 def build(inst: Instance) -> Model:
     T_meas, Ws = inst.measurements["T_meas"], inst.measurements["W"]
     M = len(T_meas)
+    if M >= BATCH_MIN_MEASUREMENTS:
+        return _build_batched(inst)
     V = _variables(M)
     pose = pose_blocks()
     factors = [Factor("rotation", "so3", ("h", *pose[:3]), constraints=pose_orthonormality(V, factor="rotation"))]
@@ -73,6 +81,26 @@ def build(inst: Instance) -> Model:
                               roles=("h", *POSE_ROLES, *XI_ROLES), data=T_meas[m][:3, :]))
         paper["R1"] += r1_unary(V, "", T_meas[m], s, name, factor=name)
         paper["R2"] += r2_unary(V, "", T_meas[m], s, name, factor=name)
+    return Model(V, factors, paper=paper, cliques=cliques(M))
+
+
+def _build_batched(inst: Instance) -> Model:
+    """``build`` with the measurement factors made at once (``_pose_batch``): the same model up to rounding."""
+    T_meas, Ws = inst.measurements["T_meas"], inst.measurements["W"]
+    M = len(T_meas)
+    V = _variables(M)
+    pose = pose_blocks()
+    cols = np.array([V.index(("h", *pose, *xi_blocks(str(m)))) for m in range(M)])
+    names = [f"meas_{m}" for m in range(M)]
+    rename = pb.renamer([{pb.POSE1: "", pb.XI: str(m), pb.NAME: names[m]} for m in range(M)])
+    D, W = pb.pose_data(T_meas), np.asarray(Ws, float).reshape(M, 36)
+    cay = pb.unary_cayley_batch().constraints(D, cols, V.N, names, rename)
+    costs = pb.unary_cost_batch().matrices(W, cols, V.N)
+    factors = [Factor("rotation", "so3", ("h", *pose[:3]), constraints=pose_orthonormality(V, factor="rotation"))]
+    factors += [Factor(names[m], "pose_meas", ("h", *pose, *xi_blocks(str(m))), cost=costs[m][0], constraints=cay[m],
+                       roles=("h", *POSE_ROLES, *XI_ROLES), data=T_meas[m][:3, :]) for m in range(M)]
+    paper = {"R1": [c for cs in pb.r1_batch().constraints(D, cols, V.N, names, rename) for c in cs],
+             "R2": [c for cs in pb.r2_batch().constraints(D, cols, V.N, names, rename) for c in cs]}
     return Model(V, factors, paper=paper, cliques=cliques(M))
 
 

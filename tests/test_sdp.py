@@ -160,7 +160,7 @@ def test_config_validation_errors():
     with pytest.raises(SolverConfigError, match="tol"):
         SolverConfig(tol=0.0)
     assert SolverOptions is SolverConfig  # the old name keeps working
-    assert SolverOptions(tol=1e-8, regularization="default").backend == "clarabel"
+    assert SolverOptions(tol=1e-8, regularization="default").backend == "auto"  # picked by size
     assert SolverConfig(backend="cvxpy:scs").backend_arg == "scs"
 
 

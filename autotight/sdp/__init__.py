@@ -50,9 +50,9 @@ from typing import Sequence
 import numpy as np
 import scipy.sparse as sp
 
-from ..model import Constraint, Model
+from ..model import Constraint, Model, fast_coo
 from ..threads import single_blas_thread
-from .config import SolverConfig, SolverConfigError, SolverOptions
+from .config import AUTO, SolverConfig, SolverConfigError, SolverOptions
 from .covers import IPM_MERGE_CAPS, MERGE_MAX_SIZE, CliqueCovers
 from .registry import BACKENDS, Backend
 from .result import SDPResult, finish, log_svr, rank_d_factor
@@ -107,12 +107,16 @@ def _with_retries(backend: Backend, why: str, Q: sp.csr_array, As: list[sp.csr_a
 def effective_tol(config: SolverConfig) -> float:
     """The tolerance the backend solves to: ``config.tol``, or the backend's floor when higher (the
     optional attribute ``min_tol``; our IPM's is ``schur_ipm.IPM_MIN_TOL``)."""
+    if config.backend_name == AUTO:  # not resolved yet (``SolverConfig.for_size``): no floor known
+        return config.tol
     return max(config.tol, float(getattr(BACKENDS[config.backend_name], "min_tol", 0.0)))
 
 
 def decomposes(config: SolverConfig) -> bool:
     """``config.decompose`` with None resolved by the backend's default: whether the solve runs on a
     clique cover chosen by this layer (for a backend that takes one, ``Backend.cover``)."""
+    if config.backend_name == AUTO:
+        raise ValueError("resolve backend 'auto' first (SolverConfig.for_size)")
     return BACKENDS[config.backend_name].decompose_default if config.decompose is None else config.decompose
 
 
@@ -134,8 +138,7 @@ def _unscale(res: SDPResult, D: np.ndarray) -> SDPResult:
         if res.completion is not None:
             res.completion = res.completion * D[None, :]
         if res.cliques:
-            res.clique_log_svr = [log_svr(np.linalg.eigvalsh(res.X[C][:, C].toarray())[::-1], res.d)
-                                  for C in res.cliques]
+            res.clique_log_svr = [log_svr(ev[::-1], res.d) for ev in clique_eigvals(res.X, res.cliques)]
         res.eigvals, res.Theta, res.log_svr = np.zeros(0), None, float("nan")
         return finish(res)
     res.X = res.X * D[:, None] * D[None, :]
@@ -145,9 +148,29 @@ def _unscale(res: SDPResult, D: np.ndarray) -> SDPResult:
     return finish(res)
 
 
+def clique_eigvals(X: sp.sparray, cliques: Sequence[np.ndarray]) -> list[np.ndarray]:
+    """The ascending eigenvalues of each clique block X[C, C] of a sparse X, gathered and decomposed per
+    clique size in one batch (not one sparse slice per clique)."""
+    X = sp.csr_array(X)
+    X.sort_indices()
+    out: list[np.ndarray] = [np.zeros(0)] * len(cliques)
+    sizes = np.array([len(C) for C in cliques])
+    for n in np.unique(sizes):
+        ids = np.flatnonzero(sizes == n)
+        C = np.array([np.asarray(cliques[k], np.int64) for k in ids])  # (B, n)
+        rows = np.repeat(C, n, axis=1).ravel()
+        cols = np.tile(C, (1, n)).ravel()
+        blocks = np.asarray(X[rows, cols]).reshape(len(ids), n, n)
+        for k, ev in zip(ids, np.linalg.eigvalsh(blocks)):
+            out[k] = ev
+    return out
+
+
 def congruence(A: sp.sparray, D: np.ndarray) -> sp.sparray:
     """D A D for a diagonal D (given as its vector), by scaling the stored entries (a COO matrix stays COO:
     a CSR copy per constraint would hold an N + 1 index array)."""
+    if isinstance(A, sp.coo_array) and A.has_canonical_format and A.shape[0] == A.shape[1]:
+        return fast_coo(A.data * D[A.row] * D[A.col], A.row, A.col, A.shape[0])
     if isinstance(A, (sp.coo_array, sp.coo_matrix)):
         return sp.coo_array((A.data * D[A.row] * D[A.col], (A.row, A.col)), shape=A.shape)
     A = sp.csr_array(A, copy=True)
@@ -164,6 +187,7 @@ def _solve(Q: sp.spmatrix | sp.sparray, constraints: Sequence[Constraint], d: in
     N = Q.shape[0]
     if Q.ndim != 2 or Q.shape != (N, N):
         raise ValueError(f"Q must be square, got shape {Q.shape}")
+    config = config.for_size(N)
     # COO, as the constraints store them: memory ∝ nonzeros (a CSR copy each held an index array of N + 1)
     As = [c.A if isinstance(c.A, sp.coo_array) else sp.coo_array(c.A) for c in constraints]
     bad = [c.name or str(i) for i, (c, A) in enumerate(zip(constraints, As)) if A.shape != (N, N)]
@@ -237,7 +261,7 @@ def solve_model(model: Model, constraints: Sequence[Constraint], config: SolverC
     for the block cover (``covers.CliqueCovers``)."""
     V = model.variables
     hint = model.clique_indices() if model.cliques else None
-    config = config or SolverConfig()
+    config = (config or SolverConfig()).for_size(V.N)
     if config.decompose is None and model.decompose is not None and BACKENDS[config.backend_name].cover is not None:
         config = replace(config, decompose=model.decompose)  # the module's advice, when the user left it open
     return _solve(model.Q, constraints, model.d, config, hint, scale, [V.sizes[n] for n in V.names])

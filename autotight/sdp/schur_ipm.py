@@ -31,8 +31,8 @@ S is sparse (S_il ≠ 0 only when constraints i and l touch a common block), ass
 the entries its constraints touch (``_Schur.assemble``), equilibrated to a unit diagonal,
 regularised by ``SCHUR_REG`` and factorised by sparse LDLᵀ (qdldl, Apache-2.0: AMD ordering and
 symbolic analysis once per solve, a numeric refactorisation per iteration); SuperLU with partial
-pivoting takes over when a pivot is not positive.  One refinement step is kept only when it lowers
-the residual.  Per iteration this costs about ``iteration_cost`` (a ranking used to choose the
+pivoting takes over, for the rest of the solve, once a pivot is not positive.  One refinement step is
+kept only when it lowers the residual.  Per iteration this costs about ``iteration_cost`` (a ranking used to choose the
 cover, not a prediction).  Everything works on full row-major vec(·) of each block; the svec data
 of ``clique_program`` is mapped once by ``svec_to_vec``.  Measurements and the variants tried are
 in benchmarks/README.md.
@@ -238,6 +238,7 @@ class _Schur:
         self.upper = np.flatnonzero(self.cols >= self.rows)
         self.diag = np.flatnonzero(self.cols == self.rows)
         self._ldl = _LDLPattern(self.rows[self.upper], self.cols[self.upper], M)
+        self.pivoting = False  # LDLᵀ has failed: SuperLU with pivoting for the rest of the solve
 
     def assemble(self, P: list[np.ndarray], Q: list[np.ndarray]) -> np.ndarray:
         """The values of S = Σ_k G_kᵀ (P_k ⊗ Q_k) G_k on the pattern (CSR order); P_k, Q_k symmetric.
@@ -279,8 +280,11 @@ class _Schur:
         S = sp.csr_matrix((vals, self.cols, self.indptr), shape=(self.M, self.M))
         scaled = vals * dsc[self.rows] * dsc[self.cols]
         scaled[self.diag] += reg
-        inner = self._ldl.factor(scaled[self.upper])  # None: a pivot was not positive
+        # once LDLᵀ has met a pivot that is not positive it meets one at every later iterate (μ only
+        # falls): SuperLU from then on, without the failed LDLᵀ first
+        inner = None if self.pivoting else self._ldl.factor(scaled[self.upper])  # None: a pivot was not positive
         if inner is None:
+            self.pivoting = True
             try:
                 inner = spla.splu(sp.csc_matrix((scaled, self.cols, self.indptr), shape=(self.M, self.M)),
                                   permc_spec="COLAMD").solve  # S symmetric: its CSR arrays are CSC
