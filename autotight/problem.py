@@ -27,6 +27,8 @@ and **may** define (the default is used otherwise)
 - ``TRANSPORTS: dict[str, Callable]``: per factor type, ``transport(data) -> M`` (n × n, n the factor's
   local columns, h first): a factor's columns θ satisfy the relations of measurement ``data`` exactly
   when Mθ satisfies those of the reference measurement (``autotight.discovery.transport``);
+- ``DATA_NAMES: dict[str, Sequence[str]]``: per factor type, the names of its ``Factor.data`` entries
+  (printed closed forms, ``autotight.closed_form``; default δ1, δ2, …);
 - ``CARRY = {"at_least": {...}, "over": {...}, "validate_at": {...}, "solver": str}`` (each key optional):
   where a set selected by plain ``discover`` carries to any size (``autotight.discovery.carry``).
 
@@ -67,7 +69,7 @@ State = dict[str, np.ndarray]
 REQUIRED = ("PARAMS", "generate", "build", "lift", "sample", "local_solve", "recover")
 #: Parts with a default (``Problem`` derives them when absent).
 OPTIONAL = ("NAME", "DESCRIPTION", "cost", "random_state", "errors", "SPREAD", "RANDOM_SPREAD", "SIGMAS",
-            "CHECK_PARAMS", "TRANSPORTS", "CARRY")
+            "CHECK_PARAMS", "TRANSPORTS", "CARRY", "DATA_NAMES")
 FUNCTIONS = ("generate", "build", "lift", "sample", "cost", "local_solve", "recover", "random_state", "errors")
 #: Default sampling spread (discovery's samples, check-module).
 SPREAD = 0.5
