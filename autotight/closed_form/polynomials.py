@@ -107,7 +107,9 @@ class Fitter:
 
 def exact(W: np.ndarray, D: np.ndarray, Y: np.ndarray, basis: Sequence[Monomial]) -> tuple[list[list[Fraction]] | None,
                                                                                       float]:
-    """The fraction form of W when it reproduces Y on D to ``EXACT_RTOL`` (else None), and its residual."""
+    """The fraction form of W when it reproduces Y on D to ``EXACT_RTOL``, or to twice the float fit's own
+    residual when the sampled relations are less accurate than that (else None), and its residual."""
+    Phi = evaluate(D, basis)
     F = to_fractions(W)
-    res = relative_residual(evaluate(D, basis) @ fractions_array(F), Y)
-    return (F if res <= EXACT_RTOL else None), res
+    res = relative_residual(Phi @ fractions_array(F), Y)
+    return (F if res <= max(EXACT_RTOL, 2 * relative_residual(Phi @ W, Y)) else None), res

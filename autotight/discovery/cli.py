@@ -38,6 +38,8 @@ def register(sub: argparse._SubParsersAction, add_problem_args: Callable) -> Non
                    help="select the set at -p alone, even where the problem module declares where a selection carries "
                         "to any size (CARRY; e.g. discrete_trajectory: K ≥ 20 over the noise range)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.add_argument("--latex", default=None, metavar="FILE",
+                   help="write the discovered families' closed forms beside the paper's as LaTeX to FILE")
     add_solver_args(p, default=None, note="the carried discovery of a problem whose CARRY names a solver: that one")
     from .range import add_range_args  # discovery over a range: --sigmas, --range, --train, --train-param
 
@@ -109,6 +111,9 @@ def cmd_discover(args: argparse.Namespace) -> int:
         print(table(res))
         if args.out:
             print(f"\nsaved to {args.out}")
+    from ..closed_form.cli import closed_form_output
+
+    closed_form_output(prob, res.discovered, args)
     return 0
 
 

@@ -701,4 +701,7 @@ def cmd_discover_range(args: argparse.Namespace, groups: Any, n_train: int, conf
         print(res.table())
         if args.out:
             print(f"\nsaved to {args.out}")
+    from ..closed_form.cli import closed_form_output
+
+    closed_form_output(prob, res.discovered, args)
     return 0
