@@ -77,7 +77,7 @@ def closed_form(name: str, fs: FactorSamples, V: np.ndarray) -> ClosedForm:
     last = "no monomial of the family has a coefficient that is never 0"
     for g in range(MAX_DEGREE + 1 if p else 1):
         if D.shape[0] - N_CHECK < 1.5 * len(poly.monomials(p, g)) and g > 0:
-            last = f"too few factors ({D.shape[0]}) to fit degree {g}"
+            last += f" (degree {g} was not tried: it needs more than the {D.shape[0]} factors sampled)"
             break
         basis = poly.reduced_basis(D, g)
         fitter = poly.Fitter(D, basis, min(N_CHECK, max(D.shape[0] // 4, 1)))

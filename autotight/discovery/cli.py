@@ -83,6 +83,8 @@ def cmd_discover(args: argparse.Namespace) -> int:
     config = solver_config(args)
     if args.out is not None:
         check_file(args.out, force=args.force)
+    if args.latex is not None:
+        check_file(args.latex, force=args.force)
     prob = load(args.problem)
     ranged = bool(args.sigmas is not None or args.range or args.train_param or args.learn_param or args.validate
                   or args.validate_param)
