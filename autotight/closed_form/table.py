@@ -68,6 +68,12 @@ class FamilyTable:
     paper: dict[str, list[tuple[str, str, str]]] = field(default_factory=dict)
     notes: list[str] = field(default_factory=list)
 
+    @classmethod
+    def from_record(cls, r: dict[str, Any]) -> "FamilyTable":
+        return cls(r["problem"], [FamilyRow(**x) for x in r["rows"]],
+                   {t: [(x["row"], x["closed_form"], x["latex"]) for x in v] for t, v in r["paper"].items()},
+                   list(r.get("notes", [])))
+
     def record(self) -> dict[str, Any]:
         return {"problem": self.problem, "rows": [r.record() for r in self.rows],
                 "paper": {t: [{"row": n, "closed_form": c, "latex": x} for n, c, x in v]
@@ -129,22 +135,39 @@ def _combination(alpha: np.ndarray, names: list[str]) -> str:
     return "".join(parts) or "0"
 
 
-def relation(u: np.ndarray, P: np.ndarray, names: list[str]) -> tuple[str, float] | None:
+def relation(u: np.ndarray, P: np.ndarray, names: list[str]) -> tuple[str | None, float]:
     """u (S, m) against rows P (S, k, m): "= Σ α_i name_i" with constant exact α when every u_s is that
     combination to ``RELATION_RTOL``; "in the span of …" when the combination's coefficients vary with the
-    data; None when u is not in the span.  Returns (text, residual)."""
+    data; None when u is not in the span.  Returns (text, residual of the best combination)."""
     S = u.shape[0]
     alphas = np.array([np.linalg.lstsq(P[s].T, u[s], rcond=None)[0] for s in range(S)])
     fit = np.einsum("sk,skm->sm", alphas, P)
     res = poly.relative_residual(fit, u)
     if not res <= RELATION_RTOL:
-        return None
+        return None, res
     F = [Fraction(float(a)).limit_denominator(poly.MAX_DENOMINATOR) for a in np.median(alphas, axis=0)]
     exact = np.einsum("k,skm->sm", np.array([float(x) for x in F]), P)
     res_exact = poly.relative_residual(exact, u)
     if res_exact <= RELATION_RTOL:
         return "= " + _combination(np.array(F, dtype=object), names), res_exact
     return f"in the span of {', '.join(names)} (coefficients depend on the data)", res
+
+
+def _identify(u: np.ndarray, fams: dict[str, tuple[np.ndarray, list[str]]]) -> tuple[str, str, float]:
+    """(paper family, relation, residual) of relations u (S, m) against each family's rows (S, k, m), one
+    family at a time, then all together ("combination"); "new" when u is in no span (the residual is then
+    that of the best combination of all the rows)."""
+    for fam, (P, names) in fams.items():
+        text, res = relation(u, P, names)
+        if text is not None:
+            return fam, text, res
+    if not fams:
+        return "new", "the problem has no paper family on this factor type", float("nan")
+    text, res = relation(u, np.concatenate([P for P, _ in fams.values()], axis=1),
+                         [n for _, names in fams.values() for n in names])
+    if text is not None:
+        return "combination", text, res
+    return "new", "not in the span of the paper's families modulo the primary constraints", res
 
 
 def family_table(problem: Problem, ds, seed: int = 0, progress: Callable[[str], None] | None = None) -> FamilyTable:
@@ -181,29 +204,22 @@ def family_table(problem: Problem, ds, seed: int = 0, progress: Callable[[str], 
             paper_out.setdefault(t, [])
             paper_out[t] += [(r, show(cf, False), show(cf, True)) for r, cf in paper_cf[fam]]
         V = evaluate(fs.D)
+        V_fresh = fresh.normal_form(evaluate(fresh.D))
+        paper_fresh = {fam: fresh.normal_form(P) for fam, P in fresh.paper.items()}
         for j, ident in enumerate(idents):
             cf = closed_form(ident, fs, V[:, j, :])
-            if not cf.found:
-                rows.append(FamilyRow(t, ident, show(cf, False), "", "—", "—", float("nan"), float("nan"), False,
-                                      None, source))
-                continue
-            u = cf.values(fresh.D, m)
-            fam_name, rel, res = "new", "not in the span of the paper's families modulo the primary constraints", \
-                float("nan")
-            found = [(fam, relation(u, np.stack([c.values(fresh.D, m) for _, c in rows_], axis=1),
-                                    [r for r, _ in rows_]))
-                     for fam, rows_ in paper_cf.items() if all(c.found for _, c in rows_)]
-            found = [(fam, x) for fam, x in found if x is not None]
-            if found:
-                fam_name, (rel, res) = found[0][0], found[0][1]
-            elif paper_cf:
-                allrows = [x for rows_ in paper_cf.values() for x in rows_ if x[1].found]
-                x = relation(u, np.stack([c.values(fresh.D, m) for _, c in allrows], axis=1), [r for r, _ in allrows])
-                if x is not None:
-                    fam_name, (rel, res) = "combination", x
-            viol = _fresh_violation(cf, fresh, problem, rng)
-            rows.append(FamilyRow(t, ident, show(cf, False), show(cf, True), fam_name, rel, res, viol, cf.exact,
-                                  cf.degree, source))
+            if cf.found:
+                u = cf.values(fresh.D, m)
+                fams = {fam: (np.stack([c.values(fresh.D, m) for _, c in rows_], axis=1), [r for r, _ in rows_])
+                        for fam, rows_ in paper_cf.items() if all(c.found for _, c in rows_)}
+            else:  # no closed form: the relation of its normal form with the paper's rows as the module writes them
+                ok = np.all(np.isfinite(V_fresh[:, j, :]), axis=1)
+                u = V_fresh[ok, j, :]
+                fams = {fam: (P[ok], fs.paper_rows[fam]) for fam, P in paper_fresh.items()}
+            fam_name, rel, res = _identify(u, fams)
+            viol = _fresh_violation(cf, fresh, problem, rng) if cf.found else float("nan")
+            rows.append(FamilyRow(t, ident, show(cf, False), show(cf, True) if cf.found else "", fam_name, rel, res,
+                                  viol, cf.exact, cf.degree, source))
     if not ds.pairs:
         notes.append("the set has no learned pairs: the primary constraints alone are tight")
     return FamilyTable(ds.problem, rows, paper_out, notes)
