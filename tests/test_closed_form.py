@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from autotight.closed_form.table import family_table
+from autotight.closed_form.table import family_table, learned_transport
 from autotight.constraint_set import ConstraintSet
 from autotight.discovery.discovered import DiscoveredSet
-from autotight.discovery.templates import factor_columns
+from autotight.discovery.templates import TemplateSet, factor_columns
 from autotight.export import python_source
 from autotight.model import Constraint
 from autotight.problem import load
@@ -20,6 +20,7 @@ from autotight.problem import load
 ROOT = Path(__file__).resolve().parents[1]
 POSE = ROOT / "reports" / "pose_averaging" / "discovered.json"
 DISCRETE = ROOT / "reports" / "discrete_trajectory" / "discovered.json"
+POSE_RANGE = ROOT / "reports" / "sets" / "pose_averaging_range.json"
 
 
 def test_pose_averaging_family_is_the_papers_r2():
@@ -37,7 +38,7 @@ def test_pose_averaging_family_is_the_papers_r2():
 
 
 def _exported(ds: DiscoveredSet, tmp_path: Path, name: str):
-    src = python_source(ds, name)
+    src = python_source(load(ds.problem), ds, name)
     assert "autotight" not in "\n".join(line for line in src.splitlines() if "import" in line)
     path = tmp_path / f"{name}.py"
     path.write_text(src, encoding="utf-8")
@@ -67,6 +68,26 @@ def test_exported_python_reproduces_the_sets_matrices(path, tmp_path):
         model = prob.build(inst)
         ours = ConstraintSet(ds).apply(prob, inst, model, np.random.default_rng(seed))
         theirs = _exported_matrices(mod, ds, model)
+        assert len(theirs) == len(ours) > 0
+        for a, b in zip(ours, theirs):
+            scale = abs(sp.csr_array(a.A)).max()
+            assert abs(sp.csr_array(a.A) - b).max() <= 1e-12 * scale
+
+
+def test_exported_python_reproduces_a_transport_template(tmp_path):
+    """A transport template (pose averaging's range set, carried from one learned factor) exported as code:
+    the module's M(data) becomes an exact polynomial, and the matrices equal autotight's to 1e-12."""
+    ds = DiscoveredSet.load(POSE_RANGE)
+    prob = load(ds.problem)
+    idents = sorted(i for _, i in ds.pairs)
+    ds.templates = TemplateSet({"pose_meas": learned_transport(prob, ds, "pose_meas", idents)}, {})
+    mod = _exported(ds, tmp_path, "exported_transport")
+    for seed in range(5):
+        inst = prob.generate(ds.params, seed)
+        model = prob.build(inst)
+        ours = ConstraintSet(ds).apply(prob, inst, model, np.random.default_rng(seed))
+        theirs = _exported_matrices(mod, ds, model)
+        assert not mod.constraint_matrices.skipped
         assert len(theirs) == len(ours) > 0
         for a, b in zip(ours, theirs):
             scale = abs(sp.csr_array(a.A)).max()

@@ -81,18 +81,14 @@ class FamilyTable:
                 "notes": self.notes, "relation_rtol": RELATION_RTOL}
 
 
-def _evaluator(problem: Problem, ds, t: str, idents: list[str]) -> tuple[Callable[[np.ndarray], np.ndarray], str]:
-    """A function D (S, p) → relations (S, k, m) of ``idents``, and where it comes from."""
-    ts = ds.template_set(problem)
-    if t in ts.templates:
-        tpl = ts.templates[t].restricted(idents)
-        how = "transport template" if tpl.kind == "transport" else f"polynomial template (degree {tpl.degree})"
-        return (lambda D: tpl.dense(D, problem)), how
-    if t not in problem.transport_types():
-        raise AutotightError(f"no template ({ts.fallback.get(t, 'learned per factor')}) and no TRANSPORTS entry")
+def learned_transport(problem: Problem, ds, t: str, idents: list[str]):
+    """A transport template of type ``t`` for ``idents`` from the first factor of the set's learning instance
+    (seed + 1000, as ``learn_templates``) that has them all (``autotight.discovery.transport``)."""
     from ..discovery.catalog import learn
     from ..discovery.transport import reference_template
 
+    if t not in problem.transport_types():
+        raise AutotightError(f"factor type {t!r} has no TRANSPORTS entry in its problem module")
     inst = problem.generate(ds.params, np.random.default_rng(int(ds.seed or 0) + 1000))
     model = problem.build(inst)
     cat = learn(problem, inst, model, np.random.default_rng([int(ds.seed or 0), 1000]), "factors", ds.options(),
@@ -102,9 +98,21 @@ def _evaluator(problem: Problem, ds, t: str, idents: list[str]) -> tuple[Callabl
         raise AutotightError(f"no factor of type {t!r} has the identities {idents} on the learning instance")
     f = model.factor(g.group.name)
     sizes = [model.variables.sizes[b] for b in f.blocks]
-    tpl = reference_template(problem, t, idents, list(f.roles or f.blocks), sizes,
-                             np.zeros(0) if f.data is None else f.data, g.coeffs, g.free, g.identities)
-    return (lambda D: tpl.dense(D, problem)), "transport from one learned factor (the set has no template)"
+    return reference_template(problem, t, idents, list(f.roles or f.blocks), sizes,
+                              np.zeros(0) if f.data is None else f.data, g.coeffs, g.free, g.identities)
+
+
+def _evaluator(problem: Problem, ds, t: str, idents: list[str]) -> tuple[Callable[[np.ndarray], np.ndarray], str]:
+    """A function D (S, p) → relations (S, k, m) of ``idents``, and where it comes from."""
+    ts = ds.template_set(problem)
+    if t in ts.templates:
+        tpl = ts.templates[t].restricted(idents)
+        how = "transport template" if tpl.kind == "transport" else f"polynomial template (degree {tpl.degree})"
+        return (lambda D: tpl.dense(D, problem)), how
+    if t not in problem.transport_types():
+        raise AutotightError(f"no template ({ts.fallback.get(t, 'learned per factor')}) and no TRANSPORTS entry")
+    ref = learned_transport(problem, ds, t, idents)
+    return (lambda D: ref.dense(D, problem)), "transport from one learned factor (the set has no template)"
 
 
 def _fresh_violation(cf: ClosedForm, fresh: FactorSamples, problem: Problem, rng: np.random.Generator) -> float:
