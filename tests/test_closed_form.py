@@ -3,12 +3,16 @@
 from __future__ import annotations
 
 import importlib.util
+import json
 from pathlib import Path
 
 import numpy as np
 import pytest
 import scipy.sparse as sp
 
+from autotight.closed_form.family import closed_form
+from autotight.closed_form.formula import data_names, formula
+from autotight.closed_form.samples import collect
 from autotight.closed_form.table import family_table, learned_transport
 from autotight.constraint_set import ConstraintSet
 from autotight.discovery.discovered import DiscoveredSet
@@ -108,3 +112,61 @@ def test_exported_constraints_keep_the_sdp_tight(path, tmp_path):
         cons = [Constraint(A, 0.0, name=f"exported:{k}") for k, A in enumerate(_exported_matrices(mod, ds, model))]
         out = solve(prob, ds.params, seed, constraints=cons)
         assert out.verdict.tight, (seed, out.verdict.reason)
+
+
+@pytest.fixture(scope="module")
+def pose_samples():
+    ds = DiscoveredSet.load(POSE)
+    prob = load(ds.problem)
+    return prob, ds, collect(prob, ds.params, "pose_meas", 240, 0)
+
+
+def test_equal_families_print_equally(pose_samples):
+    """R2 scaled by 3 plus a random combination of the primary constraints has R2's closed form."""
+    prob, ds, fs = pose_samples
+    rng = np.random.default_rng(3)
+    R2 = fs.paper["R2"][:, 0, :]
+    # rows of reducers span the primary constraints on each factor (G_P⁻¹ G)
+    mixed = 3.0 * R2 + np.einsum("sr,srm->sm", rng.standard_normal((R2.shape[0], fs.reducers.shape[1])),
+                                 fs.reducers)
+    a, b = closed_form("R2", fs, R2), closed_form("mixed", fs, mixed)
+    assert a.exact and b.exact
+    names = data_names(prob, "pose_meas", fs.D.shape[1])
+    assert formula(a, fs.roles, fs.block_sizes, names) == formula(b, fs.roles, fs.block_sizes, names)
+    # a family outside the paper's span has another closed form
+    c = closed_form("R1[1]", fs, fs.paper["R1"][:, 0, :])
+    assert formula(c, fs.roles, fs.block_sizes, names) != formula(a, fs.roles, fs.block_sizes, names)
+
+
+@pytest.mark.parametrize("name", ["landmark_slam_d3_vector_s1_seed1.json",
+                                  pytest.param("pose_graph_d2_vector_s1_seed0.json", marks=pytest.mark.slow)])
+def test_landmark_closed_forms_hold_on_fresh_data(name):
+    """Landmark sets: every family has an exact closed form that holds on feasible states of 100 fresh factors
+    to 1e-10 relative; no paper family exists, so each is new."""
+    ds = DiscoveredSet.load(ROOT / "reports" / "landmark_liftings" / "sets" / name)
+    tab = family_table(load(ds.problem), ds)
+    assert len(tab.rows) == len(ds.pairs) > 0
+    for r in tab.rows:
+        assert r.exact and r.violation <= 1e-10, r
+        assert r.paper == "new" and r.closed_form.endswith("= 0") and r.latex
+
+
+def test_a_set_without_pairs_says_so(tmp_path):
+    ds = DiscoveredSet("rotation_averaging", {"M": 3}, 0, [])
+    tab = family_table(load("rotation_averaging"), ds)
+    assert tab.rows == [] and "primary constraints alone" in tab.notes[0]
+
+
+def test_export_cli(tmp_path, capsys):
+    from autotight.cli import main
+
+    out = tmp_path / "set.json"
+    assert main(["export", str(POSE), "--to", "json-sparse", "--seed", "1", "--out", str(out)]) == 0
+    rec = json.loads(out.read_text(encoding="utf-8"))
+    t = rec["templates"]["pose_meas"]
+    assert t["kind"] == "polynomial" and t["W_triplets"]
+    learned = [c for c in rec["instance"]["constraints"] if "r[2]·rho[2]" in c["name"]]
+    assert len(learned) == 10 and all(c["b"] == 0 for c in learned)
+    assert main(["export", str(POSE_RANGE), "--to", "python"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("autotight: error:") and "no template" in err and "\n" not in err

@@ -43,11 +43,11 @@ def tex_name(name: str) -> str:
 
 def _split_role(role: str) -> tuple[str, str, str]:
     """'c1' → ('c', '1', ''), "r'" → ('r', '', "'"), 'rho' → ('ρ', '', '')."""
-    m = re.fullmatch(r"([A-Za-z]+?)(\d*)('*)", role)
+    m = re.fullmatch(r"([A-Za-z]+?)(?:_([A-Za-z0-9]+)|(\d*))('*)", role)
     if not m:
         return symbol(role), "", ""
-    head, digits, primes = m.groups()
-    return symbol(head), digits, primes
+    head, named, digits, primes = m.groups()
+    return symbol(head), named or digits, primes
 
 
 def _element(role: str, k: int, size: int, latex: bool) -> str:
@@ -57,7 +57,7 @@ def _element(role: str, k: int, size: int, latex: bool) -> str:
         base = "".join(GREEK_TEX.get(ch, ch) for ch in head) + primes
         sub = ",".join(x for x in (digits, axis) if x)
         return base + (f"_{{{sub}}}" if sub else "")
-    name = f"{head}{digits}{primes}"
+    name = f"{head}{'_' if digits and not digits[0].isdigit() else ''}{digits}{primes}"
     return name if not axis else f"{name}.{axis}"
 
 
