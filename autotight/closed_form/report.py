@@ -1,6 +1,7 @@
-"""The report's closed-form section: for the sweep's discovered set (``discovered.json`` in the report folder)
-and each ``file:`` set of its command, the table "discovered family | closed form | paper family | relation",
-then the paper's families in the same notation.  No SDP is solved: the tables come from the saved sets.
+"""The report's closed-form section: for the sweep's discovered set (``discovered.json`` in the report
+folder, else the command's ``--discovered`` file) and each ``file:`` set of its command, the table
+"discovered family | closed form | paper family | relation", then the paper's families in the same
+notation.  No SDP is solved: the tables come from the saved sets.
 
 The tables are kept in ``closed_forms.json`` in the report folder, keyed by each set file's SHA-256, so a
 re-render reads them instead of computing them again.
@@ -33,6 +34,11 @@ def _sets(out: Path, meta: dict[str, Any]) -> list[tuple[str, Path]]:
     arg = next((a.split("=", 1)[-1] for a in words if a.startswith("--sets=")), None)
     if arg is None and "--sets" in words[:-1]:
         arg = words[words.index("--sets") + 1]
+    given = next((a.split("=", 1)[-1] for a in words if a.startswith("--discovered=")), None)
+    if given is None and "--discovered" in words[:-1]:
+        given = words[words.index("--discovered") + 1]
+    if not found and given is not None and Path(given).exists():  # the sweep's set, read from where it was given
+        found.append(("discovered", Path(given)))
     for name, path in (file_sets(arg)[1] if arg else ()):
         if Path(path).exists():
             found.append((name, Path(path)))
