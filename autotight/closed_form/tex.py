@@ -2,14 +2,26 @@
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 
 from .table import N_FRESH, FamilyTable
 
 
+UNICODE = {"−": "-", "≤": r"$\le$", "≥": r"$\ge$", "·": r"$\cdot$", "ᵀ": r"$^\top$", "²": r"$^2$", "³": r"$^3$",
+           "ρ": r"$\rho$", "φ": r"$\phi$", "ξ": r"$\xi$", "ℓ": r"$\ell$", "ϖ": r"$\varpi$", "θ": r"$\theta$",
+           "ψ": r"$\psi$", "δ": r"$\delta$", "σ": r"$\sigma$", "×": r"$\times$", "—": "---", "–": "--"}
+
+
 def _esc(s: str) -> str:
-    return (s.replace("\\", r"\textbackslash{}").replace("_", r"\_").replace("&", r"\&").replace("%", r"\%")
-            .replace("#", r"\#"))
+    """Plain text for LaTeX: special characters escaped, the symbols the tables use written as maths, any
+    other non-ASCII character dropped (pdflatex without extra packages)."""
+    special = {"\\": r"\textbackslash{}", "_": r"\_", "&": r"\&", "%": r"\%", "#": r"\#", "{": r"\{",
+               "}": r"\}", "$": r"\$", "^": r"\^{}"}
+    s = re.sub(r"[\\_&%#{}$^]", lambda m: special[m.group(0)], s)
+    s = re.sub(r"(\w)\u0303", lambda m: rf"$\tilde{{{m.group(1)}}}$", s)
+    return "".join(UNICODE.get(ch, ch if ord(ch) < 128 else "") for ch in s)
 
 
 def document(tab: FamilyTable) -> str:
