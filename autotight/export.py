@@ -176,10 +176,10 @@ def transport_polynomial(problem, ds, tpl) -> tuple[int, np.ndarray]:
     when that keeps the accuracy); AutotightError when no such polynomial reproduces it to
     ``TRANSPORT_RTOL`` on factors that took no part in the fit."""
     from .closed_form.polynomials import fractions_array, to_fractions
-    from .closed_form.samples import _sigma_params
+    from .closed_form.samples import data_params
     from .discovery.templates import features, n_features
 
-    pars = problem.parse_params(_sigma_params(problem, ds.params))
+    pars = problem.parse_params(data_params(problem, ds.params))
     D: list[np.ndarray] = []
     for i in range(200):
         model = problem.build(problem.generate(pars, np.random.default_rng([int(ds.seed or 0), 9000 + i])))

@@ -107,9 +107,10 @@ class Fitter:
 
 def exact(W: np.ndarray, D: np.ndarray, Y: np.ndarray, basis: Sequence[Monomial]) -> tuple[list[list[Fraction]] | None,
                                                                                       float]:
-    """The fraction form of W when it reproduces Y on D to ``EXACT_RTOL``, or to twice the float fit's own
-    residual when the sampled relations are less accurate than that (else None), and its residual."""
+    """The fraction form of W when it reproduces Y on D to ``EXACT_RTOL``, or to 10 times the float fit's own
+    residual when the sampled relations are less accurate than that (a polynomial template holds to its fit
+    accuracy, 1e-9; the float fit follows its errors, the fractions do not) (else None), and its residual."""
     Phi = evaluate(D, basis)
     F = to_fractions(W)
     res = relative_residual(Phi @ fractions_array(F), Y)
-    return (F if res <= max(EXACT_RTOL, 2 * relative_residual(Phi @ W, Y)) else None), res
+    return (F if res <= max(EXACT_RTOL, 10 * relative_residual(Phi @ W, Y)) else None), res

@@ -120,7 +120,8 @@ class FactorSamples:
         return (Vf - Lf @ self.reducers).reshape(shape)
 
 
-def _sigma_params(problem: Problem, params: dict[str, Any]) -> dict[str, Any]:
+def data_params(problem: Problem, params: dict[str, Any]) -> dict[str, Any]:
+    """``params`` with σ = ``DATA_SIGMA`` (when the problem has a ``sigma`` parameter, within its bounds)."""
     p = dict(params)
     if "sigma" in problem.params:
         hi = problem.params["sigma"].high
@@ -129,11 +130,12 @@ def _sigma_params(problem: Problem, params: dict[str, Any]) -> dict[str, Any]:
 
 
 def collect(problem: Problem, params: dict[str, Any], factor_type: str, n: int, seed: int,
-            keep_instances: int = 0) -> FactorSamples:
-    """At least n factors of ``factor_type`` from instances with seeds (seed, 7000 + i), their data drawn at
-    σ = ``DATA_SIGMA`` (see ``FactorSamples``).  ``keep_instances``: keep the first instances (with their
-    models and factors) for checks on feasible states.  AutotightError when the type has no factor."""
-    pars = problem.parse_params(_sigma_params(problem, params))
+            keep_instances: int = 0, wide: bool = True) -> FactorSamples:
+    """At least n factors of ``factor_type`` from instances with seeds (seed, 7000 + i) at ``params``, their
+    data drawn at σ = ``DATA_SIGMA`` when ``wide`` (see ``FactorSamples``).  ``keep_instances``: keep the
+    first instances (with their models and factors) for checks on feasible states.  AutotightError when the
+    type has no factor."""
+    pars = problem.parse_params(data_params(problem, params) if wide else params)
     D: list[np.ndarray] = []
     Gs: list[np.ndarray] = []
     papers: dict[str, list[np.ndarray]] = {}

@@ -194,8 +194,10 @@ def family_table(problem: Problem, ds, seed: int = 0, progress: Callable[[str], 
             progress(f"closed forms of {t}")
         try:
             evaluate, source = _evaluator(problem, ds, t, idents)
-            fs = collect(problem, ds.params, t, N_FIT, seed)
-            fresh = collect(problem, ds.params, t, N_FRESH, seed + 1, keep_instances=10**6)
+            # a polynomial template holds where it was fitted and checked: data at the set's parameters
+            wide = not source.startswith("polynomial")
+            fs = collect(problem, ds.params, t, N_FIT, seed, wide=wide)
+            fresh = collect(problem, ds.params, t, N_FRESH, seed + 1, keep_instances=10**6, wide=wide)
         except AutotightError as e:
             rows += [FamilyRow(t, i, f"no closed form: {e}", "", "—", "—", float("nan"), float("nan"), False, None,
                                "none") for i in idents]
