@@ -170,3 +170,18 @@ def test_export_cli(tmp_path, capsys):
     assert main(["export", str(POSE_RANGE), "--to", "python"]) == 2
     err = capsys.readouterr().err.strip()
     assert err.startswith("autotight: error:") and "no template" in err and "\n" not in err
+
+
+@pytest.mark.slow
+def test_discrete_range_set_families():
+    """The discrete-trajectory range set (saved without templates): through a transport from one learned
+    factor, c1[2]·rho[2], c2[2]·rho[2] and r[2]·rho[2] are R1[1], R1[2] and R2 exactly; the c3 families have no
+    closed form of degree ≤ 2 and lie outside the paper's span."""
+    ds = DiscoveredSet.load(ROOT / "reports" / "sets" / "discrete_trajectory_range.json")
+    rows = {r.identity: r for r in family_table(load(ds.problem), ds).rows}
+    assert rows["c1[2]·rho[2]"].relation == "= R1[1]" and rows["c2[2]·rho[2]"].relation == "= R1[2]"
+    assert rows["r[2]·rho[2]"].relation == "= R2"
+    for i in ("c1[2]·rho[2]", "c2[2]·rho[2]", "r[2]·rho[2]"):
+        assert rows[i].exact and rows[i].residual <= 1e-10 and rows[i].violation <= 1e-10
+    for i in ("c3[0]·rho[0]", "c3[1]·rho[1]", "c3[2]·rho[2]"):
+        assert rows[i].closed_form.startswith("no closed form") and rows[i].paper == "new"
