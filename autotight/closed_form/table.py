@@ -178,6 +178,13 @@ def _identify(u: np.ndarray, fams: dict[str, tuple[np.ndarray, list[str]]]) -> t
     return "new", "not in the span of the paper's families modulo the primary constraints", res
 
 
+def _paper_types(problem: Problem, params: dict[str, Any]) -> list[str]:
+    """The factor types that carry a paper family (on the instance with seed 0)."""
+    model = problem.build(problem.generate(params, 0))
+    have = {c.factor for cons in model.paper.values() for c in cons}
+    return sorted({f.type for f in model.factors if f.name in have})
+
+
 def family_table(problem: Problem, ds, seed: int = 0, progress: Callable[[str], None] | None = None) -> FamilyTable:
     """The closed forms of the set ``ds`` (a ``DiscoveredSet``) beside the paper's families (see the module)."""
     rows: list[FamilyRow] = []
@@ -230,6 +237,19 @@ def family_table(problem: Problem, ds, seed: int = 0, progress: Callable[[str], 
             viol = _fresh_violation(cf, fresh, problem, rng) if cf.found else float("nan")
             rows.append(FamilyRow(t, ident, show(cf, False), show(cf, True) if cf.found else "", fam_name, rel, res,
                                   viol, cf.exact, cf.degree, source))
+    for t in _paper_types(problem, ds.params):  # the paper's families on types without a discovered pair
+        if t in by_type:
+            continue
+        try:
+            fs = collect(problem, ds.params, t, N_FIT, seed)
+        except AutotightError as e:
+            notes.append(f"the paper's families on {t} were not written: {e}")
+            continue
+        names = data_names(problem, t, fs.D.shape[1])
+        paper_out[t] = [(r, formula(cf, fs.roles, fs.block_sizes, names, d=fs.d),
+                         formula(cf, fs.roles, fs.block_sizes, names, latex=True, d=fs.d))
+                        for fam, P in fs.paper.items()
+                        for cf, r in ((closed_form(r, fs, P[:, k, :]), r) for k, r in enumerate(fs.paper_rows[fam]))]
     if not ds.pairs:
         notes.append("the set has no learned pairs: the primary constraints alone are tight")
     return FamilyTable(ds.problem, rows, paper_out, notes)
