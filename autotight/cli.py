@@ -1,4 +1,5 @@
-"""Command line: ``autotight list | solve | discover | report | check | check-module | certify | templates``.
+"""Command line: ``autotight list | solve | discover | report | check | check-module | certify | templates |
+export``.
 
 The CLI is a thin layer over the Python API (``autotight.api``).  Errors: an input error or a
 failed solve (any ``autotight.errors.AutotightError``) prints one line ``autotight: error: …``
@@ -203,10 +204,11 @@ def build_parser() -> argparse.ArgumentParser:
     from .check_cmd import register as register_check
     from .discovery.cli import register as register_discover
     from .discovery.templates_cmd import register as register_templates
+    from .export import register as register_export
     from .report.cli import register as register_report
 
     for register in (register_discover, register_report, register_check, register_check_module, register_certify,
-                     register_templates):
+                     register_templates, register_export):
         register(sub, _add_problem_args)
     return ap
 

@@ -32,7 +32,9 @@ and **may** define (the default is used otherwise)
   local columns, h first): a factor's columns θ satisfy the relations of measurement ``data`` exactly
   when Mθ satisfies those of the reference measurement (``autotight.discovery.transport``);
 - ``CARRY_TO = {"params": {name: value}, "solver": backend}``: a hint that a discovered set of this problem
-  should carry to instances of these sizes: ``discover`` validates there too (``autotight.discovery.engine``).
+  should carry to instances of these sizes: ``discover`` validates there too (``autotight.discovery.engine``);
+- ``DATA_NAMES: dict[str, Sequence[str]]``: per factor type, the names of its ``Factor.data`` entries
+  (printed closed forms, ``autotight.closed_form``; default δ1, δ2, …).
 
 A state is a ``dict[str, np.ndarray]`` in the problem's own terms.  h² = 1 (d = 1) or Θ_hh = I_d
 is added to the primary constraints for you (``Model.homogenisation``); ``lift`` fills h in when it
@@ -72,7 +74,7 @@ State = dict[str, np.ndarray]
 REQUIRED = ("PARAMS", "generate", "build", "lift", "sample", "local_solve", "recover")
 #: Parts with a default (``Problem`` derives them when absent).
 OPTIONAL = ("NAME", "DESCRIPTION", "cost", "random_state", "errors", "marginal_log_svr", "SPREAD", "RANDOM_SPREAD",
-            "SIGMAS", "PAPER_CLAIM", "DEFAULT_GROUPS", "CHECK_PARAMS", "TRANSPORTS", "CARRY_TO")
+            "SIGMAS", "PAPER_CLAIM", "DEFAULT_GROUPS", "CHECK_PARAMS", "TRANSPORTS", "CARRY_TO", "DATA_NAMES")
 FUNCTIONS = ("generate", "build", "lift", "sample", "cost", "local_solve", "recover", "random_state", "errors",
              "marginal_log_svr")
 #: Default sampling spread (discovery's samples, check-module).

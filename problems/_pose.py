@@ -40,6 +40,8 @@ from ._cayley import orthonormality, rot_blocks, rotation_cayley
 
 POSE_ROLES = ("c1", "c2", "c3", "r")
 XI_ROLES = ("rho", "phi")
+#: names of a measured pose's 12 data entries [C̃ r̃] (row-major 3×4), for printed closed forms
+MEASURED_POSE_NAMES = tuple(f"C̃_{i + 1}{j + 1}" if j < 3 else f"r̃_{i + 1}" for i in range(3) for j in range(4))
 
 
 # ----------------------------------------------------------------------------- block names
@@ -249,3 +251,4 @@ __all__ = ["POSE_ROLES", "XI_ROLES", "rot_blocks", "pose_blocks", "trans_block",
            "declare_xi", "split_pose", "pose_values", "xi_values", "pose_from_x", "state_pose", "measured_pose",
            "pose_orthonormality", "pose_cayley", "unary_cayley", "binary_cayley", "r1_unary", "r2_unary",
            "r3_binary", "unary_residuals", "weighted_cost"]
+__all__ += ["MEASURED_POSE_NAMES"]

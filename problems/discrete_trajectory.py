@@ -36,6 +36,7 @@ from autotight.problem import Instance, LocalResult, Param
 
 from . import _pose_batch as pb
 from ._cayley import draw_valid
+from ._pose import MEASURED_POSE_NAMES
 from ._pose import (POSE_ROLES, XI_ROLES, binary_cayley, binary_transport, declare_pose, declare_xi, pose_blocks,
                     pose_from_x, pose_orthonormality, r1_unary, r2_unary, r3_binary, unary_cayley, unary_transport,
                     weighted_cost, xi_blocks)
@@ -66,6 +67,8 @@ CARRY_TO = {"params": {"K": 200}, "solver": "ipm"}
 #: each factor type's learned relations move with its measurement (``Factor.data``) by this change of
 #: variables (``autotight.discovery.transport``): templates for relations that no low-degree polynomial fits
 TRANSPORTS = {"pose_meas": unary_transport, "odometry": binary_transport}
+#: names of each factor type's data entries (``Factor.data``), for printed closed forms
+DATA_NAMES = {"pose_meas": MEASURED_POSE_NAMES, "odometry": MEASURED_POSE_NAMES}
 
 #: roles of an odometry factor: pose k, then pose k+1 (primed), then ξ_{k+1,k}
 ODOMETRY_ROLES = ("h", *POSE_ROLES, *(f"{r}'" for r in POSE_ROLES), *XI_ROLES)

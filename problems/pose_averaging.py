@@ -24,6 +24,7 @@ from autotight.problem import Instance, LocalResult, Param
 
 from . import _pose_batch as pb
 from ._cayley import draw_valid
+from ._pose import MEASURED_POSE_NAMES
 from ._pose import (POSE_ROLES, XI_ROLES, declare_pose, declare_xi, pose_blocks, pose_from_x, pose_orthonormality,
                     pose_values, r1_unary, r2_unary, unary_cayley, unary_residuals, unary_transport, weighted_cost,
                     xi_blocks, xi_values)
@@ -46,6 +47,8 @@ PARAMS = {
 #: the measured pose's learned relations move with it by T ↦ T T̃⁻¹ (``autotight.discovery.transport``): a
 #: template for relations that no polynomial of degree ≤ 2 in the measurement fits
 TRANSPORTS = {"pose_meas": unary_transport}
+#: names of each factor type's data entries (``Factor.data``), for printed closed forms
+DATA_NAMES = {"pose_meas": MEASURED_POSE_NAMES}
 
 
 def generate(params: dict, rng: np.random.Generator) -> Instance:

@@ -60,6 +60,8 @@ def register(sub: argparse._SubParsersAction, add_problem_args: Callable) -> Non
                    help="relative cost gap counted as tight (default 1e-5)")
     add_accept_arg(p)
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.add_argument("--latex", default=None, metavar="FILE",
+                   help="write the discovered families' closed forms beside the paper's as LaTeX to FILE")
     add_solver_args(p, default=None, note="with a CARRY_TO hint that names a backend: that one")
     p.set_defaults(func=cmd_discover)
 
@@ -124,6 +126,8 @@ def cmd_discover(args: argparse.Namespace) -> int:
 
     if args.out is not None:
         check_file(args.out, force=args.force)
+    if args.latex is not None:
+        check_file(args.latex, force=args.force)
     prob = load(args.problem)
     hint, backend = carry_hint(prob)
     carry = {} if args.no_carry else (parse_assignments(args.carry_to) if args.carry_to else None)
@@ -146,6 +150,9 @@ def cmd_discover(args: argparse.Namespace) -> int:
         print(res.table())
         if where is not None:
             print(f"\nsaved to {where}")
+    from ..closed_form.cli import closed_form_output
+
+    closed_form_output(prob, res.discovered, args)
     if failed:
         print(f"error: {failed}; the set is saved to {where} instead", file=sys.stderr)
         return 2

@@ -357,6 +357,9 @@ def summarize(out: Path, meta: dict[str, Any]) -> Summary:
     versus = paper_table(df, sigmas, claim) if claim and len(df) else None
     if versus is not None:
         tabs.insert(1, versus)
+    from ..closed_form.report import closed_form_tables
+
+    tabs += closed_form_tables(out, meta)
     return Summary(f"Tightness report: {meta['problem']}", facts, tabs, figs,
                    CAPTIONS | {"tight": rule[2]})
 
