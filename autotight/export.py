@@ -289,8 +289,10 @@ def register(sub: argparse._SubParsersAction, add_problem_args=None) -> None:
                    "forms beside the paper's; json-sparse: triplets")
     p.add_argument("--out", default=None, help="write to this file (default: standard output)")
     p.add_argument("--force", action="store_true", help="overwrite --out if it exists")
-    p.add_argument("--seed", type=int, default=None, help="json-sparse: also the constraints of the instance with "
-                   "this seed at the set's parameters")
+    from .cli_checks import nonneg_int
+
+    p.add_argument("--seed", type=nonneg_int, default=None,
+                   help="json-sparse: also the constraints of the instance with this seed at the set's parameters")
     p.set_defaults(func=cmd_export)
 
 
