@@ -4,9 +4,8 @@ from __future__ import annotations
 
 import re
 
-import numpy as np
 
-from .table import N_FRESH, FamilyTable
+from .table import FamilyTable, residual_note
 
 
 UNICODE = {"−": "-", "≤": r"$\le$", "≥": r"$\ge$", "·": r"$\cdot$", "ᵀ": r"$^\top$", "²": r"$^2$", "³": r"$^3$",
@@ -35,7 +34,7 @@ def document(tab: FamilyTable) -> str:
     for r in tab.rows:
         out.append(rf"\paragraph{{{_esc(r.factor_type)}: {_esc(r.identity)}}} "
                    f"paper family: {_esc(r.paper)}; relation: {_esc(r.relation)}"
-                   + ("" if np.isnan(r.residual) else f" (residual {r.residual:.1e} on {N_FRESH} fresh factors)")
+                   + residual_note(r)
                    + ("" if r.exact else " (coefficients in floating point)"))
         out.append(r"\begin{equation*}" + r.latex + r"\end{equation*}" if r.latex
                    else _esc(r.closed_form))
