@@ -259,6 +259,7 @@ def sparse_record(problem, ds, source: str, seed: int | None) -> dict[str, Any]:
         rec["templates"][t] = {"kind": "polynomial", "identities": tpl.identities, "n_cols": tpl.n_cols,
                                "n_data": tpl.n_data, "degree": tpl.degree, "support": tpl.support.tolist(),
                                "W_triplets": [[int(a), int(b), float(tpl.W[a, b])] for a, b in zip(f, s)]}
+    rec["fallback"] = dict(ts.fallback)  # types re-learned per factor: no template to write
     rec["convention"] = ("template: coefficients p = features(data) @ W on positions 'support' (identity = pos // m, "
                          "monomial pos % m, svec order of the factor's columns, no √2); features = [1, δ_i, δ_i δ_j "
                          "(i ≤ j, svec order)] up to 'degree'; constraint: Σ p_μ θ_iᵀθ_j = 0. instance: triplets "
@@ -289,8 +290,10 @@ def register(sub: argparse._SubParsersAction, add_problem_args=None) -> None:
                    "forms beside the paper's; json-sparse: triplets")
     p.add_argument("--out", default=None, help="write to this file (default: standard output)")
     p.add_argument("--force", action="store_true", help="overwrite --out if it exists")
-    p.add_argument("--seed", type=int, default=None, help="json-sparse: also the constraints of the instance with "
-                   "this seed at the set's parameters")
+    from .cli_checks import nonneg_int
+
+    p.add_argument("--seed", type=nonneg_int, default=None,
+                   help="json-sparse: also the constraints of the instance with this seed at the set's parameters")
     p.set_defaults(func=cmd_export)
 
 

@@ -185,3 +185,19 @@ def test_discrete_range_set_families():
         assert rows[i].exact and rows[i].residual <= 1e-10 and rows[i].violation <= 1e-10
     for i in ("c3[0]·rho[0]", "c3[1]·rho[1]", "c3[2]·rho[2]"):
         assert rows[i].closed_form.startswith("no closed form") and rows[i].paper == "new"
+
+
+def test_discover_prints_the_table_and_writes_latex(tmp_path, capsys):
+    """`discover --latex FILE`: the closed-form table after discover's own, and a LaTeX document (rotation
+    averaging: tight with the primary constraints alone, so the table says there is no learned family)."""
+    from autotight.cli import main
+
+    tex = tmp_path / "families.tex"
+    assert main(["discover", "rotation_averaging", "-p", "M=3", "--no-progress", "--heldout", "1",
+                 "--latex", str(tex)]) == 0
+    out = capsys.readouterr().out
+    assert "discovered family | closed form | paper family | relation" in out
+    doc = tex.read_text(encoding="utf-8")
+    assert doc.startswith(r"\documentclass") and doc.rstrip().endswith(r"\end{document}")
+    assert "primary constraints alone" in doc
+    assert main(["discover", "rotation_averaging", "--latex", str(tex)]) == 2  # exists: refused before the work

@@ -12,7 +12,7 @@ def closed_form_output(problem, ds, args: argparse.Namespace) -> None:
     """Print the table "discovered family | closed form | paper family | relation" of the set ``ds`` (not with
     --json), and write its LaTeX to ``args.latex`` when given."""
     latex = getattr(args, "latex", None)
-    if args.json and latex is None:
+    if (args.json and latex is None) or getattr(ds, "pairs", None) is None:  # nothing asked, or no set
         return
     from .table import family_table, text
     from .tex import document

@@ -63,7 +63,7 @@ def _table(name: str, path: Path, meta: dict[str, Any], cache: dict[str, Any]):
 def closed_form_tables(out: Path, meta: dict[str, Any]) -> list:
     """Report tables (``render.Table``) of the closed forms; none when the report has no learned set."""
     from ..report.render import Table
-    from .table import N_FRESH
+    from .table import N_FRESH, residual_note
 
     out = Path(out)
     sets = _sets(out, meta)
@@ -83,8 +83,7 @@ def closed_form_tables(out: Path, meta: dict[str, Any]) -> list:
             rows.append([name, f"not computed: {e}", "—", "—"])
             continue
         changed |= new
-        rows += [[f"{name}: {r.factor_type}: {r.identity}", r.closed_form, r.paper,
-                  r.relation + ("" if r.residual != r.residual else f" (residual {r.residual:.1e})")]
+        rows += [[f"{name}: {r.factor_type}: {r.identity}", r.closed_form, r.paper, r.relation + residual_note(r)]
                  for r in tab.rows]
         rows += [[name, n, "—", "—"] for n in tab.notes]
         for t, prow in tab.paper.items():

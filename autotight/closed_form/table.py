@@ -255,12 +255,21 @@ def family_table(problem: Problem, ds, seed: int = 0, progress: Callable[[str], 
     return FamilyTable(ds.problem, rows, paper_out, notes)
 
 
+def residual_note(r: FamilyRow) -> str:
+    """" (residual … on N fresh factors)" of a relation; for a new family, how far the best combination of the
+    paper's rows is; "" without a residual."""
+    if np.isnan(r.residual):
+        return ""
+    if r.paper == "new":
+        return f" (the best combination is off by {r.residual:.1e} relative)"
+    return f" (residual {r.residual:.1e} on {N_FRESH} fresh factors)"
+
+
 def text(tab: FamilyTable) -> str:
     """The table as text: per family its closed form, the paper family and the relation."""
     lines = ["discovered family | closed form | paper family | relation"]
     for r in tab.rows:
-        chk = "" if np.isnan(r.residual) else f" (residual {r.residual:.1e} on {N_FRESH} fresh factors)"
-        lines.append(f"{r.factor_type}:{r.identity} | {r.closed_form} | {r.paper} | {r.relation}{chk}")
+        lines.append(f"{r.factor_type}:{r.identity} | {r.closed_form} | {r.paper} | {r.relation}{residual_note(r)}")
     for t, rows in tab.paper.items():
         lines.append(f"paper families on {t}:")
         lines += [f"  {n}: {c}" for n, c, _ in rows]

@@ -4,9 +4,8 @@ from __future__ import annotations
 
 import re
 
-import numpy as np
 
-from .table import N_FRESH, FamilyTable
+from .table import FamilyTable, residual_note
 
 
 UNICODE = {"−": "-", "≤": r"$\le$", "≥": r"$\ge$", "·": r"$\cdot$", "ᵀ": r"$^\top$", "²": r"$^2$", "³": r"$^3$",
@@ -26,7 +25,8 @@ def _esc(s: str) -> str:
 
 def document(tab: FamilyTable) -> str:
     """A standalone LaTeX document: per discovered family its closed form, the paper family and the relation
-    (with its residual on fresh data), then the paper's families in the same notation."""
+    (with its residual on fresh data), then the paper's families in the same notation.  Formulas are
+    ``equation*`` (amsmath only; a long one runs past the margin rather than depend on a line-breaking package)."""
     out = [r"\documentclass{article}", r"\usepackage{amsmath}", r"\usepackage[margin=2cm]{geometry}",
            r"\begin{document}", rf"\section*{{Closed forms: {_esc(tab.problem)}}}",
            "Each family is written modulo the primary constraints (normal form), normalised as the table's "
@@ -34,9 +34,9 @@ def document(tab: FamilyTable) -> str:
     for r in tab.rows:
         out.append(rf"\paragraph{{{_esc(r.factor_type)}: {_esc(r.identity)}}} "
                    f"paper family: {_esc(r.paper)}; relation: {_esc(r.relation)}"
-                   + ("" if np.isnan(r.residual) else f" (residual {r.residual:.1e} on {N_FRESH} fresh factors)")
+                   + residual_note(r)
                    + ("" if r.exact else " (coefficients in floating point)"))
-        out.append(r"\begin{equation*}" + r.latex.replace(" = 0", r" = 0") + r"\end{equation*}" if r.latex
+        out.append(r"\begin{equation*}" + r.latex + r"\end{equation*}" if r.latex
                    else _esc(r.closed_form))
     for t, rows in tab.paper.items():
         out.append(rf"\subsection*{{Paper families on {_esc(t)}}}")
