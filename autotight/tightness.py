@@ -22,9 +22,11 @@ nothing is divided by 0.  Then:
   not tight  if U − P > tol + acc (the SDP's value is below U by more than tolerance and accuracy), or
              the SDP is unbounded (DualInfeasible);
   undecided  otherwise (the solver stopped early or is less accurate than the gap being tested; also any
-             unusable solve): never counted as not tight.  Also undecided, before the rest: a tolerance
-             at least the cost it tests, tol ≥ |U| > ``ROUNDOFF``·s (ill-conditioned weights make s,
-             hence tol, exceed the cost: the bracket would say nothing).
+             unusable solve): never counted as not tight.  Also undecided instead of not tight: a
+             tolerance at least the cost it tests, tol ≥ |U| > ``ROUNDOFF``·s (ill-conditioned weights
+             make s, hence tol, exceed the cost, and P < U − tol ≤ 0 is then a solve that cannot
+             resolve the cost, not a gap).  Where such a bracket closes, it proves little: under
+             accept="rank" the rank test decides, under accept="cost" only a certificate does.
 The reported ``rel_gap`` is (U − P)/max(|U|, cost_floor).
 
 ``accept`` says which verdict counts as ``tight``: "rank" (rank and cost, the paper's; a low rank
@@ -174,6 +176,16 @@ def scaled_frame(acc: Accuracy, res: SDPResult, Q, constraints: Sequence, D: np.
     return replace(acc, acc=max(acc.gap_pd, acc.primal_term, corr), dual_correction=corr, frame="scaled")
 
 
+def ill_conditioned(upper: float, tol: float, acc: Accuracy) -> bool:
+    """Whether the gap tested is at least the (nonzero) cost it tests: tol ≥ |U| > ``ROUNDOFF``·s."""
+    return bool(tol >= abs(upper) > ROUNDOFF * acc.scale)
+
+
+def ill_conditioned_reason(upper: float, tol: float, acc: Accuracy) -> str:
+    return (f"ill-conditioned cost: the tolerance {tol:.2e} exceeds the cost U = {upper:.3e} it tests (cost scale "
+            f"‖Q‖·tr X = {acc.scale:.2e})")
+
+
 def bracket(res: SDPResult, upper: float, criteria: Criteria, acc: Accuracy) -> tuple[str, float, float, str]:
     """(cost outcome, L, tol, reason) of the bracket test (module docstring)."""
     if res.status.endswith("DualInfeasible"):
@@ -183,15 +195,14 @@ def bracket(res: SDPResult, upper: float, criteria: Criteria, acc: Accuracy) -> 
     U, P, D = float(upper), res.primal_cost, res.dual_cost
     L = D - acc.dual_correction
     tol = criteria.gap_tol * abs(U) + criteria.cost_atol * acc.scale
-    if tol >= abs(U) > ROUNDOFF * acc.scale:  # the gap tested would exceed the (nonzero) cost it tests
-        return UNDECIDED, L, tol, (f"ill-conditioned cost: the tolerance {tol:.2e} exceeds the cost U = {U:.3e} it "
-                                   f"tests (cost scale ‖Q‖·tr X = {acc.scale:.2e})")
     if L - U > tol + acc.acc:  # a lower bound above a feasible point's cost: the solve is wrong, flag it
         return UNDECIDED, L, tol, (f"inconsistent solve: its lower bound exceeds a feasible cost by {L - U:.3e} "
                                    f"(> tolerance {tol:.2e} + accuracy {acc.acc:.2e})")
     if (acc.from_residuals and U - L <= tol) or (acc.acc <= tol and U - D <= tol + acc.acc):
         return TIGHT, L, tol, ""
     if U - P > tol + acc.acc:
+        if ill_conditioned(U, tol, acc):  # P < U − tol ≤ 0: below a cost the tolerance cannot resolve
+            return UNDECIDED, L, tol, ill_conditioned_reason(U, tol, acc)
         return NOT_TIGHT, L, tol, f"U − P = {U - P:.3e} exceeds the tolerance {tol:.2e} + accuracy {acc.acc:.2e}"
     if acc.acc > tol:  # the solve cannot resolve the tolerance, whatever U − D is
         return UNDECIDED, L, tol, (f"bracket too wide: solver accuracy {acc.acc:.2e} > tolerance {tol:.2e} "
@@ -220,6 +231,7 @@ def judge(res: SDPResult, upper: float, criteria: Criteria = Criteria(), certifi
     rank_tight = bool(lsvr == np.inf or (np.isfinite(lsvr) and lsvr > criteria.min_log_svr))
     cert = None if certificate is None else bool(certificate.certified)
     reasons = [why] if why else []
+    weak = bool(res.usable and np.isfinite(tol) and ill_conditioned(upper, tol, acc)) and not why
     if criteria.accept == "rank":
         if cost_outcome == TIGHT and rank_tight:
             outcome = TIGHT
@@ -230,8 +242,14 @@ def judge(res: SDPResult, upper: float, criteria: Criteria = Criteria(), certifi
             # solver's own tolerance, says little
         if not rank_tight:
             reasons.append(f"log SVR {lsvr:.2f} ≤ {criteria.min_log_svr}")
+        if weak and outcome != TIGHT:  # a tolerance above the cost tested decides no "not tight" either
+            outcome = UNDECIDED
+            reasons.append(ill_conditioned_reason(upper, tol, acc))
     elif criteria.accept == "cost":
         outcome = cost_outcome
+        if outcome == TIGHT and weak:  # a bracket closed only by a tolerance above the cost proves nothing
+            outcome = UNDECIDED
+            reasons.append(ill_conditioned_reason(upper, tol, acc))
         if cert is not None:
             if cert and cost_outcome != NOT_TIGHT and not why.startswith("inconsistent"):
                 outcome = TIGHT

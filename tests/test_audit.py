@@ -324,6 +324,16 @@ def _res(P_: float, D: float, status: str = "Solved", svr: float = 10.0, scale: 
                      solve_time_s=0.0, cost_scale=scale)
 
 
+@pytest.mark.parametrize("accept", ["rank", "cost"])
+def test_a_tolerance_above_the_cost_decides_nothing(accept):
+    """s = 1e12 makes tol = 1e-9·s = 1e3 exceed U = 3.49; the solve's value P = −727 lies below U by less than
+    tol: neither the closed bracket nor a gap is evidence (anisotropy 1e6, M = 3 before it was refused)."""
+    from autotight.tightness import Criteria, judge
+
+    v = judge(_res(-727.0, -727.0, "AlmostSolved", svr=0.6, scale=1e12), 3.49, Criteria(accept=accept))
+    assert v.outcome == "undecided" and not v.tight and "exceeds the cost" in v.reason, v
+
+
 @pytest.mark.parametrize("case", ["tolerance_above_cost", "almost_solved_low_rank", "unusable"])
 def test_a_verdict_without_evidence_is_undecided(case):
     from autotight.tightness import Criteria, judge
