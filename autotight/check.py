@@ -12,8 +12,8 @@ the instances of ``report --seed S`` over the same σ list; its local starts and
 re-instantiation of a learned set use the generators of ``autotight.pipeline.seeds``.
 
 Counting: each instance's outcome is "tight", "undecided" or "not tight" (a learned set that cannot be
-instantiated on the instance is "not tight"; a solve that returned no usable solution is "undecided").  Undecided instances
-are left out of the fraction: fraction = tight / (instances − undecided), and a point passes when
+instantiated on the instance is "not tight"; a solve that returned no usable solution is "undecided").
+Undecided instances are left out of the fraction: fraction = tight / (instances − undecided), and a point passes when
 fraction ≥ min_fraction.  A point where every instance is undecided has no evidence and does not
 pass.  Undecided instances are listed separately and never count as failures.
 """
