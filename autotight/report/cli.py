@@ -10,7 +10,7 @@ from pathlib import Path
 from typing import Any, Callable
 
 from ..extras import require
-from ..cli_checks import check_solver, nonneg_int, pos_int
+from ..cli_checks import check_solver, nonneg_int
 from ..io import jsonable
 from ..limits import check_count, check_size
 from ..problem import load, parse_assignments
@@ -43,7 +43,7 @@ def register(sub: Any, add_problem_args: Callable[[argparse.ArgumentParser], Non
                    help=f"constraint sets, a subset of {','.join(SETS)} "
                         "(default: primary, plus paper if the problem has paper families); file:PATH: a saved "
                         "constraint set (`discover --out`) as the discovered set")
-    p.add_argument("--jobs", "-j", type=pos_int, default=None,
+    p.add_argument("--jobs", "-j", type=int, default=None,
                    help="local worker processes (default: all cores; at most the cores and the trials to compute)")
     p.add_argument("--scheduler", metavar="ADDRESS", default=None,
                    help="run on a Dask distributed cluster at this scheduler address (e.g. tcp://host:8786)")
@@ -95,7 +95,7 @@ def cmd_report(args: argparse.Namespace) -> int:
     out = Path(args.out) if args.out else Path("out") / prob.name
     jobs = _cores() if args.jobs is None else args.jobs
     most = max(1, min(_cores(), len(spec.tasks()) if args.limit is None else max(args.limit, 1)))
-    if jobs > most:
+    if jobs > most:  # (jobs < 1 is refused by run_sweep)
         if args.jobs is not None:
             print(f"autotight: note: --jobs {args.jobs} capped at {most} (the cores here and the trials to compute)",
                   file=sys.stderr)
