@@ -63,8 +63,10 @@ class SizeEstimate:
 def holds_dense_x(config: SolverConfig | None) -> bool:
     """Whether a solve with ``config`` may hold X dense: every solve but one on our clique cover
     (``--solver ipm``, or ``--decompose``), whose X above DENSE_X_MAX columns is sparse."""
-    if config is None or config.backend == AUTO:  # "auto": as the size resolves it (``check_size``)
+    if config is None:
         return True
+    if config.backend == AUTO:  # decompose given: either backend it picks takes a cover; else as the size decides
+        return True if config.decompose is None else holds_dense_x(replace(config, backend="clarabel"))
     return not (decomposes(config) and BACKENDS[config.backend_name].cover is not None)
 
 

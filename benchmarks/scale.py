@@ -245,7 +245,7 @@ def solve_one(problem: str, size: int, set_path: str, seed: int, solver: str) ->
             "n_constraints": r.n_constraints, "solver": r.sdp.solver, "status": r.sdp.status,
             "outcome": r.outcome, "tight": r.tight, "log_svr": r.log_svr, "sdp_cost": r.sdp.primal_cost,
             "sdp_dual_cost": r.sdp.dual_cost, "upper_bound": r.upper, "times": r.times,
-            "total_s": time.perf_counter() - t0,
+            "total_s": time.perf_counter() - t0, "cpu_s": time.process_time(),
             "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}
 
 
@@ -270,7 +270,8 @@ def versus_child(root: Path, python: str, problem: str, size: int, set_path: str
 def versus(args: argparse.Namespace) -> None:
     """Every (size, seed) solved by this checkout and by ``--versus`` (the commit before), interleaved (this one
     first, then the other, size by size), each in a fresh process; growth exponents of each between
-    consecutive sizes, the ratio new/old of every time and the relative difference of the SDP costs."""
+    consecutive sizes, the ratio new/old of every time (``cpu_s``: the child's CPU time, the fairer figure on a
+    shared machine) and the relative difference of the SDP costs."""
     import math
 
     old_root = Path(args.versus).resolve()
@@ -312,6 +313,7 @@ def versus(args: argparse.Namespace) -> None:
                 "size": size, "seed": seed, "same_outcome": new["outcome"] == old["outcome"],
                 "sdp_cost_rel_diff": abs(new["sdp_cost"] - old["sdp_cost"]) / max(abs(old["sdp_cost"]), 1e-300),
                 "ratio_total": new["total_s"] / old["total_s"], "ratio_rss": new["peak_rss_mb"] / old["peak_rss_mb"],
+                "ratio_cpu": new["cpu_s"] / old["cpu_s"] if new.get("cpu_s") and old.get("cpu_s") else None,
                 "ratio_times": {k: new["times"][k] / old["times"][k] for k in keys}})
     print(json.dumps(summary, indent=1))
     write_versus(args, rows, summary)
