@@ -128,8 +128,14 @@ def test_python_discover_follows_the_same_plan(captured):
     assert captured[-1]["params"] == {"K": 5} and captured[-1]["over"] == {"sigma": [0.1]}
 
 
+@pytest.mark.slow
 def test_a_carried_discovery_on_short_chains_is_tight_where_it_was_checked():
-    """The real flow at small sizes: learned at K = 3, selected at K = 5 (σ = 0.316), checked on a K = 12
+    """A long study (every candidate's template is learned; several minutes).  Its parts are default tests:
+    the plan (test_plan_learns_at_the_given_size_and_selects_where_the_module_says), learning at one size and
+    selecting at another (test_range_discovery's learn_params test), validation chains that grow the set
+    (its validation-rounds test), and the committed set this flow made, checked at K = 50 below.
+
+    The real flow at small sizes: learned at K = 3, selected at K = 5 (σ = 0.316), checked on a K = 12
     chain (``discover_range``'s ``validate_params``), which breaks the K = 5 selection: the set grows until it
     is tight there, where the selection alone is not.  The saved set records the plan and keeps the K = 3
     templates."""
@@ -155,7 +161,7 @@ def test_a_carried_discovery_on_short_chains_is_tight_where_it_was_checked():
     assert selected.outcome != "tight"  # the K = 5 selection alone
 
 
-@pytest.mark.parametrize("K, sigma", [(50, 0.1), (200, 0.316)])
+@pytest.mark.parametrize("K, sigma", [(50, 0.1), pytest.param(200, 0.316, marks=pytest.mark.slow)])
 def test_the_committed_set_of_plain_discover_at_k5_is_tight_where_a_k20_selection_alone_breaks(K, sigma):
     """benchmarks/results/scale_set_discrete_K5.json is `autotight discover discrete_trajectory
     -p K=5 --out set.json`: learned at K = 5 (its templates, every one exact), selected on K = 20 over σ and
