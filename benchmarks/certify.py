@@ -11,8 +11,8 @@ Per instance (same run, interleaved: certify first on even instances, the SDPs f
 wall.
 Settings: pose averaging M = 10 with the paper set and with the primary set only (not tight: the
 negative case), discrete K = 20 and K = 100 with the paper set.  Verdicts agree when (certified) == (the full SDP's
-verdict is "tight"), for both full solves.  Target
-(issue 14): certify ≤ 1/5 of the full SDP's time at discrete K = 20 and K = 100.  The machine is
+verdict is "tight"), for both full solves.  Target:
+certify ≤ 1/5 of the full SDP's time at discrete K = 20 and K = 100.  The machine is
 shared, so ratios are reported on CPU time (process time; every solve is single-threaded) as well as
 on wall time, with the load average before and after each instance.
 

@@ -1,9 +1,9 @@
-"""Continuous-time trajectory at the paper's K = 21 (issue 18): SDP paths side by side, and the
+"""Continuous-time trajectory at the paper's K = 21: SDP paths side by side, and the
 prototype of the fastest one (``solve_fast``) that reports/continuous_boundary also uses.
 
 Every path solves the same optimum (problems/continuous_trajectory.py, module docstring):
 - ``marginalised``: ϖ removed by the Schur complement (the paper), Clarabel's chordal decomposition;
-- ``kept-clarabel``: ϖ kept, Clarabel on our clique cover (``solve --decompose``, 9–10 s in issue 18);
+- ``kept-clarabel``: ϖ kept, Clarabel on our clique cover (``solve --decompose``, 9–10 s when first measured);
 - ``kept-ipm``: ϖ kept, our IPM on its own cover;
 - ``kept-ipm-scaled``: as kept-ipm, after the block congruence X = D X′ D of ``block_scale``;
 - ``kept-ipm-fast``: as kept-ipm-scaled at the tolerance FAST_TOL (``solve_fast``, the fastest path).

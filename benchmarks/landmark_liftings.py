@@ -1,4 +1,4 @@
-"""Where is Shor not tight on the landmark problems, and does discovery tighten it?  (issue 6)
+"""Where is Shor not tight on the landmark problems, and does discovery tighten it?
 
 For each case (problem, d, lifting, σ): solve the SDP with the primary constraints on seeds
 0 … n−1 and judge it against the best local solution (truth + 2 random starts).  A seed whose SDP

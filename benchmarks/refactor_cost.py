@@ -49,7 +49,7 @@ CASES = [
 
 
 #: the stages of a solve that both versions run: build, the local solves, the SDP.  The refactored pipeline
-#: also refines the SDP's estimate, certifies the best point and judges by the bracket (issue 14's verdict
+#: also refines the SDP's estimate, certifies the best point and judges by the bracket (the verdict
 #: work, reported separately as ``extra_s``); the refactor itself is measured on the common stages.
 COMMON = ("build_s", "local_s", "sdp_total_s")
 

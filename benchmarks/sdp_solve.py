@@ -22,7 +22,7 @@ N = 310 PSD cone at M = 100 needs a dense (N(N+1)/2)² KKT block, 18.6 GB) no ra
 A third time, ``cpu``, is the process CPU time of the full call: on a loaded shared machine it
 is the better guide to what the code costs; the load average is recorded alongside.
 
-Target (issue 2): direct path under 0.1 s median (full call, wall time) at M = 10; the paper
+Target: direct path under 0.1 s median (full call, wall time) at M = 10; the paper
 reports 0.35 s with MATLAB cvx + MOSEK.  Both BLAS pools are limited to one thread.
 
 Usage:  python benchmarks/sdp_solve.py [--reps 7] [--sizes 10 100] [--out PATH]

@@ -22,7 +22,7 @@ Prints and writes benchmarks/results/trajectory_sdp.json.
 
     python benchmarks/trajectory_sdp.py [--repeats 3] [--time-limit 60] [--scaling 10,20,50,100] [--chain 40,80,160]
                                         [--scaling-seeds 0,1,2] [--skip-continuous]
-    python benchmarks/trajectory_sdp.py --only-continuous --repeats 2 --time-limit 900   # issue 18's figure
+    python benchmarks/trajectory_sdp.py --only-continuous --repeats 2 --time-limit 900   # the continuous-time figure
 """
 
 from __future__ import annotations
@@ -181,7 +181,7 @@ def only_continuous(a: argparse.Namespace, res: dict, previous: dict) -> None:
         "default_path": "cliques", "default_median_cpu_s": runs["kept"]["cliques"]["median_cpu_s"],
         "marginalised_median_cpu_s": base,
         "speedup_fastest_vs_marginalised": base / runs["kept"][fastest]["median_cpu_s"],
-        "target": "fastest path ≤ 3 s (issue 18; MOSEK in the paper 13.6 s)"}
+        "target": "fastest path ≤ 3 s (MOSEK in the paper 13.6 s)"}
     res["load_avg_end"] = os.getloadavg()
     Path(a.out).write_text(json.dumps(jsonable(res), indent=1) + "\n")
     print(json.dumps(jsonable(res["continuous_K21_summary"]), indent=1))
