@@ -55,7 +55,8 @@ class ClosedForm:
 
     def values(self, D: np.ndarray, m: int) -> np.ndarray:
         """u at data D (S, p) as full coefficient vectors (S, m), from the exact coefficients when there are."""
-        W = poly.fractions_array(self.coeffs) if self.exact else self.W
+        W = poly.fractions_array(self.coeffs) if self.exact and self.coeffs is not None else self.W
+        assert W is not None, "values() of a family without a closed form"
         out = np.zeros((np.atleast_2d(D).shape[0], m))
         out[:, self.monomials] = poly.evaluate(D, self.basis) @ W
         return out

@@ -98,7 +98,12 @@ def formula(cf: ClosedForm, roles: Sequence[str], sizes: Sequence[int], names: l
     owner: list[tuple[int, int]] = []  # (block index, element index) per local column
     for b, s in enumerate(sizes):
         owner += [(b, k) for k in range(s)]
-    coeffs = cf.coeffs if cf.exact else [[float(x) for x in row] for row in cf.W]
+    coeffs: list
+    if cf.exact and cf.coeffs is not None:
+        coeffs = cf.coeffs
+    else:
+        assert cf.W is not None, "a family without a closed form has no formula"
+        coeffs = [[float(x) for x in row] for row in cf.W]
     polys: dict[int, list] = {}
     for col, mu in enumerate(cf.monomials):
         polys[mu] = [(row[col], m) for row, m in zip(coeffs, cf.basis) if row[col] != 0]
@@ -115,7 +120,7 @@ def formula(cf: ClosedForm, roles: Sequence[str], sizes: Sequence[int], names: l
         if ba != 0 and sa == sb and sa > 1 and len(entries) == sa and all(x is not None and x == diag[0] for x in diag):
             var = (f"{_block(ra, latex)}^\\top {_block(rb, latex)}" if latex else
                    f"{_block(ra, False)}ᵀ{_block(rb, False)}")
-            terms.append((_coef_poly(diag[0], names, latex), var))
+            terms.append((_coef_poly(diag[0] or [], names, latex), var))
             continue
         for (ka, kb), p in entries.items():
             ea, eb = _element(ra, ka, sa, latex), _element(rb, kb, sb, latex)

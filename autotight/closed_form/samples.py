@@ -142,7 +142,8 @@ def collect(problem: Problem, params: dict[str, Any], factor_type: str, n: int, 
     rows: dict[str, list[str]] = {}
     kept: list = []
     layout = None
-    order = pivots = None
+    order: np.ndarray | None = None
+    pivots: np.ndarray | None = None
     d = 1
     for i in range(MAX_INSTANCES):
         if len(D) >= n:
@@ -175,6 +176,7 @@ def collect(problem: Problem, params: dict[str, Any], factor_type: str, n: int, 
                           if p is not None])
             G = G.reshape(-1, len(cols) * (len(cols) + 1) // 2)
             if pivots is None:
+                assert order is not None
                 pivots = choose_pivots(G, order)
             GP = G[:, pivots]
             try:
@@ -198,7 +200,7 @@ def collect(problem: Problem, params: dict[str, Any], factor_type: str, n: int, 
                 rows[fam] = [r for r, _ in rs]
             D.append(np.zeros(0) if f.data is None else np.asarray(f.data, dtype=float).ravel())
             Gs.append(R)
-    if layout is None or not D:
+    if layout is None or not D or pivots is None:
         raise AutotightError(f"no factor of type {factor_type!r} found")
     return FactorSamples(factor_type, layout[0], layout[1], d, np.array(D).reshape(len(D), -1), pivots,
                          np.array(Gs), {k: np.array(v) for k, v in papers.items()}, rows, kept)

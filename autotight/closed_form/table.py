@@ -99,7 +99,7 @@ def learned_transport(problem: Problem, ds, t: str, idents: list[str]):
     f = model.factor(g.group.name)
     sizes = [model.variables.sizes[b] for b in f.blocks]
     return reference_template(problem, t, idents, list(f.roles or f.blocks), sizes,
-                              np.zeros(0) if f.data is None else f.data, g.coeffs, g.free, g.identities)
+                              np.zeros(0) if f.data is None else f.data, g.coeffs, np.asarray(g.free), g.identities)
 
 
 def _evaluator(problem: Problem, ds, t: str, idents: list[str]) -> tuple[Callable[[np.ndarray], np.ndarray], str]:
@@ -133,7 +133,7 @@ def _fresh_violation(cf: ClosedForm, fresh: FactorSamples, problem: Problem, rng
 
 
 def _combination(alpha: np.ndarray, names: list[str]) -> str:
-    parts = []
+    parts: list[str] = []
     for a, n in zip(alpha, names):
         if a == 0:
             continue

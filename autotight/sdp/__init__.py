@@ -157,12 +157,12 @@ def clique_eigvals(X: sp.sparray, cliques: Sequence[np.ndarray]) -> list[np.ndar
     sizes = np.array([len(C) for C in cliques])
     for n in np.unique(sizes):
         ids = np.flatnonzero(sizes == n)
-        C = np.array([np.asarray(cliques[k], np.int64) for k in ids])  # (B, n)
+        C = np.array([np.asarray(cliques[int(k)], np.int64) for k in ids])  # (B, n)
         rows = np.repeat(C, n, axis=1).ravel()
         cols = np.tile(C, (1, n)).ravel()
         blocks = np.asarray(X[rows, cols]).reshape(len(ids), n, n)
         for k, ev in zip(ids, np.linalg.eigvalsh(blocks)):
-            out[k] = ev
+            out[int(k)] = ev
     return out
 
 
