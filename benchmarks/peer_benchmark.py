@@ -137,17 +137,12 @@ def _fractions(rows: list[dict[str, Any]]) -> dict[str, Any]:
 
 
 def _discovery_counts(res: Any) -> dict[str, Any]:
-    s = res.summary()
-    out = {"tight": bool(s["tight"]), "n_candidate_pairs": s.get("n_candidate_pairs"),
-           "irreducible": bool(s.get("irreducible", False)), "n_solves": s.get("n_solves"),
-           "times": s.get("times", {}), "flow": type(res).__name__}
-    if "n_candidates" in s:  # single-instance discovery
-        out |= {"n_primary": s["n_primary"], "n_candidates": s["n_candidates"], "n_selected": s["n_minimal"],
-                "n_selected_pairs": s["n_minimal_pairs"], "explanation": s["explanation"],
-                "log_svr": s["log_svr"], "final_status": s["final_status"]}
-    else:  # reduced over several training instances (the module's DEFAULT_TRAIN)
-        out |= {"n_selected_pairs": s["n_pairs"], "n_train": s["n_train"]}
-    return out
+    s = res.record()
+    return {"tight": bool(s["tight"]), "validated": s["validated"], "n_candidate_pairs": s["n_candidate_pairs"],
+            "irreducible": bool(s["irreducible"]), "n_solves": s["n_solves"], "times": s["times"],
+            "n_primary": s["n_primary"], "n_selected": s["n_constraints"] - s["n_primary"],
+            "n_selected_pairs": s["n_pairs"], "n_train": s["n_train"],
+            "explanation": (s["validation"] or {}).get("message", "")}
 
 
 def run_spec(spec: Spec, out: Path, seed: int, n_inst: int, n_carry: int, log: Any) -> dict[str, Any]:
@@ -169,7 +164,7 @@ def run_spec(spec: Spec, out: Path, seed: int, n_inst: int, n_carry: int, log: A
     row["discover_wall_s"] = time.perf_counter() - t0
     path = out / "sets" / f"{spec.key}.json"
     path.parent.mkdir(parents=True, exist_ok=True)
-    res.save(path)
+    res.save(path, replace=True)
     row["set_file"] = str(path.relative_to(out))
     row["discovery"] = _discovery_counts(res)
     cset = ConstraintSet.load(path)

@@ -30,8 +30,6 @@ PARAMS = {
 }
 
 
-DEFAULT_TRAIN = 10
-
 
 def _variables(d: int) -> Variables:
     return Variables(pv.pose_blocks(d))
