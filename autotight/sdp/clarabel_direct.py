@@ -30,14 +30,16 @@ from .result import SDPResult, finish
 #: process alternating, 2 repeats, load ~14): discrete trajectory K = 20 (N = 475) SDP 16.0/20.5 s against
 #: 19.3/24.6 s, continuous K = 21 (N = 517) 54.5/63.9 s against 73.9/68.2 s; but pose averaging M = 10
 #: (N = 73) 0.51/0.58 s against 0.42/0.50 s and rotation averaging (N = 40) equal, so small SDPs keep
-#: qdldl.  Costs agree to 6e-11 relative.
+#: Clarabel's default.  Costs agree to 6e-11 relative.
 FAER_MIN_N = 200
 
 
 def kkt_solver(N: int) -> str:
     """Clarabel's ``direct_solve_method`` for an SDP of N columns (``FAER_MIN_N``; pyproject requires
-    clarabel ≥ 0.10, which has faer)."""
-    return "faer" if N >= FAER_MIN_N else "qdldl"
+    clarabel ≥ 0.10, which has faer); below it Clarabel's own default ("auto"), so small SDPs are solved
+    exactly as before (forcing "qdldl" there changed the path of degenerate solves: pose averaging M = 10
+    with the primary constraints only ended AlmostSolved instead of Solved)."""
+    return "faer" if N >= FAER_MIN_N else "auto"
 
 
 def _settings(opts: SolverConfig, N: int = 0) -> "clarabel.DefaultSettings":
