@@ -15,6 +15,7 @@ from typing import Callable
 import numpy as np
 import scipy.sparse as sp
 
+from autotight import lie
 from autotight.constraints import Affine, Constraint, QuadForm, Variables
 from autotight.gauss_newton import gauss_newton
 from autotight.problem import LocalResult
@@ -100,5 +101,5 @@ def pose_gauss_newton(residual: Callable[[dict], tuple[np.ndarray, np.ndarray]],
 
 def pose_errors(state: dict, truth: dict) -> dict[str, float]:
     """Rotation error (deg) and translation error (same units as t)."""
-    return {"rotation_deg": lt.rotation_angle_deg(np.asarray(state["C"]) @ np.asarray(truth["C"]).T),
+    return {"rotation_deg": lie.rotation_error_deg(state["C"], truth["C"]),
             "translation": float(np.linalg.norm(np.asarray(state["t"]) - truth["t"]))}

@@ -220,7 +220,7 @@ def _api_cases(tmp: Path):
         "criteria_nan": lambda: Criteria(gap_tol=float("nan")),
         "criteria_wrong_type": lambda: at.solve(P, {"M": 2}, criteria="cost"),
         "discover_unknown_option": lambda: at.discover(P, {"M": 2}, bogus=1),
-        "discover_range_option_alone": lambda: at.discover(P, {"M": 2}, max_rounds=1),
+        "discover_max_rounds_zero": lambda: at.discover(P, {"M": 2}, max_rounds=0),
         "discover_heldout_negative": lambda: at.discover(P, {"M": 2}, n_heldout=-1),
         "discover_train_huge": lambda: at.discover(P, {"M": 2}, n_train=10 ** 8),
         "certify_params_string": lambda: at.certify(P, "M=3"),
@@ -241,7 +241,7 @@ def _base(tmp: Path) -> Path:
 
 API_IDS = ["params_string", "solver_unknown", "solver_wrong_type", "n_random_string", "n_random_negative",
            "n_random_huge", "bool_as_int", "criteria_accept", "criteria_nan", "criteria_wrong_type",
-           "discover_unknown_option", "discover_range_option_alone", "discover_heldout_negative", "discover_train_huge",
+           "discover_unknown_option", "discover_max_rounds_zero", "discover_heldout_negative", "discover_train_huge",
            "certify_params_string", "certify_size_huge", "solve_size_huge", "check_instances_string",
            "save_to_folder", "save_inside_a_file", "load_bad_set"]
 

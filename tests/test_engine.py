@@ -170,7 +170,9 @@ def test_bad_input():
     with pytest.raises(ParameterError, match="unknown parameter"):
         discover("discrete_trajectory", {"K": 5}, carry_to={"Q": 5})
     assert main(["discover", "pose_averaging", "--range", "sigma"]) == 2
-    assert main(["discover", "pose_averaging", "-p", "M=2", "--train", "0"]) == 2
+    with pytest.raises(SystemExit) as e:  # argparse's own refusal of the option's type
+        main(["discover", "pose_averaging", "-p", "M=2", "--train", "0"])
+    assert e.value.code == 2
 
 
 def test_failing_heldout_instances_become_training_instances_the_set_is_then_tight_on():

@@ -59,12 +59,12 @@ def test_valid_constraints_hold_to_roundoff_and_a_shift_is_measured():
 
 def test_a_set_file_cannot_raise_its_own_tolerance(tmp_path, capsys):
     """A set file whose template is shifted (it holds at no feasible point) and whose tolerances are raised
-    to 1e300: applying it is a one-line error naming the template and the factor (exit 2), not a verdict."""
+    to 0.5: applying it is a one-line error naming the template and the factor (exit 2), not a verdict."""
     d = json.loads(POSE_SET.read_text())
     tpl = d["templates"][0]
     tpl["W"][0][0] = 0.5  # the constant feature's coefficient of the first monomial: a shifted b
-    d["learn_options"]["heldout_tol"] = 1e300
-    tpl["check"]["heldout_tol"] = 1e300
+    d["learn_options"]["heldout_tol"] = 0.5  # the loosest a set file may state (below 1)
+    tpl["check"]["heldout_tol"] = 0.5
     path = tmp_path / "edited.json"
     path.write_text(json.dumps(d))
     code = main(["solve", "pose_averaging", "-p", "M=5", "--seed", "3", "--set", str(path)])

@@ -106,15 +106,14 @@ def fallback_path(problem: str, seed: int) -> Path:
 
 
 def save_or_fallback(res: DiscoveryResult, out: str, replace: bool = False) -> tuple[Path, str]:
-    """Write ``res`` to ``out`` (over an existing file only with ``replace``; a file that appeared there
-    during the run is kept and the set saved beside it); if writing fails, next to the current folder.
-    Returns (path written, '' or why it is not ``out``)."""
+    """Write ``res`` to ``out`` (over an existing file only with ``replace``; a file that appeared there during
+    the run is kept and the set saved beside it, ``DiscoveredSet.save``); if writing fails, next to the
+    current folder.  Returns (path written, '' or why ``out`` could not be written)."""
     try:
         with warnings.catch_warnings():
-            warnings.simplefilter("ignore")  # the diversion is reported by the caller
-            written = Path(res.save(out, replace=replace))
-        return written, "" if written == Path(out) else f"{out} appeared while discovery ran and is kept"
-    except (OSError, AutotightError) as e:
+            warnings.simplefilter("ignore")  # a diversion beside ``out`` is reported by the caller
+            return Path(res.save(out, replace=replace)), ""
+    except (OSError, ValueError, AutotightError) as e:
         first = (str(e).splitlines() or [type(e).__name__])[0]
         alt = fallback_path(res.problem, res.seed)
         return Path(res.save(alt)), f"cannot write {out} ({first})"
@@ -156,6 +155,9 @@ def cmd_discover(args: argparse.Namespace) -> int:
     if failed:
         print(f"error: {failed}; the set is saved to {where} instead", file=sys.stderr)
         return 2
+    if where is not None and where != Path(args.out):
+        print(f"autotight: note: {args.out} appeared while discovery ran and is kept; the set is saved as {where}",
+              file=sys.stderr)
     if res.validated is False:
         print(f"error: {res.validation['message']}", file=sys.stderr)
         return 1
