@@ -233,7 +233,8 @@ def test_a_failed_write_at_the_end_keeps_the_set_next_to_the_current_folder(tmp_
 
     res = discover("pose_averaging", {"M": 2}, n_heldout=0)
     monkeypatch.chdir(tmp_path)
-    where, failed = dcli.save_or_fallback(res, str(tmp_path / "missing" / "x" / "set.json.d" / "\0bad"))
+    (tmp_path / "blocker").write_text("a file, not a folder", encoding="utf-8")
+    where, failed = dcli.save_or_fallback(res, str(tmp_path / "blocker" / "set.json"))
     assert failed and where.parent == tmp_path and where.is_file()
     assert ConstraintSet.load(where).pairs == res.pairs
 

@@ -107,7 +107,7 @@ def save_or_fallback(res: DiscoveryResult, out: str) -> tuple[Path, str]:
     try:
         res.save(out)
         return Path(out), ""
-    except (OSError, AutotightError) as e:
+    except (OSError, ValueError, AutotightError) as e:
         first = (str(e).splitlines() or [type(e).__name__])[0]
         alt = fallback_path(res.problem, res.seed)
         res.save(alt)

@@ -26,7 +26,7 @@ from ..model import Constraint, Model, frobenius
 from ..pipeline import LocalSearch, SolveResult, local_search, seeds, solve_instance
 from ..problem import Instance, Problem
 from ..tightness import Criteria
-from ..unbounded import is_unbounded
+from ..unbounded import is_unbounded, unbounded_blocks
 from .catalog import Catalog, Pair, learn
 from .discovered import DiscoveredSet
 from .learn import LearnOptions
@@ -127,7 +127,7 @@ class Solves:
             tr.tight_result, tr.tight_pairs = r, chosen
         self.log.append({"stage": stage, "point": tr.point, "seed": tr.seed, "n_pairs": len(chosen),
                          "outcome": r.outcome, "log_svr": r.log_svr, "status": r.sdp.status,
-                         "unbounded": is_unbounded(r.sdp)})
+                         "unbounded": is_unbounded(r.sdp) or bool(unbounded_blocks(tr.model, r.sdp))})
         return tight
 
     def tight_on_all(self, trainers: list[Trainer], chosen: Sequence[Pair], stage: str,
