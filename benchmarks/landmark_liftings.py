@@ -63,7 +63,14 @@ def scan(prob, params: dict, seeds: range) -> list[dict]:
 def run_discovery(prob, params: dict, seed: int, sets_dir: Path, tag: str) -> dict:
     t = time.perf_counter()
     res = discover(prob, params, seed, n_heldout=10)
-    s = res.summary()
+    s = res.record()
+    first = res.points[0]
+    held = first.heldout
+    primary = next(e for e in res.log if e["stage"] == "primary" and e["seed"] == res.example.seed)
+    s |= {"message": first.messages[0] or res.validation["message"], "n_minimal": s["n_constraints"],
+          "heldout_tight_fraction": None if held is None else held.fraction,
+          "heldout_instances": 0 if held is None else len(held.seeds), "log_svr_primary": primary["log_svr"],
+          "log_svr": (res.example.tight_result or res.example.last).log_svr}
     first_pose = {}
     for c in res.constraints:  # one pose's / one factor's polynomials (the others are the same by identity)
         key = (c.factor or "").rsplit("_", 1)[0]

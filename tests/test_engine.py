@@ -235,7 +235,8 @@ def test_a_failed_write_at_the_end_keeps_the_set_next_to_the_current_folder(tmp_
 
     res = discover("pose_averaging", {"M": 2}, n_heldout=0)
     monkeypatch.chdir(tmp_path)
-    where, failed = dcli.save_or_fallback(res, str(tmp_path / "missing" / "x" / "set.json.d" / "\0bad"))
+    (tmp_path / "blocker").write_text("a file, not a folder", encoding="utf-8")
+    where, failed = dcli.save_or_fallback(res, str(tmp_path / "blocker" / "set.json"))
     assert failed and where.parent == tmp_path and where.is_file()
     assert ConstraintSet.load(where).pairs == res.pairs
 
@@ -246,6 +247,7 @@ def _same(a: dict, b: dict) -> None:
     assert {k: v for k, v in a.items() if k not in drop} == {k: v for k, v in b.items() if k not in drop}
 
 
+@pytest.mark.slow
 def test_jobs_and_a_dask_cluster_give_the_same_set_and_record():
     from autotight.io import jsonable
 
@@ -260,6 +262,7 @@ def test_jobs_and_a_dask_cluster_give_the_same_set_and_record():
     _same(one, dask)
 
 
+@pytest.mark.slow
 def test_a_set_carried_to_a_larger_size_is_validated_there(tmp_path):
     """Learned at K = 5 and carried by its templates to held-out K = 12 chains: the set passes there, and the
     saved set's templates are those of K = 5."""
@@ -299,3 +302,21 @@ def test_the_committed_set_learned_at_k5_and_selected_at_k20_is_tight_at_k100():
     inst = prob.generate(prob.parse_params({"K": 100, "sigma": 0.1}), 11)
     out = solve_instance(prob, inst, cs, config=at.SolverConfig(backend="ipm"), n_random=0)
     assert out.verdict.outcome == "tight" and out.verdict.log_svr > 5, out.verdict.reason
+
+
+@pytest.mark.parametrize("hint", [{"K": 200}, {"params": {"Q": 3}}, {"params": {"M": 5}, "when": 1}])
+def test_a_malformed_carry_hint_is_a_definition_error(hint):
+    import types
+
+    import problems.pose_averaging as base
+    from autotight.discovery.engine import carry_hint
+    from autotight.errors import ProblemDefinitionError
+    from autotight.problem import Problem
+
+    mod = types.ModuleType("pose_copy")
+    mod.__dict__.update({k: v for k, v in base.__dict__.items() if not k.startswith("__")})
+    mod.CARRY_TO = hint
+    with pytest.raises(ProblemDefinitionError, match="CARRY_TO"):
+        carry_hint(Problem(mod))
+    mod.CARRY_TO = {"params": {"M": 7}, "solver": "ipm"}
+    assert carry_hint(Problem(mod)) == ({"M": 7}, "ipm")

@@ -4,8 +4,9 @@
 remaining pair is scored by its largest relative violation |⟨A,X⟩|/(‖A‖_F‖X‖_F) over the SDP
 solutions of the training instances that are not yet tight; the 2^r best pairs are added and only the
 instances not yet tight are solved again (adding valid constraints keeps a tight relaxation tight).
-An unbounded SDP (its X is a ray, not a solution) ranks only the pairs that can bound it: those with a
-constraint whose A has diagonal entries on the ray's blocks.  A training instance that is not tight
+An unbounded SDP (its X is a ray, not a solution, or has blocks far beyond X_hh:
+``unbounded.unbounded_blocks``) ranks only the pairs that can bound it: those with a constraint whose A has
+diagonal entries on those blocks.  A training instance that is not tight
 while no remaining pair cuts its solution cannot be made tight by the candidates: it is "not reached"
 and left out of the rest.  A solve without a usable X ranks nothing: the instances with a usable X
 rank the round, and the blind one is solved again with the larger set; only when every loose instance
@@ -51,7 +52,7 @@ def _scores(tr: Trainer, remaining: list[Pair], min_violation: float, accept: st
             chosen: list[Pair]) -> dict[Pair, float] | None:
     """The violation of ``tr``'s last X by each pair that can cut it, or None (and ``tr`` marked not reached)."""
     res = tr.last.sdp
-    unb = unbounded_blocks(tr.model, res) if is_unbounded(res) else []
+    unb = unbounded_blocks(tr.model, res)  # a ray's support, or blocks of X far beyond X_hh
     pool = bounding_pairs(tr, remaining, unb) if unb else remaining
     v = {p: tr.violation(res.X, p) for p in pool}
     v = {p: x for p, x in v.items() if x > min_violation}

@@ -17,7 +17,7 @@ a discovery's instances is one of ``check``'s.
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -25,8 +25,10 @@ import numpy as np
 from ..model import Constraint, Model, frobenius
 from ..pipeline import LocalSearch, SolveResult, local_search, seeds, solve_instance
 from ..problem import Instance, Problem
+from .. import sdp
+from ..sdp.config import SolverConfig
 from ..tightness import Criteria
-from ..unbounded import is_unbounded
+from ..unbounded import UNBOUNDED_STATUSES, is_unbounded, unbounded_blocks
 from .catalog import Catalog, Pair, learn
 from .discovered import DiscoveredSet
 from .learn import LearnOptions
@@ -118,6 +120,13 @@ class Solves:
                            model=tr.model, local=tr.local, raise_unbounded=False)
         self.count(stage, max(1, len(r.attempts)))
         self.sdp_s += r.times.get("sdp_total_s", 0.0)
+        if not r.sdp.usable and any(a["status"] in UNBOUNDED_STATUSES for a in r.attempts):
+            # the plain data gave a ray (DualInfeasible) where the scaled solve failed: keep the ray, which
+            # ranks the pairs that bound it (``select``); the verdict stays not tight
+            ray = sdp.solve_model(tr.model, tr.model.primary() + cons, self.config or SolverConfig(), None)
+            self.count(stage, 1)
+            if is_unbounded(ray):
+                r = replace(r, sdp=ray)
         if r.refined is not None and r.refined.cost < tr.local.best.cost:  # a better feasible point: a lower U
             tr.local = LocalSearch(tr.local.from_truth, [*tr.local.from_random, r.refined])
         tight = r.outcome == "tight"
@@ -127,7 +136,7 @@ class Solves:
             tr.tight_result, tr.tight_pairs = r, chosen
         self.log.append({"stage": stage, "point": tr.point, "seed": tr.seed, "n_pairs": len(chosen),
                          "outcome": r.outcome, "log_svr": r.log_svr, "status": r.sdp.status,
-                         "unbounded": is_unbounded(r.sdp)})
+                         "unbounded": is_unbounded(r.sdp) or bool(unbounded_blocks(tr.model, r.sdp))})
         return tight
 
     def tight_on_all(self, trainers: list[Trainer], chosen: Sequence[Pair], stage: str,
