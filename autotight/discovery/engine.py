@@ -114,8 +114,8 @@ def discover(problem: Problem | str, params: Mapping[str, Any] | None = None, se
     over_ = parse_over(prob, over)
     hint, backend = carry_hint(prob)
     carry = hint if carry_to is None else _parsed(prob, dict(carry_to))
-    config = solver if solver is not None else SolverConfig(**({"backend": backend} if carry_to is None and hint
-                                                               and backend else {}))
+    config = solver if solver is not None else (SolverConfig(backend=backend) if carry_to is None and hint
+                                                and backend else SolverConfig())
     clash = sorted(set(carry) & set(over_))
     if clash:
         raise ParameterError(f"parameter {clash[0]} is both varied and a size the set must carry to")
@@ -239,7 +239,7 @@ def discover(problem: Problem | str, params: Mapping[str, Any] | None = None, se
                                  carried=i >= len(points)))
     first = next((tr for tr in trainers if tr.catalog is not None), None)
     span, like = {}, {}
-    if compare and first is not None and first.model.paper:
+    if compare and first is not None and first.catalog is not None and first.model.paper:
         span = paper_in_span(first.catalog)
         like = {c.name: resemblance(c, first.catalog) for p in pairs for c in first.pairs.get(p, [])}
     tm["sdp_training_s"] = run.sdp_s

@@ -51,10 +51,12 @@ def bounding_pairs(tr: Trainer, pairs: Sequence[Pair], blocks: Sequence[str]) ->
 def _scores(tr: Trainer, remaining: list[Pair], min_violation: float, accept: str,
             chosen: list[Pair]) -> dict[Pair, float] | None:
     """The violation of ``tr``'s last X by each pair that can cut it, or None (and ``tr`` marked not reached)."""
+    assert tr.last is not None, "scores need the trainer's last solve"
     res = tr.last.sdp
     unb = unbounded_blocks(tr.model, res)  # a ray's support, or blocks of X far beyond X_hh
     pool = bounding_pairs(tr, remaining, unb) if unb else remaining
-    v = {p: tr.violation(res.X, p) for p in pool}
+    X = res.X
+    v = {} if X is None else {p: tr.violation(X, p) for p in pool}
     v = {p: x for p, x in v.items() if x > min_violation}
     if v:
         return v
@@ -194,8 +196,9 @@ def _restore(run: Solves, tr: Trainer, current: list[Pair], removed: list[Pair])
     chosen, remaining, r = list(current), list(removed), 0
     while remaining:
         last = tr.last.sdp if tr.last is not None else None
-        if last is not None and last.X is not None and last.usable:
-            remaining.sort(key=lambda p: -tr.violation(last.X, p))
+        X = None if last is None or not last.usable else last.X
+        if X is not None:
+            remaining.sort(key=lambda p: -tr.violation(X, p))
             add, remaining = remaining[: 2 ** r], remaining[2 ** r:]
             r += 1
         else:

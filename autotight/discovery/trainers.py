@@ -180,7 +180,8 @@ def make_trainer(prob: Problem, params: dict[str, Any], point: int, seed: int, g
     else:
         pairs = {}
         for c in source.apply(prob, inst, model, seeds(seed).constraints(), skip_invalid=True):
-            pairs.setdefault(tuple(c.identity.split(":", 1)), []).append(c)
+            ftype, _, ident = (c.identity or "").partition(":")
+            pairs.setdefault((ftype, ident), []).append(c)
     return Trainer(point, seed, inst, model, loc, pairs, cat, origin)
 
 
