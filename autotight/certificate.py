@@ -22,6 +22,13 @@ a quadratic inequality in √tr X_UU.  h² = 1 and cᵢᵀcᵢ = h² bound h and
 bounds the residual blocks (tr over them ≤ f̄/λ_min(W) without cross terms); rᵀr = … (R2) then bounds
 translations.  When some column stays unbounded, T is None and nothing is certified.
 
+Strict dual (``autotight.strict_dual``), tried first where λ⁻ > 0: lower the multipliers of
+(X_hh)_ii = 1 by δ/d each, so that H + (δ/d)·E_h ⪰ 0, proved by an LDLᵀ inertia count in the Jacobi
+frame; then p* ≥ bᵀy − δ without any trace, and bound = f̂ − bᵀy + δ.  The trace bound below is the
+fallback where that proves nothing (continuous time, K = 21: T ≈ 1e15–1e23 against tr X̂ ≈ 90, so only
+the strict dual certifies).  ``Certificate.argument`` names the argument used, ``assumptions`` what it
+assumed.  Multipliers on the face of the bounded columns: ``autotight.face``.
+
 Recession columns (``recession_columns``).  A column j on which neither Q nor any Aᵢ has a diagonal
 entry is a zero-cost recession direction: X + t·e_j e_jᵀ is feasible with the same cost for every t ≥ 0,
 so tr X is unbounded and every dual feasible H(y) ⪰ 0 has H(y)e_j = 0 (H_jj = 0).  For such columns J
