@@ -122,3 +122,32 @@ def test_discover_accepts_cost_tight_with_free_columns(capsys):
     assert rec["tight"] is True and rec["accept"] == "cost" and rec["final_cost_tight"] is True
     assert rec["heldout_tight_fraction"] >= 0.9 and rec["heldout_instances"] >= 10
     assert abs(rec["final_rel_gap"]) <= 1e-5
+
+
+def test_an_infeasible_candidate_is_never_certified():
+    """x̂ moved off the constraints by 1e-4 (relative): whatever y proves about the relaxation, it is not
+    a statement about x̂, so nothing is certified and the message names a violated constraint."""
+    p = load("pose_averaging")
+    inst = p.generate({"M": 5, "sigma": 0.01}, seed=0)
+    model = p.build(inst)
+    cons = constraint_set(model, "paper")
+    res = solve_model(model, cons)
+    x = np.ravel(p.lift(inst, p.local_solve(inst, inst.truth).state))
+    assert certificate(model.Q, cons, res.y, x).certified
+    bad = x + 1e-4 * np.linalg.norm(x) * np.random.default_rng(0).standard_normal(x.size) / np.sqrt(x.size)
+    bad[0] = 1.0
+    c = certificate(model.Q, cons, res.y, bad)
+    assert not c.certified and "violates constraint" in c.message
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("sigma, seed", [(0.1, 0), (0.001, 0)])
+def test_continuous_time_k21_is_certified(sigma, seed):
+    """Continuous time at the paper's K = 21: the trace bound is ~1e15–1e24 against tr X̂ ≈ 90, so only
+    an argument without a trace certifies; the bound is then below 1e-6 of the cost."""
+    p = load("continuous_trajectory")
+    r = solve_instance(p, p.generate({"K": 21, "sigma": sigma}, seed=seed))
+    c = r.certificate
+    assert r.tight and c.certified and c.rel_bound <= 1e-6
+    assert c.argument in ("strict dual", "H ⪰ 0 (LDLᵀ inertia)")
+    assert c.trace is None or c.trace > 1e6 * float(np.sum(np.asarray(p.lift(r.instance, r.local.best.state)) ** 2))
