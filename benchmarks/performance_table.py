@@ -99,18 +99,16 @@ def discover() -> list[str]:
     if d is None:
         return []
     rows = []
-    for label, block in (("pose averaging " + json.dumps(d["params"]), d),
-                         ("robust pose averaging " + json.dumps(d.get("robust_pose_averaging", {}).get("params")),
-                          d.get("robust_pose_averaging"))):
-        if not block:
-            continue
-        for who in ("ours", "autotight_style"):
-            r = block[who]
-            rows.append([label, "autotight" if who == "ours" else "AutoTight's reduction rule",
-                         r.get("n_pairs"), r.get("n_constraints"), r.get("n_solves"), r.get("total_s")])
+    for run in d["runs"]:
+        for who in ("old", "new"):
+            r = run[who]
+            rows.append([run["command"], f"seed {run['seed']}", "two flows (before)" if who == "old" else "one engine",
+                         r.get("n_pairs"), r.get("n_constraints"), r.get("discover_s"),
+                         {0: "passes", 1: "fails"}.get(r.get("follow_exit"), "—")])
     return (["## Discovery (`benchmarks/discover.py`, `discover.json`)", "",
-             f"Target: {d['target']}.", ""]
-            + _table(["problem", "method", "pairs", "constraints", "SDP solves", "total s"], rows))
+             f"`{d['command']}`, the engine beside the flows of {d['old_ref']} in one run (load average "
+             f"{', '.join(f'{x:.1f}' for x in d['load_average'])} on {d['cpus']} cores).", ""]
+            + _table(["command", "seed", "engine", "pairs", "constraints", "discover s", "check afterwards"], rows))
 
 
 def trajectory_sdp() -> list[str]:
