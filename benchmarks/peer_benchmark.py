@@ -140,7 +140,7 @@ def _discovery_counts(res: Any) -> dict[str, Any]:
     s = res.record()
     return {"tight": bool(s["tight"]), "validated": s["validated"], "n_candidate_pairs": s["n_candidate_pairs"],
             "irreducible": bool(s["irreducible"]), "n_solves": s["n_solves"], "times": s["times"],
-            "n_primary": s["n_primary"], "n_selected": s["n_constraints"] - s["n_primary"],
+            "n_primary": s["n_primary"], "n_selected": s["n_constraints"],
             "n_selected_pairs": s["n_pairs"], "n_train": s["n_train"],
             "explanation": (s["validation"] or {}).get("message", "")}
 
@@ -286,7 +286,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--instances", type=int, default=10)
     ap.add_argument("--carry-instances", type=int, default=3)
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--render", action="store_true", help="only write report.md again from --out's results.json")
     args = ap.parse_args(argv)
+    if args.render:
+        saved = json.loads((Path(args.out) / "results.json").read_text())
+        (Path(args.out) / "report.md").write_text(render(saved["rows"], saved["meta"]["command"], saved["meta"]))
+        return 0
     specs = [s for s in SPECS if args.only is None or s.key in args.only]
     unknown = set(args.only or []) - {s.key for s in SPECS}
     if unknown:
