@@ -134,6 +134,7 @@ def test_range_set_is_tight_irreducible_saved_with_evidence_and_passes_check(tmp
     assert "sigma=0.01" in table and "sigma=0.316" in table and "PASSED" in table
 
 
+@pytest.mark.slow  # ~25 s; irreducibility over the trainers: test_reduction_is_irreducible_* above
 def test_each_pair_is_needed_on_some_training_instance():
     """Irreducibility re-checked independently, through the pipeline, on the training instances."""
     prob = at.load_problem("pose_averaging")

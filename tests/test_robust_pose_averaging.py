@@ -91,6 +91,7 @@ def test_primary_relaxation_is_unbounded_in_the_z_blocks():
     assert "\n" not in msg and "zrho_* (3)" in msg and "bounding them are needed" in msg
 
 
+@pytest.mark.slow  # ~65 s; the one-line reason naming the unbounded blocks is tested above in the default suite
 def test_greedy_bounds_the_unbounded_blocks_first():
     inst = _product(0, M=3)
     model = PROB.build(inst)
@@ -207,6 +208,7 @@ def test_certificate_needs_h_to_vanish_on_recession_columns():
     assert not bad.certified and bad.free_residual > 1e-4 and "recession columns" in bad.message
 
 
+@pytest.mark.slow  # ~35 s; the closed loop: tests/test_engine.py; certified cost-tight: test_strict_dual.py
 def test_discover_validates_on_heldout_instances_and_certifies_a_fresh_one():
     """discover with cost acceptance: the set is tight on every training instance (failing held-out instances
     taken in), a fresh held-out batch passes, and a fresh instance is certified with it."""
