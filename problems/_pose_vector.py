@@ -103,3 +103,33 @@ def pose_errors(state: dict, truth: dict) -> dict[str, float]:
     """Rotation error (deg) and translation error (same units as t)."""
     return {"rotation_deg": lie.rotation_error_deg(state["C"], truth["C"]),
             "translation": float(np.linalg.norm(np.asarray(state["t"]) - truth["t"]))}
+
+
+def single_pose_parts(residual: Callable, variables: Callable) -> tuple[Callable, ...]:
+    """The parts a module estimating one pose (C, t) from ``inst.measurements["points"]`` shares with the
+    others, given its ``residual(inst, state) -> (e, J)`` and ``variables(d) -> Variables``:
+    (cost, sample, random_state, local_solve, recover, errors), each with the problem contract's signature."""
+
+    def cost(inst, state: dict) -> float:
+        e, _ = residual(inst, state)
+        return float(e @ e)
+
+    def sample(inst, rng: np.random.Generator, nominal: dict, spread: float) -> dict:
+        return sample_pose(rng, nominal, spread)
+
+    def random_state(inst, rng: np.random.Generator) -> dict:
+        d = inst.measurements["points"].shape[1]
+        return {"C": lt.random_rotation(rng, d), "t": rng.uniform(-1.0, 1.0, d)}
+
+    def local_solve(inst, init: dict, max_iter: int = 200) -> LocalResult:
+        return pose_gauss_newton(lambda s: residual(inst, s), init, max_iter)
+
+    def recover(inst, Theta: np.ndarray) -> dict:
+        d = inst.measurements["points"].shape[1]
+        C, t, C_raw = pose_from_vector(Theta, variables(d), d)
+        return {"C": C, "t": t, "det_raw": np.array(np.linalg.det(C_raw))}
+
+    def errors(inst, state: dict) -> dict:
+        return pose_errors(state, inst.truth)
+
+    return cost, sample, random_state, local_solve, recover, errors

@@ -16,7 +16,7 @@ from __future__ import annotations
 import numpy as np
 
 from autotight.constraints import Factor, Model, Variables, const, sum_quads
-from autotight.problem import Instance, LocalResult, Param
+from autotight.problem import Instance, Param
 
 from . import _landmark_terms as lt
 from . import _pose_vector as pv
@@ -65,29 +65,5 @@ def _residual(inst: Instance, state: dict) -> tuple[np.ndarray, np.ndarray]:
     return e, np.vstack([pv.point_jacobian(C, p) for p in P])
 
 
-def cost(inst: Instance, state: dict) -> float:
-    e, _ = _residual(inst, state)
-    return float(e @ e)
-
-
-def sample(inst: Instance, rng: np.random.Generator, nominal: dict, spread: float) -> dict:
-    return pv.sample_pose(rng, nominal, spread)
-
-
-def random_state(inst: Instance, rng: np.random.Generator) -> dict:
-    d = inst.measurements["points"].shape[1]
-    return {"C": lt.random_rotation(rng, d), "t": rng.uniform(-1.0, 1.0, d)}
-
-
-def local_solve(inst: Instance, init: dict, max_iter: int = 200) -> LocalResult:
-    return pv.pose_gauss_newton(lambda s: _residual(inst, s), init, max_iter)
-
-
-def recover(inst: Instance, Theta: np.ndarray) -> dict:
-    d = inst.measurements["points"].shape[1]
-    C, t, C_raw = pv.pose_from_vector(Theta, _variables(d), d)
-    return {"C": C, "t": t, "det_raw": np.array(np.linalg.det(C_raw))}
-
-
-def errors(inst: Instance, state: dict) -> dict:
-    return pv.pose_errors(state, inst.truth)
+#: the parts shared with the other single-pose modules (``_pose_vector.single_pose_parts``)
+cost, sample, random_state, local_solve, recover, errors = pv.single_pose_parts(_residual, _variables)
