@@ -61,9 +61,7 @@ def cmd_certify(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(jsonable(rec | {"state": run.local.state, "versions": versions()}), ensure_ascii=False))
     else:
-        print(f"problem {prob.name}  params {inst.params}  seed {inst.seed}")
-        print(f"constraints: {rec['constraint_set']} ({rec['n_constraints']})  local solve from {run.start}: "
-              f"cost {run.local.cost:.10g} ({run.local.iterations} it)")
+        _header(prob, run, f"{run.start}: cost {run.local.cost:.10g} ({run.local.iterations} it)")
         print(f"{'CERTIFIED' if c.certified else 'NOT CERTIFIED'}: f(x̂) − p* ≤ {c.bound:.3e} "
               f"(relative {c.rel_bound:.3e})  λ_min(H) ≥ {c.lambda_lower:.3e}"
               + (f"  by {c.argument}" if c.argument else ""))
@@ -76,6 +74,12 @@ def cmd_certify(args: argparse.Namespace) -> int:
         print(f"method: {c.method}")
         print(f"time: {c.time_s:.3f}s")
     return 0 if c.certified else 1
+
+
+def _header(prob: Any, run: Any, start: str) -> None:
+    """The first two lines of a certify run's text output: the instance, the set and the local solve."""
+    print(f"problem {prob.name}  params {run.instance.params}  seed {run.instance.seed}")
+    print(f"constraints: {run.constraint_set} ({len(run.constraints)})  local solve from {start}")
 
 
 def certificate_first(args: argparse.Namespace, prob: Any, params: dict, constraints: Any, criteria: Any) -> int | None:
@@ -100,9 +104,7 @@ def certificate_first(args: argparse.Namespace, prob: Any, params: dict, constra
     if args.json:
         print(json.dumps(jsonable(rec | {"estimate": run.local.state, "versions": versions()}), ensure_ascii=False))
     else:
-        print(f"problem {prob.name}  params {inst.params}  seed {inst.seed}")
-        print(f"constraints: {rec['constraint_set']} ({rec['n_constraints']})  local solve from the ground truth: "
-              f"cost {run.local.cost:.10g}")
+        _header(prob, run, f"the ground truth: cost {run.local.cost:.10g}")
         print(f"CERTIFIED ({c.argument}): f(x̂) − p* ≤ {c.bound:.3e} (relative {c.rel_bound:.3e}); the SDP was not "
               f"solved (--verify certificate)")
         print(f"method: {c.method}")
