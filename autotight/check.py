@@ -20,7 +20,6 @@ pass.  Undecided instances are listed separately and never count as failures.
 
 from __future__ import annotations
 
-import itertools
 import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -33,6 +32,7 @@ from .errors import AutotightError, ParameterError
 from .io import versions
 from .limits import check_count, check_size, count_arg
 from .pipeline import SolveResult, local_search, seeds, solve_instance
+from .points import parse_over, points_of
 from .problem import Problem, load
 from .tightness import Criteria
 
@@ -176,37 +176,6 @@ def range_of(constraints: ConstraintsLike) -> dict[str, list[Any]] | None:
         if isinstance(rng, dict) and rng.get("over"):
             return {k: list(v) for k, v in rng["over"].items()}
     return None
-
-
-def parse_over(problem: Problem, over: Mapping[str, Sequence[Any]] | None) -> dict[str, list[Any]]:
-    """Validate each varied parameter's values (by the problem's ``Param``), sorted, without duplicates."""
-    out: dict[str, list[Any]] = {}
-    for name, values in (over or {}).items():
-        if name not in problem.params:
-            raise ParameterError(f"unknown parameter {name!r} to vary for {problem.name}; known: "
-                                 f"{', '.join(problem.params)}")
-        vals = [problem.params[name].parse(name, v) for v in values]
-        if not vals:
-            raise ParameterError(f"no values given for {name}")
-        if len(set(vals)) != len(vals):
-            raise ParameterError(f"duplicate values for {name}: {vals}")
-        out[name] = sorted(vals)
-    return out
-
-
-def points_of(problem: Problem, params: Mapping[str, Any] | None,
-              over: Mapping[str, Sequence[Any]]) -> list[tuple[dict, dict]]:
-    """(full params, varied values) for every point of the product of ``over``, in order."""
-    fixed = dict(params or {})
-    clash = [k for k in over if k in fixed]
-    if clash:
-        raise ParameterError(f"parameter {clash[0]} is both fixed (-p) and varied; give it once")
-    names = list(over)
-    out = []
-    for combo in itertools.product(*(over[n] for n in names)) if names else [()]:
-        varied = dict(zip(names, combo))
-        out.append((problem.parse_params(fixed | varied), varied))
-    return out
 
 
 def solve_points(problem: Problem, sets: Mapping[str, ConstraintsLike], points: Sequence[tuple[dict, dict]],

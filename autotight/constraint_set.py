@@ -72,7 +72,7 @@ class ConstraintSet:
     def load(cls, path: str | Path, skip_invalid: bool = False) -> "ConstraintSet":
         """A saved set (format 2, or format 1 whose templates are learned on first use); a file that is not one,
         or has a malformed field (``autotight.set_file``), is a ParameterError."""
-        from .cli_checks import check_set_file
+        from .set_file import check_set_file
         from .discovery.discovered import DiscoveredSet
 
         check_set_file(path, option="constraint set")

@@ -14,15 +14,13 @@
 
 from __future__ import annotations
 
-import argparse
 import json
 from typing import Any
 
 import numpy as np
 
 from .errors import AutotightError
-from .io import jsonable, versions
-from .outpaths import check_file, writing
+from .io import versions
 
 FORMATS = ("python", "latex", "json-sparse")
 
@@ -280,45 +278,3 @@ def sparse_record(problem, ds, source: str, seed: int | None) -> dict[str, Any]:
                                                                  zip(A.row[up], A.col[up], A.data[up])]})
         rec["instance"] = {"seed": seed, "params": inst.params, "N": model.variables.N, "constraints": recs}
     return rec
-
-
-def register(sub: argparse._SubParsersAction, add_problem_args=None) -> None:
-    """The ``export`` subcommand (the set file names its problem)."""
-    p = sub.add_parser("export", help="a saved constraint set as standalone Python, LaTeX or sparse triplets")
-    p.add_argument("set", help="a constraint-set file (from `discover --out`)")
-    p.add_argument("--to", required=True, choices=FORMATS, help="python: a NumPy-only module; latex: the closed "
-                   "forms beside the paper's; json-sparse: triplets")
-    p.add_argument("--out", default=None, help="write to this file (default: standard output)")
-    p.add_argument("--force", action="store_true", help="overwrite --out if it exists")
-    from .cli_checks import nonneg_int
-
-    p.add_argument("--seed", type=nonneg_int, default=None,
-                   help="json-sparse: also the constraints of the instance with this seed at the set's parameters")
-    p.set_defaults(func=cmd_export)
-
-
-def cmd_export(args: argparse.Namespace) -> int:
-    from .cli_checks import check_set_file
-    from .discovery.discovered import DiscoveredSet
-    from .problem import load
-
-    if args.out is not None:
-        check_file(args.out, force=args.force)
-    check_set_file(args.set)
-    ds = DiscoveredSet.load(args.set)
-    prob = load(ds.problem)
-    if args.to == "python":
-        text = python_source(prob, ds, args.set)
-    elif args.to == "latex":
-        text = latex_source(prob, ds)
-    else:
-        text = json.dumps(jsonable(sparse_record(prob, ds, args.set, args.seed)), ensure_ascii=False)
-    if args.out is None:
-        print(text)
-        return 0
-    with writing(args.out):
-        from .io import atomic_write_text
-
-        atomic_write_text(args.out, text)
-    print(f"saved to {args.out}")
-    return 0

@@ -1,4 +1,8 @@
-"""The fields of a saved constraint set (``discover --out``, README "Constraint-set files"), checked on load.
+"""The fields of a saved constraint set (``discover --out``, docs/constraint_sets.md), checked on load.
+
+``check_set_file(path)`` reads a set file's JSON and refuses, with one line naming the option, a file that
+is missing, unreadable, not an object, of another ``format``, without ``problem`` or ``pairs``, or with a
+malformed field (below).
 
 ``check_fields(obj)`` returns the first problem of a set file's JSON object as one line, or "" when
 every field it reads is well formed:
@@ -20,8 +24,16 @@ every field it reads is well formed:
 from __future__ import annotations
 
 import dataclasses
+import json
 import math
+from pathlib import Path
 from typing import Any
+
+from .errors import ParameterError
+
+#: the ``format`` of a constraint-set file, and the older one still read
+FORMAT = "autotight.constraint_set/2"
+FORMAT_V1 = "autotight.discovered/1"
 
 
 def _int(v: Any, low: int) -> bool:
@@ -148,3 +160,37 @@ def check_fields(obj: dict[str, Any]) -> str:
                                                  for k, v in fallback.items()):
         return "'fallback' must map factor types to text"
     return ""
+
+
+def check_set_file(path: str | Path, option: str = "--set") -> dict[str, Any]:
+    """The JSON object of a saved constraint set (``discover --out``), checked as the module docstring says."""
+    p = Path(path)
+    if not p.is_file():
+        raise ParameterError(f"{option} {path}: no such file")
+    try:
+        obj = json.loads(p.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
+        raise ParameterError(f"{option} {path}: not a readable JSON file ({e})") from None
+    if not isinstance(obj, dict):
+        raise ParameterError(f"{option} {path}: a constraint-set file holds a JSON object, not {type(obj).__name__}")
+    if obj.get("format") not in (FORMAT, FORMAT_V1):
+        raise ParameterError(f"{option} {path}: not a constraint-set file (format {obj.get('format')!r}, "
+                             f"expected {FORMAT!r})")
+    missing = [k for k in ("problem", "pairs") if k not in obj]
+    if missing:
+        raise ParameterError(f"{option} {path}: lacks {' and '.join(repr(k) for k in missing)}")
+    if not isinstance(obj["problem"], str):
+        raise ParameterError(f"{option} {path}: 'problem' must be a problem name")
+    pairs = obj["pairs"]
+    if not isinstance(pairs, list) or not all(isinstance(x, dict) and isinstance(x.get("factor_type"), str)
+                                              and isinstance(x.get("identity"), str) for x in pairs):
+        raise ParameterError(f"{option} {path}: 'pairs' must be a list of {{factor_type, identity}} objects")
+    opts = obj.get("learn_options", {})
+    if not isinstance(opts, dict):
+        raise ParameterError(f"{option} {path}: 'learn_options' must be an object")
+    if not isinstance(obj.get("params", {}), dict):
+        raise ParameterError(f"{option} {path}: 'params' must be an object")
+    why = check_fields(obj)
+    if why:
+        raise ParameterError(f"{option} {path}: {why}")
+    return obj

@@ -196,7 +196,7 @@ def test_cli_refuses(case, mods, tmp_path, capsys):
 
 def test_the_base_set_file_is_accepted(tmp_path):
     """The set cases above differ from an accepted file by one field each."""
-    from autotight.cli_checks import check_set_file
+    from autotight.set_file import check_set_file
 
     p = tmp_path / "base.json"
     p.write_text(json.dumps(BASE_SET), encoding="utf-8")
@@ -384,7 +384,7 @@ def test_save_never_replaces_a_file(tmp_path):
 
 def test_discover_out_that_appears_during_the_run_is_kept(tmp_path, monkeypatch, capsys):
     """discover --out X: a file that appears at X while discovery runs is kept; the set goes beside it."""
-    import autotight.discovery.cli as dcli
+    import autotight.cli.discover as dcli
 
     out = tmp_path / "set.json"
     real = dcli.discover

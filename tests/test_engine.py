@@ -232,7 +232,7 @@ def test_a_problem_module_given_by_path_is_discovered_saved_and_solved(tmp_path,
 
 
 def test_a_failed_write_at_the_end_keeps_the_set_next_to_the_current_folder(tmp_path, capsys, monkeypatch):
-    from autotight.discovery import cli as dcli
+    from autotight.cli import discover as dcli
 
     res = discover("pose_averaging", {"M": 2}, n_heldout=0)
     monkeypatch.chdir(tmp_path)

@@ -10,7 +10,8 @@ from autotight.problem import load
 from autotight.constraint_set import named as constraint_set
 from autotight.pipeline import local_search
 from autotight.sdp import solve_model
-from autotight.sdp.result import SDPResult, SolverOptions
+from autotight.sdp.config import SolverOptions
+from autotight.sdp.result import SDPResult
 from autotight.tightness import Criteria, judge
 
 

@@ -25,12 +25,11 @@ from ..model import Constraint, Model, Variables
 from ..outpaths import save_json
 from ..pretty import polynomial
 from ..problem import Instance, Problem
+from ..set_file import FORMAT, FORMAT_V1
 from .catalog import Pair, carry_over
 from .learn import LearnOptions
 from .templates import TemplateSet, apply_templates, learn_templates
 
-FORMAT = "autotight.constraint_set/2"
-FORMAT_V1 = "autotight.discovered/1"
 
 CONVENTION = {
     "lifting": "Θ = [h, x_1, …] (d × N); X = ΘᵀΘ; blocks are consecutive columns of Θ in the order of "
@@ -127,7 +126,7 @@ class DiscoveredSet:
         """Where the templates are fitted and checked: the set's parameters, or, for a set discovered over a
         range (``info["range"]["over"]``), every point of that range at the set's other parameters (its
         learning size, for a set selected at another one)."""
-        from ..check import points_of
+        from ..points import points_of
 
         over = (self.info.get("range") or {}).get("over") or {}
         if not over:

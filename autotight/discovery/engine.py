@@ -6,7 +6,7 @@ case the same way: one point is a range of one point, ``n_train`` is the number 
 per point, and a set that must carry to other sizes (``carry_to``, e.g. ``{"K": 200}``) is validated at
 those sizes as well.
 
-1. **Points** are the product of ``over`` on top of ``params`` (``autotight.check.points_of``); each
+1. **Points** are the product of ``over`` on top of ``params`` (``autotight.points.points_of``); each
    has ``n_train`` training instances (seeds: ``trainers``).  With ``carry_to`` every point also gets a
    validation point at the same values with the ``carry_to`` parameters.
 2. **Learn** the candidates per factor type on each training instance (with ``carry_to``: once, at the
@@ -40,7 +40,7 @@ from typing import Any
 
 import numpy as np
 
-from ..check import parse_over, points_of
+from ..points import parse_over, points_of
 from .. import module_parts
 from ..constraint_set import ConstraintSet
 from ..errors import ParameterError

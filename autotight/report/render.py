@@ -15,6 +15,7 @@ import pandas as pd
 from ..io import atomic_write_text
 from ..outpaths import writing
 from . import figures
+from .table import Table
 from .store import load_trials, solved_rows
 
 CAPTIONS = {
@@ -26,14 +27,6 @@ CAPTIONS = {
              "within the gap tolerance).",
     "times": "Median solve times of the SDP per constraint set and of the local solver.",
 }
-
-
-@dataclass
-class Table:
-    title: str
-    header: list[str]
-    rows: list[list[str]]
-    note: str = ""
 
 
 @dataclass
@@ -357,7 +350,7 @@ def summarize(out: Path, meta: dict[str, Any]) -> Summary:
     versus = paper_table(df, sigmas, claim) if claim and len(df) else None
     if versus is not None:
         tabs.insert(1, versus)
-    from ..closed_form.report import closed_form_tables
+    from .closed_forms import closed_form_tables
 
     tabs += closed_form_tables(out, meta)
     return Summary(f"Tightness report: {meta['problem']}", facts, tabs, figs,

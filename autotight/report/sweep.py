@@ -9,7 +9,7 @@ from typing import AbstractSet, Any, Callable, Sequence
 
 from tqdm import tqdm
 
-from ..cli_checks import check_set_file
+from ..set_file import check_set_file
 from ..constraint_set import ConstraintSet
 from ..problem import Problem
 from ..outpaths import LOCK_NAME, check_folder, folder_lock, writing

@@ -24,8 +24,8 @@ solver reports.  Only what a backend declares in ``errors`` (exceptions the solv
 signals) becomes a "Failed: …" status; bad input (shapes, a cover hint that misses entries) raises
 ValueError, and a bad config raises ``SolverConfigError`` when it is built.
 
-Adding a backend is one module plus one registry line.  The module defines a small class with
-the attributes of ``registry.Backend``::
+Adding a backend is one module plus one line that registers it.  The module defines a small class with
+the attributes of ``backend.Backend``::
 
     # autotight/sdp/mysolver.py
     class MySolverBackend:
@@ -36,8 +36,8 @@ the attributes of ``registry.Backend``::
         def solve(self, Q, As, b, d, cliques, config): ...   # -> SDPResult
         def retries(self, config, decomposed, N): return []
 
-    # autotight/sdp/registry.py, in BACKENDS:
-        "mysolver": MySolverBackend(),
+    # autotight/sdp/__init__.py, beside the shipped ones:
+    BACKENDS["mysolver"] = MySolverBackend()
 
 and ``SolverConfig(backend="mysolver")`` selects it everywhere (API, CLI ``--solver``, reports).
 """
@@ -54,12 +54,19 @@ from ..model import Constraint, Model, fast_coo
 from ..threads import single_blas_thread
 from .config import AUTO, SolverConfig, SolverConfigError, SolverOptions
 from .covers import IPM_MERGE_CAPS, MERGE_MAX_SIZE, CliqueCovers
-from .registry import BACKENDS, Backend
+from .clarabel_direct import ClarabelBackend
+from .cvxpy_path import CvxpyBackend
+from .backend import Backend
+from .registry import BACKENDS
+from .schur_ipm import IPMBackend
 from .result import SDPResult, finish, log_svr, rank_d_factor
 
 __all__ = ["solve", "solve_model", "model_cover", "check_solver", "SolverConfig", "SolverConfigError", "SolverOptions",
            "SDPResult", "BACKENDS", "CliqueCovers", "MERGE_MAX_SIZE", "IPM_MERGE_CAPS", "log_svr",
            "rank_d_factor"]
+
+#: the shipped backends (``registry``)
+BACKENDS.update(clarabel=ClarabelBackend(), ipm=IPMBackend(), cvxpy=CvxpyBackend())
 
 
 def check_solver(name: str) -> str:

@@ -11,6 +11,7 @@ import math
 from dataclasses import dataclass, replace
 
 from ..errors import ParameterError
+from .registry import BACKENDS
 
 
 class SolverConfigError(ParameterError):
@@ -104,8 +105,6 @@ class SolverConfig:
     def check(self) -> "SolverConfig":
         """Raise SolverConfigError unless the backend is registered and its solver installed;
         returns self.  Called on construction."""
-        from .registry import BACKENDS
-
         if self.backend_name == AUTO:
             if self.backend_arg is not None:
                 raise SolverConfigError(f"backend 'auto' takes no argument, got {self.backend!r}")

@@ -7,7 +7,6 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.sparse as sp
 
-from .config import SolverConfig, SolverOptions  # noqa: F401  (SolverOptions: the deprecated name)
 
 SOLVED = "Solved"
 

@@ -10,12 +10,12 @@ from pathlib import Path
 from typing import Any, Callable
 
 from ..extras import require
-from ..cli_checks import check_solver, nonneg_int
 from ..io import jsonable
 from ..limits import check_count, check_size
 from ..problem import load, parse_assignments
 from ..tightness import Criteria
-from .spec import SETS, ReportError, make_spec
+from ..report.spec import SETS, ReportError, make_spec
+from .options import add_accept_arg, check_solver, nonneg_int
 
 
 def _cores() -> int:
@@ -26,8 +26,6 @@ def _cores() -> int:
 
 
 def register(sub: Any, add_problem_args: Callable[[argparse.ArgumentParser], None]) -> None:
-    from ..cli import add_accept_arg
-
     p = sub.add_parser("report", help="noise sweep: tightness per constraint set, trapped local solves, figures",
                        description="Sweep the noise level σ: per σ and trial, a fresh instance, the SDP with each "
                                    "constraint set and the local solver from the truth and a random start. "
@@ -71,9 +69,9 @@ def register(sub: Any, add_problem_args: Callable[[argparse.ArgumentParser], Non
 
 def cmd_report(args: argparse.Namespace) -> int:
     require("report", "autotight report")
-    from .render import render  # heavy imports (matplotlib, pandas) only when reporting
-    from .store import Store
-    from .sweep import run_sweep
+    from ..report.render import render  # heavy imports (matplotlib, pandas) only when reporting
+    from ..report.store import Store
+    from ..report.sweep import run_sweep
 
     if args.out is not None and not args.out.strip():
         raise ReportError("--out '': give a folder")

@@ -14,8 +14,8 @@ def closed_form_output(problem, ds, args: argparse.Namespace) -> None:
     latex = getattr(args, "latex", None)
     if (args.json and latex is None) or getattr(ds, "pairs", None) is None:  # nothing asked, or no set
         return
-    from .table import family_table, text
-    from .tex import document
+    from ..closed_form.table import family_table, text
+    from ..closed_form.tex import document
 
     tab = family_table(problem, ds)
     if not args.json:

@@ -11,39 +11,10 @@ import json
 from collections.abc import Callable
 from typing import Any
 
-from .cli_checks import pos_int
-from .errors import ParameterError
-from .io import jsonable
-from .problem import load, parse_assignments
-
-
-def parse_values(text: str, what: str) -> list[str]:
-    """"0.001,0.01" → ["0.001", "0.01"] (each parsed later by the problem's parameter)."""
-    vals = [v.strip() for v in text.split(",") if v.strip()]
-    if not vals:
-        raise ParameterError(f"{what} {text!r}: expected comma-separated values, e.g. 0.001,0.01,0.1")
-    return vals
-
-
-def parse_range(sigmas: str | None, ranges: list[str] | None) -> dict[str, list[str]]:
-    """``--sigmas a,b`` and ``--range NAME=v1,v2`` (repeatable) → {name: values}."""
-    over: dict[str, list[str]] = {}
-    if sigmas is not None:
-        over["sigma"] = parse_values(sigmas, "--sigmas")
-    for item in ranges or []:
-        if "=" not in item:
-            raise ParameterError(f"--range {item!r}: expected NAME=v1,v2,…")
-        name, vals = (x.strip() for x in item.split("=", 1))
-        if name in over:
-            raise ParameterError(f"--range: {name} is given twice")
-        over[name] = parse_values(vals, f"--range {name}")
-    return over
-
-
-def add_range_args(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--sigmas", default=None, metavar="S1,S2,…", help="noise levels, e.g. 0.001,0.01,0.1,0.316,1")
-    p.add_argument("--range", action="append", default=[], metavar="NAME=V1,V2,…",
-                   help="vary any parameter over these values (repeatable; the points are the product)")
+from ..io import jsonable
+from ..problem import load, parse_assignments
+from .options import (add_accept_arg, add_range_args, add_solver_args, constraints_arg, parse_range, pos_int,
+                      solver_config)
 
 
 def register(sub: argparse._SubParsersAction, add_problem_args: Callable) -> None:
@@ -56,17 +27,14 @@ def register(sub: argparse._SubParsersAction, add_problem_args: Callable) -> Non
     p.add_argument("--instances", type=pos_int, default=10, help="fresh instances per point (default 10)")
     p.add_argument("--min-fraction", type=float, default=1.0,
                    help="a point passes when tight / (instances − undecided) ≥ this (default 1)")
-    from .cli import add_accept_arg, add_solver_args
-
     add_solver_args(p)
     add_accept_arg(p)
     p.set_defaults(func=cmd_check)
 
 
 def cmd_check(args: argparse.Namespace) -> int:
-    from .check import check_sufficient
-    from .cli import constraints_arg, solver_config
-    from .tightness import Criteria
+    from ..check import check_sufficient
+    from ..tightness import Criteria
 
     config = solver_config(args)
     prob = load(args.problem)

@@ -16,8 +16,8 @@ from pathlib import Path
 
 from ..outpaths import check_file, writing
 from ..problem import load
-from .discovered import DiscoveredSet
-from .templates import TypeTemplate
+from ..discovery.discovered import DiscoveredSet
+from ..discovery.templates import TypeTemplate
 
 #: records of the learning instance that are copied from the old file
 KEPT = ("variables", "d", "constraints_by_factor", "learning_instance", "summary")

@@ -16,21 +16,20 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Callable, Iterator
 
-from ..cli import add_accept_arg, add_solver_args, solver_config
-from ..cli_checks import nonneg_float, nonneg_int, pos_float, pos_int
 from ..errors import AutotightError
 from ..io import jsonable
 from ..limits import check_count, check_size
 from ..outpaths import check_file
 from ..problem import load, parse_assignments
-from .engine import carry_hint, discover
-from .learn import LearnOptions
-from .result import DiscoveryResult
+from ..discovery.engine import carry_hint, discover
+from ..discovery.learn import LearnOptions
+from ..discovery.result import DiscoveryResult
+from .closed_form import closed_form_output
+from .options import (add_accept_arg, add_range_args, add_solver_args, nonneg_float, nonneg_int, parse_range,
+                      pos_float, pos_int, solver_config)
 
 
 def register(sub: argparse._SubParsersAction, add_problem_args: Callable) -> None:
-    from ..check_cmd import add_range_args
-
     p = sub.add_parser("discover", help="learn, tighten and reduce redundant constraints until held-out "
                                         "instances pass; compare with the paper")
     add_problem_args(p)
@@ -120,7 +119,6 @@ def save_or_fallback(res: DiscoveryResult, out: str, replace: bool = False) -> t
 
 
 def cmd_discover(args: argparse.Namespace) -> int:
-    from ..check_cmd import parse_range
     from ..tightness import Criteria
 
     if args.out is not None:
@@ -149,8 +147,6 @@ def cmd_discover(args: argparse.Namespace) -> int:
         print(res.table())
         if where is not None:
             print(f"\nsaved to {where}")
-    from ..closed_form.cli import closed_form_output
-
     closed_form_output(prob, res.discovered, args)
     if failed:
         print(f"error: {failed}; the set is saved to {where} instead", file=sys.stderr)

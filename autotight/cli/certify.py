@@ -1,6 +1,6 @@
 """``autotight certify``: certify a local solution without solving the full SDP (``autotight.certify``).
 
-Exit status: 0 certified, 1 not certified, 2 bad input (``autotight.cli``).
+Exit status: 0 certified, 1 not certified, 2 bad input (``autotight.cli.main``).
 """
 
 from __future__ import annotations
@@ -10,6 +10,8 @@ import json
 from pathlib import Path
 from typing import Any, Callable
 
+from ..io import jsonable, versions
+
 
 
 def start_arg(value: str) -> Any:
@@ -17,7 +19,7 @@ def start_arg(value: str) -> Any:
     whose "state" or "estimate" holds one (e.g. the output of ``autotight solve --json``)."""
     if value in ("truth", "random"):
         return value
-    from .errors import ParameterError
+    from ..errors import ParameterError
 
     path = Path(value)
     if not path.is_file():
@@ -35,14 +37,12 @@ def start_arg(value: str) -> Any:
 
 
 def cmd_certify(args: argparse.Namespace) -> int:
-    from .certifier import certify_instance
-    from .cli import constraints_arg
-    from .io import jsonable, versions
-    from .problem import load, parse_assignments
-
-    from .api import _seed
-    from .limits import check_size
-    from .validate import check_data
+    from ..api import _seed
+    from ..certifier import certify_instance
+    from ..limits import check_size
+    from ..problem import load, parse_assignments
+    from ..validate import check_data
+    from .options import constraints_arg
 
     start = start_arg(args.start)
     prob = load(args.problem)
@@ -86,9 +86,8 @@ def certificate_first(args: argparse.Namespace, prob: Any, params: dict, constra
     """``solve --verify certificate``: certify the local solution from the ground truth first
     (``certify_instance``, the path of ``autotight certify``); when it is certified, print that and return
     0 without solving the SDP; else None (the caller solves the SDP, whose verdict then decides)."""
-    from .api import _seed
-    from .certifier import certify_instance
-    from .io import jsonable, versions
+    from ..api import _seed
+    from ..certifier import certify_instance
 
     inst = prob.generate(params, _seed(args.seed))
     run = certify_instance(prob, inst, constraints, start="truth", criteria=criteria)

@@ -11,10 +11,10 @@ import argparse
 import json
 from typing import Callable
 
-from .checks import check_problem
-from .cli_checks import pos_int
-from .io import jsonable
-from .problem import load, parse_assignments
+from ..checks import check_problem
+from ..io import jsonable
+from ..problem import load, parse_assignments
+from .options import pos_int
 
 
 def cmd_check_module(args: argparse.Namespace) -> int:

@@ -22,8 +22,8 @@ CACHE = "closed_forms.json"
 
 def _sets(out: Path, meta: dict[str, Any]) -> list[tuple[str, Path]]:
     """(name, path) of the discovered set in ``out`` and the command's file: sets that still exist."""
-    from ..report.spec import file_sets
-    from ..report.sweep import DISCOVERED_NAME
+    from .spec import file_sets
+    from .sweep import DISCOVERED_NAME
 
     found = [("discovered", out / DISCOVERED_NAME)] if (out / DISCOVERED_NAME).exists() else []
     command = meta["runs"][-1].get("command", "") if meta.get("runs") else ""
@@ -48,8 +48,8 @@ def _sets(out: Path, meta: dict[str, Any]) -> list[tuple[str, Path]]:
 def _table(name: str, path: Path, meta: dict[str, Any], cache: dict[str, Any]):
     from ..discovery.discovered import DiscoveredSet
     from ..problem import load
-    from ..report.sweep import _sha256
-    from .table import FamilyTable, family_table
+    from ..closed_form.table import FamilyTable, family_table
+    from .sweep import _sha256
 
     key = _sha256(path)
     if key in cache:
@@ -61,9 +61,9 @@ def _table(name: str, path: Path, meta: dict[str, Any], cache: dict[str, Any]):
 
 
 def closed_form_tables(out: Path, meta: dict[str, Any]) -> list:
-    """Report tables (``render.Table``) of the closed forms; none when the report has no learned set."""
-    from ..report.render import Table
-    from .table import N_FRESH, residual_note
+    """Report tables (``report.table.Table``) of the closed forms; none when the report has no learned set."""
+    from .table import Table
+    from ..closed_form.table import N_FRESH, residual_note
 
     out = Path(out)
     sets = _sets(out, meta)
