@@ -1,0 +1,120 @@
+"""One instance of a factor-graph problem: its ``Model`` and its stacked residual for the local solver.
+
+The model's factors (``autotight.model.Factor``), which discovery learns on, are:
+
+- one per variable (name: its main block, type: the variable's name, roles: the variable's name and its
+  lifting blocks' names), holding the manifold's and the lifting's primary constraints and the cost of
+  every declared factor on that variable alone without constraints of its own;
+- one per (type, variables) of the declared factors on several variables without constraints of their own
+  (their costs summed), named ``type:variables``;
+- one per declared factor with constraints of its own (named ``type_i``, with its ``data``).
+
+Roles of a variable's blocks inside a factor: the variable's name and its lifting blocks' names, suffixed
+``_k`` (k its position in the factor) when a variable of the same name appears twice.
+"""
+
+from __future__ import annotations
+
+from typing import Iterable, Sequence
+
+import numpy as np
+import scipy.sparse as sp
+
+from ..errors import ProblemDefinitionError
+from ..model import Constraint, Factor, Model, canonical_coo
+from .declare import Factor as Declared
+from .layout import Element, Layout
+from .terms import Term
+
+
+def _global(local: np.ndarray, columns: np.ndarray, N: int) -> sp.coo_array:
+    """The N×N matrix of a matrix on local columns mapped to ``columns``."""
+    r, c = np.nonzero(local)
+    return canonical_coo(columns[r], columns[c], local[r, c], N)
+
+
+def _roles(elements: Sequence[Element]) -> tuple[str, ...]:
+    names = [el.var.name for el in elements]
+    out: list[str] = ["h"]
+    for k, el in enumerate(elements):
+        sfx = f"_{k}" if names.count(el.var.name) > 1 else ""
+        out += [el.var.name + sfx] + [f.name + sfx for f in el.var.fits()]
+    return tuple(out)
+
+
+class Graph:
+    """The declared variables and factors on one instance (see the module docstring)."""
+
+    def __init__(self, layout: Layout, factors: Iterable[Declared]):
+        self.layout = layout
+        self.terms: list[Term] = []
+        for i, f in enumerate(factors):
+            if not isinstance(f, Declared):
+                raise ProblemDefinitionError(f"factors must yield autotight.graph.Factor, got {type(f).__name__}")
+            self.terms.append(Term(f, layout, f"{f.type or 'factor'}_{i}"))
+        self.n_residuals = sum(t.m for t in self.terms)
+
+    def model(self) -> Model:
+        L, N = self.layout, self.layout.V.N
+        by_var: dict[str, list[Term]] = {el.main: [] for el in L.elements}
+        grouped: dict[tuple[str, tuple[str, ...]], list[Term]] = {}
+        own: list[Term] = []
+        for t in self.terms:
+            if t.factor.constraints:
+                own.append(t)
+            elif len(t.elements) == 1:
+                by_var[t.elements[0].main].append(t)
+            else:
+                grouped.setdefault((t.type, tuple(el.main for el in t.elements)), []).append(t)
+        factors = []
+        for el in L.elements:
+            cols = np.concatenate([[0], L.columns(el)])
+            cons = [Constraint(_global(M, cols, N), 0.0, name=f"{el.main}:{nm}", factor=el.main)
+                    for nm, M in el.var.local_constraints()]
+            factors.append(Factor(el.main, el.var.name, ("h",) + el.blocks, cost=self._cost(by_var[el.main], N),
+                                  constraints=cons, roles=_roles([el])))
+        for (typ, mains), ts in grouped.items():
+            els = ts[0].elements
+            factors.append(Factor(f"{typ}:{'-'.join(mains)}", typ, ("h",) + tuple(b for el in els for b in el.blocks),
+                                  cost=self._cost(ts, N), roles=_roles(els)))
+        for t in own:
+            cons = [Constraint(_global(M, t.columns, N), 0.0, name=f"{t.name}:{nm}", factor=t.name)
+                    for nm, M in t.local_constraints()]
+            factors.append(Factor(t.name, t.type, ("h",) + tuple(b for el in t.elements for b in el.blocks),
+                                  cost=self._cost([t], N), constraints=cons, roles=_roles(t.elements),
+                                  data=t.factor.data))
+        return Model(L.V, factors)
+
+    @staticmethod
+    def _cost(terms: Sequence[Term], N: int) -> sp.csr_array | None:
+        if not terms:
+            return None
+        parts = [_global(t.cost_matrix(), t.columns, N) for t in terms]
+        return sp.csr_array(sum(parts[1:], parts[0].tocsr()))
+
+    # ------------------------------------------------------------------ the local solver's view
+    def cost(self, values: Sequence[np.ndarray]) -> float:
+        """Σ eᵀWe of the declared residuals at the values."""
+        total = 0.0
+        for t in self.terms:
+            e = t.residual(values)
+            total += float(e @ t.W @ e)
+        return total
+
+    def linearize(self, values: Sequence[np.ndarray]) -> tuple[np.ndarray, sp.csr_array, sp.csr_array]:
+        """Stacked (e, J, W) for ``gauss_newton``: J (m, n_tangent) sparse, W block diagonal."""
+        es, rows, cols, vals, Ws = [], [], [], [], []
+        r0 = 0
+        for t in self.terms:
+            e, J = t.linearize(values)
+            es.append(e)
+            tangent = np.concatenate([np.arange(el.tangent_offset, el.tangent_offset + el.dof) for el in t.elements])
+            i, j = np.nonzero(J)
+            rows.append(r0 + i)
+            cols.append(tangent[j])
+            vals.append(J[i, j])
+            Ws.append(t.W)
+            r0 += e.size
+        J = sp.csr_array((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+                         shape=(r0, self.layout.n_tangent))
+        return np.concatenate(es), J, sp.csr_array(sp.block_diag(Ws))
