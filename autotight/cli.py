@@ -20,7 +20,7 @@ from .cli_checks import nonneg_int
 from .errors import AutotightError
 from .io import jsonable, versions
 from .limits import check_random_starts
-from .problem import available, load, parse_assignments
+from .problem import available, load, parse_assignments, registered
 
 
 class _Parser(argparse.ArgumentParser):
@@ -42,7 +42,7 @@ def _add_problem_args(p: argparse.ArgumentParser) -> None:
 
 def cmd_list(args: argparse.Namespace) -> int:
     rows: list[dict[str, Any]] = []
-    for name in available():
+    for name in available() + sorted(registered()):
         prob = load(name)
         params = {k: {"default": p.default, "help": p.help} for k, p in prob.params.items()}
         rows.append({"name": name, "description": prob.description, "params": params})

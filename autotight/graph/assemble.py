@@ -2,8 +2,8 @@
 
 The model's factors (``autotight.model.Factor``), which discovery learns on, are:
 
-- one per variable (name: its main block, type: the variable's name, roles: the variable's name and its
-  lifting blocks' names), holding the manifold's and the lifting's primary constraints and the cost of
+- one per variable (type: the variable's ``type``, default its name; name: the type, suffixed ``_i`` for
+  element i of a stack; roles: the variable's name and its lifting blocks' names), holding the manifold's and the lifting's primary constraints and the cost of
   every declared factor on that variable alone without constraints of its own;
 - one per (type, variables) of the declared factors on several variables without constraints of their own
   (their costs summed), named ``type:variables``;
@@ -69,9 +69,11 @@ class Graph:
         factors = []
         for el in L.elements:
             cols = np.concatenate([[0], L.columns(el)])
-            cons = [Constraint(_global(M, cols, N), 0.0, name=f"{el.main}:{nm}", factor=el.main)
+            typ = el.var.type or el.var.name
+            name = typ if el.index is None else f"{typ}_{el.index}"
+            cons = [Constraint(_global(M, cols, N), 0.0, name=f"{name}:{nm}", factor=name)
                     for nm, M in el.var.local_constraints()]
-            factors.append(Factor(el.main, el.var.name, ("h",) + el.blocks, cost=self._cost(by_var[el.main], N),
+            factors.append(Factor(name, typ, ("h",) + el.blocks, cost=self._cost(by_var[el.main], N),
                                   constraints=cons, roles=_roles([el])))
         for (typ, mains), ts in grouped.items():
             els = ts[0].elements

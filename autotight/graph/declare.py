@@ -5,7 +5,8 @@
 shape is one variable, a stack (N, *shape) is N of them (block names ``name0 … name{N−1}``).  The lifted
 vector holds, per variable, its embedding (the main block) and one block per ``lifting`` entry,
 ``fn(x) -> (E,)``, which must be a polynomial of degree ≤ 2 in the embedding's entries (e.g.
-vech(p pᵀ)); its primary constraints h·z = fn(x) are derived from it (``LiftingFit``).
+vech(p pᵀ)); its primary constraints fn(x) − h·z = 0 are derived from it (``LiftingFit``).  ``type``
+names the factor type of the variable's own model factor (default: ``name``; ``assemble``).
 
 ``Factor(variables, residual, …)``: a term eᵀWe of the cost, on one or more variables named by their
 main block (``"p0"``, or ``"C"`` for a single variable).  ``residual(*views) -> (m,)`` gets one ``View``
@@ -56,16 +57,16 @@ class LiftingFit:
         return self.G + 2.0 * np.einsum("epq,q->ep", self.S, v)
 
     def constraint_matrices(self, p: int, offset: int) -> list[np.ndarray]:
-        """h·z_e − c0_e h² − G_e v h − vᵀ S_e v = 0 on local columns [h, v (p), …, z at ``offset``, …]."""
+        """c0_e h² + G_e v h + vᵀ S_e v − h·z_e = 0 on local columns [h, v (p), …, z at ``offset``, …]."""
         n = offset + self.size
         out = []
         for e in range(self.size):
             M = np.zeros((n, n))
-            M[0, offset + e] = M[offset + e, 0] = 0.5
-            M[0, 0] = -self.c0[e]
-            M[0, 1:1 + p] -= 0.5 * self.G[e]
-            M[1:1 + p, 0] -= 0.5 * self.G[e]
-            M[1:1 + p, 1:1 + p] -= self.S[e]
+            M[0, offset + e] = M[offset + e, 0] = -0.5
+            M[0, 0] = self.c0[e]
+            M[0, 1:1 + p] += 0.5 * self.G[e]
+            M[1:1 + p, 0] += 0.5 * self.G[e]
+            M[1:1 + p, 1:1 + p] += self.S[e]
             out.append(M)
         return out
 
@@ -108,6 +109,8 @@ class Variable:
     name: str
     manifold: Manifold
     lifting: Mapping[str, Callable[[np.ndarray], Any]] = field(default_factory=dict)
+    #: the factor type of the variable's own model factor (default: its name)
+    type: str | None = None
 
     def __post_init__(self) -> None:
         if not isinstance(self.name, str) or not self.name.isidentifier() or self.name == "h":
