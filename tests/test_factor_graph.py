@@ -216,3 +216,11 @@ def test_a_broken_entry_point_is_one_line_naming_it(tmp_path, monkeypatch):
     with pytest.raises(ProblemModuleError, match=r"^cannot import problem 'broken_one' \(entry point "
                                                  r"'user_broken_one'\): RuntimeError: missing dependency$"):
         load("broken_one")
+
+
+def test_the_worked_example_page_shows_the_module_file_as_it_is():
+    import re
+
+    page = (ROOT / "docs" / "range_only_2d.md").read_text()
+    assert re.findall(r"```python\n(.*?)```", page, re.S) == [EXAMPLE.read_text()]
+    assert f"in {len(EXAMPLE.read_text().splitlines())} lines" in page

@@ -3,8 +3,9 @@
 The model's factors (``autotight.model.Factor``), which discovery learns on, are:
 
 - one per variable (type: the variable's ``type``, default its name; name: the type, suffixed ``_i`` for
-  element i of a stack; roles: the variable's name and its lifting blocks' names), holding the manifold's and the lifting's primary constraints and the cost of
-  every declared factor on that variable alone without constraints of its own;
+  element i of a stack; roles: the variable's name and its lifting blocks' names), holding the manifold's
+  and the lifting's primary constraints and the cost of every declared factor on that variable alone
+  without constraints of its own;
 - one per (type, variables) of the declared factors on several variables without constraints of their own
   (their costs summed), named ``type:variables``;
 - one per declared factor with constraints of its own (named ``type_i``, with its ``data``).
