@@ -2,16 +2,17 @@
 
 The model's factors (``autotight.model.Factor``), which discovery learns on, are:
 
-- one per variable (type: the variable's ``type``, default its name; name: the type, suffixed ``_i`` for
-  element i of a stack; roles: the variable's name and its lifting blocks' names), holding the manifold's
-  and the lifting's primary constraints and the cost of every declared factor on that variable alone
-  without constraints of its own;
-- one per (type, variables) of the declared factors on several variables without constraints of their own
-  (their costs summed), named ``type:variables``;
+- one per variable type and index (type: the variables' ``type``, default the name; name: the type,
+  suffixed ``_i`` for element i of a stack; blocks and roles: each variable's main block and lifting
+  blocks, in declaration order; variables of one type share it, e.g. a pose's t and C), holding the
+  manifold's and the lifting's primary constraints and the cost of every declared factor whose variables
+  all belong to it and that has no constraints of its own;
+- one per (type, variables) of the other declared factors without constraints of their own (their costs
+  summed), named ``type:variables``;
 - one per declared factor with constraints of its own (named ``type_i``, with its ``data``).
 
-Roles of a variable's blocks inside a factor: the variable's name and its lifting blocks' names, suffixed
-``_k`` (k its position in the factor) when a variable of the same name appears twice.
+Roles of a variable's blocks inside a factor: its main block's name without the index and its lifting
+blocks' names, suffixed ``_k`` (k its position in the factor) when a variable of the same name appears twice.
 """
 
 from __future__ import annotations
@@ -34,13 +35,26 @@ def _global(local: np.ndarray, columns: np.ndarray, N: int) -> sp.coo_array:
     return canonical_coo(columns[r], columns[c], local[r, c], N)
 
 
+def _stem(el: Element) -> str:
+    """The element's main block name without its index."""
+    return el.var.block or el.var.name
+
+
 def _roles(elements: Sequence[Element]) -> tuple[str, ...]:
-    names = [el.var.name for el in elements]
+    stems = [_stem(el) for el in elements]
     out: list[str] = ["h"]
     for k, el in enumerate(elements):
-        sfx = f"_{k}" if names.count(el.var.name) > 1 else ""
-        out += [el.var.name + sfx] + [f.name + sfx for f in el.var.fits()]
+        sfx = f"_{k}" if stems.count(_stem(el)) > 1 else ""
+        out += [_stem(el) + sfx] + [f.name + sfx for f in el.var.fits()]
     return tuple(out)
+
+
+def _own_factors(layout: Layout) -> dict[tuple[str, int | None], list[Element]]:
+    """The variables' own model factors: elements grouped by (type, index), in layout order."""
+    out: dict[tuple[str, int | None], list[Element]] = {}
+    for el in layout.elements:
+        out.setdefault((el.var.type or el.var.name, el.index), []).append(el)
+    return out
 
 
 class Graph:
@@ -57,25 +71,29 @@ class Graph:
 
     def model(self) -> Model:
         L, N = self.layout, self.layout.V.N
-        by_var: dict[str, list[Term]] = {el.main: [] for el in L.elements}
+        owners = _own_factors(L)
+        home = {el.main: key for key, els in owners.items() for el in els}
+        costs: dict[tuple[str, int | None], list[Term]] = {key: [] for key in owners}
         grouped: dict[tuple[str, tuple[str, ...]], list[Term]] = {}
         own: list[Term] = []
         for t in self.terms:
+            keys = {home[el.main] for el in t.elements}
             if t.factor.constraints:
                 own.append(t)
-            elif len(t.elements) == 1:
-                by_var[t.elements[0].main].append(t)
+            elif len(keys) == 1:
+                costs[keys.pop()].append(t)
             else:
                 grouped.setdefault((t.type, tuple(el.main for el in t.elements)), []).append(t)
         factors = []
-        for el in L.elements:
-            cols = np.concatenate([[0], L.columns(el)])
-            typ = el.var.type or el.var.name
-            name = typ if el.index is None else f"{typ}_{el.index}"
-            cons = [Constraint(_global(M, cols, N), 0.0, name=f"{name}:{nm}", factor=name)
-                    for nm, M in el.var.local_constraints()]
-            factors.append(Factor(name, typ, ("h",) + el.blocks, cost=self._cost(by_var[el.main], N),
-                                  constraints=cons, roles=_roles([el])))
+        for (typ, index), els in owners.items():
+            name = typ if index is None else f"{typ}_{index}"
+            cons = []
+            for el in els:
+                cols = np.concatenate([[0], L.columns(el)])
+                cons += [Constraint(_global(M, cols, N), 0.0, name=f"{name}:{el.main}:{nm}", factor=name)
+                         for nm, M in el.var.local_constraints()]
+            factors.append(Factor(name, typ, ("h",) + tuple(b for el in els for b in el.blocks),
+                                  cost=self._cost(costs[(typ, index)], N), constraints=cons, roles=_roles(els)))
         for (typ, mains), ts in grouped.items():
             els = ts[0].elements
             factors.append(Factor(f"{typ}:{'-'.join(mains)}", typ, ("h",) + tuple(b for el in els for b in el.blocks),

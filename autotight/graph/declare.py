@@ -1,22 +1,24 @@
 """What a factor-graph problem declares: its variables (manifold and lifting) and its factors.
 
-``Variable(name, manifold, lifting={block: fn})``: a state entry ``name`` on ``manifold``
-(``autotight.graph.manifolds``).  The truth's entry fixes how many there are: an array of the manifold's
-shape is one variable, a stack (N, *shape) is N of them (block names ``name0 … name{N−1}``).  The lifted
-vector holds, per variable, its embedding (the main block) and one block per ``lifting`` entry,
-``fn(x) -> (E,)``, which must be a polynomial of degree ≤ 2 in the embedding's entries (e.g.
-vech(p pᵀ)); its primary constraints fn(x) − h·z = 0 are derived from it (``LiftingFit``).  ``type``
-names the factor type of the variable's own model factor (default: ``name``; ``assemble``).
+``Variable(name, manifold, lifting={block: fn}, type=None, block=None)``: a state entry ``name`` on
+``manifold`` (``autotight.graph.manifolds``).  The truth's entry fixes how many there are: an array of the
+manifold's shape is one variable, a stack (N, *shape) is N of them (block names ``name0 … name{N−1}``;
+``block`` renames the main block).  The lifted vector holds, per variable, its embedding (the main block)
+and one block per ``lifting`` entry, ``fn(x) -> (E,)``, which must be a polynomial of degree ≤ 2 in the
+embedding's entries (e.g. vech(p pᵀ)); its primary constraints fn(x) − h·z = 0 are derived from it
+(``LiftingFit``).  ``type`` names the factor type of the variable's own model factor (default: ``name``):
+variables of one type share it, element by element (e.g. a pose's rotation and translation; ``assemble``).
 
 ``Factor(variables, residual, …)``: a term eᵀWe of the cost, on one or more variables named by their
-main block (``"p0"``, or ``"C"`` for a single variable).  ``residual(*views) -> (m,)`` gets one ``View``
-per variable: ``view.x`` its value (an array of the manifold's shape) and ``view.<block>`` each lifting
-block.  When the residual is affine in the views' entries (constants standing for h), the lifted cost is
-derived; otherwise give it (``cost``: the (n, n) symmetric matrix on the factor's local columns [h, the
-variables' blocks in order]).  ``jacobian(*views) -> (m, Σ dof)`` is optional (the chain rule through the
-lifting when the residual is affine, central finite differences on the retraction otherwise).
-``constraints``: extra primary constraints [(name, (n, n) matrix)] on the same local columns (value 0);
-``data``: the factor's measurement vector (``autotight.model.Factor.data``); ``type``: its factor type.
+main block or by name and index (``"p0"``, or ``"C"`` for a single variable).  ``residual(*views) ->
+(m,)`` gets one ``View`` per variable: ``view.x`` its value (an array of the manifold's shape) and
+``view.<block>`` each lifting block.  When the residual is affine in the views' entries (constants
+standing for h), the lifted cost is derived; otherwise give it (``cost``: the (n, n) symmetric matrix on
+the factor's local columns [h, the variables' blocks in order]).  ``jacobian(*views) -> (m, Σ dof)`` is
+optional (the chain rule through the lifting when the residual is affine, central finite differences on
+the retraction otherwise).  ``constraints``: extra primary constraints [(name, (n, n) matrix)] on the same
+local columns (value 0); ``data``: the factor's measurement vector (``autotight.model.Factor.data``);
+``type``: its factor type.
 """
 
 from __future__ import annotations
@@ -111,10 +113,13 @@ class Variable:
     lifting: Mapping[str, Callable[[np.ndarray], Any]] = field(default_factory=dict)
     #: the factor type of the variable's own model factor (default: its name)
     type: str | None = None
+    #: the name of its main block (default: its name)
+    block: str | None = None
 
     def __post_init__(self) -> None:
-        if not isinstance(self.name, str) or not self.name.isidentifier() or self.name == "h":
-            raise ProblemDefinitionError(f"a variable's name must be an identifier other than 'h', got {self.name!r}")
+        for what, v in (("name", self.name), ("block", self.block if self.block is not None else "x")):
+            if not isinstance(v, str) or not v.isidentifier() or v == "h":
+                raise ProblemDefinitionError(f"a variable's {what} must be an identifier other than 'h', got {v!r}")
         bad = [b for b in self.lifting if not isinstance(b, str) or not b.isidentifier() or b in ("x", "h")]
         if bad:
             raise ProblemDefinitionError(f"variable {self.name!r}: lifting block names must be identifiers other "

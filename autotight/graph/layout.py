@@ -2,8 +2,8 @@
 
 The truth fixes the variables' multiplicity (``declare.Variable``).  Blocks, in order: per variable
 (declaration order), per element (index order), the main block ``name`` (one variable) or ``name{i}``
-(a stack), then its lifting blocks ``block`` or ``block{i}``.  A state is ``{name: value or (N, *shape)
-stack}`` with one entry per declared variable.
+(a stack; ``Variable.block`` for ``name`` when given), then its lifting blocks ``block`` or ``block{i}``.
+A state is ``{name: value or (N, *shape) stack}`` with one entry per declared variable.
 """
 
 from __future__ import annotations
@@ -70,13 +70,15 @@ class Layout:
             fits = var.fits()
             for i in [None] if count is None else range(count):
                 sfx = "" if i is None else str(i)
-                el = Element(var, i, (var.name + sfx,) + tuple(f.name + sfx for f in fits), offset)
+                el = Element(var, i, ((var.block or var.name) + sfx,) + tuple(f.name + sfx for f in fits), offset)
                 self.elements.append(el)
                 blocks += [(el.main, var.manifold.size)] + [(b, f.size) for b, f in zip(el.blocks[1:], fits)]
                 offset += el.dof
         self.n_tangent = offset
         self.V = Variables(blocks)
         self.by_main = {el.main: el for el in self.elements}
+        for el in self.elements:  # also by name and index when the main block is renamed
+            self.by_main.setdefault(el.var.name + ("" if el.index is None else str(el.index)), el)
         #: an element's index in ``elements`` (and in a value list), by main block
         self.position = {el.main: k for k, el in enumerate(self.elements)}
 
