@@ -90,22 +90,37 @@ def _registration_factors(inst):
         yield Factor(("t", "C"), lambda t, C, p=p, y=y: C.x @ p + t.x - y, type="pose")
 
 
+def _hand_written_registration(inst):
+    """Cost and primary constraints of registration written by hand with ``problems._pose_vector`` (the
+    shipped wahba's model before it moved onto the layer)."""
+    from autotight.constraints import Variables, const, sum_quads
+    from problems import _pose_vector as pv
+
+    P, Y = inst.measurements["points"], inst.measurements["y"]
+    V = Variables(pv.pose_blocks(P.shape[1]))
+    Q = sum_quads(V, [(pv.point_map(p) - const(y), pv.point_map(p) - const(y), None) for p, y in zip(P, Y)])
+    return Q, pv.orthonormality(V, P.shape[1], "registration")
+
+
 @pytest.mark.parametrize("dim", [2, 3])
-def test_rotation_variables_give_the_shipped_wahba_relaxation(dim):
-    """Registration on the layer (t ∈ R^d, C ∈ SO(d)) has the same cost matrix and primary constraints as the
-    hand-written problems/wahba.py on the same measurements, and keeps the contract."""
-    mod = _module(lambda inst: [Variable("t", Euclidean(dim)), Variable("C", Rotation(dim))], _registration_factors,
-                  _registration, {"dim": Param(dim), "n_points": Param(4)})
-    graph, shipped = load(mod), load("wahba")
+@pytest.mark.parametrize("shared", [True, False], ids=["one-pose-factor", "factor-per-variable"])
+def test_rotation_variables_give_the_hand_written_registration(dim, shared):
+    """Registration on the layer (t ∈ R^d, C ∈ SO(d) embedded as vec C) has the cost matrix and primary
+    constraints written by hand, whether t and C share one model factor or not, and keeps the contract."""
+    typ = "pose" if shared else None
+    mod = _module(lambda inst: [Variable("t", Euclidean(dim), type=typ), Variable("C", Rotation(dim), type=typ)],
+                  _registration_factors, _registration, {"dim": Param(dim), "n_points": Param(4)})
+    graph = load(mod)
     inst = graph.generate({}, 3)
-    mine, theirs = graph.build(inst), shipped.build(inst)
-    assert mine.variables.N == theirs.variables.N
-    assert abs(mine.Q - theirs.Q).max() <= 1e-12 * abs(theirs.Q).max()
+    model = graph.build(inst)
+    Q, orth = _hand_written_registration(inst)
+    assert abs(model.Q - Q).max() <= 1e-12 * abs(Q).max()
+    assert len(model.factors) == (1 if shared else 3)  # t, C, and the cost on both
 
-    def span(model):
-        return np.array([c.A.toarray().ravel() for c in model.primary()])
+    def span(cons):
+        return np.array([c.A.toarray().ravel() for c in cons])
 
-    A, B = span(mine), span(theirs)
+    A, B = span(model.primary()[1:]), span(orth)  # without h² = 1
     assert np.linalg.matrix_rank(A) == np.linalg.matrix_rank(B) == np.linalg.matrix_rank(np.vstack([A, B]))
     assert check_problem(mod, seed=1).ok
 
