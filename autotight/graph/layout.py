@@ -81,6 +81,8 @@ class Layout:
             self.by_main.setdefault(el.var.name + ("" if el.index is None else str(el.index)), el)
         #: an element's index in ``elements`` (and in a value list), by main block
         self.position = {el.main: k for k, el in enumerate(self.elements)}
+        #: the truth's values, element by element
+        self.truth_values = self.values(truth)
 
     def element(self, main: str, where: str) -> Element:
         if main not in self.by_main:

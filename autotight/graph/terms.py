@@ -1,11 +1,13 @@
 """A declared factor resolved on one instance: its local columns, lifted residual map, cost and Jacobian.
 
 Local columns of a factor: [h, then each variable's columns (main block, lifting blocks)] in the order
-the factor names its variables.  An affine residual e = b·h + A θ is read off by evaluating ``residual``
-at θ = 0 and at the unit vectors, and checked at a random θ (``AFFINE_RTOL``); its lifted cost is
-Mᵀ W M with M = [b A].  The Jacobian with respect to the stacked retraction steps is then A·∂θ/∂ε
-(exact, through the lifting's fitted polynomials); otherwise the declared ``jacobian`` or central
-differences of the residual along each retraction direction (step ``FD_STEP``).
+the factor names its variables.  A factor without a declared ``cost`` must have a residual affine in its
+views' entries: e = b·h + A θ is read off by evaluating ``residual`` at θ = e_h and e_h + e_j, and checked
+at a random θ (``AFFINE_RTOL``); its lifted cost is Mᵀ W M with M = [b A], and its Jacobian with respect
+to the retraction steps is A·∂θ/∂ε (exact, through the lifting's fitted polynomials).  A factor with a
+declared ``cost`` has its residual evaluated at states only (it may need its variables on their
+manifolds); its Jacobian is the declared ``jacobian`` or central differences of the residual along each
+retraction direction (step ``FD_STEP``).
 """
 
 from __future__ import annotations
@@ -42,13 +44,17 @@ class Term:
         self.columns = np.concatenate([[0]] + [layout.columns(el) for el in self.elements])
         self.sizes = [layout.columns(el).size for el in self.elements]
         self.n = int(self.columns.size)
-        self.M = self._affine_map()
-        m = self.M.shape[0] if self.M is not None else self._residual(np.eye(1, self.n, 0)[0]).size
-        self.W = self._weight(m)
-        self.m = m
-        if self.M is None and factor.cost is None:
-            raise ProblemDefinitionError(f"{self.where}: its residual is not affine in its variables' lifted blocks; "
-                                         "give its lifted cost (Factor(cost=…))")
+        if factor.cost is None:
+            M = self._affine_map()
+            if M is None:
+                raise ProblemDefinitionError(f"{self.where}: its residual is not affine in its variables' lifted "
+                                             "blocks; give its lifted cost (Factor(cost=…))")
+            self.M: np.ndarray | None = M
+            self.m = M.shape[0]
+        else:  # the residual is only evaluated at states (it may need them on their manifolds)
+            self.M = None
+            self.m = self.residual(layout.truth_values).size
+        self.W = self._weight(self.m)
         for nm, C in factor.constraints:
             self._local(C, f"constraint {nm!r}")
 
@@ -67,23 +73,31 @@ class Term:
     def _residual(self, theta: np.ndarray) -> np.ndarray:
         return _vector(self.factor.residual(*self._views(theta)), self.where)
 
+    def _probe(self, theta: np.ndarray) -> np.ndarray | None:
+        """The residual at an arbitrary θ (off the lifting), or None when it is not a finite vector there."""
+        v = np.asarray(self.factor.residual(*self._views(theta)), float)
+        return v.reshape(-1) if v.ndim <= 1 and v.size and np.all(np.isfinite(v)) else None
+
     def _affine_map(self) -> np.ndarray | None:
-        """M = [b A] (m, n) when the residual is affine in θ, else None."""
+        """M = [b A] (m, n) when the residual is affine in θ (read off at θ = e_h and e_h + e_j, checked at a
+        random θ), else None."""
         base = np.eye(1, self.n, 0)[0]
-        b = self._residual(base)
+        b = self._probe(base)
+        if b is None:
+            return None
         cols = [b]
         for j in range(1, self.n):
-            e = self._residual(base + np.eye(1, self.n, j)[0])
-            if e.size != b.size:
+            e = self._probe(base + np.eye(1, self.n, j)[0])
+            if e is None or e.size != b.size:
                 return None
             cols.append(e - b)
         M = np.stack(cols, axis=1)
         theta = base + np.random.default_rng(1).standard_normal(self.n) * np.r_[0.0, np.ones(self.n - 1)]
-        want = self._residual(theta)
-        if want.size != b.size:
+        want = self._probe(theta)
+        if want is None or want.size != b.size:
             return None
-        scale = max(1.0, float(np.abs(want).max()), float(np.abs(M).max()))
-        return M if np.abs(M @ theta - want).max() <= AFFINE_RTOL * scale * max(1.0, np.abs(theta).max()) else None
+        scale = max(1.0, float(np.abs(want).max()), float(np.abs(M).max())) * max(1.0, float(np.abs(theta).max()))
+        return M if np.abs(M @ theta - want).max() <= AFFINE_RTOL * scale else None
 
     def _weight(self, m: int) -> np.ndarray:
         w = self.factor.weight
