@@ -491,14 +491,31 @@ def registered() -> dict[str, importlib.metadata.EntryPoint]:
     return {ep.name: ep for ep in importlib.metadata.entry_points(group=ENTRY_POINT_GROUP) if ep.name not in shipped}
 
 
+def _module_file(ep: importlib.metadata.EntryPoint) -> Path | None:
+    """The file of the module an entry point names (``pkg.mod``, without an attribute), found without importing
+    it; None when it names an attribute or has no file."""
+    if ep.attr:
+        return None
+    try:
+        spec = importlib.util.find_spec(ep.module)  # imports the parent package of a dotted name
+    except Exception:  # noqa: BLE001 - a package that does not import: not this file
+        return None
+    return Path(spec.origin).resolve() if spec is not None and spec.origin else None
+
+
 def _load_entry_point(ep: importlib.metadata.EntryPoint) -> Problem:
     """The problem an entry point names: a module (``pkg.mod``) or a module attribute (``pkg:mod``)."""
     try:
         obj = ep.load()
     except Exception as e:
         raise _import_failed(f"cannot import problem {ep.name!r} (entry point {ep.value!r})", e) from e
-    if isinstance(obj, (ModuleType, Problem)):
-        return load(obj)
+    if isinstance(obj, Problem):
+        return obj
+    if isinstance(obj, ModuleType):
+        prob = Problem(obj)
+        if not hasattr(obj, "NAME"):
+            prob.name = ep.name  # the name it is registered and found by
+        return prob
     raise ProblemDefinitionError(f"entry point {ep.name!r} = {ep.value!r} of group {ENTRY_POINT_GROUP!r} names "
                                  f"{_kind(obj)}, expected a problem module")
 
@@ -519,6 +536,9 @@ def _load_file(path: Path) -> Problem:
 
     if path.resolve().parent in {Path(d).resolve() for d in problems.__path__} and path.stem in available():
         return load(path.stem)  # a shipped module: imported in its package (its relative imports work)
+    for ep in registered().values():
+        if _module_file(ep) == path.resolve():
+            return _load_entry_point(ep)  # a registered module: its name (worker processes load by path)
     mod_name = f"autotight_user_problem_{path.stem}"
     spec = importlib.util.spec_from_file_location(mod_name, path)
     if spec is None or spec.loader is None:

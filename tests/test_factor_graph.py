@@ -215,7 +215,9 @@ def test_a_problem_registered_by_entry_point_loads_by_name(tmp_path, monkeypatch
     monkeypatch.syspath_prepend(str(tmp_path))
     assert "ranges_2d" in registered()
     prob = load("ranges_2d")
-    assert prob.path == str(tmp_path / "user_ranges_2d.py")
+    assert prob.path == str(tmp_path / "user_ranges_2d.py") and prob.name == "ranges_2d"
+    # by its file (as worker processes load it) it is the same problem, so a set discovered for it applies
+    assert load(str(tmp_path / "user_ranges_2d.py")).name == "ranges_2d"
     assert check_problem("ranges_2d").ok
     assert cli.main(["list", "--json"]) == 0
     assert "ranges_2d" in [row["name"] for row in json.loads(capsys.readouterr().out)]
