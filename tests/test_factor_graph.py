@@ -178,6 +178,30 @@ def test_non_affine_residual_with_cost_solves_like_the_affine_one(jacobian):
     assert np.abs(a.state["p"] - b.state["p"]).max() <= 1e-6
 
 
+def test_a_factors_own_constraints_are_primary_constraints_of_the_model():
+    """Declaring the example's redundant relation z₀ z₂ = z₁² as a factor's constraint puts it in the model's
+    primary constraints (on a factor of its own, with its data): the primary relaxation becomes tight."""
+    example = load(str(EXAMPLE)).module
+    R = np.zeros((6, 6))  # on [h, p (2), z (3)]
+    R[3, 5] = R[5, 3] = 0.5
+    R[4, 4] = -1.0
+
+    def factors(inst):
+        yield from example.factors(inst)
+        for n in range(len(inst.truth["p"])):
+            yield Factor(f"p{n}", lambda v: [0.0], cost=np.zeros((6, 6)), constraints=[("z0z2", R)], data=[1.0, n])
+
+    prob = load(_module(example.VARIABLES, factors, example.generate, example.PARAMS))
+    assert check_problem(prob, seed=1).ok
+    inst = prob.generate({}, 11)
+    own = [f for f in prob.build(inst).factors if f.type == "p_factor"]
+    assert len(own) == 2 and all(len(f.constraints) == 1 and f.data is not None for f in own)
+    from autotight.api import solve
+
+    res = solve(prob, {}, 11, constraints="primary")
+    assert res.outcome == "tight" and res.log_svr > RANK_ONE_LOG_SVR
+
+
 def test_lifting_must_be_a_quadratic_polynomial():
     cubic = [Variable("p", Euclidean(2), lifting={"z": lambda p: p ** 3})]
     mod = _module(cubic, _point_factors(_affine), _point_instance)

@@ -60,7 +60,10 @@ class Term:
 
     @property
     def type(self) -> str:
-        return self.factor.type or "-".join(el.var.name for el in self.elements)
+        """The declared type, else the variables' names joined by '-' (one variable: ``name_factor``, apart from
+        the type of the variable's own factor)."""
+        names = [el.var.name for el in self.elements]
+        return self.factor.type or ("-".join(names) if len(names) > 1 else f"{names[0]}_factor")
 
     def _views(self, theta: np.ndarray) -> list[View]:
         out: list[View] = []
