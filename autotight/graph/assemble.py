@@ -68,6 +68,7 @@ class Graph:
                 raise ProblemDefinitionError(f"factors must yield autotight.graph.Factor, got {type(f).__name__}")
             self.terms.append(Term(f, layout, f"{f.type or 'factor'}_{i}"))
         self.n_residuals = sum(t.m for t in self.terms)
+        self._stack: tuple[sp.csr_array, sp.csr_array, list[tuple[int, Term]]] | None = None
 
     def model(self) -> Model:
         L, N = self.layout, self.layout.V.N
@@ -107,11 +108,18 @@ class Graph:
         return Model(L.V, factors)
 
     @staticmethod
-    def _cost(terms: Sequence[Term], N: int) -> sp.csr_array | None:
+    def _cost(terms: Sequence[Term], N: int) -> sp.coo_array | None:
+        """The sum of the terms' lifted costs on the model's columns (one COO assembly)."""
         if not terms:
             return None
-        parts = [_global(t.cost_matrix(), t.columns, N) for t in terms]
-        return sp.csr_array(sum(parts[1:], parts[0].tocsr()))
+        rows, cols, vals = [], [], []
+        for t in terms:
+            C = t.cost_matrix()
+            i, j = np.nonzero(C)
+            rows.append(t.columns[i])
+            cols.append(t.columns[j])
+            vals.append(C[i, j])
+        return canonical_coo(np.concatenate(rows), np.concatenate(cols), np.concatenate(vals), N)
 
     # ------------------------------------------------------------------ the local solver's view
     def cost(self, values: Sequence[np.ndarray]) -> float:
@@ -122,20 +130,44 @@ class Graph:
             total += float(e @ t.W @ e)
         return total
 
+    def _stacked(self) -> tuple[sp.csr_array, sp.csr_array, list[tuple[int, Term]]]:
+        """(M (m, N): every affine residual's map on the lifted vector, rows in term order; W (m, m) block
+        diagonal; the other terms with their first row), made once."""
+        if self._stack is None:
+            rows, cols, vals, others = [], [], [], []
+            r0 = 0
+            for t in self.terms:
+                if t.M is not None:
+                    i, j = np.nonzero(t.M)
+                    rows.append(r0 + i)
+                    cols.append(t.columns[j])
+                    vals.append(t.M[i, j])
+                else:
+                    others.append((r0, t))
+                r0 += t.m
+            M = sp.csr_array((np.concatenate(vals or [np.zeros(0)]), (np.concatenate(rows or [np.zeros(0, int)]),
+                                                                      np.concatenate(cols or [np.zeros(0, int)]))),
+                             shape=(r0, self.layout.V.N))
+            self._stack = (M, sp.csr_array(sp.block_diag([t.W for t in self.terms])), others)
+        return self._stack
+
     def linearize(self, values: Sequence[np.ndarray]) -> tuple[np.ndarray, sp.csr_array, sp.csr_array]:
-        """Stacked (e, J, W) for ``gauss_newton``: J (m, n_tangent) sparse, W block diagonal."""
-        es, rows, cols, vals, Ws = [], [], [], [], []
-        r0 = 0
-        for t in self.terms:
-            e, J = t.linearize(values)
-            es.append(e)
-            tangent = np.concatenate([np.arange(el.tangent_offset, el.tangent_offset + el.dof) for el in t.elements])
-            i, j = np.nonzero(J)
-            rows.append(r0 + i)
-            cols.append(tangent[j])
-            vals.append(J[i, j])
-            Ws.append(t.W)
-            r0 += e.size
-        J = sp.csr_array((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
-                         shape=(r0, self.layout.n_tangent))
-        return np.concatenate(es), J, sp.csr_array(sp.block_diag(Ws))
+        """Stacked (e, J, W) for ``gauss_newton``: J (m, n_tangent) sparse, W block diagonal.  The affine
+        residuals in two sparse products, e = M x and J = M ∂x/∂ε; the others term by term."""
+        M, W, others = self._stacked()
+        x, dx = self.layout.lift_polynomial(values)
+        e, J = M @ x, M @ dx
+        if others:
+            rows, cols, vals = [], [], []
+            for r0, t in others:
+                et, Jt = t.linearize(values)
+                e[r0:r0 + et.size] = et
+                tangent = np.concatenate([np.arange(el.tangent_offset, el.tangent_offset + el.dof)
+                                          for el in t.elements])
+                i, j = np.nonzero(Jt)
+                rows.append(r0 + i)
+                cols.append(tangent[j])
+                vals.append(Jt[i, j])
+            J = sp.csr_array(J + sp.csr_array((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+                                              shape=J.shape))
+        return e, sp.csr_array(J), W

@@ -58,6 +58,14 @@ class LiftingFit:
         """∂z/∂v at v, (E, p)."""
         return self.G + 2.0 * np.einsum("epq,q->ep", self.S, v)
 
+    def values(self, V: np.ndarray) -> np.ndarray:
+        """z at each row of V (n, p) by the polynomial, (n, E) (``fn``'s values up to rounding)."""
+        return self.c0 + V @ self.G.T + np.einsum("np,epq,nq->ne", V, self.S, V)
+
+    def gradients(self, V: np.ndarray) -> np.ndarray:
+        """∂z/∂v at each row of V (n, p), (n, E, p)."""
+        return self.G + 2.0 * np.einsum("epq,nq->nep", self.S, V)
+
     def constraint_matrices(self, p: int, offset: int) -> list[np.ndarray]:
         """c0_e h² + G_e v h + vᵀ S_e v − h·z_e = 0 on local columns [h, v (p), …, z at ``offset``, …]."""
         n = offset + self.size

@@ -12,6 +12,7 @@ from dataclasses import dataclass
 from typing import Any, Mapping, Sequence
 
 import numpy as np
+import scipy.sparse as sp
 
 from ..errors import ProblemDefinitionError
 from ..model import Variables
@@ -81,6 +82,12 @@ class Layout:
             self.by_main.setdefault(el.var.name + ("" if el.index is None else str(el.index)), el)
         #: an element's index in ``elements`` (and in a value list), by main block
         self.position = {el.main: k for k, el in enumerate(self.elements)}
+        self._columns = [self.V.index(el.blocks) for el in self.elements]
+        #: per variable: its elements' positions (count,) and columns (count, k)
+        self.families: list[tuple[Variable, np.ndarray, np.ndarray]] = []
+        for var in self.variables:
+            idx = np.array([k for k, el in enumerate(self.elements) if el.var is var])
+            self.families.append((var, idx, np.array([self._columns[k] for k in idx])))
         #: the truth's values, element by element
         self.truth_values = self.values(truth)
 
@@ -91,7 +98,7 @@ class Layout:
 
     def columns(self, el: Element) -> np.ndarray:
         """The element's columns of the lifted vector, main block first."""
-        return self.V.index(el.blocks)
+        return self._columns[self.position[el.main]]
 
     def values(self, state: Mapping[str, Any]) -> list[np.ndarray]:
         """The elements' values in order (checked against the manifold's shape)."""
@@ -124,9 +131,31 @@ class Layout:
         """x = [h, blocks…] (N,) with h = 1."""
         x = np.zeros(self.V.N)
         x[0] = 1.0
-        for el, v in zip(self.elements, values):
-            x[self.columns(el)] = el.var.lifted(v)
+        for cols, el, v in zip(self._columns, self.elements, values):
+            x[cols] = el.var.lifted(v)
         return x
+
+    def lift_polynomial(self, values: Sequence[np.ndarray]) -> tuple[np.ndarray, sp.csr_array]:
+        """(x, ∂x/∂ε) at the values from the liftings' fitted polynomials, a variable's elements at once: x as
+        ``lift`` (up to rounding), ∂x/∂ε (N, n_tangent) the embedding's tangent map T and each lifting block's
+        gradient times T (the h row zero).  For the local solver, which evaluates them at every step."""
+        x = np.zeros(self.V.N)
+        x[0] = 1.0
+        rows, cols, vals = [], [], []
+        for var, idx, columns in self.families:
+            man, fits = var.manifold, var.fits()
+            E = np.array([man.embed(values[k]) for k in idx])  # (n, p)
+            T = np.array([man.tangent(values[k]) for k in idx])  # (n, p, dof)
+            x[columns] = np.hstack([E] + [f.values(E) for f in fits])
+            D = np.concatenate([T] + [np.einsum("nep,npd->ned", f.gradients(E), T) for f in fits], axis=1)
+            offsets = np.array([self.elements[k].tangent_offset for k in idx])
+            n, r, c = np.nonzero(D)
+            rows.append(columns[n, r])
+            cols.append(offsets[n] + c)
+            vals.append(D[n, r, c])
+        J = sp.csr_array((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+                         shape=(self.V.N, self.n_tangent))
+        return x, J
 
     def recover(self, x: np.ndarray) -> list[np.ndarray]:
         """Each element's value: its main block (x divided by h when h ≠ 0) unembedded and projected."""

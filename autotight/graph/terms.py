@@ -2,12 +2,12 @@
 
 Local columns of a factor: [h, then each variable's columns (main block, lifting blocks)] in the order
 the factor names its variables.  A factor without a declared ``cost`` must have a residual affine in its
-views' entries: e = b·h + A θ is read off by evaluating ``residual`` at θ = e_h and e_h + e_j, and checked
-at a random θ (``AFFINE_RTOL``); its lifted cost is Mᵀ W M with M = [b A], and its Jacobian with respect
-to the retraction steps is A·∂θ/∂ε (exact, through the lifting's fitted polynomials).  A factor with a
-declared ``cost`` has its residual evaluated at states only (it may need its variables on their
-manifolds); its Jacobian is the declared ``jacobian`` or central differences of the residual along each
-retraction direction (step ``FD_STEP``).
+views' entries: e = b·h + A θ is read off by evaluating ``residual`` at θ = e_h and e_h + e_j, and
+checked at a fixed generic θ (``check_point``, ``AFFINE_RTOL``); its lifted cost is Mᵀ W M with
+M = [b A], and its Jacobian with respect to the retraction steps is A·∂θ/∂ε (exact, through the
+lifting's fitted polynomials; ``assemble``).  A factor with a declared ``cost`` has its residual
+evaluated at states only (it may need its variables on their manifolds); its Jacobian is the declared
+``jacobian`` or central differences of the residual along each retraction direction (step ``FD_STEP``).
 """
 
 from __future__ import annotations
@@ -31,6 +31,13 @@ def _vector(e: object, where: str) -> np.ndarray:
     if v.ndim > 1 or not v.size or not np.all(np.isfinite(v)):
         raise ProblemDefinitionError(f"{where}: residual must return a non-empty finite vector, got shape {v.shape}")
     return v.reshape(-1)
+
+
+def check_point(n: int) -> np.ndarray:
+    """A fixed generic θ (h = 1, then ±√2, ±√3, … with alternating signs) at which an affine read-off is
+    checked: an affine map matches there, a residual with any other term almost surely does not."""
+    tail = np.sqrt(np.arange(2.0, n + 1)) * np.where(np.arange(n - 1) % 2, -1.0, 1.0)
+    return np.r_[1.0, tail]
 
 
 class Term:
@@ -82,24 +89,24 @@ class Term:
         return v.reshape(-1) if v.ndim <= 1 and v.size and np.all(np.isfinite(v)) else None
 
     def _affine_map(self) -> np.ndarray | None:
-        """M = [b A] (m, n) when the residual is affine in θ (read off at θ = e_h and e_h + e_j, checked at a
-        random θ), else None."""
-        base = np.eye(1, self.n, 0)[0]
-        b = self._probe(base)
+        """M = [b A] (m, n) when the residual is affine in θ (read off at θ = e_h and e_h + e_j, checked at
+        ``check_point``), else None."""
+        I = np.eye(self.n)
+        b = self._probe(I[0])
         if b is None:
             return None
         cols = [b]
         for j in range(1, self.n):
-            e = self._probe(base + np.eye(1, self.n, j)[0])
+            e = self._probe(I[0] + I[j])
             if e is None or e.size != b.size:
                 return None
             cols.append(e - b)
         M = np.stack(cols, axis=1)
-        theta = base + np.random.default_rng(1).standard_normal(self.n) * np.r_[0.0, np.ones(self.n - 1)]
+        theta = check_point(self.n)
         want = self._probe(theta)
         if want is None or want.size != b.size:
             return None
-        scale = max(1.0, float(np.abs(want).max()), float(np.abs(M).max())) * max(1.0, float(np.abs(theta).max()))
+        scale = max(1.0, float(np.abs(want).max()), float(np.abs(M).max())) * float(np.abs(theta).max())
         return M if np.abs(M @ theta - want).max() <= AFFINE_RTOL * scale else None
 
     def _weight(self, m: int) -> np.ndarray:
@@ -143,8 +150,9 @@ class Term:
         return self._residual(self.lifted(self.own(values)))
 
     def linearize(self, values: Sequence[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
-        """(e (m,), J (m, Σ dof)) at the layout's values, J with respect to the factor's variables' retraction
-        steps in its order."""
+        """(e (m,), J (m, Σ dof)) of a residual that is not affine (``M`` is None; the affine ones are stacked,
+        ``assemble.Graph.linearize``) at the layout's values, J with respect to the factor's variables'
+        retraction steps in its order: the declared ``jacobian``, else central differences."""
         own = self.own(values)
         theta = self.lifted(own)
         dof = sum(el.dof for el in self.elements)
@@ -155,12 +163,6 @@ class Term:
                 raise ProblemDefinitionError(f"{self.where}: jacobian returned shape {J.shape}, "
                                              f"expected ({e.size}, {dof})")
             return e, J
-        if self.M is not None:
-            blocks, o = [], 1
-            for el, v, k in zip(self.elements, own, self.sizes):
-                blocks.append(self.M[:, o:o + k] @ _lifting_jacobian(el, v))
-                o += k
-            return self.M @ theta, np.hstack(blocks)
         cols = []
         for i, (el, v) in enumerate(zip(self.elements, own)):
             for k in range(el.dof):
@@ -170,11 +172,3 @@ class Term:
                 plus[i], minus[i] = el.var.manifold.retract(v, step), el.var.manifold.retract(v, -step)
                 cols.append((self._residual(self.lifted(plus)) - self._residual(self.lifted(minus))) / (2 * FD_STEP))
         return self._residual(theta), np.stack(cols, axis=1)
-
-
-def _lifting_jacobian(el: Element, x: np.ndarray) -> np.ndarray:
-    """∂θ_el/∂ε (size of the element's columns, dof): the embedding's tangent, then each lifting block's
-    gradient times it."""
-    T = el.var.manifold.tangent(x)
-    v = el.var.manifold.embed(x)
-    return np.vstack([T] + [f.gradient(v) @ T for f in el.var.fits()])
