@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from autotight.graph import Euclidean, Factor, Rotation, Variable, derive
+from autotight.graph import Factor, derive
 from autotight.problem import Instance, Param
 
 from . import _landmark_terms as lt
@@ -41,25 +41,11 @@ def generate(params: dict, rng: np.random.Generator) -> Instance:
     return Instance(NAME, dict(params), {"points": points, "y": y}, {"C": C, "t": t})
 
 
-def variables(inst: Instance) -> list[Variable]:
-    """The pose: t ∈ R^d (block t), C ∈ SO(d) (block c = vec C), one model factor of type "pose"."""
-    d = inst.measurements["points"].shape[1]
-    return [Variable("t", Euclidean(d), type="pose"), Variable("C", Rotation(d), type="pose", block="c")]
-
-
 def factors(inst: Instance):
     """e_i = C p_i + t − y_i, affine in (t, vec C)."""
     for p, y in zip(inst.measurements["points"], inst.measurements["y"]):
         yield Factor(("t", "C"), lambda t, C, p=p, y=y: C.x @ p + t.x - y)
 
 
-build, lift, cost, sample, local_solve, recover = derive(variables, factors)
-
-
-def random_state(inst: Instance, rng: np.random.Generator) -> dict:
-    d = inst.measurements["points"].shape[1]
-    return {"C": lt.random_rotation(rng, d), "t": rng.uniform(-1.0, 1.0, d)}
-
-
-def errors(inst: Instance, state: dict) -> dict:
-    return pv.pose_errors(state, inst.truth)
+build, lift, cost, sample, local_solve, recover = derive(pv.pose_variables, factors)
+random_state, errors = pv.random_pose_state, pv.errors
