@@ -265,3 +265,17 @@ def test_the_worked_example_page_shows_the_module_file_as_it_is():
     page = (ROOT / "docs" / "range_only_2d.md").read_text()
     assert re.findall(r"```python\n(.*?)```", page, re.S) == [EXAMPLE.read_text()]
     assert f"in {len(EXAMPLE.read_text().splitlines())} lines" in page
+
+
+@pytest.mark.parametrize("variables, factors, message", [
+    ([Variable("q", Euclidean(2))], _point_factors(_affine), r"^the truth has no entry 'q' for variable 'q'$"),
+    ([Variable("p", Euclidean(3))], _point_factors(_affine), r"^variable 'p' on Euclidean\(3\): the truth's entry has "
+                                                             r"shape \(2,\), expected \(3,\) or \(N, \*\(3,\)\)$"),
+    (VARS, lambda inst: [Factor("p0", _affine)], r"^factor 'factor_0': unknown variable 'p0'; variables are \['p'\]$"),
+    (VARS, lambda inst: [Factor("p", lambda v: np.ones((2, 2)))],
+     r"^factor 'factor_0': residual must return a non-empty vector, got shape \(2, 2\)$"),
+], ids=["missing-truth", "wrong-shape", "unknown-variable", "matrix-residual"])
+def test_bad_declarations_are_one_line_errors(variables, factors, message):
+    prob = load(_module(variables, factors, _point_instance))
+    with pytest.raises(ProblemDefinitionError, match=message):
+        prob.build(prob.generate({}, 0))

@@ -86,7 +86,9 @@ class Term:
     def _probe(self, theta: np.ndarray) -> np.ndarray | None:
         """The residual at an arbitrary θ (off the lifting), or None when it is not a finite vector there."""
         v = np.asarray(self.factor.residual(*self._views(theta)), float)
-        return v.reshape(-1) if v.ndim <= 1 and v.size and np.all(np.isfinite(v)) else None
+        if v.ndim > 1 or not v.size:
+            raise ProblemDefinitionError(f"{self.where}: residual must return a non-empty vector, got shape {v.shape}")
+        return v.reshape(-1) if np.all(np.isfinite(v)) else None
 
     def _affine_map(self) -> np.ndarray | None:
         """M = [b A] (m, n) when the residual is affine in θ (read off at θ = e_h and e_h + e_j, checked at
