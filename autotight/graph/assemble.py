@@ -67,7 +67,6 @@ class Graph:
             if not isinstance(f, Declared):
                 raise ProblemDefinitionError(f"factors must yield autotight.graph.Factor, got {type(f).__name__}")
             self.terms.append(Term(f, layout, f"{f.type or 'factor'}_{i}"))
-        self.n_residuals = sum(t.m for t in self.terms)
         self._stack: tuple[sp.csr_array, sp.csr_array, list[tuple[int, Term]]] | None = None
 
     def model(self) -> Model:
