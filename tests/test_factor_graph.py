@@ -123,6 +123,11 @@ def test_rotation_variables_give_the_hand_written_registration(dim, shared):
     A, B = span(model.primary()[1:]), span(orth)  # without h² = 1
     assert np.linalg.matrix_rank(A) == np.linalg.matrix_rank(B) == np.linalg.matrix_rank(np.vstack([A, B]))
     assert check_problem(mod, seed=1).ok
+    # recover reports the raw determinant: a reflection (an O(d) point of the relaxation) reads −1
+    reflected = dict(inst.truth, C=np.diag([-1.0] + [1.0] * (dim - 1)) @ inst.truth["C"])
+    est = graph.recover(inst, graph.lift(inst, reflected))
+    assert est["det_raw"] == pytest.approx(-1.0, abs=1e-12) and np.linalg.det(est["C"]) == pytest.approx(1.0)
+    assert graph.recover(inst, graph.lift(inst, inst.truth))["det_raw"] == pytest.approx(1.0, abs=1e-12)
 
 
 def _point_instance(params, rng):

@@ -16,8 +16,9 @@ affine in the lifting, so the check's ``cost`` test then checks the declarations
 independent formula); ``sample`` (each variable retracted from the nominal by spread·ν, ν ~ N(0, I): a
 state on the manifolds, whose lifting meets every derived primary constraint; factors' own constraints must
 hold for every value of their variables); ``local_solve`` (``autotight.gauss_newton`` on the retractions,
-options ``max_iter``, ``rel_tol``); ``recover`` (each variable's main block, projected onto its manifold).
-``errors`` and ``random_state`` are the contract's defaults (``autotight.problem``).
+options ``max_iter``, ``rel_tol``); ``recover`` (each variable's main block, projected onto its manifold;
+the rotations' raw determinants as ``det_raw``, ``layout.Layout.recover``).  ``errors`` and
+``random_state`` are the contract's defaults (``autotight.problem``).
 """
 
 from __future__ import annotations
@@ -87,6 +88,6 @@ def derive(variables: Sequence[Variable] | Callable[[Any], Sequence[Variable]],
 
     def recover(inst: Any, Theta: np.ndarray) -> dict:
         L = graph(inst).layout
-        return L.state(L.recover(np.asarray(Theta, float).reshape(-1)))
+        return L.recover(np.asarray(Theta, float).reshape(-1))
 
     return Parts(build, lift, cost, sample, local_solve, recover)

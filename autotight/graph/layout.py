@@ -17,6 +17,7 @@ import scipy.sparse as sp
 from ..errors import ProblemDefinitionError
 from ..model import Variables
 from .declare import Variable
+from .manifolds import Rotation
 
 
 @dataclass
@@ -157,11 +158,24 @@ class Layout:
                          shape=(self.V.N, self.n_tangent))
         return x, J
 
-    def recover(self, x: np.ndarray) -> list[np.ndarray]:
-        """Each element's value: its main block (x divided by h when h ≠ 0) unembedded and projected."""
+    def raw(self, x: np.ndarray) -> list[np.ndarray]:
+        """Each element's main block, unembedded, from x divided by h (when h ≠ 0): not yet on its manifold."""
         x = np.asarray(x, float).reshape(-1)
         x = x / x[0] if x[0] != 0 else x
-        return [el.var.manifold.project(el.var.manifold.unembed(x[self.V.slice(el.main)])) for el in self.elements]
+        return [el.var.manifold.unembed(x[self.V.slice(el.main)]) for el in self.elements]
+
+    def recover(self, x: np.ndarray) -> dict[str, np.ndarray]:
+        """The state of x: each element's ``raw`` value projected onto its manifold; for the rotations, the
+        determinants of the raw values as ``det_raw`` (one rotation variable: its value or (N,) stack) or
+        ``<name>_det_raw`` (several), as the shipped problems report an O(d) solution's reflection."""
+        raw = self.raw(x)
+        state = self.state([el.var.manifold.project(a) for el, a in zip(self.elements, raw)])
+        rotations = [var for var in self.variables if isinstance(var.manifold, Rotation)]
+        for var in rotations:
+            dets = np.array([np.linalg.det(a) for el, a in zip(self.elements, raw) if el.var is var])
+            key = "det_raw" if len(rotations) == 1 else f"{var.name}_det_raw"
+            state[key] = dets.reshape(()) if self.counts[var.name] is None else dets
+        return state
 
     def retract(self, values: Sequence[np.ndarray], eps: np.ndarray) -> list[np.ndarray]:
         """Each element retracted by its slice of the stacked tangent vector ε (n_tangent,)."""
