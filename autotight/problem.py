@@ -36,6 +36,11 @@ and **may** define (the default is used otherwise)
 - ``DATA_NAMES: dict[str, Sequence[str]]``: per factor type, the names of its ``Factor.data`` entries
   (printed closed forms, ``autotight.closed_form``; default δ1, δ2, …).
 
+A module on the factor-graph layer (``autotight.graph``, ``docs/factor_graph.md``) writes ``PARAMS``,
+``generate``, ``VARIABLES`` and ``factors`` and derives the other required parts with one call.  Modules are
+found by name in the ``problems`` package, then among the entry points of group ``autotight.problems``
+(``registered``), or by path.
+
 A state is a ``dict[str, np.ndarray]`` in the problem's own terms.  h² = 1 (d = 1) or Θ_hh = I_d
 is added to the primary constraints for you (``Model.homogenisation``); ``lift`` fills h in when it
 uses ``Variables.assemble``.  ``sample`` stays required: the local solver's manifold is not part of
@@ -50,6 +55,7 @@ raised ``from`` the original.  autotight's own errors (``AutotightError``) pass 
 from __future__ import annotations
 
 import importlib
+import importlib.metadata
 import importlib.util
 import math
 import pkgutil
@@ -83,6 +89,8 @@ SPREAD = 0.5
 RANDOM_SPREAD = math.pi
 #: Relative tolerance on the primary constraints at sampled states (see ``relative_violation``).
 SAMPLE_TOL = 1e-8
+#: The entry-point group an installed package registers problems under: ``name = "pkg.module"``.
+ENTRY_POINT_GROUP = "autotight.problems"
 
 
 @dataclass(frozen=True)
@@ -476,6 +484,42 @@ def available() -> list[str]:
     return sorted(m.name for m in pkgutil.iter_modules(problems.__path__) if not m.name.startswith("_"))
 
 
+def registered() -> dict[str, importlib.metadata.EntryPoint]:
+    """Problems that installed packages register under the entry-point group ``ENTRY_POINT_GROUP``, by name
+    (a name also shipped in ``problems`` is left out: the shipped module wins)."""
+    shipped = set(available())
+    return {ep.name: ep for ep in importlib.metadata.entry_points(group=ENTRY_POINT_GROUP) if ep.name not in shipped}
+
+
+def _module_file(ep: importlib.metadata.EntryPoint) -> Path | None:
+    """The file of the module an entry point names (``pkg.mod``, without an attribute), found without importing
+    it; None when it names an attribute or has no file."""
+    if ep.attr:
+        return None
+    try:
+        spec = importlib.util.find_spec(ep.module)  # imports the parent package of a dotted name
+    except Exception:  # noqa: BLE001 - a package that does not import: not this file
+        return None
+    return Path(spec.origin).resolve() if spec is not None and spec.origin else None
+
+
+def _load_entry_point(ep: importlib.metadata.EntryPoint) -> Problem:
+    """The problem an entry point names: a module (``pkg.mod``) or a module attribute (``pkg:mod``)."""
+    try:
+        obj = ep.load()
+    except Exception as e:
+        raise _import_failed(f"cannot import problem {ep.name!r} (entry point {ep.value!r})", e) from e
+    if isinstance(obj, Problem):
+        return obj
+    if isinstance(obj, ModuleType):
+        prob = Problem(obj)
+        if not hasattr(obj, "NAME"):
+            prob.name = ep.name  # the name it is registered and found by
+        return prob
+    raise ProblemDefinitionError(f"entry point {ep.name!r} = {ep.value!r} of group {ENTRY_POINT_GROUP!r} names "
+                                 f"{_kind(obj)}, expected a problem module")
+
+
 def _import_failed(what: str, e: Exception) -> ProblemModuleError:
     msg = _first_line(e)
     return ProblemModuleError(f"{what}: {type(e).__name__}" + (f": {msg}" if msg else ""))
@@ -492,6 +536,9 @@ def _load_file(path: Path) -> Problem:
 
     if path.resolve().parent in {Path(d).resolve() for d in problems.__path__} and path.stem in available():
         return load(path.stem)  # a shipped module: imported in its package (its relative imports work)
+    for ep in registered().values():
+        if _module_file(ep) == path.resolve():
+            return _load_entry_point(ep)  # a registered module: its name (worker processes load by path)
     mod_name = f"autotight_user_problem_{path.stem}"
     spec = importlib.util.spec_from_file_location(mod_name, path)
     if spec is None or spec.loader is None:
@@ -509,7 +556,8 @@ def _load_file(path: Path) -> Problem:
 
 
 def load(name_or_path: str | Path | ModuleType | Problem) -> Problem:
-    """A problem by name (``problems.<name>``), by ``.py`` path, or from a module object."""
+    """A problem by name (``problems.<name>``, else an entry point of ``ENTRY_POINT_GROUP``), by ``.py`` path, or
+    from a module object."""
     if isinstance(name_or_path, Problem):
         return name_or_path
     if isinstance(name_or_path, ModuleType):
@@ -519,7 +567,10 @@ def load(name_or_path: str | Path | ModuleType | Problem) -> Problem:
         return _load_file(Path(s))
     known = available()
     if s not in known:
-        raise ProblemDefinitionError(f"unknown problem {s!r}; known problems: {', '.join(known)}")
+        others = registered()
+        if s in others:
+            return _load_entry_point(others[s])
+        raise ProblemDefinitionError(f"unknown problem {s!r}; known problems: {', '.join(known + sorted(others))}")
     try:
         module = importlib.import_module(f"problems.{s}")
     except Exception as e:

@@ -6,6 +6,7 @@ q = [I_d, pᵀ ⊗ I_d] [t; c].  The only primary constraints on the pose are C�
 dropped, as in the peer).  A state is {"C": (d, d), "t": (d,)} (plus problem-specific entries).
 
 Local solvers perturb C ← exp(ψ^∧) C, t ← t + δ (ψ of size 1 in 2D, 3 in 3D; ``_landmark_terms``).
+Modules on the factor-graph layer (wahba, mono_localization) declare the pose with ``pose_variables``.
 """
 
 from __future__ import annotations
@@ -18,6 +19,7 @@ import scipy.sparse as sp
 from autotight import lie
 from autotight.constraints import Affine, Constraint, QuadForm, Variables
 from autotight.gauss_newton import gauss_newton
+from autotight.graph import Euclidean, Rotation, Variable
 from autotight.problem import LocalResult
 
 from . import _landmark_terms as lt
@@ -105,31 +107,19 @@ def pose_errors(state: dict, truth: dict) -> dict[str, float]:
             "translation": float(np.linalg.norm(np.asarray(state["t"]) - truth["t"]))}
 
 
-def single_pose_parts(residual: Callable, variables: Callable) -> tuple[Callable, ...]:
-    """The parts a module estimating one pose (C, t) from ``inst.measurements["points"]`` shares with the
-    others, given its ``residual(inst, state) -> (e, J)`` and ``variables(d) -> Variables``:
-    (cost, sample, random_state, local_solve, recover, errors), each with the problem contract's signature."""
+def pose_variables(inst) -> list[Variable]:
+    """The pose of a module estimating one pose from ``inst.measurements["points"]``, on the factor-graph
+    layer: t ∈ R^d (block t) and C ∈ SO(d) (block c = vec C), sharing one model factor of type "pose"."""
+    d = inst.measurements["points"].shape[1]
+    return [Variable("t", Euclidean(d), type="pose"), Variable("C", Rotation(d), type="pose", block=C_BLOCK)]
 
-    def cost(inst, state: dict) -> float:
-        e, _ = residual(inst, state)
-        return float(e @ e)
 
-    def sample(inst, rng: np.random.Generator, nominal: dict, spread: float) -> dict:
-        return sample_pose(rng, nominal, spread)
+def random_pose_state(inst, rng: np.random.Generator) -> dict:
+    """A start independent of the truth: a uniform rotation and t uniform in [−1, 1]^d."""
+    d = inst.measurements["points"].shape[1]
+    return {"C": lt.random_rotation(rng, d), "t": rng.uniform(-1.0, 1.0, d)}
 
-    def random_state(inst, rng: np.random.Generator) -> dict:
-        d = inst.measurements["points"].shape[1]
-        return {"C": lt.random_rotation(rng, d), "t": rng.uniform(-1.0, 1.0, d)}
 
-    def local_solve(inst, init: dict, max_iter: int = 200) -> LocalResult:
-        return pose_gauss_newton(lambda s: residual(inst, s), init, max_iter)
-
-    def recover(inst, Theta: np.ndarray) -> dict:
-        d = inst.measurements["points"].shape[1]
-        C, t, C_raw = pose_from_vector(Theta, variables(d), d)
-        return {"C": C, "t": t, "det_raw": np.array(np.linalg.det(C_raw))}
-
-    def errors(inst, state: dict) -> dict:
-        return pose_errors(state, inst.truth)
-
-    return cost, sample, random_state, local_solve, recover, errors
+def errors(inst, state: dict) -> dict[str, float]:
+    """``pose_errors`` against the instance's truth."""
+    return pose_errors(state, inst.truth)

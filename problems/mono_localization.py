@@ -6,16 +6,18 @@ N(0, σ² I) on its first d − 1 entries, scaled to unit length.  Cost (distanc
 
     f(C, t) = Σ_i q_iᵀ (I − u_i u_iᵀ) q_i
 
-Lifting x = [h, t, vec C] (``_pose_vector``); primary constraints CᵀC = I.  One factor "camera"
-(h, t, c) holds the cost and the constraints.  Landmarks are placed in front of the camera (depth in
-[1, 5], inside a 90° field of view) and mapped to the world by the true pose.
+Lifting x = [h, t, vec C] (``_pose_vector``); primary constraints CᵀC = I.  Written on the factor-graph
+layer (``autotight.graph``): the pose t, C (``_pose_vector.pose_variables``) and one residual per
+landmark; the layer derives one factor "pose" (h, t, c) holding the cost and the constraints.  Landmarks
+are placed in front of the camera (depth in [1, 5], inside a 90° field of view) and mapped to the world
+by the true pose.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from autotight.constraints import Factor, Model, Variables, sum_quads
+from autotight.graph import Factor, derive
 from autotight.problem import Instance, Param
 
 from . import _landmark_terms as lt
@@ -28,11 +30,6 @@ PARAMS = {
     "n_landmarks": Param(5, "number of landmarks", low=1),
     "sigma": Param(1e-3, "noise standard deviation on the normalised image coordinates", low=0.0),
 }
-
-
-
-def _variables(d: int) -> Variables:
-    return Variables(pv.pose_blocks(d))
 
 
 def generate(params: dict, rng: np.random.Generator) -> Instance:
@@ -48,34 +45,13 @@ def generate(params: dict, rng: np.random.Generator) -> Instance:
     return Instance(NAME, dict(params), {"points": points, "bearings": u}, {"C": C, "t": t})
 
 
-def build(inst: Instance) -> Model:
+def factors(inst: Instance):
+    """e_i = (I − u_i u_iᵀ)(C p_i + t): a projector, so ‖e_i‖² = q_iᵀ(I − u_iu_iᵀ)q_i; affine in (t, vec C)."""
     P, U = inst.measurements["points"], inst.measurements["bearings"]
-    d = P.shape[1]
-    V = _variables(d)
-    parts = []
     for p, u in zip(P, U):
-        q = pv.point_map(p)
-        parts.append((q, q, np.eye(d) - np.outer(u, u)))
-    return Model(V, [Factor("camera", "pose", ("h", pv.T_BLOCK, pv.C_BLOCK), cost=sum_quads(V, parts),
-                            constraints=pv.orthonormality(V, d, "camera"))])
+        Pr = np.eye(len(u)) - np.outer(u, u)
+        yield Factor(("t", "C"), lambda t, C, p=p, Pr=Pr: Pr @ (C.x @ p + t.x))
 
 
-def lift(inst: Instance, state: dict) -> np.ndarray:
-    return _variables(len(state["t"])).assemble(pv.pose_values(state["C"], state["t"]))
-
-
-def _residual(inst: Instance, state: dict) -> tuple[np.ndarray, np.ndarray]:
-    """e_i = (I − u_i u_iᵀ) q_i (a projector, so ‖e_i‖² = q_iᵀ(I − u_iu_iᵀ)q_i) and its Jacobian."""
-    P, U = inst.measurements["points"], inst.measurements["bearings"]
-    C, t = np.asarray(state["C"], float), np.asarray(state["t"], float)
-    d = len(t)
-    es, Js = [], []
-    for p, u in zip(P, U):
-        Pr = np.eye(d) - np.outer(u, u)
-        es.append(Pr @ (C @ p + t))
-        Js.append(Pr @ pv.point_jacobian(C, p))
-    return np.concatenate(es), np.vstack(Js)
-
-
-#: the parts shared with the other single-pose modules (``_pose_vector.single_pose_parts``)
-cost, sample, random_state, local_solve, recover, errors = pv.single_pose_parts(_residual, _variables)
+build, lift, cost, sample, local_solve, recover = derive(pv.pose_variables, factors)
+random_state, errors = pv.random_pose_state, pv.errors

@@ -3,19 +3,20 @@
 Unknown pose (C, t), C ∈ SO(d), d = 2 or 3.  Known points p_i (world), measured in the sensor frame as
 y_i = C p_i + t + n_i, n_i ~ N(0, σ² I).  Cost  Σ_i ‖C p_i + t − y_i‖².
 
-Lifting x = [h, t, vec C] (n = 1 + d + d², ``_pose_vector``); primary constraints CᵀC = I.  The lifted
+Lifting x = [h, t, vec C] (n = 1 + d + d², as ``_pose_vector``); primary constraints CᵀC = I.  The lifted
 variety (1, t, vec C) with C ∈ SO(3) has 20 independent quadratic relations (6 primary + 14 redundant:
 row orthonormality and c_i × c_j = c_k); the peer learns 21 with h² = 1 and keeps 7.
 
-One factor "registration" (h, t, c) holds the cost and the constraints (no data: its relations do not
-depend on the measurements).
+Written on the factor-graph layer (``autotight.graph``): variables t ∈ R^d and C ∈ SO(d) (block c), both of
+type "pose", and one residual C p_i + t − y_i per point; the layer derives one factor "pose" (h, t, c) holding
+the cost and the constraints (no data: its relations do not depend on the measurements).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from autotight.constraints import Factor, Model, Variables, const, sum_quads
+from autotight.graph import Factor, derive
 from autotight.problem import Instance, Param
 
 from . import _landmark_terms as lt
@@ -32,10 +33,6 @@ PAPER_CLAIM = {"source": "AutoTight _results_test/terminal_output.log, PPR row (
                "set": "paper", "default": "21 constraints → 7 required; rank-tight (SVR 8.8e9)"}
 
 
-def _variables(d: int) -> Variables:
-    return Variables(pv.pose_blocks(d))
-
-
 def generate(params: dict, rng: np.random.Generator) -> Instance:
     d = lt.check_dim(params["dim"])
     points = rng.standard_normal((params["n_points"], d))
@@ -44,26 +41,11 @@ def generate(params: dict, rng: np.random.Generator) -> Instance:
     return Instance(NAME, dict(params), {"points": points, "y": y}, {"C": C, "t": t})
 
 
-def build(inst: Instance) -> Model:
-    P, Y = inst.measurements["points"], inst.measurements["y"]
-    d = P.shape[1]
-    V = _variables(d)
-    residuals = [pv.point_map(p) - const(y) for p, y in zip(P, Y)]
-    Q = sum_quads(V, [(e, e, None) for e in residuals])
-    return Model(V, [Factor("registration", "pose", ("h", pv.T_BLOCK, pv.C_BLOCK), cost=Q,
-                            constraints=pv.orthonormality(V, d, "registration"))])
+def factors(inst: Instance):
+    """e_i = C p_i + t − y_i, affine in (t, vec C)."""
+    for p, y in zip(inst.measurements["points"], inst.measurements["y"]):
+        yield Factor(("t", "C"), lambda t, C, p=p, y=y: C.x @ p + t.x - y)
 
 
-def lift(inst: Instance, state: dict) -> np.ndarray:
-    return _variables(len(state["t"])).assemble(pv.pose_values(state["C"], state["t"]))
-
-
-def _residual(inst: Instance, state: dict) -> tuple[np.ndarray, np.ndarray]:
-    P, Y = inst.measurements["points"], inst.measurements["y"]
-    C, t = np.asarray(state["C"], float), np.asarray(state["t"], float)
-    e = (P @ C.T + t - Y).ravel()
-    return e, np.vstack([pv.point_jacobian(C, p) for p in P])
-
-
-#: the parts shared with the other single-pose modules (``_pose_vector.single_pose_parts``)
-cost, sample, random_state, local_solve, recover, errors = pv.single_pose_parts(_residual, _variables)
+build, lift, cost, sample, local_solve, recover = derive(pv.pose_variables, factors)
+random_state, errors = pv.random_pose_state, pv.errors

@@ -7,12 +7,12 @@ import json
 from typing import Any, Callable
 
 from ..io import jsonable
-from ..problem import available, load
+from ..problem import available, load, registered
 
 
 def cmd_list(args: argparse.Namespace) -> int:
     rows: list[dict[str, Any]] = []
-    for name in available():
+    for name in available() + sorted(registered()):
         prob = load(name)
         params = {k: {"default": p.default, "help": p.help} for k, p in prob.params.items()}
         rows.append({"name": name, "description": prob.description, "params": params})

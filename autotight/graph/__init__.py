@@ -1,0 +1,13 @@
+"""A factor-graph layer for problem modules: declare variables and factors, derive the contract's parts.
+
+A module on this layer writes ``PARAMS``, ``generate``, ``VARIABLES`` (``Variable``: a manifold and its
+lifting blocks) and ``factors(instance)`` (``Factor``: residual, optional Jacobian, lifted cost and
+constraints, data), then ``build, lift, cost, sample, local_solve, recover = derive(VARIABLES, factors)``.
+See ``docs/factor_graph.md`` and the worked example ``docs/range_only_2d.md``.
+"""
+
+from .declare import Factor, Variable, View
+from .derive import Parts, derive
+from .manifolds import Euclidean, Manifold, Rotation
+
+__all__ = ["Euclidean", "Factor", "Manifold", "Parts", "Rotation", "Variable", "View", "derive"]

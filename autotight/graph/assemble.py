@@ -1,0 +1,172 @@
+"""One instance of a factor-graph problem: its ``Model`` and its stacked residual for the local solver.
+
+The model's factors (``autotight.model.Factor``), which discovery learns on, are:
+
+- one per variable type and index (type: the variables' ``type``, default the name; name: the type,
+  suffixed ``_i`` for element i of a stack; blocks and roles: each variable's main block and lifting
+  blocks, in declaration order; variables of one type share it, e.g. a pose's t and C), holding the
+  manifold's and the lifting's primary constraints and the cost of every declared factor whose variables
+  all belong to it and that has no constraints of its own;
+- one per (type, variables) of the other declared factors without constraints of their own (their costs
+  summed), named ``type:variables``;
+- one per declared factor with constraints of its own (named ``type_i``, with its ``data``).
+
+Roles of a variable's blocks inside a factor: its main block's name without the index and its lifting
+blocks' names, suffixed ``_k`` (k its position in the factor) when a variable of the same name appears twice.
+"""
+
+from __future__ import annotations
+
+from typing import Iterable, Sequence
+
+import numpy as np
+import scipy.sparse as sp
+
+from ..errors import ProblemDefinitionError
+from ..model import Constraint, Factor, Model, canonical_coo
+from .declare import Factor as Declared
+from .layout import Element, Layout
+from .terms import Term
+
+
+def _global(local: np.ndarray, columns: np.ndarray, N: int) -> sp.coo_array:
+    """The N×N matrix of a matrix on local columns mapped to ``columns``."""
+    r, c = np.nonzero(local)
+    return canonical_coo(columns[r], columns[c], local[r, c], N)
+
+
+def _stem(el: Element) -> str:
+    """The element's main block name without its index."""
+    return el.var.block or el.var.name
+
+
+def _roles(elements: Sequence[Element]) -> tuple[str, ...]:
+    stems = [_stem(el) for el in elements]
+    out: list[str] = ["h"]
+    for k, el in enumerate(elements):
+        sfx = f"_{k}" if stems.count(_stem(el)) > 1 else ""
+        out += [_stem(el) + sfx] + [f.name + sfx for f in el.var.fits()]
+    return tuple(out)
+
+
+def _own_factors(layout: Layout) -> dict[tuple[str, int | None], list[Element]]:
+    """The variables' own model factors: elements grouped by (type, index), in layout order."""
+    out: dict[tuple[str, int | None], list[Element]] = {}
+    for el in layout.elements:
+        out.setdefault((el.var.type or el.var.name, el.index), []).append(el)
+    return out
+
+
+class Graph:
+    """The declared variables and factors on one instance (see the module docstring)."""
+
+    def __init__(self, layout: Layout, factors: Iterable[Declared]):
+        self.layout = layout
+        self.terms: list[Term] = []
+        for i, f in enumerate(factors):
+            if not isinstance(f, Declared):
+                raise ProblemDefinitionError(f"factors must yield autotight.graph.Factor, got {type(f).__name__}")
+            self.terms.append(Term(f, layout, f"{f.type or 'factor'}_{i}"))
+        self._stack: tuple[sp.csr_array, sp.csr_array, list[tuple[int, Term]]] | None = None
+
+    def model(self) -> Model:
+        L, N = self.layout, self.layout.V.N
+        owners = _own_factors(L)
+        home = {el.main: key for key, els in owners.items() for el in els}
+        costs: dict[tuple[str, int | None], list[Term]] = {key: [] for key in owners}
+        grouped: dict[tuple[str, tuple[str, ...]], list[Term]] = {}
+        own: list[Term] = []
+        for t in self.terms:
+            keys = {home[el.main] for el in t.elements}
+            if t.factor.constraints:
+                own.append(t)
+            elif len(keys) == 1:
+                costs[keys.pop()].append(t)
+            else:
+                grouped.setdefault((t.type, tuple(el.main for el in t.elements)), []).append(t)
+        factors = []
+        for (typ, index), els in owners.items():
+            name = typ if index is None else f"{typ}_{index}"
+            cons = []
+            for el in els:
+                cols = np.concatenate([[0], L.columns(el)])
+                cons += [Constraint(_global(M, cols, N), 0.0, name=f"{name}:{el.main}:{nm}", factor=name)
+                         for nm, M in el.var.local_constraints()]
+            factors.append(Factor(name, typ, ("h",) + tuple(b for el in els for b in el.blocks),
+                                  cost=self._cost(costs[(typ, index)], N), constraints=cons, roles=_roles(els)))
+        for (typ, mains), ts in grouped.items():
+            els = ts[0].elements
+            factors.append(Factor(f"{typ}:{'-'.join(mains)}", typ, ("h",) + tuple(b for el in els for b in el.blocks),
+                                  cost=self._cost(ts, N), roles=_roles(els)))
+        for t in own:
+            cons = [Constraint(_global(M, t.columns, N), 0.0, name=f"{t.name}:{nm}", factor=t.name)
+                    for nm, M in t.local_constraints()]
+            factors.append(Factor(t.name, t.type, ("h",) + tuple(b for el in t.elements for b in el.blocks),
+                                  cost=self._cost([t], N), constraints=cons, roles=_roles(t.elements),
+                                  data=t.factor.data))
+        return Model(L.V, factors)
+
+    @staticmethod
+    def _cost(terms: Sequence[Term], N: int) -> sp.coo_array | None:
+        """The sum of the terms' lifted costs on the model's columns (one COO assembly)."""
+        if not terms:
+            return None
+        rows, cols, vals = [], [], []
+        for t in terms:
+            C = t.cost_matrix()
+            i, j = np.nonzero(C)
+            rows.append(t.columns[i])
+            cols.append(t.columns[j])
+            vals.append(C[i, j])
+        return canonical_coo(np.concatenate(rows), np.concatenate(cols), np.concatenate(vals), N)
+
+    # ------------------------------------------------------------------ the local solver's view
+    def cost(self, values: Sequence[np.ndarray]) -> float:
+        """Σ eᵀWe of the declared residuals at the values."""
+        total = 0.0
+        for t in self.terms:
+            e = t.residual(values)
+            total += float(e @ t.W @ e)
+        return total
+
+    def _stacked(self) -> tuple[sp.csr_array, sp.csr_array, list[tuple[int, Term]]]:
+        """(M (m, N): every affine residual's map on the lifted vector, rows in term order; W (m, m) block
+        diagonal; the other terms with their first row), made once."""
+        if self._stack is None:
+            rows, cols, vals, others = [], [], [], []
+            r0 = 0
+            for t in self.terms:
+                if t.M is not None:
+                    i, j = np.nonzero(t.M)
+                    rows.append(r0 + i)
+                    cols.append(t.columns[j])
+                    vals.append(t.M[i, j])
+                else:
+                    others.append((r0, t))
+                r0 += t.m
+            M = sp.csr_array((np.concatenate(vals or [np.zeros(0)]), (np.concatenate(rows or [np.zeros(0, int)]),
+                                                                      np.concatenate(cols or [np.zeros(0, int)]))),
+                             shape=(r0, self.layout.V.N))
+            self._stack = (M, sp.csr_array(sp.block_diag([t.W for t in self.terms])), others)
+        return self._stack
+
+    def linearize(self, values: Sequence[np.ndarray]) -> tuple[np.ndarray, sp.csr_array, sp.csr_array]:
+        """Stacked (e, J, W) for ``gauss_newton``: J (m, n_tangent) sparse, W block diagonal.  The affine
+        residuals in two sparse products, e = M x and J = M ∂x/∂ε; the others term by term."""
+        M, W, others = self._stacked()
+        x, dx = self.layout.lift_polynomial(values)
+        e, J = M @ x, M @ dx
+        if others:
+            rows, cols, vals = [], [], []
+            for r0, t in others:
+                et, Jt = t.linearize(values)
+                e[r0:r0 + et.size] = et
+                tangent = np.concatenate([np.arange(el.tangent_offset, el.tangent_offset + el.dof)
+                                          for el in t.elements])
+                i, j = np.nonzero(Jt)
+                rows.append(r0 + i)
+                cols.append(tangent[j])
+                vals.append(Jt[i, j])
+            J = sp.csr_array(J + sp.csr_array((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+                                              shape=J.shape))
+        return e, sp.csr_array(J), W

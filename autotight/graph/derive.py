@@ -1,0 +1,93 @@
+"""The problem contract's parts derived from a factor graph's declarations.
+
+``derive(variables, factors)`` returns ``Parts(build, lift, cost, sample, local_solve, recover)``, each with
+the signature ``autotight.problem`` expects, so a module on the factor-graph layer writes four parts,
+``PARAMS``, ``generate``, ``VARIABLES`` and ``factors``, and one line::
+
+    build, lift, cost, sample, local_solve, recover = derive(VARIABLES, factors)
+
+- ``variables``: a list of ``Variable``, or ``variables(instance) -> list`` when they depend on the
+  parameters (e.g. the dimension);
+- ``factors(instance) -> iterable of Factor``.
+
+The derived parts: ``build`` (``assemble.Graph.model``); ``lift`` (h, each variable's embedding and lifting
+blocks); ``cost`` (Σ eᵀWe of the declared residuals; the lifted cost equals it when the residuals are
+affine in the lifting, so the check's ``cost`` test then checks the declarations' consistency, not an
+independent formula); ``sample`` (each variable retracted from the nominal by spread·ν, ν ~ N(0, I): a
+state on the manifolds, whose lifting meets every derived primary constraint; factors' own constraints must
+hold for every value of their variables); ``local_solve`` (``autotight.gauss_newton`` on the retractions,
+options ``max_iter``, ``rel_tol``); ``recover`` (each variable's main block, projected onto its manifold;
+the rotations' raw determinants as ``det_raw``, ``layout.Layout.recover``).  ``errors`` and
+``random_state`` are the contract's defaults (``autotight.problem``).
+"""
+
+from __future__ import annotations
+
+import weakref
+from typing import Any, Callable, Iterable, NamedTuple, Sequence, cast
+
+import numpy as np
+
+from ..errors import ProblemDefinitionError
+from ..gauss_newton import gauss_newton
+from ..model import Model
+from .assemble import Graph
+from .declare import Factor, Variable
+from .layout import Layout
+
+
+class Parts(NamedTuple):
+    """The derived contract parts, in the order of ``derive``'s one-line use."""
+
+    build: Callable[[Any], Model]
+    lift: Callable[[Any, dict], np.ndarray]
+    cost: Callable[[Any, dict], float]
+    sample: Callable[[Any, np.random.Generator, dict, float], dict]
+    local_solve: Callable[..., Any]
+    recover: Callable[[Any, np.ndarray], dict]
+
+
+def derive(variables: Sequence[Variable] | Callable[[Any], Sequence[Variable]],
+           factors: Callable[[Any], Iterable[Factor]]) -> Parts:
+    """The contract's parts from the declarations (see the module docstring)."""
+    if not callable(factors):
+        raise ProblemDefinitionError("factors must be a function factors(instance) -> iterable of Factor")
+    cache: dict[int, tuple[weakref.ref, Graph]] = {}
+
+    def graph(inst: Any) -> Graph:
+        hit = cache.get(id(inst))
+        if hit is not None and hit[0]() is inst:
+            return hit[1]
+        declared = variables(inst) if callable(variables) else variables
+        g = Graph(Layout(list(declared), inst.truth), factors(inst))
+        for k in [k for k, (ref, _) in cache.items() if ref() is None]:
+            del cache[k]
+        cache[id(inst)] = (weakref.ref(inst), g)
+        return g
+
+    def build(inst: Any) -> Model:
+        return graph(inst).model()
+
+    def lift(inst: Any, state: dict) -> np.ndarray:
+        L = graph(inst).layout
+        return L.lift(L.values(state))
+
+    def cost(inst: Any, state: dict) -> float:
+        g = graph(inst)
+        return g.cost(g.layout.values(state))
+
+    def sample(inst: Any, rng: np.random.Generator, nominal: dict, spread: float) -> dict:
+        L = graph(inst).layout
+        return L.state(L.retract(L.values(nominal), spread * rng.standard_normal(L.n_tangent)))
+
+    def local_solve(inst: Any, init: dict, max_iter: int = 200, rel_tol: float = 1e-12) -> Any:
+        g = graph(inst)
+        res = gauss_newton(g.linearize, g.layout.retract, g.layout.values(init), max_iter=max_iter, rel_tol=rel_tol)
+        res.state = g.layout.state(cast(list, res.state))  # gauss_newton's state is the list of values
+        return res
+
+    def recover(inst: Any, Theta: np.ndarray) -> dict:
+        L = graph(inst).layout
+        return L.recover(np.asarray(Theta, float).reshape(-1))
+
+    return Parts(build, lift, cost, sample, local_solve, recover)

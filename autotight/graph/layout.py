@@ -1,0 +1,183 @@
+"""The lifted vector of one instance of a factor-graph problem: its blocks, lift, recover and samples.
+
+The truth fixes the variables' multiplicity (``declare.Variable``).  Blocks, in order: per variable
+(declaration order), per element (index order), the main block ``name`` (one variable) or ``name{i}``
+(a stack; ``Variable.block`` for ``name`` when given), then its lifting blocks ``block`` or ``block{i}``.
+A state is ``{name: value or (N, *shape) stack}`` with one entry per declared variable.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+import scipy.sparse as sp
+
+from ..errors import ProblemDefinitionError
+from ..model import Variables
+from .declare import Variable
+from .manifolds import Rotation
+
+
+@dataclass
+class Element:
+    """One variable of the instance: the declaration, its index in a stack (None: a single variable),
+    its block names (main first) and its offset in the stacked tangent vector."""
+
+    var: Variable
+    index: int | None
+    blocks: tuple[str, ...]
+    tangent_offset: int
+
+    @property
+    def main(self) -> str:
+        return self.blocks[0]
+
+    @property
+    def dof(self) -> int:
+        return self.var.manifold.dof
+
+    def value(self, state: Mapping[str, Any]) -> np.ndarray:
+        v = np.asarray(state[self.var.name], float)
+        return v if self.index is None else v[self.index]
+
+
+class Layout:
+    """The instance's elements and ``Variables`` (d = 1), with lift, recover and retraction."""
+
+    def __init__(self, variables: Sequence[Variable], truth: Mapping[str, Any]):
+        if not variables or not all(isinstance(v, Variable) for v in variables):
+            raise ProblemDefinitionError("VARIABLES must be a non-empty list of autotight.graph.Variable")
+        names = [v.name for v in variables]
+        if len(set(names)) != len(names):
+            raise ProblemDefinitionError(f"variable names must be unique, got {names}")
+        self.variables = list(variables)
+        self.elements: list[Element] = []
+        self.counts: dict[str, int | None] = {}
+        blocks: list[tuple[str, int]] = []
+        offset = 0
+        for var in self.variables:
+            if var.name not in truth:
+                raise ProblemDefinitionError(f"the truth has no entry {var.name!r} for variable {var.name!r}")
+            shape, want = np.shape(truth[var.name]), var.manifold.shape
+            if shape == want:
+                count = None
+            elif len(shape) == len(want) + 1 and shape[1:] == want:
+                count = shape[0]
+            else:
+                raise ProblemDefinitionError(f"variable {var.name!r} on {var.manifold!r}: the truth's entry has shape "
+                                             f"{shape}, expected {want} or (N, *{want})")
+            self.counts[var.name] = count
+            fits = var.fits()
+            for i in [None] if count is None else range(count):
+                sfx = "" if i is None else str(i)
+                el = Element(var, i, ((var.block or var.name) + sfx,) + tuple(f.name + sfx for f in fits), offset)
+                self.elements.append(el)
+                blocks += [(el.main, var.manifold.size)] + [(b, f.size) for b, f in zip(el.blocks[1:], fits)]
+                offset += el.dof
+        self.n_tangent = offset
+        self.V = Variables(blocks)
+        self.by_main = {el.main: el for el in self.elements}
+        for el in self.elements:  # also by name and index when the main block is renamed
+            self.by_main.setdefault(el.var.name + ("" if el.index is None else str(el.index)), el)
+        #: an element's index in ``elements`` (and in a value list), by main block
+        self.position = {el.main: k for k, el in enumerate(self.elements)}
+        self._columns = [self.V.index(el.blocks) for el in self.elements]
+        #: per variable: its elements' positions (count,) and columns (count, k)
+        self.families: list[tuple[Variable, np.ndarray, np.ndarray]] = []
+        for var in self.variables:
+            idx = np.array([k for k, el in enumerate(self.elements) if el.var is var])
+            self.families.append((var, idx, np.array([self._columns[k] for k in idx])))
+        #: the truth's values, element by element
+        self.truth_values = self.values(truth)
+
+    def element(self, main: str, where: str) -> Element:
+        if main not in self.by_main:
+            raise ProblemDefinitionError(f"{where}: unknown variable {main!r}; variables are {list(self.by_main)}")
+        return self.by_main[main]
+
+    def columns(self, el: Element) -> np.ndarray:
+        """The element's columns of the lifted vector, main block first."""
+        return self._columns[self.position[el.main]]
+
+    def values(self, state: Mapping[str, Any]) -> list[np.ndarray]:
+        """The elements' values in order (checked against the manifold's shape)."""
+        out = []
+        for el in self.elements:
+            if el.var.name not in state:
+                raise ProblemDefinitionError(f"the state has no entry {el.var.name!r}")
+            x = el.value(state)
+            if x.shape != el.var.manifold.shape:
+                raise ProblemDefinitionError(f"state entry {el.var.name!r} has an element of shape {x.shape}, "
+                                             f"expected {el.var.manifold.shape}")
+            out.append(x)
+        return out
+
+    def state(self, values: Sequence[np.ndarray]) -> dict[str, np.ndarray]:
+        """The state holding the elements' values."""
+        out: dict[str, np.ndarray] = {}
+        k = 0
+        for var in self.variables:
+            count = self.counts[var.name]
+            if count is None:
+                out[var.name] = np.asarray(values[k], float)
+                k += 1
+            else:
+                out[var.name] = np.array(values[k:k + count], float).reshape((count,) + var.manifold.shape)
+                k += count
+        return out
+
+    def lift(self, values: Sequence[np.ndarray]) -> np.ndarray:
+        """x = [h, blocks…] (N,) with h = 1."""
+        x = np.zeros(self.V.N)
+        x[0] = 1.0
+        for cols, el, v in zip(self._columns, self.elements, values):
+            x[cols] = el.var.lifted(v)
+        return x
+
+    def lift_polynomial(self, values: Sequence[np.ndarray]) -> tuple[np.ndarray, sp.csr_array]:
+        """(x, ∂x/∂ε) at the values from the liftings' fitted polynomials, a variable's elements at once: x as
+        ``lift`` (up to rounding), ∂x/∂ε (N, n_tangent) the embedding's tangent map T and each lifting block's
+        gradient times T (the h row zero).  For the local solver, which evaluates them at every step."""
+        x = np.zeros(self.V.N)
+        x[0] = 1.0
+        rows, cols, vals = [], [], []
+        for var, idx, columns in self.families:
+            man, fits = var.manifold, var.fits()
+            E = np.array([man.embed(values[k]) for k in idx])  # (n, p)
+            T = np.array([man.tangent(values[k]) for k in idx])  # (n, p, dof)
+            x[columns] = np.hstack([E] + [f.values(E) for f in fits])
+            D = np.concatenate([T] + [np.einsum("nep,npd->ned", f.gradients(E), T) for f in fits], axis=1)
+            offsets = np.array([self.elements[k].tangent_offset for k in idx])
+            n, r, c = np.nonzero(D)
+            rows.append(columns[n, r])
+            cols.append(offsets[n] + c)
+            vals.append(D[n, r, c])
+        J = sp.csr_array((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+                         shape=(self.V.N, self.n_tangent))
+        return x, J
+
+    def raw(self, x: np.ndarray) -> list[np.ndarray]:
+        """Each element's main block, unembedded, from x divided by h (when h ≠ 0): not yet on its manifold."""
+        x = np.asarray(x, float).reshape(-1)
+        x = x / x[0] if x[0] != 0 else x
+        return [el.var.manifold.unembed(x[self.V.slice(el.main)]) for el in self.elements]
+
+    def recover(self, x: np.ndarray) -> dict[str, np.ndarray]:
+        """The state of x: each element's ``raw`` value projected onto its manifold; for the rotations, the
+        determinants of the raw values as ``det_raw`` (one rotation variable: its value or (N,) stack) or
+        ``<name>_det_raw`` (several), as the shipped problems report an O(d) solution's reflection."""
+        raw = self.raw(x)
+        state = self.state([el.var.manifold.project(a) for el, a in zip(self.elements, raw)])
+        rotations = [var for var in self.variables if isinstance(var.manifold, Rotation)]
+        for var in rotations:
+            dets = np.array([np.linalg.det(a) for el, a in zip(self.elements, raw) if el.var is var])
+            key = "det_raw" if len(rotations) == 1 else f"{var.name}_det_raw"
+            state[key] = dets.reshape(()) if self.counts[var.name] is None else dets
+        return state
+
+    def retract(self, values: Sequence[np.ndarray], eps: np.ndarray) -> list[np.ndarray]:
+        """Each element retracted by its slice of the stacked tangent vector ε (n_tangent,)."""
+        return [el.var.manifold.retract(v, eps[el.tangent_offset:el.tangent_offset + el.dof])
+                for el, v in zip(self.elements, values)]

@@ -1,0 +1,286 @@
+"""The factor-graph layer (``autotight.graph``): derived parts keep the problem contract, the worked example
+(docs/examples/range_only_2d.py) passes check-module and discovers a tight, validated set, and problems
+register by entry point."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import textwrap
+import types
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from autotight import cli
+from autotight.checks import check_problem
+from autotight.errors import ProblemDefinitionError, ProblemModuleError
+from autotight.graph import Euclidean, Factor, Rotation, Variable, derive
+from autotight.problem import Instance, Param, load, registered
+
+ROOT = Path(__file__).resolve().parents[1]
+EXAMPLE = ROOT / "docs" / "examples" / "range_only_2d.py"
+#: log SVR above which X counts as rank 1 (docs/verdicts.md), and well below which it does not
+RANK_ONE_LOG_SVR = 5.0
+
+
+def _run(*args: str, env: dict | None = None) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "autotight", *args], capture_output=True, text=True, timeout=300,
+                          cwd=ROOT, env=env)
+
+
+# ----------------------------------------------------------------------------- the worked example
+
+
+def test_worked_example_is_at_most_60_lines():
+    assert len(EXAMPLE.read_text().splitlines()) <= 60
+
+
+def test_worked_example_passes_check_module_and_discovers_a_tight_validated_set(tmp_path):
+    check = _run("check-module", str(EXAMPLE), "--json")
+    assert check.returncode == 0, check.stdout + check.stderr
+    rec = json.loads(check.stdout)
+    assert rec["ok"] and not rec["failures"]
+    assert {"sample-feasible", "cost", "recover", "local-descent-perturbed", "identities"} <= {
+        line.split(":")[0] for line in rec["passed"]}
+
+    out = tmp_path / "set.json"
+    disc = _run("discover", str(EXAMPLE), "--heldout", "5", "--out", str(out), "--json")
+    assert disc.returncode == 0, disc.stderr
+    res = json.loads(disc.stdout)
+    assert res["tight"] and res["validated"] is True and res["n_pairs"] >= 1
+    held = res["points"][0]["heldout"]
+    assert held["instances"] == 5 and held["fraction"] >= 0.9
+    assert held["fraction"] == pytest.approx(held["tight"] / (held["instances"] - held["undecided"]))
+
+    # on an instance discovery did not see, the primary relaxation is far from rank 1 and the set makes it rank 1
+    primary = json.loads(_run("solve", str(EXAMPLE), "--set", "primary", "--seed", "11", "--json").stdout)
+    learned = json.loads(_run("solve", str(EXAMPLE), "--set", str(out), "--seed", "11", "--json").stdout)
+    assert primary["log_svr"] < RANK_ONE_LOG_SVR - 2
+    assert learned["outcome"] == "tight" and learned["log_svr"] > RANK_ONE_LOG_SVR
+    # the rank-1 SDP's cost is the local solver's (relative, to the solver's accuracy)
+    assert abs(learned["sdp_cost"] - learned["upper_bound"]) <= 1e-4 * learned["upper_bound"]
+
+
+# ----------------------------------------------------------------------------- the layer
+
+
+def _module(variables, factors, generate, params=None, **extra) -> types.ModuleType:
+    """A problem module with only PARAMS, generate, VARIABLES and factors (the rest derived)."""
+    mod = types.ModuleType("graph_problem")
+    mod.PARAMS, mod.generate, mod.VARIABLES, mod.factors = params or {}, generate, variables, factors
+    (mod.build, mod.lift, mod.cost, mod.sample, mod.local_solve, mod.recover) = derive(variables, factors)
+    for k, v in extra.items():
+        setattr(mod, k, v)
+    return mod
+
+
+def _registration(params, rng):
+    d = params["dim"]
+    C = Rotation(d).retract(np.eye(d), rng.uniform(-np.pi, np.pi, Rotation(d).dof))
+    t, pts = rng.uniform(-1, 1, d), rng.standard_normal((params["n_points"], d))
+    y = pts @ C.T + t + 0.01 * rng.standard_normal(pts.shape)
+    return Instance("wahba", dict(params), {"points": pts, "y": y}, {"t": t, "C": C})
+
+
+def _registration_factors(inst):
+    for p, y in zip(inst.measurements["points"], inst.measurements["y"]):
+        yield Factor(("t", "C"), lambda t, C, p=p, y=y: C.x @ p + t.x - y, type="pose")
+
+
+def _hand_written_registration(inst):
+    """Cost and primary constraints of registration written by hand with ``problems._pose_vector`` (the
+    shipped wahba's model before it moved onto the layer)."""
+    from autotight.constraints import Variables, const, sum_quads
+    from problems import _pose_vector as pv
+
+    P, Y = inst.measurements["points"], inst.measurements["y"]
+    V = Variables(pv.pose_blocks(P.shape[1]))
+    Q = sum_quads(V, [(pv.point_map(p) - const(y), pv.point_map(p) - const(y), None) for p, y in zip(P, Y)])
+    return Q, pv.orthonormality(V, P.shape[1], "registration")
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+@pytest.mark.parametrize("shared", [True, False], ids=["one-pose-factor", "factor-per-variable"])
+def test_rotation_variables_give_the_hand_written_registration(dim, shared):
+    """Registration on the layer (t ∈ R^d, C ∈ SO(d) embedded as vec C) has the cost matrix and primary
+    constraints written by hand, whether t and C share one model factor or not, and keeps the contract."""
+    typ = "pose" if shared else None
+    mod = _module(lambda inst: [Variable("t", Euclidean(dim), type=typ), Variable("C", Rotation(dim), type=typ)],
+                  _registration_factors, _registration, {"dim": Param(dim), "n_points": Param(4)})
+    graph = load(mod)
+    inst = graph.generate({}, 3)
+    model = graph.build(inst)
+    Q, orth = _hand_written_registration(inst)
+    assert abs(model.Q - Q).max() <= 1e-12 * abs(Q).max()
+    assert len(model.factors) == (1 if shared else 3)  # t, C, and the cost on both
+
+    def span(cons):
+        return np.array([c.A.toarray().ravel() for c in cons])
+
+    A, B = span(model.primary()[1:]), span(orth)  # without h² = 1
+    assert np.linalg.matrix_rank(A) == np.linalg.matrix_rank(B) == np.linalg.matrix_rank(np.vstack([A, B]))
+    assert check_problem(mod, seed=1).ok
+    # recover reports the raw determinant: a reflection (an O(d) point of the relaxation) reads −1
+    reflected = dict(inst.truth, C=np.diag([-1.0] + [1.0] * (dim - 1)) @ inst.truth["C"])
+    est = graph.recover(inst, graph.lift(inst, reflected))
+    assert est["det_raw"] == pytest.approx(-1.0, abs=1e-12) and np.linalg.det(est["C"]) == pytest.approx(1.0)
+    assert graph.recover(inst, graph.lift(inst, inst.truth))["det_raw"] == pytest.approx(1.0, abs=1e-12)
+
+
+def _point_instance(params, rng):
+    anchors = rng.uniform(-2, 2, (4, 2))
+    p = rng.uniform(-2, 2, 2)
+    return Instance("point", {}, {"anchors": anchors, "ranges": np.linalg.norm(anchors - p, axis=1)}, {"p": p})
+
+
+def _vech(p):
+    return np.array([p[0] * p[0], p[0] * p[1], p[1] * p[1]])
+
+
+def _affine(v, a, r):
+    return [r * r - a @ a + 2 * a @ v.x - v.z[0] - v.z[2]]
+
+
+def _squared(v, a, r):
+    return [r * r - (a - v.x) @ (a - v.x)]  # equal on the lifting, not affine in (h, p, z)
+
+
+def _lifted_cost(a, r):
+    m = np.r_[r * r - a @ a, 2 * a, -1.0, 0.0, -1.0]  # the affine residual's row on [h, p, z]
+    return np.outer(m, m)
+
+
+def _point_factors(residual, cost=False, jacobian=None):
+    def factors(inst):
+        for a, r in zip(inst.measurements["anchors"], inst.measurements["ranges"]):
+            yield Factor("p", lambda v, a=a, r=r: residual(v, a, r), cost=_lifted_cost(a, r) if cost else None,
+                         jacobian=None if jacobian is None else (lambda v, a=a: jacobian(v, a)))
+    return factors
+
+
+VARS = [Variable("p", Euclidean(2), lifting={"z": _vech})]
+
+
+def test_non_affine_residual_needs_its_lifted_cost():
+    mod = _module(VARS, _point_factors(_squared), _point_instance)
+    with pytest.raises(ProblemDefinitionError, match="not affine.*cost="):
+        load(mod).build(load(mod).generate({}, 0))
+
+
+@pytest.mark.parametrize("jacobian", [None, lambda v, a: (2 * (a - v.x))[None]], ids=["differences", "declared"])
+def test_non_affine_residual_with_cost_solves_like_the_affine_one(jacobian):
+    """Central differences on the retraction (or a declared Jacobian) reach the affine residual's minimum."""
+    ref = load(_module(VARS, _point_factors(_affine), _point_instance))
+    alt = load(_module(VARS, _point_factors(_squared, cost=True, jacobian=jacobian), _point_instance))
+    assert check_problem(alt, seed=2).ok
+    inst_r, inst_a = ref.generate({}, 4), alt.generate({}, 4)
+    start = {"p": np.array([0.3, -0.2])}
+    a, b = ref.local_solve(inst_r, start), alt.local_solve(inst_a, start)
+    assert b.converged and abs(a.cost - b.cost) <= 1e-9 * max(a.cost, 1e-12) + 1e-15
+    assert np.abs(a.state["p"] - b.state["p"]).max() <= 1e-6
+
+
+def test_a_factors_own_constraints_are_primary_constraints_of_the_model():
+    """Declaring the example's redundant relation z₀ z₂ = z₁² as a factor's constraint puts it in the model's
+    primary constraints (on a factor of its own, with its data): the primary relaxation becomes tight."""
+    example = load(str(EXAMPLE)).module
+    R = np.zeros((6, 6))  # on [h, p (2), z (3)]
+    R[3, 5] = R[5, 3] = 0.5
+    R[4, 4] = -1.0
+
+    def factors(inst):
+        yield from example.factors(inst)
+        for n in range(len(inst.truth["p"])):
+            yield Factor(f"p{n}", lambda v: [0.0], cost=np.zeros((6, 6)), constraints=[("z0z2", R)], data=[1.0, n])
+
+    prob = load(_module(example.VARIABLES, factors, example.generate, example.PARAMS))
+    assert check_problem(prob, seed=1).ok
+    inst = prob.generate({}, 11)
+    own = [f for f in prob.build(inst).factors if f.type == "p_factor"]
+    assert len(own) == 2 and all(len(f.constraints) == 1 and f.data is not None for f in own)
+    from autotight.api import solve
+
+    res = solve(prob, {}, 11, constraints="primary")
+    assert res.outcome == "tight" and res.log_svr > RANK_ONE_LOG_SVR
+
+
+def test_lifting_must_be_a_quadratic_polynomial():
+    cubic = [Variable("p", Euclidean(2), lifting={"z": lambda p: p ** 3})]
+    mod = _module(cubic, _point_factors(_affine), _point_instance)
+    with pytest.raises(ProblemDefinitionError, match="lifting block 'z' is not a polynomial of degree ≤ 2"):
+        load(mod).build(load(mod).generate({}, 0))
+
+
+@pytest.mark.parametrize("d", [2, 3])
+def test_rotation_manifold_tangent_constraints_and_projection(d):
+    M, rng = Rotation(d), np.random.default_rng(d)
+    C = M.retract(np.eye(d), rng.standard_normal(M.dof))
+    h = 1e-6
+    fd = np.stack([(M.embed(M.retract(C, h * e)) - M.embed(M.retract(C, -h * e))) / (2 * h) for e in np.eye(M.dof)], 1)
+    assert np.abs(fd - M.tangent(C)).max() <= 1e-8
+    v = np.r_[1.0, M.embed(C)]
+    assert max(abs(v @ A @ v) for _, A in M.constraints()) <= 1e-14
+    assert np.abs(M.project(C + 1e-3 * rng.standard_normal((d, d))) - C).max() <= 1e-2
+    assert np.linalg.det(M.project(-C if d == 3 else C @ np.diag([1, -1]))) > 0
+
+
+# ----------------------------------------------------------------------------- entry points
+
+
+def _install_entry_point(root: Path, name: str, module: str, source: str) -> None:
+    """A distribution on ``root`` (importlib.metadata finds it on sys.path) registering ``name = module``."""
+    (root / f"{module}.py").write_text(source)
+    info = root / f"{module}_pkg-0.1.dist-info"
+    info.mkdir()
+    (info / "METADATA").write_text(f"Metadata-Version: 2.1\nName: {module}-pkg\nVersion: 0.1\n")
+    (info / "entry_points.txt").write_text(f"[autotight.problems]\n{name} = {module}\n")
+
+
+def test_a_problem_registered_by_entry_point_loads_by_name(tmp_path, monkeypatch, capsys):
+    _install_entry_point(tmp_path, "ranges_2d", "user_ranges_2d", EXAMPLE.read_text())
+    monkeypatch.syspath_prepend(str(tmp_path))
+    assert "ranges_2d" in registered()
+    prob = load("ranges_2d")
+    assert prob.path == str(tmp_path / "user_ranges_2d.py") and prob.name == "ranges_2d"
+    # by its file (as worker processes load it) it is the same problem, so a set discovered for it applies
+    assert load(str(tmp_path / "user_ranges_2d.py")).name == "ranges_2d"
+    assert check_problem("ranges_2d").ok
+    assert cli.main(["list", "--json"]) == 0
+    assert "ranges_2d" in [row["name"] for row in json.loads(capsys.readouterr().out)]
+    with pytest.raises(ProblemDefinitionError, match="known problems: .*ranges_2d"):
+        load("no_such_problem")
+
+
+def test_a_broken_entry_point_is_one_line_naming_it(tmp_path, monkeypatch):
+    _install_entry_point(tmp_path, "broken_one", "user_broken_one", textwrap.dedent("""\
+        raise RuntimeError("missing dependency")
+        """))
+    monkeypatch.syspath_prepend(str(tmp_path))
+    with pytest.raises(ProblemModuleError, match=r"^cannot import problem 'broken_one' \(entry point "
+                                                 r"'user_broken_one'\): RuntimeError: missing dependency$"):
+        load("broken_one")
+
+
+def test_the_worked_example_page_shows_the_module_file_as_it_is():
+    import re
+
+    page = (ROOT / "docs" / "range_only_2d.md").read_text()
+    assert re.findall(r"```python\n(.*?)```", page, re.S) == [EXAMPLE.read_text()]
+    assert f"in {len(EXAMPLE.read_text().splitlines())} lines" in page
+
+
+@pytest.mark.parametrize("variables, factors, message", [
+    ([Variable("q", Euclidean(2))], _point_factors(_affine), r"^the truth has no entry 'q' for variable 'q'$"),
+    ([Variable("p", Euclidean(3))], _point_factors(_affine), r"^variable 'p' on Euclidean\(3\): the truth's entry has "
+                                                             r"shape \(2,\), expected \(3,\) or \(N, \*\(3,\)\)$"),
+    (VARS, lambda inst: [Factor("p0", _affine)], r"^factor 'factor_0': unknown variable 'p0'; variables are \['p'\]$"),
+    (VARS, lambda inst: [Factor("p", lambda v: np.ones((2, 2)))],
+     r"^factor 'factor_0': residual must return a non-empty vector, got shape \(2, 2\)$"),
+], ids=["missing-truth", "wrong-shape", "unknown-variable", "matrix-residual"])
+def test_bad_declarations_are_one_line_errors(variables, factors, message):
+    prob = load(_module(variables, factors, _point_instance))
+    with pytest.raises(ProblemDefinitionError, match=message):
+        prob.build(prob.generate({}, 0))
