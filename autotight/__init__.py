@@ -10,8 +10,7 @@ The public API (see ``docs/api.md``):
 >>> out.tight, out.log_svr
 """
 
-__version__ = "0.1.0"
-
+from ._version import __version__
 from .api import certify, discover, load_problem, solve
 from .check import check_sufficient
 from .checks import check_problem

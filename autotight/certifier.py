@@ -276,7 +276,7 @@ def certify(Q: sp.sparray, constraints: Sequence[Constraint], theta_hat: np.ndar
     prog = clique_program(Q, As, b, [np.asarray(C) for C in cliques])
     load = newton_size(prog)
     if load > NEWTON_MAX_ENTRIES:  # the Newton matrix would not fit: the full SDP's y, certified alike
-        from . import sdp
+        import autotight.sdp as sdp
         from .dual_polish import polished
         from .sdp.config import SolverConfig
 

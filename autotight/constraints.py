@@ -25,7 +25,7 @@ from typing import Callable
 import numpy as np
 import scipy.sparse as sp
 
-from . import lie
+import autotight.lie as lie
 from .affine import LEVI, H, Affine, cayley_rows, const, cross_rows, linear, quad, sum_quads, var
 from .errors import SolverError
 from .model import HOMOGENISING, Constraint, Factor, Model, QuadForm, Variables

@@ -229,7 +229,7 @@ def exported_templates(problem, ds) -> dict[str, dict[str, Any]]:
 
 def python_source(problem, ds, source: str) -> str:
     """The standalone module (see the module docstring)."""
-    from . import __version__
+    from ._version import __version__
     from .discovery.nullspace import CLEAN, MAX_FREE_COND
 
     tpls = exported_templates(problem, ds)

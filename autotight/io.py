@@ -18,7 +18,7 @@ PACKAGES = ("numpy", "scipy", "clarabel", "cvxpy", "qdldl", "pandas")
 
 def versions() -> dict[str, str]:
     """Python, autotight (its ``__version__``, the one version source) and the numerical packages."""
-    from . import __version__
+    from ._version import __version__
 
     out = {"python": platform.python_version(), "autotight": __version__}
     for p in PACKAGES:

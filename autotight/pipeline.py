@@ -30,7 +30,7 @@ from .errors import ProblemModuleError
 from .unbounded import rank_out_of_reach
 from .model import Model
 from .problem import Instance, LocalResult, Problem
-from . import sdp
+import autotight.sdp as sdp
 from .sdp.config import SolverConfig
 from .sdp.result import SDPResult
 from .sdp.scaling import block_scale

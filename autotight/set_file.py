@@ -31,9 +31,6 @@ from typing import Any
 
 from .errors import ParameterError
 
-#: the ``format`` of a constraint-set file, and the older one still read
-FORMAT = "autotight.constraint_set/2"
-FORMAT_V1 = "autotight.discovered/1"
 
 
 def _int(v: Any, low: int) -> bool:
@@ -164,6 +161,8 @@ def check_fields(obj: dict[str, Any]) -> str:
 
 def check_set_file(path: str | Path, option: str = "--set") -> dict[str, Any]:
     """The JSON object of a saved constraint set (``discover --out``), checked as the module docstring says."""
+    from .discovery.discovered import FORMAT, FORMAT_V1
+
     p = Path(path)
     if not p.is_file():
         raise ParameterError(f"{option} {path}: no such file")

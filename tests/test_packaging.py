@@ -89,7 +89,7 @@ def test_no_gpl_dependency_and_a_licence():
 
 def test_one_version_source():
     assert "version" not in PYPROJECT["project"] and "version" in PYPROJECT["project"]["dynamic"]
-    assert PYPROJECT["tool"]["setuptools"]["dynamic"]["version"] == {"attr": "autotight.__version__"}
+    assert PYPROJECT["tool"]["setuptools"]["dynamic"]["version"] == {"attr": "autotight._version.__version__"}
     assert re.fullmatch(r"\d+\.\d+\.\d+", autotight.__version__)
     v = versions()
     assert v["autotight"] == autotight.__version__ and v["numpy"] == np.__version__ and v["scipy"] == scipy.__version__

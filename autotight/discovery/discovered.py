@@ -25,10 +25,13 @@ from ..model import Constraint, Model, Variables
 from ..outpaths import save_json
 from ..pretty import polynomial
 from ..problem import Instance, Problem
-from ..set_file import FORMAT, FORMAT_V1
 from .catalog import Pair, carry_over
 from .learn import LearnOptions
 from .templates import TemplateSet, apply_templates, learn_templates
+
+#: the ``format`` of a constraint-set file, and the older one still read
+FORMAT = "autotight.constraint_set/2"
+FORMAT_V1 = "autotight.discovered/1"
 
 
 CONVENTION = {

@@ -41,7 +41,7 @@ from typing import Any
 import numpy as np
 
 from ..points import parse_over, points_of
-from .. import module_parts
+import autotight.module_parts as module_parts
 from ..constraint_set import ConstraintSet
 from ..errors import ParameterError
 from ..problem import Problem, load

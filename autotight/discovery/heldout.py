@@ -3,7 +3,7 @@
 Each held-out instance is independent: generated from its seed, solved with every set through
 ``autotight.pipeline.solve_instance`` (a learned set is instantiated on it first; failing to is a
 failure of the instance, as in ``check``).  The instances run where ``report``'s trials run
-(``autotight.report.backends.execute``: in process, joblib processes with ``jobs`` > 1, or a Dask
+(``autotight.parallel.execute``: in process, joblib processes with ``jobs`` > 1, or a Dask
 cluster at ``scheduler``), and the results are put back in instance order, so the outcome does not
 depend on where they ran.  Counting is ``check``'s (``autotight.check.PointResult``): undecided instances
 are left out of the fraction, and a point passes when tight / (instances − undecided) ≥ min_fraction.
@@ -74,7 +74,7 @@ def solve_batch(prob: Problem, sets: Mapping[str, ConstraintsLike], points: Sequ
                 n_random: int = 1, jobs: int = 1, scheduler: Any = None) -> tuple[dict[str, list[PointResult]], int]:
     """Solve the seeds ``batch[i]`` at point i with every set.  Returns {set name: [PointResult per point]}
     (instances in seed order) and the number of SDP solver calls."""
-    from ..report.backends import execute
+    from ..parallel import execute
 
     local = jobs == 1 and scheduler is None
     ref = problem_ref(prob, local)

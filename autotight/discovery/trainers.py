@@ -25,7 +25,7 @@ import numpy as np
 from ..model import Constraint, Model, frobenius
 from ..pipeline import LocalSearch, SolveResult, local_search, seeds, solve_instance
 from ..problem import Instance, Problem
-from .. import sdp
+import autotight.sdp as sdp
 from ..sdp.config import SolverConfig
 from ..tightness import Criteria
 from ..unbounded import UNBOUNDED_STATUSES, is_unbounded, unbounded_blocks

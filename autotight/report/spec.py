@@ -108,7 +108,7 @@ def trial_seeds(seed: int, sigma_index: int, trial: int) -> tuple[int, np.random
 
 def default_sigmas(problem: Problem) -> tuple[float, ...]:
     """The module's ``SIGMAS`` if it defines them, else 7 log-spaced levels over 1e-3 … 1."""
-    from .. import module_parts
+    import autotight.module_parts as module_parts
 
     return module_parts.sigmas(problem, DEFAULT_SIGMAS)
 
@@ -177,7 +177,7 @@ def make_spec(problem: Problem, source: str, params: dict[str, Any] | None = Non
               sets: str | Sequence[str] | None = None, seed: int = 0, discovered: str | None = None,
               **kw: Any) -> SweepSpec:
     """A validated sweep; ``sets`` defaults to primary plus paper when the problem has paper families."""
-    from .. import module_parts
+    import autotight.module_parts as module_parts
 
     params = dict(params or {})
     require_sigma(problem)

@@ -13,7 +13,7 @@ from ..set_file import check_set_file
 from ..constraint_set import ConstraintSet
 from ..problem import Problem
 from ..outpaths import LOCK_NAME, check_folder, folder_lock, writing
-from .backends import connect, execute
+from ..parallel import connect, execute
 from .spec import ReportError, SweepSpec
 from .store import CSV_NAME, ERROR, META_NAME, STATUSES, Store, is_error
 from ..pipeline import has_marginal

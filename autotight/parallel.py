@@ -16,7 +16,7 @@ import threading
 import time
 from typing import Any, Callable, Iterator, Sequence
 
-from ..errors import AutotightError
+from .errors import AutotightError
 
 RESUME = "finished trials are saved; re-run the same command to resume"
 #: how often a worker checks that its parent is alive (s)
