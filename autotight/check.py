@@ -34,9 +34,9 @@ from .limits import check_count, check_size, count_arg
 from .pipeline import SolveResult, local_search, seeds, solve_instance
 from .points import parse_over, points_of
 from .problem import Problem, load
-from .tightness import Criteria
+from .tightness import Criteria, Outcome
 
-OUTCOMES = ("tight", "undecided", "not tight")
+OUTCOMES = (Outcome.TIGHT, Outcome.UNDECIDED, Outcome.NOT_TIGHT)
 
 
 def instance_seed(seed: int, point: int, trial: int) -> int:

@@ -40,18 +40,29 @@ decides a bracket left undecided by the solver's accuracy, never an inconsistent
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from enum import StrEnum
 from typing import Sequence
 
 import numpy as np
 import scipy.sparse as sp
 
 from .errors import ParameterError
-from .sdp.result import SDPResult
+from .sdp.result import SDPResult, Status
 
 ACCEPT = ("rank", "cost", "certified")
 #: a cost below this × its scale is zero to rounding (the zero-cost instances cost_atol decides)
 ROUNDOFF = 100 * float(np.finfo(float).eps)
-TIGHT, NOT_TIGHT, UNDECIDED = "tight", "not tight", "undecided"
+
+
+class Outcome(StrEnum):
+    """A verdict's outcome (equal to its text, which records and CSV files hold)."""
+
+    TIGHT = "tight"
+    NOT_TIGHT = "not tight"
+    UNDECIDED = "undecided"
+
+
+TIGHT, NOT_TIGHT, UNDECIDED = Outcome.TIGHT, Outcome.NOT_TIGHT, Outcome.UNDECIDED
 
 
 @dataclass(frozen=True)
@@ -232,6 +243,7 @@ def judge(res: SDPResult, upper: float, criteria: Criteria = Criteria(), certifi
     cert = None if certificate is None else bool(certificate.certified)
     reasons = [why] if why else []
     weak = bool(res.usable and np.isfinite(tol) and ill_conditioned(upper, tol, acc)) and not why
+    outcome: str
     if criteria.accept == "rank":
         if cost_outcome == TIGHT and rank_tight:
             outcome = TIGHT
@@ -262,7 +274,7 @@ def judge(res: SDPResult, upper: float, criteria: Criteria = Criteria(), certifi
             reasons.append("accept='certified' needs a certificate")
     if cert is False:
         reasons.append("not certified" + (f": {certificate.message}" if certificate.message else ""))
-    if res.status != "Solved" and res.usable:
+    if res.status != Status.SOLVED and res.usable:
         reasons.append(f"status {res.status}")
     return Verdict(outcome == TIGHT, rank_tight, cost_outcome == TIGHT, lsvr,
                    relative_gap(res.primal_cost, upper, criteria.cost_floor) if res.usable else float("nan"),

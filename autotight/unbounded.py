@@ -22,10 +22,10 @@ import numpy as np
 
 from .errors import SolverError
 from .model import HOMOGENISING, Constraint, Model
-from .sdp.result import SDPResult, finite
+from .sdp.result import SDPResult, Status, finite
 
 #: statuses meaning "the SDP in X is unbounded below" (its dual is infeasible)
-UNBOUNDED_STATUSES = ("DualInfeasible", "AlmostDualInfeasible")
+UNBOUNDED_STATUSES = (Status.DUAL_INFEASIBLE, Status.ALMOST_DUAL_INFEASIBLE)
 #: a block is in a ray's support when its largest diagonal entry is above this fraction of the ray's largest
 RAY_SUPPORT = 1e-6
 #: a block of a finite solution is unbounded when its diagonal exceeds this multiple of the feasible scale

@@ -22,6 +22,7 @@ import pandas as pd
 
 from ..io import atomic_write_text, jsonable, versions, write_json
 from ..outpaths import writing
+from ..sdp.result import Status
 from .spec import ReportError
 
 CSV_NAME = "trials.csv"
@@ -34,9 +35,7 @@ OUTPUTS = (CSV_NAME, "report.md", "report.html", "trapped.png", "log_svr.png", "
 OWN_FILES = (META_NAME, *OUTPUTS, "discovered.json", ".lock")
 REPORT_TITLE = "# Tightness report"
 #: the statuses a solve can end with (Clarabel's, which the IPM and the cvxpy path map to), for --redo
-STATUSES = ("Solved", "AlmostSolved", "MaxIterations", "MaxTime", "NumericalError", "InsufficientProgress",
-            "PrimalInfeasible", "DualInfeasible", "AlmostPrimalInfeasible", "AlmostDualInfeasible",
-            "CallbackTerminated", "Unsolved", "Failed")
+STATUSES = tuple(Status)
 #: a trial that raised is saved with the status "Error: <exception type>: <message>" (``trial.run_trial``)
 ERROR = "Error"
 BOOL_COLUMNS = ("tight", "rank_tight", "cost_tight", "local_converged_truth", "local_converged_random", "trapped")

@@ -59,7 +59,7 @@ from .cvxpy_path import CvxpyBackend
 from .backend import Backend
 from .registry import BACKENDS
 from .schur_ipm import IPMBackend
-from .result import SDPResult, finish, log_svr, rank_d_factor
+from .result import SDPResult, Status, finish, log_svr, rank_d_factor
 
 __all__ = ["solve", "solve_model", "model_cover", "check_solver", "SolverConfig", "SolverConfigError", "SolverOptions",
            "SDPResult", "BACKENDS", "CliqueCovers", "MERGE_MAX_SIZE", "IPM_MERGE_CAPS", "log_svr",
@@ -106,7 +106,7 @@ def _with_retries(backend: Backend, why: str, Q: sp.csr_array, As: list[sp.csr_a
         if res.status not in statuses:
             continue
         retry = _call(backend, f"retried with {what}", Q, As, b, d, cliques, cfg, log)
-        if retry.status == "Solved" or not res.usable:
+        if retry.status == Status.SOLVED or not res.usable:
             res = retry
     return res
 

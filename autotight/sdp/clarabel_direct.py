@@ -22,7 +22,7 @@ import scipy.sparse as sp
 from ..svec import smat, svec_columns, svec_dim
 from .clique_program import clique_program, complete_auto, complete_from_cliques, cost_scale
 from .config import Retries, SolverConfig, SolverConfigError
-from .result import SDPResult, finish
+from .result import SDPResult, Status, finish
 
 
 #: from this many columns of X on, Clarabel factors its KKT system with its supernodal solver "faer"
@@ -69,12 +69,14 @@ def _settings(opts: SolverConfig, N: int = 0) -> "clarabel.DefaultSettings":
 
 
 def _sdp_status(clarabel_status: object) -> str:
-    """Clarabel solved the SDP's dual: its "primal infeasible" is our dual infeasible and vice versa."""
-    s = str(clarabel_status)
+    """Clarabel's status as a ``Status``.  Clarabel solved the SDP's dual: its "primal infeasible" is our
+    dual infeasible and vice versa.  A status this version of Clarabel added stays its own string."""
+    s = str(clarabel_status).rsplit(".", 1)[-1]
     for a, b in (("PrimalInfeasible", "DualInfeasible"), ("DualInfeasible", "PrimalInfeasible")):
         if s.endswith(a):
-            return s[: -len(a)] + b
-    return s
+            s = s[: -len(a)] + b
+            break
+    return Status(s) if s in Status.__members__.values() else s
 
 
 def solve_dense(Q: sp.csr_array, As: Sequence[sp.csr_array], b: np.ndarray, d: int,

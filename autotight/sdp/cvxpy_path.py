@@ -9,7 +9,10 @@ import numpy as np
 import scipy.sparse as sp
 
 from .config import Retries, SolverConfig, SolverConfigError
-from .result import SDPResult, finish
+from .result import SDPResult, Status, finish
+
+#: cvxpy's statuses that mean a solution, as ``Status``; any other stays cvxpy's own text
+CVXPY_STATUS = {"optimal": Status.SOLVED, "optimal_inaccurate": Status.ALMOST_SOLVED}
 
 
 def solve_cvxpy(Q: sp.csr_array, As: Sequence[sp.csr_array], b: np.ndarray, d: int, solver: str,
@@ -40,7 +43,7 @@ def solve_cvxpy(Q: sp.csr_array, As: Sequence[sp.csr_array], b: np.ndarray, d: i
     t2 = time.perf_counter()
     Xv = X.value
     y = -np.asarray(cons[0].dual_value, float) if cons and cons[0].dual_value is not None else None
-    mapped = {"optimal": "Solved", "optimal_inaccurate": "AlmostSolved"}.get(status, status)
+    mapped = CVXPY_STATUS.get(status, status)
     res = SDPResult(status=mapped, solver=f"cvxpy-{name.lower()}", d=d, X=None if Xv is None else np.asarray(Xv),
                     y=y, primal_cost=float(prob.value) if Xv is not None else float("nan"),
                     dual_cost=float(np.dot(b, y)) if y is not None else float("nan"),

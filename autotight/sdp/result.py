@@ -3,12 +3,33 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from enum import StrEnum
 
 import numpy as np
 import scipy.sparse as sp
 
 
-SOLVED = "Solved"
+class Status(StrEnum):
+    """How a solve ended, in Clarabel's words; every backend maps its own statuses to these once
+    (``clarabel_direct._sdp_status``, ``cvxpy_path``, ``schur_ipm``).  A backend's failure that names its
+    cause is a free string "Failed: …" (``errors`` of the backend) or "SolverError: …" (cvxpy)."""
+
+    SOLVED = "Solved"
+    ALMOST_SOLVED = "AlmostSolved"
+    MAX_ITERATIONS = "MaxIterations"
+    MAX_TIME = "MaxTime"
+    NUMERICAL_ERROR = "NumericalError"
+    INSUFFICIENT_PROGRESS = "InsufficientProgress"
+    PRIMAL_INFEASIBLE = "PrimalInfeasible"
+    DUAL_INFEASIBLE = "DualInfeasible"
+    ALMOST_PRIMAL_INFEASIBLE = "AlmostPrimalInfeasible"
+    ALMOST_DUAL_INFEASIBLE = "AlmostDualInfeasible"
+    CALLBACK_TERMINATED = "CallbackTerminated"
+    UNSOLVED = "Unsolved"
+    FAILED = "Failed"
+
+
+SOLVED = Status.SOLVED
 
 
 @dataclass
@@ -59,7 +80,7 @@ class SDPResult:
     @property
     def usable(self) -> bool:
         """A solution was returned (Solved or AlmostSolved) and X is finite."""
-        return self.X is not None and self.status in (SOLVED, "AlmostSolved") and finite(self.X)
+        return self.X is not None and self.status in (Status.SOLVED, Status.ALMOST_SOLVED) and finite(self.X)
 
     @property
     def cost(self) -> float:

@@ -51,7 +51,7 @@ import scipy.sparse.linalg as spla
 from ..svec import SQRT2, triu_indices
 from .clique_program import clique_program, complete_auto
 from .config import Retries, SolverConfig, SolverConfigError
-from .result import SDPResult, finish
+from .result import SDPResult, Status, finish
 
 #: the stall clock's patience grows (STALL_ITERATIONS_ALMOST) once every relative residual is below this
 ALMOST_TOL = 1e-6
@@ -106,7 +106,7 @@ class IPMSolution:
 def almost_solved(status: str, gap: float, pinf: float, dinf: float) -> bool:
     """Whether a solve that stopped with ``status`` (not Solved) is AlmostSolved: relative gap ≤
     REDUCED_TOL_GAP and pinf, dinf ≤ REDUCED_TOL_FEAS (Clarabel's reduced accuracy)."""
-    return status != "Solved" and gap <= REDUCED_TOL_GAP and max(pinf, dinf) <= REDUCED_TOL_FEAS
+    return status != Status.SOLVED and gap <= REDUCED_TOL_GAP and max(pinf, dinf) <= REDUCED_TOL_FEAS
 
 
 class _StallClock:
@@ -364,7 +364,7 @@ def solve_blocks(F: sp.csc_matrix, c: np.ndarray, g: np.ndarray, sizes: list[int
     X, Z, y = blocks.identity(xi), blocks.identity(eta), np.zeros(g.size)
     C = blocks.split(cv)
     gamma = 0.9
-    status, message, it = "MaxIterations", "", 0
+    status, message, it = Status.MAX_ITERATIONS, "", 0
     best: tuple | None = None
     clock = _StallClock(tol)
     for it in range(max_iter + 1):
@@ -382,16 +382,16 @@ def solve_blocks(F: sp.csc_matrix, c: np.ndarray, g: np.ndarray, sizes: list[int
             best = (err, [x.copy() for x in X], y.copy(), pobj, dobj, gap, pinf, dinf, it)
         clock.tick(it, err, abs(pobj - dobj), gap, pinf, dinf)
         if err <= tol:
-            status = "Solved"
+            status = Status.SOLVED
             break
         if it == max_iter:
             break
         if time.perf_counter() - t0 > time_limit:
-            status = "MaxTime"
+            status = Status.MAX_TIME
             break
         stall = clock.stalled(it)
         if stall:
-            status, message = "InsufficientProgress", f"no progress in {stall} iterations"
+            status, message = Status.INSUFFICIENT_PROGRESS, f"no progress in {stall} iterations"
             break
         try:
             Zinv = [np.linalg.inv(Zg) for Zg in Z]
@@ -447,7 +447,7 @@ def solve_blocks(F: sp.csc_matrix, c: np.ndarray, g: np.ndarray, sizes: list[int
                 if min(ap1, ad1) > min(ap, ad):
                     dX, dy, dZ, ap, ad = dX1, dy1, dZ1, ap1, ad1
         except np.linalg.LinAlgError as e:  # the factorisation broke down (raised by _Schur.factor)
-            status, message = "NumericalError", str(e)
+            status, message = Status.NUMERICAL_ERROR, str(e)
             break
         if verbose:
             print(f"    σ {sigma:.1e}  steps {ap:.2e} {ad:.2e}")
@@ -459,7 +459,7 @@ def solve_blocks(F: sp.csc_matrix, c: np.ndarray, g: np.ndarray, sizes: list[int
     err, Xb, yb, pobj, dobj, gap, pinf, dinf, _ = best
     if almost_solved(status, gap, pinf, dinf):
         message = f"{status}: {message}" if message else status
-        status = "AlmostSolved"
+        status = Status.ALMOST_SOLVED
     z = P.T @ blocks.join(Xb)
     return IPMSolution(status, z, yb, pobj, dobj, gap, pinf, dinf, it, time.perf_counter() - t0, message)
 
