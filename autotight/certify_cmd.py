@@ -41,13 +41,13 @@ def cmd_certify(args: argparse.Namespace) -> int:
     from .problem import load, parse_assignments
 
     from .api import _seed
-    from .limits import check_size
+    from .limits import check_certify_size
     from .validate import check_data
 
     start = start_arg(args.start)
     prob = load(args.problem)
     params = prob.parse_params(parse_assignments(args.param))
-    check_size(prob, params)
+    check_certify_size(prob, params)
     inst = prob.generate(params, _seed(args.seed))
     check_data(prob, inst, prob.build(inst))  # NaN/inf data, weights beyond the solver's reach
     cons = constraints_arg(args.set)
