@@ -83,6 +83,8 @@ NEWTON_MAX_ENTRIES = 10_000_000
 #: below this many columns, a large program that Douglas–Rachford does not certify falls back to the full SDP's
 #: y (continuous time, K = 21: N ≈ 1 200); above it certify never forms the full SDP
 FALLBACK_MAX_N = 4000
+#: the ways ``certify`` finds y
+METHODS = ("auto", "barrier", "projection")
 #: LSQR iterations that refine the stationarity of the polished y on large programs (discrete K = 1000: 64)
 LSQR_REFINE_ITER = 1000
 #: fraction of the distance to the cone's boundary a damped step may cover
@@ -263,7 +265,8 @@ def phase_one(prog, Th: np.ndarray, *, alpha: float = 1.0, target: float = 1e-6,
 
 def certify(Q: sp.sparray, constraints: Sequence[Constraint], theta_hat: np.ndarray, *, d: int = 1,
             cliques: Sequence[np.ndarray] | None = None, tol: float = 1e-5, floor: float = 1e-12,
-            max_iter: int = 50, trace: float | None = None, scale: np.ndarray | None = None) -> Certificate:
+            max_iter: int = 50, trace: float | None = None, scale: np.ndarray | None = None,
+            method: str = "auto") -> Certificate:
     """Certify x̂ (Θ̂ = ``theta_hat``) for min ⟨Q,X⟩ s.t. ``constraints``, X ⪰ 0 (module docstring).
 
     certified: the certified suboptimality bound f(x̂) − p* is ≤ tol relative to f(x̂)
@@ -272,10 +275,14 @@ def certify(Q: sp.sparray, constraints: Sequence[Constraint], theta_hat: np.ndar
     candidate (``certificate.certificate``).  cliques: a chordal cover containing the
     pattern of Q and every Aᵢ, each with the h columns (default: ``default_cliques``).  max_iter: Newton
     steps of the barrier method.  trace: a known bound on tr(X) (default: derived from the constraints).
-    scale: the diagonal scaling D of the full SDP's fallback (``sdp.solve``; None: unscaled).
+    scale: the diagonal scaling D of the full SDP's fallback (``sdp.solve``; None: unscaled).  method: how y
+    is found: "barrier" (step 2), "projection" (Douglas–Rachford, module docstring, Scope), or "auto" (the
+    barrier unless its Newton matrix would exceed ``NEWTON_MAX_ENTRIES``).
     """
     from .sdp.clique_program import clique_program
 
+    if method not in METHODS:
+        raise ValueError(f"method must be one of {METHODS}, got {method!r}")
     t0 = time.perf_counter()
     Q = sp.csr_array(Q)
     As, b = stack(constraints)
@@ -284,9 +291,9 @@ def certify(Q: sp.sparray, constraints: Sequence[Constraint], theta_hat: np.ndar
         cliques = default_cliques(Q, As, d)
     prog = clique_program(Q, As, b, [np.asarray(C) for C in cliques])
     load = newton_size(prog)
-    if load > NEWTON_MAX_ENTRIES:  # the Newton matrix would be large: Douglas–Rachford, then maybe the full SDP
+    if method == "projection" or (method == "auto" and load > NEWTON_MAX_ENTRIES):  # no Newton matrix
         cert = _certify_projected(Q, As, constraints, prog, Th, d=d, tol=tol, floor=floor, trace=trace)
-        if cert.certified or Q.shape[0] >= FALLBACK_MAX_N:
+        if cert.certified or method == "projection" or Q.shape[0] >= FALLBACK_MAX_N:
             return replace(cert, time_s=time.perf_counter() - t0)
         from . import sdp
         from .dual_polish import polished

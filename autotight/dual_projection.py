@@ -10,8 +10,7 @@ Method (``project_multipliers``): find a point of A ∩ C_μ, A = {s(w) = (S̃_k
 and C_μ = {S̃_k ⪰ μI for every k} (the cone shifted inwards), in the Frobenius metric of the stacked
 blocks, by Douglas–Rachford: z ← z + P_A(2 P_C(z) − z) − P_C(z), with the projections
 
-- P_C: each block's eigenvalues below μ are raised to μ (a batched eigendecomposition, only on the
-  blocks whose smallest eigenvalue is below μ);
+- P_C: each block's eigenvalues below μ are raised to μ (a batched eigendecomposition);
 - P_A: w = argmin ‖S̃(w) − Z‖² + β‖D(Lw − l)‖² + ε‖w‖², one solve with the fixed matrix
   FᵀF + β LᵀD²L + εI (D: L's inverse row norms; β = ``PENALTY`` × FᵀF's mean diagonal, ε =
   ``RIDGE`` × the same), factored once by a symmetric sparse LU (its pattern couples the variables of
@@ -20,11 +19,13 @@ blocks, by Douglas–Rachford: z ← z + P_A(2 P_C(z) − z) − P_C(z), with th
 The point s(w) of A (to the penalty's accuracy) is tested every round; it stops "feasible" as soon as
 every S̃_k(w) is positive definite, "stalled" when the smallest eigenvalue has not risen by
 ``PROGRESS`` in ``PATIENCE`` rounds, or after ``max_iter`` rounds.  Two choices matter (discrete
-trajectory, the set learned at K = 5): μ well inside the cone (``CLIP`` = 0.03 of the scaled cost)
-pushes the iterates into the interior (plain alternating projections: 16 rounds at K = 100 with
-μ = 0.03, 37 with μ = 0.01, over 150 with μ = 0.002), and Douglas–Rachford, unlike alternating
-projections, does not stall on the chain's ends: K = 100 in 5 rounds, K = 1000 in 22, where
-alternating projections still had 280 of 1000 blocks outside the cone after 60.  Each round costs
+trajectory, the set learned at K = 5): μ well inside the cone pushes the iterates into the interior
+(plain alternating projections at K = 100: 16 rounds with μ = 0.03, 37 with μ = 0.01, over 150 with
+μ = 0.002), and Douglas–Rachford, unlike alternating projections, does not stall on the chain's ends
+(at K = 1000, μ = 0.03: feasible in 22 rounds, where alternating projections still had 280 of 1000
+blocks outside the cone after 60).  Rounds at K = 1000, seed 0 (seed 1): μ = 0.03: 22, μ = 0.06: 14,
+μ = 0.1: 11 (9), μ = 0.2: (7), μ = 0.3: 6, μ = 0.4: (5), μ = 1: stalled at a margin of −0.1.  So
+``CLIPS`` tries μ = 0.3 first and 0.03 where that does not end feasible.  Each round costs
 one sparse solve and the small eigenproblems, so a round is linear in the number of cliques.
 
 Soundness: the rounds only propose w; ``certifier.certify`` polishes its y onto stationarity and hands
@@ -39,8 +40,9 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-#: μ of the cone C_μ the blocks are projected onto (scaled cost: max|C_ij| = 1)
-CLIP = 0.03
+#: μ of the cone C_μ the blocks are projected onto (scaled cost: max|C_ij| = 1), the next where one does not end
+#: "feasible" (module docstring)
+CLIPS = (0.3, 0.03)
 #: weight of the stationarity penalty and of the ridge, relative to FᵀF's mean diagonal
 PENALTY = 1e6
 RIDGE = 1e-10
@@ -71,12 +73,21 @@ def stationarity_rows(prog, Th: np.ndarray, blocks) -> tuple[sp.csr_array, np.nd
     P = svec_to_vec(prog.sizes)
     Gv = sp.csr_array(P @ prog.F)
     cv = P @ prog.c
-    Ks, UU = [], np.zeros(blocks.voff[-1])
-    for k, C in enumerate(prog.cliques):
-        U = np.linalg.qr(Th[:, C].T)[0]  # n_k × d
-        Ks.append(sp.kron(sp.identity(len(C)), sp.csr_array(U.T)))  # vec(S) → vec(S U)
-        UU[blocks.voff[k]:blocks.voff[k + 1]] = (U @ U.T).ravel()
-    Kb = sp.block_diag(Ks, format="csr")
+    d = Th.shape[0]
+    UU = np.zeros(blocks.voff[-1])
+    first = np.concatenate([[0], np.cumsum(prog.sizes)])  # Σ_{k' < k} n_k'
+    rows, cols, vals = [], [], []
+    for n, ids, idx in blocks.groups:  # per size n: vec(S) (row-major) → vec(S U) (n × d, row-major), batched
+        C = np.stack([prog.cliques[k] for k in ids])  # (B, n)
+        U = np.linalg.qr(np.swapaxes(Th[:, C], 0, 1).transpose(0, 2, 1))[0]  # (B, n, d), orthonormal columns
+        UU[idx.ravel()] = (U @ np.swapaxes(U, -1, -2)).reshape(-1)
+        out0 = d * first[ids]  # first row of block k in the stacked vec(S U)
+        i, j, a = np.meshgrid(np.arange(n), np.arange(n), np.arange(d), indexing="ij")
+        rows.append((out0[:, None] + (i * d + a).ravel()[None, :]).ravel())
+        cols.append((blocks.voff[ids][:, None] + (i * n + j).ravel()[None, :]).ravel())
+        vals.append(U[:, j.ravel(), a.ravel()].ravel())
+    Kb = sp.csr_array((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+                      shape=(d * int(sum(prog.sizes)), blocks.voff[-1]))
     L = sp.csr_array(Kb @ Gv)
     lv = Kb @ cv
     nr = np.sqrt(np.asarray(L.multiply(L).sum(axis=1)).ravel())
@@ -84,9 +95,11 @@ def stationarity_rows(prog, Th: np.ndarray, blocks) -> tuple[sp.csr_array, np.nd
     return sp.csr_array(sp.diags_array(inv) @ L), inv * lv, UU
 
 
-def project_multipliers(prog, Th: np.ndarray, *, clip: float = CLIP, alpha: float = 1.0,
+def project_multipliers(prog, Th: np.ndarray, *, clips: tuple[float, ...] = CLIPS, alpha: float = 1.0,
                         max_iter: int = MAX_ITER) -> Projection:
-    """The alternating projections of the module docstring on the clique program ``prog`` for Θ̂ (d × N)."""
+    """Douglas–Rachford (module docstring) on the clique program ``prog`` for Θ̂ (d × N), with μ = each of
+    ``clips`` in turn until one ends "feasible" (each from the least-squares start; the best margin is
+    returned, ``iterations`` counts all rounds)."""
     from .sdp.schur_ipm import _Blocks, svec_to_vec
 
     blocks = _Blocks(prog.sizes)
@@ -111,16 +124,32 @@ def project_multipliers(prog, Th: np.ndarray, *, clip: float = CLIP, alpha: floa
         w = lu.solve(rhs)
         return w + lu.solve(rhs - N @ w)
 
+    w0 = onto_affine(np.zeros_like(base))  # the least-squares fit S̃(w) ≈ 0 on {L w = l}: the first round
+    best: tuple[np.ndarray, float, str] = (w0, -np.inf, "no μ given")
+    total = 0
+    for mu in clips:
+        w, margin, status, rounds = _douglas_rachford(w0, mu, max_iter, Gv, base, blocks, onto_affine)
+        total += rounds
+        if margin > best[1]:
+            best = (w, margin, f"{status} at μ = {mu:g}")
+        if status == "feasible":
+            break
+    w, margin, status = best
+    return Projection(w, margin, status, total, float(np.linalg.norm(DL @ w - dl)))
+
+
+def _douglas_rachford(w: np.ndarray, clip: float, max_iter: int, Gv, base: np.ndarray, blocks,
+                      onto_affine) -> tuple[np.ndarray, float, str, int]:
+    """The rounds of the module docstring with μ = ``clip`` from w: (w, margin, status, rounds)."""
+
     def onto_cone(Z: np.ndarray) -> np.ndarray:
         out = blocks.split(Z)
-        for Sg in out:  # only the blocks below μ move
-            bad = np.flatnonzero(np.linalg.eigvalsh(Sg)[:, 0] < clip)
-            if bad.size:
-                ev, V = np.linalg.eigh(Sg[bad])
-                Sg[bad] = (V * np.maximum(ev, clip)[:, None, :]) @ np.swapaxes(V, -1, -2)
+        for g, Sg in enumerate(out):  # the blocks whose eigenvalues are all ≥ μ stay as they are
+            ev, V = np.linalg.eigh(Sg)
+            bad = ev[:, 0] < clip
+            out[g][bad] = (V[bad] * np.maximum(ev[bad], clip)[:, None, :]) @ np.swapaxes(V[bad], -1, -2)
         return blocks.join(out)
 
-    w = onto_affine(np.zeros_like(base))  # the least-squares fit S̃(w) ≈ 0 on {L w = l}: the first round
     z = base - Gv @ w
     best, last_gain, margin, status, it = -np.inf, 0, -np.inf, "max_iter", 0
     for it in range(1, max_iter + 1):
@@ -140,4 +169,4 @@ def project_multipliers(prog, Th: np.ndarray, *, clip: float = CLIP, alpha: floa
         c = onto_cone(z)  # Douglas–Rachford: z ← z + P_A(2 P_C(z) − z) − P_C(z)
         w = onto_affine(2 * c - z)
         z = z + (base - Gv @ w) - c
-    return Projection(w, margin, status, it, float(np.linalg.norm(DL @ w - dl)))
+    return w, margin, status, it
