@@ -120,8 +120,11 @@ def stack(constraints: Sequence[Constraint]) -> tuple[list[sp.coo_array], np.nda
 
 def entries(As: Sequence[sp.sparray]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """All entries of the Aᵢ in one pass: (row, col, value, i) arrays (i: the matrix holding the entry)."""
-    rows, cols, vals, owner = [], [], [], []
-    for i, A in enumerate(As):
+    if not len(As):
+        z = np.zeros(0, dtype=np.int64)
+        return z, z, np.zeros(0), z
+    rows, cols, vals = [], [], []
+    for A in As:
         if isinstance(A, (sp.csr_array, sp.csr_matrix)):
             r, c = np.repeat(np.arange(A.shape[0]), np.diff(A.indptr)), A.indices
         else:  # COO (the stored form) as it is: no N + 1 index array per matrix
@@ -130,11 +133,8 @@ def entries(As: Sequence[sp.sparray]) -> tuple[np.ndarray, np.ndarray, np.ndarra
         rows.append(r)
         cols.append(c)
         vals.append(A.data)
-        owner.append(np.full(A.data.size, i))
-    if not rows:
-        z = np.zeros(0, dtype=np.int64)
-        return z, z, np.zeros(0), z
-    return np.concatenate(rows), np.concatenate(cols), np.concatenate(vals).astype(float), np.concatenate(owner)
+    owner = np.repeat(np.arange(len(As)), [v.size for v in vals])  # one call, not one array per matrix
+    return np.concatenate(rows), np.concatenate(cols), np.concatenate(vals).astype(float), owner
 
 
 def dual_matrix(Q: sp.sparray, As: Sequence[sp.sparray], y: np.ndarray, *, stacked=None) -> sp.csc_array:

@@ -375,11 +375,12 @@ class CertifyRun:
 
 
 def certify_instance(problem, inst, constraints=None, *, start="truth", criteria=None,
-                     max_iter: int = 50) -> CertifyRun:
+                     max_iter: int = 50, model: Model | None = None) -> CertifyRun:
     """Run the local solver on ``inst`` from ``start`` ("truth", "random": the first random start of
     ``autotight.solve`` for this seed, or a state dict), lift its solution and ``certify`` it with the
     constraints of ``constraints`` (as ``autotight.solve``) and the tolerances of ``criteria`` (those
-    of the full SDP's bracket test: gap_tol, and cost_atol for zero-cost candidates)."""
+    of the full SDP's bracket test: gap_tol, and cost_atol for zero-cost candidates).  model: ``problem.build(inst)``
+    when the caller has it (built here otherwise)."""
     from .constraint_set import resolve, set_name
     from .errors import ParameterError
     from .pipeline import LocalSearch, feasible_points, seeds
@@ -388,7 +389,7 @@ def certify_instance(problem, inst, constraints=None, *, start="truth", criteria
 
     criteria = Criteria() if criteria is None else criteria
     s = seeds(inst.seed if inst.seed is not None else 0)
-    model = problem.build(inst)
+    model = problem.build(inst) if model is None else model
     cons = resolve(constraints, problem, inst, model, s.constraints())
     if isinstance(start, str):
         if start == "truth":

@@ -49,9 +49,10 @@ def cmd_certify(args: argparse.Namespace) -> int:
     params = prob.parse_params(parse_assignments(args.param))
     check_certify_size(prob, params)
     inst = prob.generate(params, _seed(args.seed))
-    check_data(prob, inst, prob.build(inst))  # NaN/inf data, weights beyond the solver's reach
+    model = prob.build(inst)
+    check_data(prob, inst, model)  # NaN/inf data, weights beyond the solver's reach
     cons = constraints_arg(args.set)
-    run = certify_instance(prob, inst, cons, start=start)
+    run = certify_instance(prob, inst, cons, start=start, model=model)
     c = run.certificate
     rec = {"problem": prob.name, "params": inst.params, "seed": inst.seed,
            "constraint_set": run.constraint_set,

@@ -91,6 +91,21 @@ def main() -> None:
     args = ap.parse_args()
     rows, i = [], 0
     load_start = os.getloadavg()
+
+    def write() -> None:  # after every row, so that a long run leaves its results so far
+        out = {"benchmark": "autotight certify against the full SDP (autotight solve --solver ipm), whole commands",
+               "problem": "discrete_trajectory", "constraint_set": SET,
+               "targets": {"K=10000": "certify certified, ≤ 60 s wall, ≤ 4 GB peak RSS (seed 0)",
+                           "K=1000": "certify ≤ 1/10 of solve's wall time; both certified, relative bound ≤ 1e-6, "
+                                     "seeds 0-2"},
+               "command": "python benchmarks/certify_scale.py " + " ".join(
+                   f"--{k.replace('_', '-')} {v}" for k, v in vars(args).items()),
+               "rows": rows,
+               "versions": {"python": platform.python_version(), "numpy": np.__version__, "scipy": scipy.__version__},
+               "machine": {"cpus": os.cpu_count(), "load_avg_start": load_start, "load_avg_end": os.getloadavg()}}
+        Path(args.out).parent.mkdir(parents=True, exist_ok=True)
+        Path(args.out).write_text(json.dumps(out, indent=1, default=float, ensure_ascii=False))
+
     for K in (int(k) for k in args.ks.split(",") if k):
         for seed in (int(s) for s in (args.seeds if K <= 1000 else args.seeds_large).split(",") if s):
             row = {"K": K, "seed": seed, "certify_first": i % 2 == 0}
@@ -115,18 +130,7 @@ def main() -> None:
                   f"certified {s.get('certified')} rel {s.get('rel_bound')} {s.get('wall_s', float('nan')):.1f} s "
                   f"{s.get('peak_rss_mb') or 0:.0f} MB | ratio {row.get('ratio_wall', float('nan')):.3f} "
                   f"load {c['load_before']:.1f}", flush=True)
-    out = {"benchmark": "autotight certify against the full SDP (autotight solve --solver ipm), whole commands",
-           "problem": "discrete_trajectory", "constraint_set": SET,
-           "targets": {"K=10000": "certify certified, ≤ 60 s wall, ≤ 4 GB peak RSS (seed 0)",
-                       "K=1000": "certify ≤ 1/10 of solve's wall time; both certified, relative bound ≤ 1e-6, "
-                                 "seeds 0-2"},
-           "command": "python benchmarks/certify_scale.py " + " ".join(
-               f"--{k.replace('_', '-')} {v}" for k, v in vars(args).items() if k != "out"),
-           "rows": rows,
-           "versions": {"python": platform.python_version(), "numpy": np.__version__, "scipy": scipy.__version__},
-           "machine": {"cpus": os.cpu_count(), "load_avg_start": load_start, "load_avg_end": os.getloadavg()}}
-    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-    Path(args.out).write_text(json.dumps(out, indent=1, default=float, ensure_ascii=False))
+            write()
     print("wrote", args.out)
 
 
