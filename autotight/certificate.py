@@ -338,16 +338,18 @@ def stationarity_system(Q: sp.sparray, As: Sequence[sp.sparray], Th: np.ndarray)
     return sp.csr_array((vals, (rows, cols)), shape=(n_rows, len(As))), g
 
 
-def polish_dual(Q: sp.sparray, As: Sequence[sp.sparray], y: np.ndarray, theta_hat: np.ndarray) -> np.ndarray:
+def polish_dual(Q: sp.sparray, As: Sequence[sp.sparray], y: np.ndarray, theta_hat: np.ndarray,
+                system: tuple[sp.csr_array, np.ndarray] | None = None) -> np.ndarray:
     """y + δ, δ the least change (2-norm) that makes H(y + δ)Θ̂ᵀ = 0 (and H's rows on recession columns
     zero, ``stationarity_system``): the minimum-norm least-squares solution of G δ = g − G y
     (``lstsq.min_norm_lstsq``).  Θ̂: (d, N).  Where x̂ is stationary only to the local solver's
     accuracy, the system is consistent only to that accuracy, and so is H(y + δ)Θ̂ᵀ = 0.  Then
     bᵀ(y + δ) = f(x̂) − ⟨H, Θ̂ᵀΘ̂⟩ ≈ f(x̂), up to that and x̂'s constraint residual; whether y + δ
     proves anything is λ_min's to say.  The rows on recession columns, which must hold exactly (to
-    roundoff) for a certificate, get a second least-change step of their own."""
+    roundoff) for a certificate, get a second least-change step of their own.  system: (G, g) of
+    ``stationarity_system(Q, As, Θ̂)`` when the caller has it."""
     Th = np.atleast_2d(np.asarray(theta_hat, dtype=float))
-    G, g = stationarity_system(Q, As, Th)
+    G, g = stationarity_system(Q, As, Th) if system is None else system
     y = np.asarray(y, dtype=float)
     y = y + min_norm_lstsq(G, g - G @ y)
     n_stat = Th.size
