@@ -35,18 +35,21 @@ convex feasibility problem.  Ours, on a clique tree of the data (``sdp.clique_pr
    certified λ_min(H) by LDLᵀ inertia, the trace bound, the suboptimality bound), which decides.  The
    barrier only proposes y, so no speed trick can produce a false "certified".
 
-Scope.  The Newton matrix has about Σ_k m_k² entries (m_k: the variables touching block k).  Where
-that exceeds ``NEWTON_MAX_ENTRIES`` (continuous time, whose cliques of up to 67 columns share
-thousands of transfers; discrete trajectory from K ≈ 1000), step 2 is replaced by Douglas–Rachford
+Scope.  The Newton matrix has about Σ_k m_k² entries (m_k: the variables touching block k), and each
+step costs about as much as an iteration of the full SDP's IPM (discrete K = 100: 18 steps, as long as
+the full solve).  From ``PROJECTION_MIN_N`` columns on, and wherever the Newton matrix would exceed
+``NEWTON_MAX_ENTRIES`` (continuous time, whose cliques of up to 67 columns share thousands of
+transfers; discrete trajectory from K ≈ 1000), step 2 is first replaced by Douglas–Rachford
 splitting between the affine set and the cone (``autotight.dual_projection``: one sparse
 factorisation, then per round a solve and the blocks' small eigenproblems; no Newton matrix), and the
 polished y gets an LSQR refinement of the stationarity residual (``LSQR_REFINE_ITER`` iterations at
 most; the min-norm polish alone leaves ‖H Θ̂ᵀ‖ at 1e-6 relative at discrete K = 1000, which is a
-relative bound of 5e-5 there).  Where that does not certify and N < ``FALLBACK_MAX_N`` (continuous
-time), certify solves the full SDP instead, polishes its y as the pipeline does
-(``dual_polish.polished``) and certifies it the same way: the verdict stays right, without the
-speed-up.  Above FALLBACK_MAX_N no full SDP is solved: certify stays sparse and linear in the chain's
-length, and "not certified" then says only that no certificate was found (``autotight solve`` decides).
+relative bound of 5e-5 there).  Where that does not certify, the barrier runs if its Newton matrix
+fits; if it does not and N < ``FALLBACK_MAX_N`` (continuous time), certify solves the full SDP,
+polishes its y as the pipeline does (``dual_polish.polished``) and certifies it the same way: the
+verdict stays right, without the speed-up.  Above FALLBACK_MAX_N no full SDP is solved: certify stays
+sparse and linear in the chain's length, and "not certified" then says only that no certificate was
+found (``autotight solve`` decides).
 
 A negative final margin means no certificate exists for x̂ (it is not a global minimiser of a tight
 relaxation); the returned Certificate then carries the bound that the best y found still proves.
@@ -83,6 +86,9 @@ NEWTON_MAX_ENTRIES = 10_000_000
 #: below this many columns, a large program that Douglas–Rachford does not certify falls back to the full SDP's
 #: y (continuous time, K = 21: N ≈ 1 200); above it certify never forms the full SDP
 FALLBACK_MAX_N = 4000
+#: from this many columns on, "auto" tries Douglas–Rachford before the barrier (discrete K = 100, N = 2395:
+#: 4 rounds, about 1 s, where the barrier took 18 Newton steps and as long as the full SDP's IPM)
+PROJECTION_MIN_N = 1000
 #: the ways ``certify`` finds y
 METHODS = ("auto", "barrier", "projection")
 #: LSQR iterations that refine the stationarity of the polished y on large programs (discrete K = 1000: 64)
@@ -277,7 +283,8 @@ def certify(Q: sp.sparray, constraints: Sequence[Constraint], theta_hat: np.ndar
     steps of the barrier method.  trace: a known bound on tr(X) (default: derived from the constraints).
     scale: the diagonal scaling D of the full SDP's fallback (``sdp.solve``; None: unscaled).  method: how y
     is found: "barrier" (step 2), "projection" (Douglas–Rachford, module docstring, Scope), or "auto" (the
-    barrier unless its Newton matrix would exceed ``NEWTON_MAX_ENTRIES``).
+    projection first from ``PROJECTION_MIN_N`` columns on or where the Newton matrix would exceed
+    ``NEWTON_MAX_ENTRIES``, then the barrier where its Newton matrix fits; the barrier alone below).
     """
     from .sdp.clique_program import clique_program
 
@@ -291,21 +298,25 @@ def certify(Q: sp.sparray, constraints: Sequence[Constraint], theta_hat: np.ndar
         cliques = default_cliques(Q, As, d)
     prog = clique_program(Q, As, b, [np.asarray(C) for C in cliques])
     load = newton_size(prog)
-    if method == "projection" or (method == "auto" and load > NEWTON_MAX_ENTRIES):  # no Newton matrix
+    big = load > NEWTON_MAX_ENTRIES
+    tried = ""
+    if method == "projection" or (method == "auto" and (big or Q.shape[0] >= PROJECTION_MIN_N)):
         cert = _certify_projected(Q, As, constraints, prog, Th, d=d, tol=tol, floor=floor, trace=trace)
-        if cert.certified or method == "projection" or Q.shape[0] >= FALLBACK_MAX_N:
+        if cert.certified or method == "projection" or (big and Q.shape[0] >= FALLBACK_MAX_N):
             return replace(cert, time_s=time.perf_counter() - t0)
-        from . import sdp
-        from .dual_polish import polished
+        tried = f"Douglas–Rachford did not certify ({cert.method.split(';')[0]}); "
+        if big:  # the full SDP's y, certified alike
+            from . import sdp
+            from .dual_polish import polished
 
-        res = sdp.solve(Q, constraints, d=d, scale=scale)
-        note = (f"full SDP ({res.solver} {res.status}): the Newton matrix would have ~{load:.1e} entries "
-                f"(> {NEWTON_MAX_ENTRIES:.0e}) and Douglas–Rachford did not certify ({cert.method.split(';')[0]})")
-        res, cert = polished(Q, constraints, res, Th, d=d, tol=tol, floor=floor)  # as the pipeline's y
-        if cert is None:
-            cert = certificate(Q, constraints, np.zeros(len(As)), Th, d=d, tol=tol, floor=floor, trace=trace,
-                               method=note + ", no multipliers")
-        return replace(cert, time_s=time.perf_counter() - t0, method=note + "; " + cert.method)
+            res = sdp.solve(Q, constraints, d=d, scale=scale)
+            note = (f"{tried}full SDP ({res.solver} {res.status}): the Newton matrix would have ~{load:.1e} "
+                    f"entries (> {NEWTON_MAX_ENTRIES:.0e})")
+            res, cert = polished(Q, constraints, res, Th, d=d, tol=tol, floor=floor)  # as the pipeline's y
+            if cert is None:
+                cert = certificate(Q, constraints, np.zeros(len(As)), Th, d=d, tol=tol, floor=floor, trace=trace,
+                                   method=note + ", no multipliers")
+            return replace(cert, time_s=time.perf_counter() - t0, method=note + "; " + cert.method)
     ph = phase_one(prog, Th, max_iter=max_iter)
     how = "long steps"
     if ph.status != "feasible":  # long steps can jam near the boundary: once more, centred first
@@ -316,7 +327,7 @@ def certify(Q: sp.sparray, constraints: Sequence[Constraint], theta_hat: np.ndar
     if ph.margin > 0:  # the penalty leaves a small residual of H(y)Θ̂ᵀ = 0
         y = polish_dual(Q, As, y, Th)
     cert = certificate(Q, constraints, y, Th, d=d, tol=tol, floor=floor, trace=trace,
-                       method=f"clique barrier ({ph.status}, {how}, {ph.iterations} Newton steps, margin "
+                       method=f"{tried}clique barrier ({ph.status}, {how}, {ph.iterations} Newton steps, margin "
                               f"{ph.margin:.2e} of max|Q|, {len(prog.cliques)} cliques ≤ {max(prog.sizes)})")
     return replace(cert, time_s=time.perf_counter() - t0)
 
