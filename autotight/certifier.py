@@ -80,11 +80,11 @@ MIN_STEP = 0.5
 PENALTY = 1e6
 #: the retry's centring: τ grows only from points with Newton decrement² ≤ this
 CENTRED_DECREMENT = 1.0
-#: above this many entries (``newton_size``) in the Newton matrix, certify falls back to the full SDP's y
+#: above this many entries (``newton_size``) in the Newton matrix, the barrier is not run (module docstring, Scope)
 #: (discrete K = 100: 1.2e6; continuous time K = 11 on the default cover: 3.3e8)
 NEWTON_MAX_ENTRIES = 10_000_000
 #: below this many columns, a large program that Douglas–Rachford does not certify falls back to the full SDP's
-#: y (continuous time, K = 21: N ≈ 1 200); above it certify never forms the full SDP
+#: y (continuous time, K = 21: N = 517); above it certify never forms the full SDP
 FALLBACK_MAX_N = 4000
 #: from this many columns on, "auto" tries Douglas–Rachford before the barrier (discrete K = 100, N = 2395:
 #: 4 rounds, about 1 s, where the barrier took 18 Newton steps and as long as the full SDP's IPM)
