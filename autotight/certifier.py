@@ -37,19 +37,20 @@ convex feasibility problem.  Ours, on a clique tree of the data (``sdp.clique_pr
 
 Scope.  The Newton matrix has about Σ_k m_k² entries (m_k: the variables touching block k), and each
 step costs about as much as an iteration of the full SDP's IPM (discrete K = 100: 18 steps, as long as
-the full solve).  From ``PROJECTION_MIN_N`` columns on, and wherever the Newton matrix would exceed
-``NEWTON_MAX_ENTRIES`` (continuous time, whose cliques of up to 67 columns share thousands of
-transfers; discrete trajectory from K ≈ 1000), step 2 is first replaced by Douglas–Rachford
-splitting between the affine set and the cone (``autotight.dual_projection``: one sparse
-factorisation, then per round a solve and the blocks' small eigenproblems; no Newton matrix), and the
-polished y gets an LSQR refinement of the stationarity residual (``LSQR_REFINE_ITER`` iterations at
-most; the min-norm polish alone leaves ‖H Θ̂ᵀ‖ at 1e-6 relative at discrete K = 1000, which is a
-relative bound of 5e-5 there).  Where that does not certify, the barrier runs if its Newton matrix
-fits; if it does not and N < ``FALLBACK_MAX_N`` (continuous time), certify solves the full SDP,
-polishes its y as the pipeline does (``dual_polish.polished``) and certifies it the same way: the
-verdict stays right, without the speed-up.  Above FALLBACK_MAX_N no full SDP is solved: certify stays
-sparse and linear in the chain's length, and "not certified" then says only that no certificate was
-found (``autotight solve`` decides).
+the full solve).  From ``PROJECTION_MIN_N`` columns on (discrete trajectory from K ≈ 40), step 2 is
+first replaced by Douglas–Rachford splitting between the affine set and the cone
+(``autotight.dual_projection``: one sparse factorisation, then per round a solve and the blocks'
+small eigenproblems; no Newton matrix), and the polished y gets an LSQR refinement of the
+stationarity residual (``LSQR_REFINE_ITER`` iterations at most; the min-norm polish alone leaves
+‖H Θ̂ᵀ‖ at 1e-6 relative at discrete K = 1000, which is a relative bound of 5e-5 there).  Where that
+does not certify, or below PROJECTION_MIN_N columns, the barrier runs if its Newton matrix fits (at
+most ``NEWTON_MAX_ENTRIES`` entries); if it does not and N < ``FALLBACK_MAX_N`` (continuous time,
+whose cliques of up to 67 columns share thousands of transfers, and where Douglas–Rachford stalls at
+a margin of −0.04), certify solves the full SDP, polishes its y as the pipeline does
+(``dual_polish.polished``) and certifies it the same way: the verdict stays right, without the
+speed-up.  Above FALLBACK_MAX_N no full SDP is solved: certify stays sparse and linear in the chain's
+length, and "not certified" then says only that no certificate was found (``autotight solve``
+decides).
 
 A negative final margin means no certificate exists for x̂ (it is not a global minimiser of a tight
 relaxation); the returned Certificate then carries the bound that the best y found still proves.
@@ -283,8 +284,7 @@ def certify(Q: sp.sparray, constraints: Sequence[Constraint], theta_hat: np.ndar
     steps of the barrier method.  trace: a known bound on tr(X) (default: derived from the constraints).
     scale: the diagonal scaling D of the full SDP's fallback (``sdp.solve``; None: unscaled).  method: how y
     is found: "barrier" (step 2), "projection" (Douglas–Rachford, module docstring, Scope), or "auto" (the
-    projection first from ``PROJECTION_MIN_N`` columns on or where the Newton matrix would exceed
-    ``NEWTON_MAX_ENTRIES``, then the barrier where its Newton matrix fits; the barrier alone below).
+    order of the module docstring, Scope).
     """
     from .sdp.clique_program import clique_program
 
@@ -300,23 +300,23 @@ def certify(Q: sp.sparray, constraints: Sequence[Constraint], theta_hat: np.ndar
     load = newton_size(prog)
     big = load > NEWTON_MAX_ENTRIES
     tried = ""
-    if method == "projection" or (method == "auto" and (big or Q.shape[0] >= PROJECTION_MIN_N)):
+    if method == "projection" or (method == "auto" and Q.shape[0] >= PROJECTION_MIN_N):
         cert = _certify_projected(Q, As, constraints, prog, Th, d=d, tol=tol, floor=floor, trace=trace)
         if cert.certified or method == "projection" or (big and Q.shape[0] >= FALLBACK_MAX_N):
             return replace(cert, time_s=time.perf_counter() - t0)
         tried = f"Douglas–Rachford did not certify ({cert.method.split(';')[0]}); "
-        if big:  # the full SDP's y, certified alike
-            from . import sdp
-            from .dual_polish import polished
+    if big and method == "auto":  # the full SDP's y, certified alike
+        from . import sdp
+        from .dual_polish import polished
 
-            res = sdp.solve(Q, constraints, d=d, scale=scale)
-            note = (f"{tried}full SDP ({res.solver} {res.status}): the Newton matrix would have ~{load:.1e} "
-                    f"entries (> {NEWTON_MAX_ENTRIES:.0e})")
-            res, cert = polished(Q, constraints, res, Th, d=d, tol=tol, floor=floor)  # as the pipeline's y
-            if cert is None:
-                cert = certificate(Q, constraints, np.zeros(len(As)), Th, d=d, tol=tol, floor=floor, trace=trace,
-                                   method=note + ", no multipliers")
-            return replace(cert, time_s=time.perf_counter() - t0, method=note + "; " + cert.method)
+        res = sdp.solve(Q, constraints, d=d, scale=scale)
+        note = (f"{tried}full SDP ({res.solver} {res.status}): the Newton matrix would have ~{load:.1e} "
+                f"entries (> {NEWTON_MAX_ENTRIES:.0e})")
+        res, cert = polished(Q, constraints, res, Th, d=d, tol=tol, floor=floor)  # as the pipeline's y
+        if cert is None:
+            cert = certificate(Q, constraints, np.zeros(len(As)), Th, d=d, tol=tol, floor=floor, trace=trace,
+                               method=note + ", no multipliers")
+        return replace(cert, time_s=time.perf_counter() - t0, method=note + "; " + cert.method)
     ph = phase_one(prog, Th, max_iter=max_iter)
     how = "long steps"
     if ph.status != "feasible":  # long steps can jam near the boundary: once more, centred first
@@ -363,14 +363,17 @@ def model_cliques(model: Model, As: Sequence[sp.sparray]) -> list[np.ndarray]:
 
 @single_blas_thread
 def certify_model(model: Model, constraints: Sequence[Constraint], theta_hat: np.ndarray, **kw) -> Certificate:
-    """``certify`` on a model's cost (keywords as ``certify``), on the cover of ``model_cliques`` unless
-    ``cliques`` is given; the full SDP's fallback is scaled by blocks from x̂ (``sdp.scaling.block_scale``,
-    as the pipeline scales its solves).  One BLAS thread (``threads``): the blocks are small, and
-    threaded eigendecompositions of 31 × 31 blocks were 100× slower on a busy machine."""
+    """``certify`` on a model's cost (keywords as ``certify``), on the cover of ``model_cliques`` from
+    ``PROJECTION_MIN_N`` columns on unless ``cliques`` is given (below, ``default_cliques``: on continuous
+    time, N = 517, the block cover makes the Newton matrix small enough for the barrier, which does not
+    certify there, where the column cover sends it to Douglas–Rachford and the full SDP).  The full SDP's
+    fallback is scaled by blocks from x̂ (``sdp.scaling.block_scale``, as the pipeline scales its solves).
+    One BLAS thread (``threads``): the blocks are small, and threaded eigendecompositions of 31 × 31
+    blocks were 100× slower on a busy machine."""
     from .sdp.scaling import block_scale
 
     kw.setdefault("scale", block_scale(model.variables, [np.asarray(theta_hat, dtype=float).reshape(model.d, -1)]))
-    if kw.get("cliques") is None:
+    if kw.get("cliques") is None and model.variables.N >= PROJECTION_MIN_N:  # below: ``default_cliques``
         kw["cliques"] = model_cliques(model, stack(constraints)[0])
     return certify(model.Q, constraints, theta_hat, d=model.d, **kw)
 
