@@ -132,13 +132,15 @@ def certify(problem: str | ModuleType | Problem, params: dict[str, Any] | None =
     caps the Newton steps of the certificate's barrier method (no SDP is solved).
     """
     from .certifier import certify_instance
+    from .limits import check_certify_size
     from .validate import check_data
 
     prob = _problem(problem)
     full = prob.parse_params(_params(params))
-    check_size(prob, full)
+    check_certify_size(prob, full)
     solver = None if solver is None else solver_config(solver)
     inst = prob.generate(full, _seed(seed))
-    check_data(prob, inst, prob.build(inst))  # NaN/inf data, weights beyond the solver's reach
+    model = prob.build(inst)
+    check_data(prob, inst, model)  # NaN/inf data, weights beyond the solver's reach
     max_iter = 50 if solver is None else int(getattr(solver, "max_iter", 50))
-    return certify_instance(prob, inst, constraints, start=start, max_iter=max_iter).certificate
+    return certify_instance(prob, inst, constraints, start=start, max_iter=max_iter, model=model).certificate

@@ -120,8 +120,11 @@ def stack(constraints: Sequence[Constraint]) -> tuple[list[sp.coo_array], np.nda
 
 def entries(As: Sequence[sp.sparray]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """All entries of the Aᵢ in one pass: (row, col, value, i) arrays (i: the matrix holding the entry)."""
-    rows, cols, vals, owner = [], [], [], []
-    for i, A in enumerate(As):
+    if not len(As):
+        z = np.zeros(0, dtype=np.int64)
+        return z, z, np.zeros(0), z
+    rows, cols, vals = [], [], []
+    for A in As:
         if isinstance(A, (sp.csr_array, sp.csr_matrix)):
             r, c = np.repeat(np.arange(A.shape[0]), np.diff(A.indptr)), A.indices
         else:  # COO (the stored form) as it is: no N + 1 index array per matrix
@@ -130,11 +133,8 @@ def entries(As: Sequence[sp.sparray]) -> tuple[np.ndarray, np.ndarray, np.ndarra
         rows.append(r)
         cols.append(c)
         vals.append(A.data)
-        owner.append(np.full(A.data.size, i))
-    if not rows:
-        z = np.zeros(0, dtype=np.int64)
-        return z, z, np.zeros(0), z
-    return np.concatenate(rows), np.concatenate(cols), np.concatenate(vals).astype(float), np.concatenate(owner)
+    owner = np.repeat(np.arange(len(As)), [v.size for v in vals])  # one call, not one array per matrix
+    return np.concatenate(rows), np.concatenate(cols), np.concatenate(vals).astype(float), owner
 
 
 def dual_matrix(Q: sp.sparray, As: Sequence[sp.sparray], y: np.ndarray, *, stacked=None) -> sp.csc_array:
@@ -338,16 +338,18 @@ def stationarity_system(Q: sp.sparray, As: Sequence[sp.sparray], Th: np.ndarray)
     return sp.csr_array((vals, (rows, cols)), shape=(n_rows, len(As))), g
 
 
-def polish_dual(Q: sp.sparray, As: Sequence[sp.sparray], y: np.ndarray, theta_hat: np.ndarray) -> np.ndarray:
+def polish_dual(Q: sp.sparray, As: Sequence[sp.sparray], y: np.ndarray, theta_hat: np.ndarray,
+                system: tuple[sp.csr_array, np.ndarray] | None = None) -> np.ndarray:
     """y + δ, δ the least change (2-norm) that makes H(y + δ)Θ̂ᵀ = 0 (and H's rows on recession columns
     zero, ``stationarity_system``): the minimum-norm least-squares solution of G δ = g − G y
     (``lstsq.min_norm_lstsq``).  Θ̂: (d, N).  Where x̂ is stationary only to the local solver's
     accuracy, the system is consistent only to that accuracy, and so is H(y + δ)Θ̂ᵀ = 0.  Then
     bᵀ(y + δ) = f(x̂) − ⟨H, Θ̂ᵀΘ̂⟩ ≈ f(x̂), up to that and x̂'s constraint residual; whether y + δ
     proves anything is λ_min's to say.  The rows on recession columns, which must hold exactly (to
-    roundoff) for a certificate, get a second least-change step of their own."""
+    roundoff) for a certificate, get a second least-change step of their own.  system: (G, g) of
+    ``stationarity_system(Q, As, Θ̂)`` when the caller has it."""
     Th = np.atleast_2d(np.asarray(theta_hat, dtype=float))
-    G, g = stationarity_system(Q, As, Th)
+    G, g = stationarity_system(Q, As, Th) if system is None else system
     y = np.asarray(y, dtype=float)
     y = y + min_norm_lstsq(G, g - G @ y)
     n_stat = Th.size

@@ -35,12 +35,22 @@ convex feasibility problem.  Ours, on a clique tree of the data (``sdp.clique_pr
    certified λ_min(H) by LDLᵀ inertia, the trace bound, the suboptimality bound), which decides.  The
    barrier only proposes y, so no speed trick can produce a false "certified".
 
-Scope.  The Newton matrix has about Σ_k m_k² entries (m_k: the variables touching block k).  Where
-that exceeds ``NEWTON_MAX_ENTRIES`` (continuous time, whose cliques of up to 67 columns share
-thousands of transfers; discrete trajectory from K ≈ 1000), certify solves the full SDP instead (our
-clique IPM from ``FALLBACK_IPM_MIN_N`` columns on), polishes its y as the pipeline does
+Scope.  The Newton matrix has about Σ_k m_k² entries (m_k: the variables touching block k), and each
+step costs about as much as an iteration of the full SDP's IPM (discrete K = 100: 18 steps, as long as
+the full solve).  From ``PROJECTION_MIN_N`` columns on (discrete trajectory from K ≈ 40), step 2 is
+first replaced by Douglas–Rachford splitting between the affine set and the cone
+(``autotight.dual_projection``: one sparse factorisation, then per round a solve and the blocks'
+small eigenproblems; no Newton matrix), and the polished y gets an LSQR refinement of the
+stationarity residual (``LSQR_REFINE_ITER`` iterations at most; the min-norm polish alone leaves
+‖H Θ̂ᵀ‖ at 1e-6 relative at discrete K = 1000, which is a relative bound of 5e-5 there).  Where that
+does not certify, or below PROJECTION_MIN_N columns, the barrier runs if its Newton matrix fits (at
+most ``NEWTON_MAX_ENTRIES`` entries); if it does not and N < ``FALLBACK_MAX_N`` (continuous time,
+whose cliques of up to 67 columns share thousands of transfers, and where Douglas–Rachford stalls at
+a margin of −0.04), certify solves the full SDP, polishes its y as the pipeline does
 (``dual_polish.polished``) and certifies it the same way: the verdict stays right, without the
-speed-up.
+speed-up.  Above FALLBACK_MAX_N no full SDP is solved: certify stays sparse and linear in the chain's
+length, and "not certified" then says only that no certificate was found (``autotight solve``
+decides).
 
 A negative final margin means no certificate exists for x̂ (it is not a global minimiser of a tight
 relaxation); the returned Certificate then carries the bound that the best y found still proves.
@@ -56,8 +66,9 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from .certificate import Certificate, certificate, polish_dual, stack
+from .certificate import Certificate, certificate, entries, polish_dual, stack
 from .model import Constraint, Model
+from .threads import single_blas_thread
 
 if TYPE_CHECKING:
     from .problem import LocalResult
@@ -70,12 +81,19 @@ MIN_STEP = 0.5
 PENALTY = 1e6
 #: the retry's centring: τ grows only from points with Newton decrement² ≤ this
 CENTRED_DECREMENT = 1.0
-#: above this many entries (``newton_size``) in the Newton matrix, certify falls back to the full SDP's y
+#: above this many entries (``newton_size``) in the Newton matrix, the barrier is not run (module docstring, Scope)
 #: (discrete K = 100: 1.2e6; continuous time K = 11 on the default cover: 3.3e8)
 NEWTON_MAX_ENTRIES = 10_000_000
-#: from this many columns on, the full SDP of the fallback is solved by our clique IPM (``sdp.ipm``:
-#: discrete K = 1000, 69 s and 1.7 GB, where Clarabel took over 12 CPU-minutes and 7.6 GB)
-FALLBACK_IPM_MIN_N = 4000
+#: below this many columns, a large program that Douglas–Rachford does not certify falls back to the full SDP's
+#: y (continuous time, K = 21: N = 517); above it certify never forms the full SDP
+FALLBACK_MAX_N = 4000
+#: from this many columns on, "auto" tries Douglas–Rachford before the barrier (discrete K = 100, N = 2395:
+#: 4 rounds, about 1 s, where the barrier took 18 Newton steps and as long as the full SDP's IPM)
+PROJECTION_MIN_N = 1000
+#: the ways ``certify`` finds y
+METHODS = ("auto", "barrier", "projection")
+#: LSQR iterations that refine the stationarity of the polished y on large programs (discrete K = 1000: 64)
+LSQR_REFINE_ITER = 1000
 #: fraction of the distance to the cone's boundary a damped step may cover
 STEP_FRACTION = 0.95
 
@@ -254,7 +272,8 @@ def phase_one(prog, Th: np.ndarray, *, alpha: float = 1.0, target: float = 1e-6,
 
 def certify(Q: sp.sparray, constraints: Sequence[Constraint], theta_hat: np.ndarray, *, d: int = 1,
             cliques: Sequence[np.ndarray] | None = None, tol: float = 1e-5, floor: float = 1e-12,
-            max_iter: int = 50, trace: float | None = None, scale: np.ndarray | None = None) -> Certificate:
+            max_iter: int = 50, trace: float | None = None, scale: np.ndarray | None = None,
+            method: str = "auto") -> Certificate:
     """Certify x̂ (Θ̂ = ``theta_hat``) for min ⟨Q,X⟩ s.t. ``constraints``, X ⪰ 0 (module docstring).
 
     certified: the certified suboptimality bound f(x̂) − p* is ≤ tol relative to f(x̂)
@@ -263,10 +282,14 @@ def certify(Q: sp.sparray, constraints: Sequence[Constraint], theta_hat: np.ndar
     candidate (``certificate.certificate``).  cliques: a chordal cover containing the
     pattern of Q and every Aᵢ, each with the h columns (default: ``default_cliques``).  max_iter: Newton
     steps of the barrier method.  trace: a known bound on tr(X) (default: derived from the constraints).
-    scale: the diagonal scaling D of the full SDP's fallback (``sdp.solve``; None: unscaled).
+    scale: the diagonal scaling D of the full SDP's fallback (``sdp.solve``; None: unscaled).  method: how y
+    is found: "barrier" (step 2), "projection" (Douglas–Rachford, module docstring, Scope), or "auto" (the
+    order of the module docstring, Scope).
     """
     from .sdp.clique_program import clique_program
 
+    if method not in METHODS:
+        raise ValueError(f"method must be one of {METHODS}, got {method!r}")
     t0 = time.perf_counter()
     Q = sp.csr_array(Q)
     As, b = stack(constraints)
@@ -275,19 +298,24 @@ def certify(Q: sp.sparray, constraints: Sequence[Constraint], theta_hat: np.ndar
         cliques = default_cliques(Q, As, d)
     prog = clique_program(Q, As, b, [np.asarray(C) for C in cliques])
     load = newton_size(prog)
-    if load > NEWTON_MAX_ENTRIES:  # the Newton matrix would not fit: the full SDP's y, certified alike
+    big = load > NEWTON_MAX_ENTRIES
+    tried = ""
+    if method == "projection" or (method == "auto" and Q.shape[0] >= PROJECTION_MIN_N):
+        cert = _certify_projected(Q, As, constraints, prog, Th, d=d, tol=tol, floor=floor, trace=trace)
+        if cert.certified or method == "projection" or (big and Q.shape[0] >= FALLBACK_MAX_N):
+            return replace(cert, time_s=time.perf_counter() - t0)
+        tried = f"Douglas–Rachford did not certify ({cert.method.split(';')[0]}); "
+    if big and method == "auto":  # the full SDP's y, certified alike
         import autotight.sdp as sdp
         from .dual_polish import polished
-        from .sdp.config import SolverConfig
 
-        config = SolverConfig(backend="ipm") if Q.shape[0] >= FALLBACK_IPM_MIN_N else None
-        res = sdp.solve(Q, constraints, d=d, scale=scale, config=config)
-        note = (f"full SDP ({res.solver} {res.status}): the Newton matrix would have ~{load:.1e} entries "
-                f"(> {NEWTON_MAX_ENTRIES:.0e})")
-        res, cert = polished(Q, constraints, res, Th, d=d, tol=tol, floor=floor)  # as the pipeline's y
-        if cert is None:
-            cert = certificate(Q, constraints, np.zeros(len(As)), Th, d=d, tol=tol, floor=floor, trace=trace,
-                               method=note + ", no multipliers")
+        res = sdp.solve(Q, constraints, d=d, scale=scale)
+        note = (f"{tried}full SDP ({res.solver} {res.status}): the Newton matrix would have ~{load:.1e} "
+                f"entries (> {NEWTON_MAX_ENTRIES:.0e})")
+        res, polished_cert = polished(Q, constraints, res, Th, d=d, tol=tol, floor=floor)  # as the pipeline's y
+        cert = polished_cert if polished_cert is not None else certificate(
+            Q, constraints, np.zeros(len(As)), Th, d=d, tol=tol, floor=floor, trace=trace,
+            method=note + ", no multipliers")
         return replace(cert, time_s=time.perf_counter() - t0, method=note + "; " + cert.method)
     ph = phase_one(prog, Th, max_iter=max_iter)
     how = "long steps"
@@ -299,17 +327,54 @@ def certify(Q: sp.sparray, constraints: Sequence[Constraint], theta_hat: np.ndar
     if ph.margin > 0:  # the penalty leaves a small residual of H(y)Θ̂ᵀ = 0
         y = polish_dual(Q, As, y, Th)
     cert = certificate(Q, constraints, y, Th, d=d, tol=tol, floor=floor, trace=trace,
-                       method=f"clique barrier ({ph.status}, {how}, {ph.iterations} Newton steps, margin "
+                       method=f"{tried}clique barrier ({ph.status}, {how}, {ph.iterations} Newton steps, margin "
                               f"{ph.margin:.2e} of max|Q|, {len(prog.cliques)} cliques ≤ {max(prog.sizes)})")
     return replace(cert, time_s=time.perf_counter() - t0)
 
 
+def _certify_projected(Q, As, constraints, prog, Th, *, d, tol, floor, trace) -> Certificate:
+    """The certificate of the y that Douglas–Rachford proposes (``dual_projection``), polished onto
+    stationarity and refined by LSQR (module docstring, Scope)."""
+    from .certificate import stationarity_system
+    from .dual_projection import project_multipliers
+
+    pr = project_multipliers(prog, Th)
+    G, g = stationarity_system(Q, As, Th)
+    y = polish_dual(Q, As, pr.w[:prog.m] / prog.scale, Th, system=(G, g))
+    y = y + spla.lsqr(G, g - G @ y, atol=1e-14, btol=1e-14, iter_lim=LSQR_REFINE_ITER)[0]
+    return certificate(Q, constraints, y, Th, d=d, tol=tol, floor=floor, trace=trace,
+                       method=f"clique Douglas–Rachford ({pr.status}, {pr.iterations} rounds, margin {pr.margin:.2e} "
+                              f"of max|Q|, {len(prog.cliques)} cliques ≤ {max(prog.sizes)})")
+
+
+def model_cliques(model: Model, As: Sequence[sp.sparray]) -> list[np.ndarray]:
+    """The clique cover of ``default_cliques`` built on the graph of the model's variable blocks
+    (``sdp.chordal.block_cliques``, merged up to 32 columns): the same kind of cover, from a graph about
+    20× smaller (discrete K = 1000: 2 s instead of 20 s of min-fill on the columns)."""
+    from .sdp.chordal import block_cliques, merge_small
+
+    V = model.variables
+    Qc = sp.coo_array(model.Q)
+    r, c, v, _ = entries(As)  # both triangles: the block graph is symmetric either way
+    rows = np.concatenate([Qc.row[Qc.data != 0], r[v != 0]])
+    cols = np.concatenate([Qc.col[Qc.data != 0], c[v != 0]])
+    return merge_small(block_cliques([V.sizes[n] for n in V.names], rows, cols), 32)
+
+
+@single_blas_thread
 def certify_model(model: Model, constraints: Sequence[Constraint], theta_hat: np.ndarray, **kw) -> Certificate:
-    """``certify`` on a model's cost (keywords as ``certify``); the full SDP's fallback is scaled by
-    blocks from x̂ (``sdp.scaling.block_scale``, as the pipeline scales its solves)."""
+    """``certify`` on a model's cost (keywords as ``certify``), on the cover of ``model_cliques`` from
+    ``PROJECTION_MIN_N`` columns on unless ``cliques`` is given (below, ``default_cliques``: on continuous
+    time, N = 517, the block cover makes the Newton matrix small enough for the barrier, which does not
+    certify there, where the column cover sends it to Douglas–Rachford and the full SDP).  The full SDP's
+    fallback is scaled by blocks from x̂ (``sdp.scaling.block_scale``, as the pipeline scales its solves).
+    One BLAS thread (``threads``): the blocks are small, and threaded eigendecompositions of 31 × 31
+    blocks were 100× slower on a busy machine."""
     from .sdp.scaling import block_scale
 
     kw.setdefault("scale", block_scale(model.variables, [np.asarray(theta_hat, dtype=float).reshape(model.d, -1)]))
+    if kw.get("cliques") is None and model.variables.N >= PROJECTION_MIN_N:  # below: ``default_cliques``
+        kw["cliques"] = model_cliques(model, stack(constraints)[0])
     return certify(model.Q, constraints, theta_hat, d=model.d, **kw)
 
 
@@ -327,11 +392,12 @@ class CertifyRun:
 
 
 def certify_instance(problem, inst, constraints=None, *, start="truth", criteria=None,
-                     max_iter: int = 50) -> CertifyRun:
+                     max_iter: int = 50, model: Model | None = None) -> CertifyRun:
     """Run the local solver on ``inst`` from ``start`` ("truth", "random": the first random start of
     ``autotight.solve`` for this seed, or a state dict), lift its solution and ``certify`` it with the
     constraints of ``constraints`` (as ``autotight.solve``) and the tolerances of ``criteria`` (those
-    of the full SDP's bracket test: gap_tol, and cost_atol for zero-cost candidates)."""
+    of the full SDP's bracket test: gap_tol, and cost_atol for zero-cost candidates).  model: ``problem.build(inst)``
+    when the caller has it (built here otherwise)."""
     from .constraint_set import resolve, set_name
     from .errors import ParameterError
     from .pipeline import LocalSearch, feasible_points, seeds
@@ -340,7 +406,7 @@ def certify_instance(problem, inst, constraints=None, *, start="truth", criteria
 
     criteria = Criteria() if criteria is None else criteria
     s = seeds(inst.seed if inst.seed is not None else 0)
-    model = problem.build(inst)
+    model = problem.build(inst) if model is None else model
     cons = resolve(constraints, problem, inst, model, s.constraints())
     if isinstance(start, str):
         if start == "truth":

@@ -11,6 +11,10 @@ N × N solution X, fitted to the peak RSS of ``autotight solve`` on rotation ave
 our clique cover (``--solver ipm``, ``--decompose``) keeps X on the cliques' pattern above
 ``DENSE_X_MAX`` columns: for it at most DENSE_X_MAX² entries of X count (``holds_dense_x``).
 
+Certify (``check_certify_size``) never forms X nor the full SDP on large problems (``autotight.certifier``):
+its memory is ``CERTIFY_BYTES_PER_NONZERO`` per nonzero of the same data, fitted to the peak RSS of
+``autotight certify`` on discrete trajectory with the set learned at K = 5 (see that constant).
+
 Counts (``check_count``): trials, instances, random starts, held-out and training instances, samples:
 n × the measured time of one item (by default one local solve from the ground truth, a lower bound:
 every item does at least that; ``local_solve_seconds(start="random")`` for random starts,
@@ -36,6 +40,10 @@ from .sdp.config import AUTO, SolverConfig
 from .sdp.result import DENSE_X_MAX
 
 PROBE_FACTOR = 4
+#: certify's peak RSS per nonzero of the SDP data (Q and the primary constraints), redundant constraints
+#: included: discrete trajectory K = 1000 with the set learned at K = 5 (3.6 constraints per primary one),
+#: 0.46 GB peak for 4.9e5 nonzeros (930 B each)
+CERTIFY_BYTES_PER_NONZERO = 1000.0
 PROBE_MIN = 64
 BYTES_PER_NONZERO = 3000.0
 BYTES_PER_DENSE_ENTRY = 100.0
@@ -146,6 +154,26 @@ def check_size(problem: Any, params: dict[str, Any], config: SolverConfig | None
         raise SizeError(f"{problem.name} with {given}: the SDP would have N ≈ {est.N:.3g} columns and "
                         f"≈ {est.nonzeros:.3g} nonzeros, needing about {_gb(est.bytes)} of memory; "
                         f"{_gb(avail)} available")
+    return est
+
+
+def check_certify_size(problem: Any, params: dict[str, Any]) -> SizeEstimate | None:
+    """``check_size`` for ``autotight certify``: the memory it needs is ``CERTIFY_BYTES_PER_NONZERO`` per
+    nonzero of the data (no X, no full SDP above ``certifier.FALLBACK_MAX_N`` columns); ``SizeError`` when
+    that exceeds the memory available; returns the estimate."""
+    from .certifier import FALLBACK_MAX_N
+
+    est = estimate_size(problem, params, dense_x=False)
+    if est is None:
+        return None
+    need = est.nonzeros * CERTIFY_BYTES_PER_NONZERO
+    if est.N < FALLBACK_MAX_N:  # the full SDP may be solved as the fallback
+        need = max(need, est.bytes)
+    avail = available_memory()
+    if need > avail:
+        given = ", ".join(f"{k}={params[k]}" for k in probed(problem, params))
+        raise SizeError(f"{problem.name} with {given}: certify would need about {_gb(need)} of memory (N ≈ "
+                        f"{est.N:.3g} columns, ≈ {est.nonzeros:.3g} nonzeros of data); {_gb(avail)} available")
     return est
 
 

@@ -21,9 +21,12 @@ learned at K = 5, benchmarks/results/scale_set_discrete_K5.json), certify agains
 (Clarabel's decomposition is the slow path there: > 12 CPU-minutes and 7.6 GB at K = 1000), seeds
 0 … --seeds-scale − 1; the peak RSS of the process is recorded after each instance.
 
+Whole commands (generate, build, constraints, local solve included) per size in fresh processes, up to
+K = 10 000: benchmarks/certify_scale.py.
+
 Usage:  python benchmarks/certify.py [--seeds 5] [--seeds-k100 2] [--out benchmarks/results/certify.json]
         python benchmarks/certify.py --set benchmarks/results/scale_set_discrete_K5.json --ks 100,1000
-            --seeds-scale 1 --out benchmarks/results/certify_scale.json
+            --seeds-scale 1 --out benchmarks/results/certify_scale_inprocess.json
 """
 
 from __future__ import annotations

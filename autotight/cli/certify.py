@@ -39,7 +39,7 @@ def start_arg(value: str) -> Any:
 def cmd_certify(args: argparse.Namespace) -> int:
     from ..api import _seed
     from ..certifier import certify_instance
-    from ..limits import check_size
+    from ..limits import check_certify_size
     from ..problem import load, parse_assignments
     from ..validate import check_data
     from .options import constraints_arg
@@ -47,11 +47,12 @@ def cmd_certify(args: argparse.Namespace) -> int:
     start = start_arg(args.start)
     prob = load(args.problem)
     params = prob.parse_params(parse_assignments(args.param))
-    check_size(prob, params)
+    check_certify_size(prob, params)
     inst = prob.generate(params, _seed(args.seed))
-    check_data(prob, inst, prob.build(inst))  # NaN/inf data, weights beyond the solver's reach
+    model = prob.build(inst)
+    check_data(prob, inst, model)  # NaN/inf data, weights beyond the solver's reach
     cons = constraints_arg(args.set)
-    run = certify_instance(prob, inst, cons, start=start)
+    run = certify_instance(prob, inst, cons, start=start, model=model)
     c = run.certificate
     rec = {"problem": prob.name, "params": inst.params, "seed": inst.seed,
            "constraint_set": run.constraint_set,
