@@ -36,21 +36,24 @@ def half_bandwidth(H: sp.sparray) -> int:
     return int(np.abs(C.row.astype(np.int64) - C.col).max(initial=0))
 
 
-def solve_banded_spd(H: sp.sparray, g: np.ndarray, b: int) -> np.ndarray:
-    """H x = g for a symmetric positive definite sparse H of half bandwidth b, by banded Cholesky; raises
-    np.linalg.LinAlgError when H is not positive definite."""
+def lower_band(H: sp.sparray, b: int) -> np.ndarray:
+    """The lower band storage ab (b + 1, n) of a symmetric sparse H of half bandwidth b: ab[i − j, j] = H_ij."""
     C = sp.coo_array(H)
     low = C.row >= C.col
     ab = np.zeros((b + 1, H.shape[0]))
     np.add.at(ab, ((C.row[low] - C.col[low]), C.col[low]), C.data[low])
-    return solveh_banded(ab, g, lower=True, check_finite=False)
+    return ab
 
 
-def _solve(Hm: Any, g: np.ndarray, band: int | None = None) -> np.ndarray:
-    """Hm ε = g; ``band``: Hm's half bandwidth when the banded Cholesky applies (``half_bandwidth``)."""
+def solve_banded_spd(H: sp.sparray, g: np.ndarray, b: int) -> np.ndarray:
+    """H x = g for a symmetric positive definite sparse H of half bandwidth b, by banded Cholesky; raises
+    np.linalg.LinAlgError when H is not positive definite."""
+    return solveh_banded(lower_band(H, b), g, lower=True, check_finite=False)
+
+
+def _solve(Hm: Any, g: np.ndarray) -> np.ndarray:
+    """Hm ε = g (sparse by SuperLU, dense by LAPACK)."""
     if sp.issparse(Hm):
-        if band is not None:
-            return solve_banded_spd(Hm, g, band)
         return spla.spsolve(sp.csc_array(Hm), g)
     return np.linalg.solve(Hm, g)
 
@@ -73,15 +76,21 @@ def gauss_newton(linearize: Callable[[Any], tuple[np.ndarray, Any, Any]], retrac
         JW = J.T @ W
         Hm = JW @ J
         band = _band(Hm)
+        ab = lower_band(Hm, band) if band is not None else None  # once per linearisation, damped per try
         g = JW @ e
         diag = Hm.diagonal() if sp.issparse(Hm) else np.diag(Hm)
         accepted = False
         for _ in range(40):
-            Hd = Hm + sp.diags(lam * np.maximum(diag, 1e-12)) if sp.issparse(Hm) else \
-                Hm + np.diag(lam * np.maximum(diag, 1e-12))
             f2 = np.inf
             try:
-                eps = -_solve(Hd, g, band)
+                if ab is not None:
+                    abd = ab.copy()
+                    abd[0] += lam * np.maximum(diag, 1e-12)
+                    eps = -solveh_banded(abd, g, lower=True, check_finite=False)
+                else:
+                    Hd = Hm + sp.diags(lam * np.maximum(diag, 1e-12)) if sp.issparse(Hm) else \
+                        Hm + np.diag(lam * np.maximum(diag, 1e-12))
+                    eps = -_solve(Hd, g)
                 if np.all(np.isfinite(eps)):
                     cand = retract(state, eps)
                     e2, J2, W2 = linearize(cand)
@@ -112,11 +121,30 @@ DENSE_WEIGHT_MAX = 600
 
 def block_sparse(brow: np.ndarray, bcol: np.ndarray, blocks: np.ndarray, shape: tuple[int, int]) -> sp.csr_array:
     """The sparse matrix of ``shape`` holding the (d × e) ``blocks[k]`` at block row brow[k] and block
-    column bcol[k] (entries at rows d·brow[k] + i, columns e·bcol[k] + j)."""
-    _, d, e = blocks.shape
-    i, j = np.meshgrid(np.arange(d), np.arange(e), indexing="ij")
-    return sp.csr_array((blocks.ravel(), ((d * np.asarray(brow)[:, None, None] + i).ravel(),
-                                          (e * np.asarray(bcol)[:, None, None] + j).ravel())), shape=shape)
+    column bcol[k] (entries at rows d·brow[k] + i, columns e·bcol[k] + j; blocks at the same place add).
+    Built in CSR order directly (no COO → CSR conversion) when no two blocks share a place."""
+    nb, d, e = blocks.shape
+    brow, bcol = np.asarray(brow, np.int64), np.asarray(bcol, np.int64)
+    order = np.lexsort((bcol, brow))
+    br, bc = brow[order], bcol[order]
+    if nb and (shape[0] % d or np.any((br[1:] == br[:-1]) & (bc[1:] == bc[:-1]))):
+        i, j = np.meshgrid(np.arange(d), np.arange(e), indexing="ij")
+        return sp.csr_array((blocks.ravel(), ((d * brow[:, None, None] + i).ravel(),
+                                              (e * bcol[:, None, None] + j).ravel())), shape=shape)
+    nbr = shape[0] // d
+    count = np.bincount(br, minlength=nbr)  # blocks per block row
+    first = np.concatenate([[0], np.cumsum(count)])  # each block row's first block (sorted order)
+    row_nnz = np.repeat(count * e, d)  # every scalar row of block row R holds count[R]·e entries
+    indptr = np.concatenate([[0], np.cumsum(row_nnz)])
+    # entry (q, i, j) of sorted block q sits in scalar row d·br[q] + i at its rank in the block row
+    rank = np.arange(nb) - first[br]
+    start = indptr[d * br][:, None] + np.arange(d)[None, :] * (count[br] * e)[:, None] + (rank * e)[:, None]  # (nb, d)
+    pos = (start[:, :, None] + np.arange(e)[None, None, :]).ravel()
+    data = np.empty(nb * d * e)
+    indices = np.empty(nb * d * e, np.int64)
+    data[pos] = blocks[order].ravel()
+    indices[pos] = np.broadcast_to((e * bc)[:, None, None] + np.arange(e)[None, None, :], (nb, d, e)).ravel()
+    return sp.csr_array((data, indices, indptr), shape=shape)
 
 
 def block_weight(blocks: np.ndarray, dense_max: int = DENSE_WEIGHT_MAX) -> np.ndarray | sp.csr_array:
