@@ -44,7 +44,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
-from typing import Any, Callable, Sequence
+from typing import Any, Callable, Iterator, Sequence
 
 import numpy as np
 import scipy.sparse as sp
@@ -207,10 +207,10 @@ def _max_step(Linv: list[np.ndarray], dX: list[np.ndarray]) -> float:
 
 def block_data(Gv: sp.csr_array, blocks: _Blocks
                ) -> tuple[list[sp.csr_array], list[tuple[np.ndarray, np.ndarray, np.ndarray]], list[np.ndarray]]:
-    """Per block k: G_k (the data of the constraints touching it on its support, in half form:
-    G_k[i, u] = vec(A_ik)[a_u n + b_u] for the entries a_u ≤ b_u that any of them touches), the support
-    (a_u, b_u, 1/o_u) (o_u = 2 on the diagonal, see ``_Schur.assemble``) and the ids of those constraints
-    (increasing: G_k's rows)."""
+    """Per block k: G_k (the data of the constraints touching it on its support, in half form and weighted:
+    G_k[i, u] = vec(A_ik)[a_u n + b_u] / o_u for the entries a_u ≤ b_u that any of them touches, o_u = 2 on
+    the diagonal and 1 off it, see ``_Schur.assemble``), the support (a_u, b_u, 1/o_u) and the ids of those
+    constraints (increasing: G_k's rows)."""
     per_block: list[sp.csr_array] = []
     support: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
     inc: list[np.ndarray] = []
@@ -225,33 +225,34 @@ def block_data(Gv: sp.csr_array, blocks: _Blocks
         ids, rank = np.unique(cols, return_inverse=True)
         entries, ent = np.unique(local[upper], return_inverse=True)
         au, bu = np.divmod(entries, n)
-        per_block.append(sp.csr_array((vals[upper], (rank[upper], ent)), shape=(ids.size, entries.size)))
-        support.append((au, bu, np.where(au == bu, 0.5, 1.0)))
+        o = np.where(au == bu, 0.5, 1.0)
+        per_block.append(sp.csr_array((vals[upper] * o[ent], (rank[upper], ent)), shape=(ids.size, entries.size)))
+        support.append((au, bu, o))
         inc.append(ids)
     return per_block, support, inc
 
 
 def block_products(per_block: list[sp.csr_array], support: list[tuple[np.ndarray, np.ndarray, np.ndarray]],
-                   blocks: _Blocks, P: list[np.ndarray], Q: list[np.ndarray]) -> list[np.ndarray]:
-    """Per block k the dense m_k × m_k product G_k K_k G_kᵀ, raveled (the kernel K_k of ``_Schur.assemble``)."""
-    parts: list[np.ndarray] = [np.zeros(0)] * len(per_block)
+                   blocks: _Blocks, P: list[np.ndarray], Q: list[np.ndarray]) -> Iterator[tuple[int, np.ndarray]]:
+    """(k, the dense m_k × m_k product G_k K_k G_kᵀ raveled) for every block k, in the order of the size
+    groups (the kernel K_k of ``_Schur.assemble``)."""
     same = P is Q
     for (n, ids, _), Pg, Qg in zip(blocks.groups, P, Q):
         for j, k in enumerate(ids):
-            a, b, o = support[k]
+            a, b, _ = support[k]  # the weights 1/o_u are in G_k
             Pa, Pb = Pg[j][a], Pg[j][b]
-            if same:
+            if same:  # P_bc = P_cb: the fourth product is the transpose of the second; the factor 2 at the end
+                Pab = Pa[:, b]
                 Kk = Pa[:, a] * Pb[:, b]
-                Kk += Pa[:, b] * Pb[:, a]
-                Kk *= 2
+                Kk += Pab * Pab.T
             else:
                 Qa, Qb = Qg[j][a], Qg[j][b]
                 Kk = Pa[:, a] * Qb[:, b] + Pa[:, b] * Qb[:, a] + Pb[:, a] * Qa[:, b] + Pb[:, b] * Qa[:, a]
-            Kk *= o[:, None]
-            Kk *= o[None, :]
             Gk = per_block[k]
-            parts[k] = (Gk @ (Gk @ Kk).T).ravel()
-    return parts
+            Sk = Gk @ (Gk @ Kk).T
+            if same:
+                Sk *= 2
+            yield k, Sk.ravel()
 
 
 class _Schur:
@@ -286,7 +287,9 @@ class _Schur:
         four terms then count that entry's one orbit member twice) and 1 otherwise;
         = 2 (W_ac W_bd + W_ad W_bc) / (o_u o_w) when P is Q (NT).  This costs |support|² per block
         instead of n⁴.  (The Gram form B_kᵀB_k, b_i = vec(L_Pᵀ A_i L_Q), was less accurate.)"""
-        parts = block_products(self.per_block, self.support, self.blocks, P, Q)
+        parts: list[np.ndarray] = [np.zeros(0)] * len(self.per_block)
+        for k, part in block_products(self.per_block, self.support, self.blocks, P, Q):
+            parts[k] = part
         return np.bincount(self.inverse, weights=np.concatenate(parts), minlength=self.rows.size)
 
     def factor(self, vals: np.ndarray, reg: float) -> Callable[[np.ndarray], np.ndarray]:
@@ -397,11 +400,10 @@ class _BandSchur:
         itype = np.int32 if self.size < 2 ** 31 - 1 else np.int64
         # each block entry (i, l) of S_k → its place in the band (column-major (b + 1) × M), or the
         # sentinel ``size`` for the upper triangle (S is symmetric: each pair is summed once)
-        targets = []
+        self.targets = []
         for ids in inc:
             pi, pl = pos[ids][:, None], pos[ids][None, :]
-            targets.append(np.where(pi >= pl, pl * (b + 1) + (pi - pl), self.size).astype(itype).ravel())
-        self.targets = np.concatenate(targets) if targets else np.zeros(0, itype)
+            self.targets.append(np.where(pi >= pl, pl * (b + 1) + (pi - pl), self.size).astype(itype).ravel())
         self.order = np.argsort(pos)  # the constraint at each position
         self.pivoting = False
 
@@ -419,9 +421,10 @@ class _BandSchur:
 
     def assemble(self, P: list[np.ndarray], Q: list[np.ndarray]) -> np.ndarray:
         """S (see ``_Schur.assemble``) in band storage: a (b + 1) × M array, Fortran order."""
-        parts = block_products(self.per_block, self.support, self.blocks, P, Q)
-        flat = np.bincount(self.targets, weights=np.concatenate(parts), minlength=self.size + 1)[:self.size]
-        return flat.reshape(self.M, self.b + 1).T
+        flat = np.zeros(self.size + 1)  # the last entry collects the upper triangle
+        for k, part in block_products(self.per_block, self.support, self.blocks, P, Q):
+            np.add.at(flat, self.targets[k], part)
+        return flat[:self.size].reshape(self.M, self.b + 1).T
 
     def _scaled(self, ab: np.ndarray, dsc: np.ndarray) -> np.ndarray:
         """D ab D in band storage (entry (j + t, j) times dsc[j + t] dsc[j]; the unused corner stays 0)."""
