@@ -406,6 +406,7 @@ class _BandSchur:
             self.targets.append(np.where(pi >= pl, pl * (b + 1) + (pi - pl), self.size).astype(itype).ravel())
         self.order = np.argsort(pos)  # the constraint at each position
         self.pivoting = False
+        self._held: dict[str, Any] = {}  # the last factorisation's arrays, released by the next ``assemble``
 
     @classmethod
     def make(cls, Gv: sp.csr_array, blocks: _Blocks) -> "_BandSchur | None":
@@ -420,7 +421,9 @@ class _BandSchur:
         return cls(per_block, support, inc, blocks, pos, b)
 
     def assemble(self, P: list[np.ndarray], Q: list[np.ndarray]) -> np.ndarray:
-        """S (see ``_Schur.assemble``) in band storage: a (b + 1) × M array, Fortran order."""
+        """S (see ``_Schur.assemble``) in band storage: a (b + 1) × M array, Fortran order.  The solver of the
+        previous ``factor`` is invalid from here on (its arrays are released: a few bands at a time)."""
+        self._held.clear()
         flat = np.zeros(self.size + 1)  # the last entry collects the upper triangle
         for k, part in block_products(self.per_block, self.support, self.blocks, P, Q):
             np.add.at(flat, self.targets[k], part)
@@ -429,7 +432,9 @@ class _BandSchur:
     def _scaled(self, ab: np.ndarray, dsc: np.ndarray) -> np.ndarray:
         """D ab D in band storage (entry (j + t, j) times dsc[j + t] dsc[j]; the unused corner stays 0)."""
         shifted = np.lib.stride_tricks.sliding_window_view(np.concatenate([dsc, np.zeros(self.b)]), self.b + 1)
-        return (ab.T * dsc[:, None] * shifted).T  # on the (M, b + 1) C-order view: contiguous rows
+        out = ab.T * dsc[:, None]  # on the (M, b + 1) C-order view: contiguous rows
+        out *= shifted
+        return out.T
 
     def _full_band(self, low: np.ndarray) -> np.ndarray:
         """LAPACK's general band storage (kl = ku = b, with b more rows for the LU's fill) of the
@@ -453,24 +458,30 @@ class _BandSchur:
         if not np.all(d > 0):
             raise np.linalg.LinAlgError("Schur complement has a non-positive diagonal entry")
         dsc = 1 / np.sqrt(d)
-        scaled = self._scaled(ab, dsc)
-        scaled[0] += reg
-        b, inner = self.b, None
+        b, inner, held = self.b, None, self._held
+
+        def scaled() -> np.ndarray:
+            out = self._scaled(ab, dsc)
+            out[0] += reg
+            return out
+
         if not self.pivoting:
-            chol, info = dpbtrf(scaled, lower=1, overwrite_ab=0)
+            held["chol"], info = dpbtrf(scaled(), lower=1, overwrite_ab=1)
             if info == 0:
-                inner = lambda r: dpbtrs(chol, r, lower=1)[0]  # noqa: E731
+                inner = lambda r: dpbtrs(held["chol"], r, lower=1)[0]  # noqa: E731
             else:  # a pivot is not positive: LU with pivoting for the rest of the solve (μ only falls)
                 self.pivoting = True
+                held.clear()
         if inner is None:
-            lu, piv, info = dgbtrf(self._full_band(scaled), b, b)
+            held["lu"], held["piv"], info = dgbtrf(self._full_band(scaled()), b, b, overwrite_ab=1)
             if info > 0:
                 raise np.linalg.LinAlgError("Schur complement is exactly singular")
-            inner = lambda r: dgbtrs(lu, b, b, r, piv)[0]  # noqa: E731
-        order, ab_c = self.order, np.asfortranarray(ab)
+            inner = lambda r: dgbtrs(held["lu"], b, b, r, held["piv"])[0]  # noqa: E731
+        order = self.order
+        held["ab"] = np.asfortranarray(ab)
 
         def S(v: np.ndarray) -> np.ndarray:
-            return dsbmv(b, 1.0, ab_c, v, lower=1)
+            return dsbmv(b, 1.0, held["ab"], v, lower=1)
 
         def solve(r: np.ndarray) -> np.ndarray:
             rp = r[order]
