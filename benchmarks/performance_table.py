@@ -85,7 +85,7 @@ def scale_versus() -> list[str]:
             t = r.get("times", {})
             rows.append([r["size"], r.get("seed"), r.get("version"), r.get("total_s"), r.get("cpu_s"), t.get("build_s"),
                          t.get("local_s"), t.get("sdp_total_s"), t.get("refine_s"), r.get("peak_rss_mb"),
-                         r.get("outcome", r.get("error")), r.get("sdp_cost")])
+                         r.get("outcome") or str(r.get("error", ""))[:90], r.get("sdp_cost")])
         out += _table([k, "seed", "version", "total s", "CPU s", "build s", "local s", "SDP s", "refine s",
                        "peak RSS MB", "outcome", "SDP cost"], rows)
         summary = d.get("summary") or {}
