@@ -71,6 +71,38 @@ def scale() -> list[str]:
     return (["## Applying a learned set at growing size (`benchmarks/scale.py`)"] + out) if out else []
 
 
+def scale_versus() -> list[str]:
+    out: list[str] = []
+    for path in sorted(RESULTS.glob("scale_versus*.json")):
+        d = json.loads(path.read_text(encoding="utf-8"))
+        if d.get("benchmark") != "scale_versus":
+            continue
+        k = d["size_param"]
+        out += ["", f"### `{path.name}`: {d['problem']}, set `{d['set']}`, solver {d['solver']}, "
+                    f"against `{Path(str(d['versus'])).name}`", "", f"`{d['command']}`", ""]
+        rows = []
+        for r in d["rows"]:
+            t = r.get("times", {})
+            rows.append([r["size"], r.get("seed"), r.get("version"), r.get("total_s"), r.get("cpu_s"), t.get("build_s"),
+                         t.get("local_s"), t.get("sdp_total_s"), t.get("refine_s"), r.get("peak_rss_mb"),
+                         r.get("outcome") or str(r.get("error", ""))[:90], r.get("sdp_cost")])
+        out += _table([k, "seed", "version", "total s", "CPU s", "build s", "local s", "SDP s", "refine s",
+                       "peak RSS MB", "outcome", "SDP cost"], rows)
+        summary = d.get("summary") or {}
+        if summary.get("pairs"):
+            out += ["", "New against old in the same run (ratios new/old; CPU: the child's own CPU time):", ""]
+            out += _table([k, "seed", "same outcome", "SDP cost rel. diff", "total", "CPU", "peak RSS"],
+                          [[p["size"], p.get("seed"), p.get("same_outcome"), p.get("sdp_cost_rel_diff"),
+                            p.get("ratio_total"), p.get("ratio_cpu"), p.get("ratio_rss")] for p in summary["pairs"]])
+        growth = [[v, span, g.get("total_s"), g.get("peak_rss_mb")]
+                  for v, spans in summary.get("growth", {}).items() for span, g in spans.items()]
+        if growth:
+            out += ["", "Growth exponents log(v(b)/v(a))/log(b/a):", ""]
+            out += _table(["version", f"{k} a->b", "total", "peak RSS"], growth)
+    return (["## This checkout against the commit before, at growing size (`benchmarks/scale.py --versus`)"]
+            + out) if out else []
+
+
 def sdp_solve() -> list[str]:
     d = _load("sdp_solve.json")
     if d is None:
@@ -139,7 +171,8 @@ def report_parallel() -> list[str]:
                        d["results_identical_across_backends"]]]))
 
 
-SECTIONS: list[Callable[[], list[str]]] = [sdp_solve, trajectory_sdp, certify, discover, scale, report_parallel]
+SECTIONS: list[Callable[[], list[str]]] = [sdp_solve, trajectory_sdp, certify, discover, scale, scale_versus,
+                                           report_parallel]
 
 
 def generated() -> str:

@@ -30,7 +30,7 @@ import scipy.sparse as sp
 
 from autotight import lie
 from autotight.errors import ParameterError
-from autotight.gauss_newton import block_sparse, block_weight, gauss_newton
+from autotight.gauss_newton import BlockJacobian, BlockPattern, block_sparse, block_weight, gauss_newton
 from autotight.model import Factor, Model, Variables
 from autotight.problem import Instance, LocalResult, Param
 
@@ -309,6 +309,28 @@ def linearize(inst: Instance, Ts: np.ndarray, W: sp.csr_array | None = None
     return np.concatenate([xi_u.ravel(), xi_b.ravel()]), J, weight(inst) if W is None else W
 
 
+def block_pattern(K: int) -> BlockPattern:
+    """Where the 6 × 6 Jacobian blocks of ``linearize`` sit: unary k → (k, k), binary k → (K + k, k) and
+    (K + k, k + 1)."""
+    brow = np.concatenate([np.arange(K), K + np.arange(K - 1), K + np.arange(K - 1)])
+    bcol = np.concatenate([np.arange(K), np.arange(K - 1), np.arange(1, K)])
+    return BlockPattern(brow, bcol, 6, 6, (6 * (2 * K - 1), 6 * K))
+
+
+def linearize_blocks(inst: Instance, Ts: np.ndarray, W: sp.csr_array, pattern: BlockPattern
+                     ) -> tuple[np.ndarray, BlockJacobian, sp.csr_array]:
+    """``linearize`` with the Jacobian as its 6 × 6 blocks and the weight blocks (``BlockJacobian`` on
+    ``block_pattern(K)``), from which Gauss-Newton forms the block-tridiagonal normal equations directly;
+    W: ``weight(inst)``."""
+    m = inst.measurements
+    Ts = np.asarray(Ts)
+    xi_u, J_u = lie.residuals_se3(Ts, np.asarray(m["T_meas"]))
+    xi_b, J1, J2 = lie.residuals_se3_binary(Ts[:-1], Ts[1:], np.asarray(m["T_rel"]))
+    weights = np.concatenate([np.asarray(m["W"], float), np.asarray(m["W_rel"], float)])
+    J = BlockJacobian(pattern, np.concatenate([J_u, J1, J2]), weights)
+    return np.concatenate([xi_u.ravel(), xi_b.ravel()]), J, W
+
+
 def retract(Ts: np.ndarray, eps: np.ndarray) -> np.ndarray:
     """T_k ← cay(ε_k^∧) T_k (paper (77)); ε (6K,)."""
     return lie.cay_se3_batch(np.asarray(eps).reshape(-1, 6)) @ Ts
@@ -316,9 +338,9 @@ def retract(Ts: np.ndarray, eps: np.ndarray) -> np.ndarray:
 
 def local_solve(inst: Instance, init: dict, max_iter: int = 200) -> LocalResult:
     """Gauss-Newton (App. A.4, LM-damped) on the sparse stacked system (HᵀWH) ε = −HᵀW e."""
-    _count(inst)
-    W = weight(inst)  # the same at every iterate
-    res = gauss_newton(lambda Ts: linearize(inst, Ts, W), retract, _poses(init), max_iter=max_iter)
+    pattern = block_pattern(_count(inst))
+    W = weight(inst)  # the same at every iterate, as the Jacobian's block pattern
+    res = gauss_newton(lambda Ts: linearize_blocks(inst, Ts, W, pattern), retract, _poses(init), max_iter=max_iter)
     res.state = _state(res.state)
     return res
 

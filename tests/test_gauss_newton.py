@@ -128,3 +128,39 @@ def test_a_bug_in_linearize_raises():
 
     with pytest.raises(ValueError):
         gauss_newton(linearize, lambda x, eps: x + eps, np.array([0.0]))
+
+
+@pytest.mark.parametrize("chain", [True, False])
+def test_block_jacobian_normal_equations_equal_the_sparse_products(chain):
+    """``BlockJacobian.normal`` gives JᵀWJ (as a band on a chain of blocks, as a sparse matrix when the blocks
+    couple far-apart columns), JᵀWe and diag(JᵀWJ) equal to the sparse products, and Gauss-Newton on a linear
+    problem in block form reaches the normal equations' solution in one step."""
+    from autotight.gauss_newton import BlockJacobian, BlockPattern, lower_band
+
+    rng = np.random.default_rng(4)
+    C, d, e = 40, 3, 2
+    brow = np.concatenate([np.arange(C), C + np.arange(C - 1), C + np.arange(C - 1)])
+    far = np.arange(1, C) if chain else (np.arange(C - 1) + C // 2) % C  # a chain, or pairs across the graph
+    bcol = np.concatenate([np.arange(C), np.arange(C - 1), far])
+    pattern = BlockPattern(brow, bcol, d, e, ((2 * C - 1) * d, C * e))
+    assert pattern.banded == chain
+    blocks = rng.standard_normal((brow.size, d, e))
+    Wb = rng.standard_normal((2 * C - 1, d, d))
+    Wb = Wb @ np.swapaxes(Wb, 1, 2) + d * np.eye(d)
+    J = BlockJacobian(pattern, blocks, Wb)
+    Js = J.matrix()
+    W = sp.block_diag(list(Wb), format="csr")
+    r = rng.standard_normal(Js.shape[0])
+    H_ref = (Js.T @ W @ Js).toarray()
+    H, ab, g, diag = J.normal(r)
+    scale = np.abs(H_ref).max()
+    if chain:
+        assert H is None
+        assert np.abs(ab - lower_band(sp.csr_array(H_ref), pattern.b)).max() <= 1e-13 * scale
+    else:
+        assert ab is None and np.abs(H.toarray() - H_ref).max() <= 1e-13 * scale
+    assert np.abs(g - Js.T @ (W @ r)).max() <= 1e-13 * np.abs(g).max()
+    assert np.abs(diag - np.diag(H_ref)).max() <= 1e-13 * scale
+    x_star = np.linalg.solve(H_ref, Js.T @ (W @ r))
+    res = gauss_newton(lambda x: (Js @ x - r, J, W), lambda x, eps: x + eps, np.zeros(C * e))
+    assert np.abs(res.state - x_star).max() <= 1e-9 * np.abs(x_star).max()

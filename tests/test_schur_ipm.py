@@ -102,13 +102,25 @@ def _chain_schur(rng: np.random.Generator, cliques: int, width: int):
     return Q, cons, prog, blocks, schur_ipm._Schur(sp.csr_array(schur_ipm.svec_to_vec(prog.sizes) @ prog.F), blocks)
 
 
-@pytest.mark.parametrize("ldl,search", [(True, "nt"), (False, "nt"), (True, "hkm")])
-def test_ipm_equals_clarabel_on_a_chain_sdp_far_from_rank_one(ldl, search, monkeypatch):
+@pytest.mark.parametrize("factor,search", [("band", "nt"), ("band-lu", "nt"), ("ldl", "nt"), ("superlu", "nt"),
+                                           ("band", "hkm")])
+def test_ipm_equals_clarabel_on_a_chain_sdp_far_from_rank_one(factor, search, monkeypatch):
     """MaxCut-type chain SDP: the optimum is far from rank 1, so the blocks must agree on their
-    overlaps.  The same optimum with sparse LDLᵀ (qdldl) and with the SuperLU fallback (every LDLᵀ
-    reported as not positive definite), and with either search direction."""
-    if not ldl:
+    overlaps.  The same optimum with the banded Cholesky (the chain's default), with banded LU
+    (pivoting from the first iteration), with sparse LDLᵀ (qdldl: no band) and with the SuperLU
+    fallback (every LDLᵀ reported as not positive definite), and with either search direction."""
+    if factor in ("ldl", "superlu"):
+        monkeypatch.setattr(schur_ipm._BandSchur, "make", classmethod(lambda cls, Gv, blocks: None))
+    if factor == "superlu":
         monkeypatch.setattr(schur_ipm._LDLPattern, "factor", lambda self, vals: None)
+    if factor == "band-lu":
+        band_factor = schur_ipm._BandSchur.factor
+
+        def pivoting(self, ab, reg):
+            self.pivoting = True
+            return band_factor(self, ab, reg)
+
+        monkeypatch.setattr(schur_ipm._BandSchur, "factor", pivoting)
     if search != "nt":
         solve_blocks = schur_ipm.solve_blocks
         monkeypatch.setattr(schur_ipm, "solve_blocks", lambda *a, **k: solve_blocks(*a, **k, search=search))
@@ -239,6 +251,33 @@ def test_schur_complement_stays_sparse_along_a_chain():
         nnz.append(schur.rows.size)
         size.append(schur.M)
     assert 1.8 <= size[1] / size[0] <= 2.2 and 1.8 <= nnz[1] / nnz[0] <= 2.2, (size, nnz)
+
+
+def test_band_schur_equals_the_sparse_schur_complement_and_solves_it():
+    """On a chain, ``_BandSchur`` holds the same S as ``_Schur`` (to rounding) in a band whose width does not
+    grow with the chain's length, and both of its factorisations (Cholesky, and LU with pivoting) solve
+    S Δy = r to a residual near roundoff."""
+    rng = np.random.default_rng(3)
+    widths = []
+    for cliques in (12, 24):
+        _, _, prog, blocks, schur = _chain_schur(rng, cliques, 6)
+        band = schur_ipm._BandSchur.make(sp.csr_array(schur_ipm.svec_to_vec(prog.sizes) @ prog.F), blocks)
+        assert band is not None
+        widths.append(band.b)
+        B = [rng.standard_normal((ids.size, n, n)) for n, ids, _ in blocks.groups]
+        W = [b @ np.swapaxes(b, 1, 2) + b.shape[-1] * np.eye(b.shape[-1]) for b in B]  # positive definite
+        S = sp.csr_array((schur.assemble(W, W), schur.cols, schur.indptr), shape=(schur.M, schur.M)).toarray()
+        ab = band.assemble(W, W)
+        Sp = S[np.ix_(band.order, band.order)]  # S in the band's order
+        for t in range(band.b + 1):
+            assert np.allclose(ab[t, :schur.M - t], np.diagonal(Sp, -t), rtol=0, atol=1e-12 * np.abs(S).max())
+        assert np.abs(np.tril(Sp, -band.b - 1)).max() == 0.0  # nothing outside the band
+        r = rng.standard_normal(schur.M)
+        for pivoting in (False, True):
+            band.pivoting = pivoting
+            dy = band.factor(ab, schur_ipm.SCHUR_REG)(r)
+            assert np.linalg.norm(S @ dy - r) <= 1e-8 * np.linalg.norm(r), pivoting
+    assert widths[0] == widths[1]
 
 
 def test_block_loads_count_the_constraints_each_block_receives():

@@ -28,21 +28,23 @@ Method: Nesterov–Todd (default) or HKM search direction, Mehrotra's predictor-
 infeasible start.  Each iteration solves the Schur complement system S Δy = r,
 S_il = Σ_k ⟨A_ik, P_k A_lk Q_k⟩ with (P, Q) = (W, W) for NT (W Z W = X) and (X, Z⁻¹) for HKM.
 S is sparse (S_il ≠ 0 only when constraints i and l touch a common block), assembled per block on
-the entries its constraints touch (``_Schur.assemble``), equilibrated to a unit diagonal,
-regularised by ``SCHUR_REG`` and factorised by sparse LDLᵀ (qdldl, Apache-2.0: AMD ordering and
-symbolic analysis once per solve, a numeric refactorisation per iteration); SuperLU with partial
-pivoting takes over, for the rest of the solve, once a pivot is not positive.  One refinement step is
-kept only when it lowers the residual.  Per iteration this costs about ``iteration_cost`` (a ranking used to choose the
-cover, not a prediction).  Everything works on full row-major vec(·) of each block; the svec data
-of ``clique_program`` is mapped once by ``svec_to_vec``.  Measurements and the variants tried are
-in benchmarks/README.md.
+the entries its constraints touch (``_Schur.assemble``), equilibrated to a unit diagonal and
+regularised by ``SCHUR_REG``.  When the blocks' constraints can be ordered into a narrow band
+(``band_order``: a chain of blocks, e.g. a trajectory) S is stored and factorised as a band by LAPACK
+(``_BandSchur``: Cholesky, banded LU with partial pivoting once a pivot is not positive); else by sparse
+LDLᵀ (qdldl, Apache-2.0: AMD ordering and symbolic analysis once per solve, a numeric refactorisation
+per iteration), with SuperLU's partial pivoting for the rest of the solve once a pivot is not positive.
+One refinement step is kept only when it lowers the residual.  Per iteration this costs about
+``iteration_cost`` (a ranking used to choose the cover, not a prediction).  Everything works on full
+row-major vec(·) of each block; the svec data of ``clique_program`` is mapped once by ``svec_to_vec``.
+Measurements and the variants tried are in benchmarks/README.md.
 """
 
 from __future__ import annotations
 
 import time
 from dataclasses import dataclass
-from typing import Any, Callable, Sequence
+from typing import Any, Callable, Iterator, Sequence
 
 import numpy as np
 import scipy.sparse as sp
@@ -188,14 +190,69 @@ def _inner(X: list[np.ndarray], Z: list[np.ndarray]) -> float:
     return sum(float(np.einsum("bij,bij->", a, b)) for a, b in zip(X, Z))
 
 
-def _max_step(X: list[np.ndarray], dX: list[np.ndarray]) -> float:
-    """The largest α with X + α dX ⪰ 0 in every block (∞ when no block ever leaves the cone)."""
+def _inverse_factors(X: list[np.ndarray]) -> list[np.ndarray]:
+    """L⁻¹ per block, X = L Lᵀ (Cholesky); LinAlgError when a block is not positive definite."""
+    return [np.linalg.inv(np.linalg.cholesky(Xg)) for Xg in X]
+
+
+def _max_step(Linv: list[np.ndarray], dX: list[np.ndarray]) -> float:
+    """The largest α with X + α dX ⪰ 0 in every block (∞ when no block ever leaves the cone), from the
+    inverse Cholesky factors L⁻¹ of X (``_inverse_factors``)."""
     lam = np.inf
-    for Xg, dXg in zip(X, dX):
-        Li = np.linalg.inv(np.linalg.cholesky(Xg))
+    for Li, dXg in zip(Linv, dX):
         ev = np.linalg.eigvalsh(_sym(Li @ dXg @ np.swapaxes(Li, -1, -2)))
         lam = min(lam, float(ev[:, 0].min()))
     return np.inf if lam >= 0 else -1.0 / lam
+
+
+def block_data(Gv: sp.csr_array, blocks: _Blocks
+               ) -> tuple[list[sp.csr_array], list[tuple[np.ndarray, np.ndarray, np.ndarray]], list[np.ndarray]]:
+    """Per block k: G_k (the data of the constraints touching it on its support, in half form and weighted:
+    G_k[i, u] = vec(A_ik)[a_u n + b_u] / o_u for the entries a_u ≤ b_u that any of them touches, o_u = 2 on
+    the diagonal and 1 off it, see ``_Schur.assemble``), the support (a_u, b_u, 1/o_u) and the ids of those
+    constraints (increasing: G_k's rows)."""
+    per_block: list[sp.csr_array] = []
+    support: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
+    inc: list[np.ndarray] = []
+    Gv = sp.csr_array(Gv)
+    Gv.sort_indices()
+    for k, n in enumerate(blocks.sizes):
+        lo, hi = Gv.indptr[blocks.voff[k]], Gv.indptr[blocks.voff[k + 1]]
+        cols, vals = Gv.indices[lo:hi], Gv.data[lo:hi]
+        local = np.repeat(np.arange(n * n), np.diff(Gv.indptr[blocks.voff[k]:blocks.voff[k + 1] + 1]))
+        a, b = np.divmod(local, n)
+        upper = a <= b  # A_i symmetric: the entry (b, a) repeats (a, b)
+        ids, rank = np.unique(cols, return_inverse=True)
+        entries, ent = np.unique(local[upper], return_inverse=True)
+        au, bu = np.divmod(entries, n)
+        o = np.where(au == bu, 0.5, 1.0)
+        per_block.append(sp.csr_array((vals[upper] * o[ent], (rank[upper], ent)), shape=(ids.size, entries.size)))
+        support.append((au, bu, o))
+        inc.append(ids)
+    return per_block, support, inc
+
+
+def block_products(per_block: list[sp.csr_array], support: list[tuple[np.ndarray, np.ndarray, np.ndarray]],
+                   blocks: _Blocks, P: list[np.ndarray], Q: list[np.ndarray]) -> Iterator[tuple[int, np.ndarray]]:
+    """(k, the dense m_k × m_k product G_k K_k G_kᵀ raveled) for every block k, in the order of the size
+    groups (the kernel K_k of ``_Schur.assemble``)."""
+    same = P is Q
+    for (n, ids, _), Pg, Qg in zip(blocks.groups, P, Q):
+        for j, k in enumerate(ids):
+            a, b, _ = support[k]  # the weights 1/o_u are in G_k
+            Pa, Pb = Pg[j][a], Pg[j][b]
+            if same:  # P_bc = P_cb: the fourth product is the transpose of the second; the factor 2 at the end
+                Pab = Pa[:, b]
+                Kk = Pa[:, a] * Pb[:, b]
+                Kk += Pab * Pab.T
+            else:
+                Qa, Qb = Qg[j][a], Qg[j][b]
+                Kk = Pa[:, a] * Qb[:, b] + Pa[:, b] * Qb[:, a] + Pb[:, a] * Qa[:, b] + Pb[:, b] * Qa[:, a]
+            Gk = per_block[k]
+            Sk = Gk @ (Gk @ Kk).T
+            if same:
+                Sk *= 2
+            yield k, Sk.ravel()
 
 
 class _Schur:
@@ -203,27 +260,8 @@ class _Schur:
 
     def __init__(self, Gv: sp.csr_array, blocks: _Blocks):
         M = Gv.shape[1]
-        # per block k: the constraints touching it (ids), and their data on the block's support in
-        # half form: G_k[i, u] = vec(A_ik)[a_u n + b_u] for the entries (a_u ≤ b_u) that any of them touches
-        self.per_block: list[sp.csr_array] = []
-        self.support: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []  # (a_u, b_u, 1/o_u), see assemble
-        inc = []  # constraint-block incidence
-        keys = []
-        Gv = sp.csr_array(Gv)
-        Gv.sort_indices()
-        for k, n in enumerate(blocks.sizes):
-            lo, hi = Gv.indptr[blocks.voff[k]], Gv.indptr[blocks.voff[k + 1]]
-            cols, vals = Gv.indices[lo:hi], Gv.data[lo:hi]
-            local = np.repeat(np.arange(n * n), np.diff(Gv.indptr[blocks.voff[k]:blocks.voff[k + 1] + 1]))
-            a, b = np.divmod(local, n)
-            upper = a <= b  # A_i symmetric: the entry (b, a) repeats (a, b)
-            ids, rank = np.unique(cols, return_inverse=True)
-            entries, ent = np.unique(local[upper], return_inverse=True)
-            au, bu = np.divmod(entries, n)
-            self.per_block.append(sp.csr_array((vals[upper], (rank[upper], ent)), shape=(ids.size, entries.size)))
-            self.support.append((au, bu, np.where(au == bu, 0.5, 1.0)))
-            inc.append(ids)
-            keys.append((ids[:, None] * M + ids[None, :]).ravel())
+        self.per_block, self.support, inc = block_data(Gv, blocks)
+        keys = [(ids[:, None] * M + ids[None, :]).ravel() for ids in inc]
         B = sp.csr_array((np.ones(sum(i.size for i in inc)), (np.repeat(np.arange(len(inc)), [i.size for i in inc]),
                                                                np.concatenate(inc))), shape=(len(inc), M))
         pattern = sp.csr_array(B.T @ B)  # S_il ≠ 0 iff constraints i and l share a block
@@ -250,22 +288,8 @@ class _Schur:
         = 2 (W_ac W_bd + W_ad W_bc) / (o_u o_w) when P is Q (NT).  This costs |support|² per block
         instead of n⁴.  (The Gram form B_kᵀB_k, b_i = vec(L_Pᵀ A_i L_Q), was less accurate.)"""
         parts: list[np.ndarray] = [np.zeros(0)] * len(self.per_block)
-        same = P is Q
-        for (n, ids, _), Pg, Qg in zip(self.blocks.groups, P, Q):
-            for j, k in enumerate(ids):
-                a, b, o = self.support[k]
-                Pa, Pb = Pg[j][a], Pg[j][b]
-                if same:
-                    Kk = Pa[:, a] * Pb[:, b]
-                    Kk += Pa[:, b] * Pb[:, a]
-                    Kk *= 2
-                else:
-                    Qa, Qb = Qg[j][a], Qg[j][b]
-                    Kk = Pa[:, a] * Qb[:, b] + Pa[:, b] * Qb[:, a] + Pb[:, a] * Qa[:, b] + Pb[:, b] * Qa[:, a]
-                Kk *= o[:, None]
-                Kk *= o[None, :]
-                Gk = self.per_block[k]
-                parts[k] = (Gk @ (Gk @ Kk).T).ravel()
+        for k, part in block_products(self.per_block, self.support, self.blocks, P, Q):
+            parts[k] = part
         return np.bincount(self.inverse, weights=np.concatenate(parts), minlength=self.rows.size)
 
     def factor(self, vals: np.ndarray, reg: float) -> Callable[[np.ndarray], np.ndarray]:
@@ -332,6 +356,146 @@ class _LDLPattern:
         return self.solver.solve
 
 
+#: S is factorised as a band (``_BandSchur``) when its band holds at most this many times the entries of
+#: its blocks' lower triangles (Σ_k m_k(m_k + 1)/2, an upper bound of nnz(tril S)); else by sparse LDLᵀ
+BAND_FILL_MAX = 2.0
+
+
+def band_order(inc: Sequence[np.ndarray], M: int) -> tuple[np.ndarray, int]:
+    """(pos, b): a position for each of the M constraints and the half bandwidth b of S in that order.
+
+    The blocks are put in reverse Cuthill–McKee order of the block graph (two blocks adjacent when a
+    constraint touches both), and the constraints by the first of their blocks in that order (ties by
+    id).  S_il ≠ 0 only when i and l touch a common block k, so b = max_k (the spread of the positions of
+    block k's constraints).  A chain of blocks gives b ≈ the constraints of one block and its neighbours'
+    shared ones, whatever the length of the chain."""
+    from scipy.sparse.csgraph import reverse_cuthill_mckee
+
+    p = len(inc)
+    counts = np.array([i.size for i in inc])
+    B = sp.csr_array((np.ones(int(counts.sum())), (np.repeat(np.arange(p), counts), np.concatenate(inc))),
+                     shape=(p, M))
+    rank = np.empty(p, np.int64)
+    rank[reverse_cuthill_mckee(sp.csr_matrix(B @ B.T), symmetric_mode=True)] = np.arange(p)
+    first = np.full(M, p, np.int64)  # a constraint in no block goes last (its row of S is zero)
+    np.minimum.at(first, np.concatenate(inc), np.repeat(rank, counts))
+    order = np.lexsort((np.arange(M), first))
+    pos = np.empty(M, np.int64)
+    pos[order] = np.arange(M)
+    spread = [int(np.ptp(pos[i])) for i in inc if i.size]
+    return pos, max(spread, default=0)
+
+
+class _BandSchur:
+    """S as a symmetric band in the order of ``band_order``: the same products as ``_Schur`` summed into
+    LAPACK's lower band storage (ab[t, j] = S[j + t, j], t ≤ b), factorised by banded Cholesky (pbtrf,
+    O(M b²)) or, once a pivot is not positive, by banded LU with partial pivoting (gbtrf) for the rest of
+    the solve.  Built by ``make``, which returns None when the band would be too wide (``BAND_FILL_MAX``)."""
+
+    def __init__(self, per_block: list[sp.csr_array], support: list, inc: list[np.ndarray], blocks: _Blocks,
+                 pos: np.ndarray, b: int):
+        M = pos.size
+        self.per_block, self.support, self.blocks, self.M, self.b = per_block, support, blocks, M, b
+        self.size = (b + 1) * M
+        itype = np.int32 if self.size < 2 ** 31 - 1 else np.int64
+        # each block entry (i, l) of S_k → its place in the band (column-major (b + 1) × M), or the
+        # sentinel ``size`` for the upper triangle (S is symmetric: each pair is summed once)
+        self.targets = []
+        for ids in inc:
+            pi, pl = pos[ids][:, None], pos[ids][None, :]
+            self.targets.append(np.where(pi >= pl, pl * (b + 1) + (pi - pl), self.size).astype(itype).ravel())
+        self.order = np.argsort(pos)  # the constraint at each position
+        self.pivoting = False
+        self._held: dict[str, Any] = {}  # the last factorisation's arrays, released by the next ``assemble``
+
+    @classmethod
+    def make(cls, Gv: sp.csr_array, blocks: _Blocks) -> "_BandSchur | None":
+        per_block, support, inc = block_data(Gv, blocks)
+        M = Gv.shape[1]
+        if M == 0:
+            return None
+        pos, b = band_order(inc, M)
+        lower = sum(i.size * (i.size + 1) // 2 for i in inc)
+        if (b + 1) * M > BAND_FILL_MAX * max(lower, M):
+            return None
+        return cls(per_block, support, inc, blocks, pos, b)
+
+    def assemble(self, P: list[np.ndarray], Q: list[np.ndarray]) -> np.ndarray:
+        """S (see ``_Schur.assemble``) in band storage: a (b + 1) × M array, Fortran order.  The solver of the
+        previous ``factor`` is invalid from here on (its arrays are released: a few bands at a time)."""
+        self._held.clear()
+        flat = np.zeros(self.size + 1)  # the last entry collects the upper triangle
+        for k, part in block_products(self.per_block, self.support, self.blocks, P, Q):
+            np.add.at(flat, self.targets[k], part)
+        return flat[:self.size].reshape(self.M, self.b + 1).T
+
+    def _scaled(self, ab: np.ndarray, dsc: np.ndarray) -> np.ndarray:
+        """D ab D in band storage (entry (j + t, j) times dsc[j + t] dsc[j]; the unused corner stays 0)."""
+        shifted = np.lib.stride_tricks.sliding_window_view(np.concatenate([dsc, np.zeros(self.b)]), self.b + 1)
+        out = ab.T * dsc[:, None]  # on the (M, b + 1) C-order view: contiguous rows
+        out *= shifted
+        return out.T
+
+    def _full_band(self, low: np.ndarray) -> np.ndarray:
+        """LAPACK's general band storage (kl = ku = b, with b more rows for the LU's fill) of the
+        symmetric matrix whose lower band is ``low``: A[i, j] at row 2b + i − j."""
+        b, M = self.b, self.M
+        ab = np.zeros((3 * b + 1, M), order="F")
+        ab[2 * b:, :] = low
+        for t in range(1, b + 1):
+            ab[2 * b - t, t:] = low[t, :M - t]
+        return ab
+
+    def factor(self, ab: np.ndarray, reg: float) -> Callable[[np.ndarray], np.ndarray]:
+        """As ``_Schur.factor``: D(DSD + reg·I)⁻¹D with D = diag(S)^(−1/2) by banded Cholesky, or banded
+        LU with partial pivoting once a pivot is not positive, then one refinement step against S, kept
+        only when it lowers the residual.  np.linalg.LinAlgError when diag(S) is not positive or S is
+        exactly singular."""
+        from scipy.linalg.blas import dsbmv
+        from scipy.linalg.lapack import dgbtrf, dgbtrs, dpbtrf, dpbtrs
+
+        d = ab[0]
+        if not np.all(d > 0):
+            raise np.linalg.LinAlgError("Schur complement has a non-positive diagonal entry")
+        dsc = 1 / np.sqrt(d)
+        b, inner, held = self.b, None, self._held
+
+        def scaled() -> np.ndarray:
+            out = self._scaled(ab, dsc)
+            out[0] += reg
+            return out
+
+        if not self.pivoting:
+            held["chol"], info = dpbtrf(scaled(), lower=1, overwrite_ab=1)
+            if info == 0:
+                inner = lambda r: dpbtrs(held["chol"], r, lower=1)[0]  # noqa: E731
+            else:  # a pivot is not positive: LU with pivoting for the rest of the solve (μ only falls)
+                self.pivoting = True
+                held.clear()
+        if inner is None:
+            held["lu"], held["piv"], info = dgbtrf(self._full_band(scaled()), b, b, overwrite_ab=1)
+            if info > 0:
+                raise np.linalg.LinAlgError("Schur complement is exactly singular")
+            inner = lambda r: dgbtrs(held["lu"], b, b, r, held["piv"])[0]  # noqa: E731
+        order = self.order
+        held["ab"] = np.asfortranarray(ab)
+
+        def S(v: np.ndarray) -> np.ndarray:
+            return dsbmv(b, 1.0, held["ab"], v, lower=1)
+
+        def solve(r: np.ndarray) -> np.ndarray:
+            rp = r[order]
+            dy = dsc * inner(dsc * rp)
+            res = rp - S(dy)
+            refined = dy + dsc * inner(dsc * res)
+            keep = refined if np.linalg.norm(rp - S(refined)) < np.linalg.norm(res) else dy
+            out = np.empty_like(keep)
+            out[order] = keep
+            return out
+
+        return solve
+
+
 def solve_blocks(F: sp.csc_matrix, c: np.ndarray, g: np.ndarray, sizes: list[int], *, tol: float = 1e-7,
                  max_iter: int = 100, time_limit: float = np.inf, verbose: bool = False,
                  search: str = "nt") -> IPMSolution:
@@ -347,7 +511,7 @@ def solve_blocks(F: sp.csc_matrix, c: np.ndarray, g: np.ndarray, sizes: list[int
     GvT = sp.csr_array(Gv.T)
     cv = P @ c
     blocks = _Blocks(sizes)
-    schur = _Schur(Gv, blocks)
+    schur: _Schur | _BandSchur = _BandSchur.make(Gv, blocks) or _Schur(Gv, blocks)
     nrm_g, nrm_c = 1 + np.max(np.abs(g), initial=0.0), 1 + np.max(np.abs(cv), initial=0.0)
 
     def A(mats: list[np.ndarray]) -> np.ndarray:
@@ -394,7 +558,10 @@ def solve_blocks(F: sp.csc_matrix, c: np.ndarray, g: np.ndarray, sizes: list[int
             status, message = Status.INSUFFICIENT_PROGRESS, f"no progress in {stall} iterations"
             break
         try:
-            Zinv = [np.linalg.inv(Zg) for Zg in Z]
+            # the inverse Cholesky factors of X and Z: the step lengths of every direction of this
+            # iteration, NT's scaling and Z⁻¹ = L_Z⁻ᵀ L_Z⁻¹ (one factorisation per block and iteration)
+            LXi, LZi = _inverse_factors(X), _inverse_factors(Z)
+            Zinv = [np.swapaxes(Li, -1, -2) @ Li for Li in LZi]
             if search == "nt":
                 # NT scaling: X = L Lᵀ, Lᵀ Z L = U Λ² Uᵀ, G = L U Λ^(−1/2), W = G Gᵀ (W Z W = X);
                 # in the scaled space G⁻¹ X G⁻ᵀ = Gᵀ Z G = Λ
@@ -402,8 +569,7 @@ def solve_blocks(F: sp.csc_matrix, c: np.ndarray, g: np.ndarray, sizes: list[int
                 lam2, U = zip(*[np.linalg.eigh(np.swapaxes(Lg, -1, -2) @ Zg @ Lg) for Lg, Zg in zip(L, Z)])
                 lam = [np.sqrt(np.maximum(l2, 1e-300)) for l2 in lam2]  # Lᵀ Z L ≻ 0 in exact arithmetic
                 G = [Lg @ Ug / np.sqrt(lg)[:, None, :] for Lg, Ug, lg in zip(L, U, lam)]
-                Ginv = [np.sqrt(lg)[:, :, None] * np.swapaxes(Ug, -1, -2) @ np.linalg.inv(Lg)
-                        for Lg, Ug, lg in zip(L, U, lam)]
+                Ginv = [np.sqrt(lg)[:, :, None] * np.swapaxes(Ug, -1, -2) @ Li for Ug, lg, Li in zip(U, lam, LXi)]
                 W = [Gg @ np.swapaxes(Gg, -1, -2) for Gg in G]
                 left, right = W, W
             else:  # HKM: ΔX = H − X ΔZ Z⁻¹
@@ -420,8 +586,8 @@ def solve_blocks(F: sp.csc_matrix, c: np.ndarray, g: np.ndarray, sizes: list[int
                 return dX, dy, dZ
 
             dX, dy, dZ = direction([-Xg for Xg in X])  # predictor: σ = 0
-            ap = min(1.0, gamma * _max_step(X, dX))
-            ad = min(1.0, gamma * _max_step(Z, dZ))
+            ap = min(1.0, gamma * _max_step(LXi, dX))
+            ad = min(1.0, gamma * _max_step(LZi, dZ))
             mu_aff = _inner([Xg + ap * a for Xg, a in zip(X, dX)], [Zg + ad * b for Zg, b in zip(Z, dZ)])
             sigma = min(1.0, (mu_aff / blocks.order / mu) ** max(1.0, 3 * min(ap, ad) ** 2))
             pred = min(ap, ad)
@@ -438,12 +604,12 @@ def solve_blocks(F: sp.csc_matrix, c: np.ndarray, g: np.ndarray, sizes: list[int
             else:
                 H = [sigma * mu * Zi - Xg - a @ b @ Zi for Zi, Xg, a, b in zip(Zinv, X, dX, dZ)]
             dX, dy, dZ = direction(H)  # corrector
-            ap = min(1.0, gamma * _max_step(X, dX))
-            ad = min(1.0, gamma * _max_step(Z, dZ))
+            ap = min(1.0, gamma * _max_step(LXi, dX))
+            ad = min(1.0, gamma * _max_step(LZi, dZ))
             if min(ap, ad) < CORRECTOR_FALLBACK * pred:
                 # the second-order term hurts (seen near degenerate optima): centre without it
                 dX1, dy1, dZ1 = direction([sigma * mu * Zi - Xg for Zi, Xg in zip(Zinv, X)])
-                ap1, ad1 = min(1.0, gamma * _max_step(X, dX1)), min(1.0, gamma * _max_step(Z, dZ1))
+                ap1, ad1 = min(1.0, gamma * _max_step(LXi, dX1)), min(1.0, gamma * _max_step(LZi, dZ1))
                 if min(ap1, ad1) > min(ap, ad):
                     dX, dy, dZ, ap, ad = dX1, dy1, dZ1, ap1, ad1
         except np.linalg.LinAlgError as e:  # the factorisation broke down (raised by _Schur.factor)
