@@ -400,7 +400,7 @@ class _BandSchur:
         itype = np.int32 if self.size < 2 ** 31 - 1 else np.int64
         # each block entry (i, l) of S_k → its place in the band (column-major (b + 1) × M), or the
         # sentinel ``size`` for the upper triangle (S is symmetric: each pair is summed once)
-        self.targets = []
+        self.targets: list[np.ndarray] = []
         for ids in inc:
             pi, pl = pos[ids][:, None], pos[ids][None, :]
             self.targets.append(np.where(pi >= pl, pl * (b + 1) + (pi - pl), self.size).astype(itype).ravel())
