@@ -23,6 +23,19 @@ by ``face_certificate``:
 
 Either face exists (a y with H(y)Θ̂ᵀ = 0 and H_F· = 0) exactly when the relaxation restricted to
 the columns K is tight at x̂; whether the multipliers prove it is the certificate's to say.
+
+Multipliers on the face (``face_dual``).  The SDP's own y is poor where columns are free: the primal
+optimal set is unbounded along X_FF, every dual feasible H has H_F· = 0 (no strictly feasible dual),
+and an interior-point solve stops early (stereo-2D's learned set: AlmostSolved, bᵀy above f(x̂) by
+1.6e-3 relative); the least change onto the face then lands far from H ⪰ 0.  The face's own dual
+is solved instead (facial reduction).  Write y = y₀ + N z with H(y₀)_F· = 0 and N a basis of the
+multipliers that leave H_F· unchanged (the constraints that touch no column of F, and the null space
+of the others' entries on F); then H(y) = H(y₀) − Σⱼ zⱼ Ãⱼ with Ãⱼ = Σᵢ Nᵢⱼ Aᵢ, all zero on F, and
+bᵀy = bᵀy₀ + (Nᵀb)ᵀz.  So max bᵀy s.t. H(y) ⪰ 0, H_F· = 0 is the SDP on the columns K
+    max (Nᵀb)ᵀz  s.t.  H(y₀)_KK − Σⱼ zⱼ (Ãⱼ)_KK ⪰ 0,
+whose primal min ⟨H(y₀)_KK, X⟩ s.t. ⟨(Ãⱼ)_KK, X⟩ = (Nᵀb)ⱼ, X ⪰ 0 has the rank-1 point Θ̂_K and a
+bounded optimal set.  Its z gives y = y₀ + N z, which ``certificate`` then judges (nothing about
+this solve is trusted: only H(y)_F· = 0 and the argument on K are).
 """
 
 from __future__ import annotations
@@ -78,6 +91,86 @@ def forced_face(Q: sp.sparray, As: Sequence[sp.sparray], y: np.ndarray,
             break
         F = np.union1d(F, np.flatnonzero(new))
     return y, F
+
+
+#: ``face_dual`` works densely: at most this many constraints touching the face, and at most this many
+#: entries in its matrix of directions × |K|² (1.6e8 bytes)
+FACE_DUAL_MAX_TOUCHING = 3000
+FACE_DUAL_MAX_ENTRIES = 20_000_000
+#: a reduced constraint counts as zero (a linear dependence of the Aᵢ) below this multiple of the largest
+DEPENDENT_RTOL = 1e-6
+
+
+def face_dual(Q: sp.sparray, constraints, F: np.ndarray, *, d: int = 1,
+              scale: np.ndarray | None = None, config=None) -> tuple[np.ndarray, str] | None:
+    """(y, the solve's note): multipliers with H(y)_F· = 0 from the SDP on the columns K off F
+    (module docstring, facial reduction); y₀ is the least-norm y with H(y₀)_F· = 0 (not the SDP's
+    own y, whose multipliers grow without bound along the face where no dual point is strictly
+    feasible: stereo-2D, pairs of multipliers near ±10 cancelling on F to 1e-10).  The reduced
+    constraints are an orthonormal basis (Frobenius, singular values above ``DEPENDENT_RTOL`` of the
+    largest) of the span of the (Ãⱼ)_KK, so near-dependent learned constraints give the solver no
+    ill-posed rows; the final y is put back onto H_F· = 0 to roundoff.  scale: the SDP's diagonal
+    scaling D on all N columns (restricted to K here).  None when the dense work would exceed
+    ``FACE_DUAL_MAX_TOUCHING`` or ``FACE_DUAL_MAX_ENTRIES``, no y makes H vanish on F, or the solve
+    returns no finite multipliers."""
+    from . import sdp
+    from .certificate import stack
+    from .model import Constraint
+
+    As, b = stack(constraints)
+    n, m = Q.shape[0], len(As)
+    F = np.asarray(F, dtype=np.int64)
+    K = np.setdiff1d(np.arange(n), F)
+    r, c, v, owner = entries(As)
+    onF = np.isin(r, F)
+    T = np.unique(owner[onF])  # the constraints touching F
+    if T.size > FACE_DUAL_MAX_TOUCHING or m * K.size ** 2 > FACE_DUAL_MAX_ENTRIES:
+        return None
+    Qc = sp.coo_array(Q)
+    qF = np.isin(Qc.row, F)
+    keys = np.concatenate([r[onF] * n + c[onF], Qc.row[qF] * n + Qc.col[qF]])
+    uniq, inv = np.unique(keys, return_inverse=True)
+    n_on = int(onF.sum())
+    GF = np.zeros((uniq.size, T.size))
+    np.add.at(GF, (inv[:n_on], np.searchsorted(T, owner[onF])), v[onF])
+    gF = np.zeros(uniq.size)
+    np.add.at(gF, inv[n_on:], Qc.data[qF])
+    y0 = np.zeros(m)
+    keep = np.setdiff1d(np.arange(m), T)
+    P = sp.csc_array((np.ones(keep.size), (keep, np.arange(keep.size))), shape=(m, keep.size))
+    if T.size:  # y₀ and the null space N_T of the touching constraints' entries on F, from one SVD
+        U, S, Vt = np.linalg.svd(GF, full_matrices=True)
+        rank = int(np.sum(S > DEPENDENT_RTOL * S[0])) if S.size else 0
+        exact = int(np.sum(S > max(GF.shape) * np.finfo(float).eps * S[0])) if S.size else 0
+
+        def onto_face(yT: np.ndarray, k: int = rank) -> np.ndarray:  # the least change with GF yT = gF
+            return yT + Vt[:k].T @ ((U[:, :k].T @ (gF - GF @ yT)) / S[:k])
+
+        y0[T] = onto_face(y0[T])
+        if np.linalg.norm(GF @ y0[T] - gF) > 1e-9 * max(np.linalg.norm(gF), S[0] if S.size else 1.0):
+            return None  # no y makes H vanish on F
+        NT = Vt[rank:].T  # (|T|, nullity)
+        rows, cols = np.repeat(T, NT.shape[1]), np.tile(np.arange(NT.shape[1]), T.size)
+        P = sp.hstack([P, sp.csc_array((NT.ravel(), (rows, cols)), shape=(m, NT.shape[1]))], format="csc")
+    Kpos = np.full(n, -1)
+    Kpos[K] = np.arange(K.size)
+    sel = (Kpos[r] >= 0) & (Kpos[c] >= 0)
+    A_K = sp.csr_array((v[sel], (owner[sel], Kpos[r[sel]] * K.size + Kpos[c[sel]])), shape=(m, K.size ** 2))
+    R = np.asarray((P.T @ A_K).todense())  # (p, |K|²): each direction's entries on K
+    Ur, Sr, Vr = np.linalg.svd(R, full_matrices=False)
+    kr = int(np.sum(Sr > DEPENDENT_RTOL * Sr[0])) if Sr.size else 0
+    W = P @ (Ur[:, :kr] / Sr[:kr])  # (m, kr): y = y₀ + W z moves H by −Σ zⱼ (row j of Vr)
+    bw = np.asarray(W.T @ b).ravel()
+    reduced = [Constraint(sp.coo_array(Vr[j].reshape(K.size, K.size)), float(bw[j]), name=f"face direction {j}",
+                          family="learned") for j in range(kr)]
+    Qr = sp.csr_array(dual_matrix(Q, As, y0))[K][:, K]
+    res = sdp.solve(Qr, reduced, d=d, config=config, scale=None if scale is None else scale[K])
+    if res.y is None or not np.all(np.isfinite(res.y)):
+        return None
+    out = y0 + np.asarray(W @ np.asarray(res.y, dtype=float)).ravel()
+    if T.size:  # back onto H_F· = 0 to roundoff (z can be large where the reduced constraints are small)
+        out[T] = onto_face(out[T], exact)
+    return out, f"the SDP on the {K.size} columns off the {F.size} set aside ({res.solver} {res.status})"
 
 
 def free_columns(Q: sp.sparray, As: Sequence[sp.sparray]) -> Face:
@@ -139,11 +232,18 @@ def face_certificate(Q: sp.sparray, constraints, y: np.ndarray, theta_hat: np.nd
         cf = certificate(Q, constraints, yf, Th, d=d, tol=tol, floor=floor, trace=trace, free=F,
                          method=how + ", on the face of the forced columns")
         if cf.certified and not cert.certified:
-            n_rec = recession_columns(Q, entries(As)).size
-            cf.face = (f"{F.size} column(s) set aside: {n_rec} on which neither the cost nor any constraint has a "
-                       f"diagonal entry, {F.size - n_rec} whose diagonal of H the stationarity and H = 0 on those "
-                       f"forces to 0; H vanishes on them to {cf.free_residual:.1e} of max |H|")
+            cf.face = _forced_why(Q, As, F, cf)
             return yf, cf, f"set on the face of the bounded columns ({F.size} free, H vanishes there)", F
+    if forced is not None:  # the face's own dual (facial reduction), where the polish alone proves nothing
+        got = face_dual(Q, constraints, F, d=d)
+        if got is not None:
+            yd = got[0]  # not polished onto stationarity: that system is consistent only along directions
+            # that move H_KK off ⪰ 0 (learned constraints hold at x̂ to ~1e-12 of ‖Aᵢ‖, not exactly)
+            cf = certificate(Q, constraints, yd, Th, d=d, tol=tol, floor=floor, trace=trace, free=F,
+                             method=how + f", from {got[1]}")
+            if cf.certified and not cert.certified:
+                cf.face = _forced_why(Q, As, F, cf)
+                return yd, cf, f"solved on the face of the bounded columns ({F.size} free, H vanishes there)", F
     got = face_multipliers(Q, As, y, Th)
     if got is None or not np.all(np.isfinite(got[0])):
         return y, cert, "", None
@@ -159,3 +259,11 @@ def face_certificate(Q: sp.sparray, constraints, y: np.ndarray, theta_hat: np.nd
     cf.assumptions += "; multipliers 0 on the constraints touching the columns set aside"
     note = f"set on the face of the bounded columns ({face.free.size} free, {face.touching.size} multipliers 0)"
     return yf, cf, note, face.free
+
+
+def _forced_why(Q: sp.sparray, As: Sequence[sp.sparray], F: np.ndarray, cert) -> str:
+    """The certificate's ``face`` text for a face of ``forced_face``."""
+    n_rec = recession_columns(Q, entries(As)).size
+    return (f"{F.size} column(s) set aside: {n_rec} on which neither the cost nor any constraint has a diagonal "
+            f"entry, {F.size - n_rec} whose diagonal of H the vanishing of those rows and stationarity force to 0; "
+            f"H vanishes on them to {cert.free_residual:.1e} of max |H|")
