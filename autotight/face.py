@@ -51,6 +51,14 @@ from .certificate import (FREE_ATOL, dual_matrix, entries, polish_dual, recessio
 from .lstsq import min_norm_lstsq
 
 
+#: ``face_dual`` works densely: at most this many constraints touching the face, and at most this many
+#: entries in its matrix of directions × |K|² (1.6e8 bytes)
+FACE_DUAL_MAX_TOUCHING = 3000
+FACE_DUAL_MAX_ENTRIES = 20_000_000
+#: a reduced constraint counts as zero (a linear dependence of the Aᵢ) below this multiple of the largest
+DEPENDENT_RTOL = 1e-6
+
+
 @dataclass
 class Face:
     """free: the columns F set aside (sorted); touching: the constraints touching F (their multipliers
@@ -59,6 +67,90 @@ class Face:
     free: np.ndarray
     touching: np.ndarray
     kept: np.ndarray
+
+
+@dataclass
+class FaceSystem:
+    """The equations H(y)_F· = 0: GF y_T = gF over the constraints T touching F (one row per entry (j, k),
+    j ∈ F, of some Aᵢ or Q), with GF's SVD (U, S, Vt) and its rank above ``DEPENDENT_RTOL``·S₀.
+    y0T: the least-norm solution on GF's range; null: a basis of GF's (near-)null space, (|T|, nullity)."""
+
+    T: np.ndarray
+    GF: np.ndarray
+    gF: np.ndarray
+    U: np.ndarray
+    S: np.ndarray
+    Vt: np.ndarray
+    rank: int
+
+    def onto(self, yT: np.ndarray) -> np.ndarray:
+        """yT moved by the least change onto GF yT = gF along GF's range."""
+        k = self.rank
+        return yT + self.Vt[:k].T @ ((self.U[:, :k].T @ (self.gF - self.GF @ yT)) / self.S[:k])
+
+    @property
+    def y0T(self) -> np.ndarray:
+        return self.onto(np.zeros(self.T.size))
+
+    @property
+    def null(self) -> np.ndarray:
+        return self.Vt[self.rank:].T
+
+    def consistent(self) -> bool:
+        """Whether some y makes H vanish on F (to 1e-9 of the system's scale)."""
+        if not self.T.size:
+            return not np.any(self.gF)
+        return bool(np.linalg.norm(self.GF @ self.y0T - self.gF) <= 1e-9 * max(np.linalg.norm(self.gF), self.S[0]))
+
+
+def face_system(Q: sp.sparray, stacked: tuple[np.ndarray, ...], F: np.ndarray) -> FaceSystem:
+    """The ``FaceSystem`` of F (``stacked`` = ``certificate.entries(As)``), dense in the touching constraints."""
+    n = Q.shape[0]
+    r, c, v, owner = stacked
+    onF = np.isin(r, F)
+    T = np.unique(owner[onF])
+    Qc = sp.coo_array(Q)
+    qF = np.isin(Qc.row, F)
+    keys = np.concatenate([r[onF] * n + c[onF], Qc.row[qF] * n + Qc.col[qF]])
+    uniq, inv = np.unique(keys, return_inverse=True)
+    n_on = int(onF.sum())
+    GF = np.zeros((uniq.size, T.size))
+    np.add.at(GF, (inv[:n_on], np.searchsorted(T, owner[onF])), v[onF])
+    gF = np.zeros(uniq.size)
+    np.add.at(gF, inv[n_on:], Qc.data[qF])
+    if T.size:
+        U, S, Vt = np.linalg.svd(GF, full_matrices=True)
+    else:
+        U, S, Vt = np.zeros((uniq.size, 0)), np.zeros(0), np.zeros((0, 0))
+    rank = int(np.sum(S > DEPENDENT_RTOL * S[0])) if S.size else 0
+    return FaceSystem(T, GF, gF, U, S, Vt, rank)
+
+
+def forced_columns(Q: sp.sparray, stacked: tuple[np.ndarray, ...], F: np.ndarray) -> np.ndarray:
+    """The columns j ∉ F whose H_jj the equations H_F· = 0 fix at 0 whatever y (linear algebra, no y):
+    no constraint off T has a diagonal entry at j, the diagonal functional of T's constraints at j lies in
+    GF's row space, and its value there is 0 (to 1e-9 of its scale).  H ⪰ 0 then needs H_j· = 0."""
+    if F.size == 0 or F.size >= Q.shape[0]:
+        return np.zeros(0, dtype=np.int64)
+    sys_ = face_system(Q, stacked, F)
+    if not sys_.T.size or sys_.T.size > FACE_DUAL_MAX_TOUCHING or not sys_.consistent():
+        return np.zeros(0, dtype=np.int64)
+    r, c, v, owner = stacked
+    n, m = Q.shape[0], int(owner.max()) + 1 if owner.size else 0
+    on_diag = (r == c) & (v != 0)
+    D = sp.csc_array((v[on_diag], (owner[on_diag], r[on_diag])), shape=(m, n))  # (constraint, column) → (Aᵢ)_jj
+    inT = np.zeros(m, dtype=bool)
+    inT[sys_.T] = True
+    off_T = np.asarray(abs(D[~inT]).sum(axis=0)).ravel() if (~inT).any() else np.zeros(n)
+    q_diag = sp.csr_array(Q).diagonal()
+    DT = D[sys_.T].toarray()  # (|T|, n)
+    on_null = np.linalg.norm(sys_.null.T @ DT, axis=0) if sys_.null.size else np.zeros(n)
+    size = np.linalg.norm(DT, axis=0)
+    value = q_diag - sys_.y0T @ DT
+    scale = np.abs(q_diag) + size * np.linalg.norm(sys_.y0T) + float(abs(Q).max())
+    forced = (off_T == 0) & (size > 0) & (on_null <= 1e-9 * size) & (np.abs(value) <= 1e-9 * scale)
+    forced[F] = False
+    return np.flatnonzero(forced)
 
 
 #: rounds of ``forced_face`` at most (each adds at least one column; one or two suffice on stereo)
@@ -86,6 +178,7 @@ def forced_face(Q: sp.sparray, As: Sequence[sp.sparray], y: np.ndarray,
         diag = np.abs(H.diagonal())
         rowmax = np.asarray(abs(H).max(axis=0).todense()).ravel()
         new = (diag <= FREE_ATOL * top) & (rowmax > FREE_ATOL * top)
+        new[forced_columns(Q, stacked, F)] = True  # what the equations force, whatever this y
         new[F] = False
         if not new.any():
             break
@@ -93,12 +186,6 @@ def forced_face(Q: sp.sparray, As: Sequence[sp.sparray], y: np.ndarray,
     return y, F
 
 
-#: ``face_dual`` works densely: at most this many constraints touching the face, and at most this many
-#: entries in its matrix of directions × |K|² (1.6e8 bytes)
-FACE_DUAL_MAX_TOUCHING = 3000
-FACE_DUAL_MAX_ENTRIES = 20_000_000
-#: a reduced constraint counts as zero (a linear dependence of the Aᵢ) below this multiple of the largest
-DEPENDENT_RTOL = 1e-6
 
 
 def face_dual(Q: sp.sparray, constraints, F: np.ndarray, *, d: int = 1,
@@ -121,34 +208,19 @@ def face_dual(Q: sp.sparray, constraints, F: np.ndarray, *, d: int = 1,
     n, m = Q.shape[0], len(As)
     F = np.asarray(F, dtype=np.int64)
     K = np.setdiff1d(np.arange(n), F)
-    r, c, v, owner = entries(As)
-    onF = np.isin(r, F)
-    T = np.unique(owner[onF])  # the constraints touching F
+    stacked = r, c, v, owner = entries(As)
+    T = np.unique(owner[np.isin(r, F)])  # the constraints touching F
     if T.size > FACE_DUAL_MAX_TOUCHING or m * K.size ** 2 > FACE_DUAL_MAX_ENTRIES:
         return None
-    Qc = sp.coo_array(Q)
-    qF = np.isin(Qc.row, F)
-    keys = np.concatenate([r[onF] * n + c[onF], Qc.row[qF] * n + Qc.col[qF]])
-    uniq, inv = np.unique(keys, return_inverse=True)
-    n_on = int(onF.sum())
-    GF = np.zeros((uniq.size, T.size))
-    np.add.at(GF, (inv[:n_on], np.searchsorted(T, owner[onF])), v[onF])
-    gF = np.zeros(uniq.size)
-    np.add.at(gF, inv[n_on:], Qc.data[qF])
     y0 = np.zeros(m)
     keep = np.setdiff1d(np.arange(m), T)
     P = sp.csc_array((np.ones(keep.size), (keep, np.arange(keep.size))), shape=(m, keep.size))
+    system = face_system(Q, stacked, F)
     if T.size:  # y₀ and the null space N_T of the touching constraints' entries on F, from one SVD
-        U, S, Vt = np.linalg.svd(GF, full_matrices=True)
-        rank = int(np.sum(S > DEPENDENT_RTOL * S[0])) if S.size else 0
-
-        def onto_face(yT: np.ndarray) -> np.ndarray:  # the least change with GF yT = gF on GF's range
-            return yT + Vt[:rank].T @ ((U[:, :rank].T @ (gF - GF @ yT)) / S[:rank])
-
-        y0[T] = onto_face(y0[T])
-        if np.linalg.norm(GF @ y0[T] - gF) > 1e-9 * max(np.linalg.norm(gF), S[0] if S.size else 1.0):
+        if not system.consistent():
             return None  # no y makes H vanish on F
-        NT = Vt[rank:].T  # (|T|, nullity)
+        y0[T] = system.y0T
+        NT = system.null  # (|T|, nullity)
         rows, cols = np.repeat(T, NT.shape[1]), np.tile(np.arange(NT.shape[1]), T.size)
         P = sp.hstack([P, sp.csc_array((NT.ravel(), (rows, cols)), shape=(m, NT.shape[1]))], format="csc")
     Kpos = np.full(n, -1)
@@ -170,7 +242,7 @@ def face_dual(Q: sp.sparray, constraints, F: np.ndarray, *, d: int = 1,
     if T.size:  # back onto H_F· = 0 on GF's range (z can be large where the reduced constraints are small);
         # not along GF's near-null directions (singular values below DEPENDENT_RTOL, learned relations that
         # cancel on F to ~1e-11): that would move H_KK by far more (test module, 2e-5 against a cost of 2e-5)
-        out[T] = onto_face(out[T])
+        out[T] = system.onto(out[T])
     return out, f"the SDP on the {K.size} columns off the {F.size} set aside ({res.solver} {res.status})"
 
 
