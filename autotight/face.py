@@ -35,7 +35,9 @@ bᵀy = bᵀy₀ + (Nᵀb)ᵀz.  So max bᵀy s.t. H(y) ⪰ 0, H_F· = 0 is the 
     max (Nᵀb)ᵀz  s.t.  H(y₀)_KK − Σⱼ zⱼ (Ãⱼ)_KK ⪰ 0,
 whose primal min ⟨H(y₀)_KK, X⟩ s.t. ⟨(Ãⱼ)_KK, X⟩ = (Nᵀb)ⱼ, X ⪰ 0 has the rank-1 point Θ̂_K and a
 bounded optimal set.  Its z gives y = y₀ + N z, which ``certificate`` then judges (nothing about
-this solve is trusted: only H(y)_F· = 0 and the argument on K are).
+this solve is trusted: only H(y)_F· = 0 and the argument on K are).  Where that y leaves H_jj = 0 on
+some column j of K (``zero_diagonal``), j is free on the face too (its X_jj grew to ~1e6 in that
+solve): it joins F and the face's dual is solved again (facial reduction, one more step).
 """
 
 from __future__ import annotations
@@ -157,6 +159,12 @@ def forced_columns(Q: sp.sparray, stacked: tuple[np.ndarray, ...], F: np.ndarray
 MAX_ROUNDS = 8
 
 
+def zero_diagonal(H: sp.sparray) -> np.ndarray:
+    """Columns j with |H_jj| ≤ ``FREE_ATOL``·max|H|: where H ⪰ 0 needs H_j· = 0 (sorted)."""
+    top = float(abs(H).max()) if H.nnz else 0.0
+    return np.flatnonzero(np.abs(sp.csr_array(H).diagonal()) <= FREE_ATOL * top) if top > 0 else np.zeros(0, int)
+
+
 def forced_face(Q: sp.sparray, As: Sequence[sp.sparray], y: np.ndarray,
                 theta_hat: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
     """(y on the face, the columns F set aside, sorted): way 1 of the module docstring; None when
@@ -196,8 +204,8 @@ def face_dual(Q: sp.sparray, constraints, F: np.ndarray, *, d: int = 1,
     feasible: stereo-2D, pairs of multipliers near ±10 cancelling on F to 1e-10).  The reduced
     constraints are an orthonormal basis (Frobenius, singular values above ``DEPENDENT_RTOL`` of the
     largest) of the span of the (Ãⱼ)_KK, so near-dependent learned constraints give the solver no
-    ill-posed rows; the final y is put back onto H_F· = 0 to roundoff.  scale: the SDP's diagonal
-    scaling D on all N columns (restricted to K here).  None when the dense work would exceed
+    ill-posed rows; the final y is put back onto H_F· = 0 along GF's range.
+    scale: the SDP's diagonal scaling D on all N columns (restricted to K here).  None when the dense work would exceed
     ``FACE_DUAL_MAX_TOUCHING`` or ``FACE_DUAL_MAX_ENTRIES``, no y makes H vanish on F, or the solve
     returns no finite multipliers."""
     from . import sdp
@@ -241,7 +249,8 @@ def face_dual(Q: sp.sparray, constraints, F: np.ndarray, *, d: int = 1,
     out = y0 + np.asarray(W @ np.asarray(res.y, dtype=float)).ravel()
     if T.size:  # back onto H_F· = 0 on GF's range (z can be large where the reduced constraints are small);
         # not along GF's near-null directions (singular values below DEPENDENT_RTOL, learned relations that
-        # cancel on F to ~1e-11): that would move H_KK by far more (test module, 2e-5 against a cost of 2e-5)
+        # cancel on F to ~1e-11): that moves H_KK by far more (test module: 2e-5 against a cost of 2e-5;
+        # stereo-2D: λ_min(H_KK) to −9e-4)
         out[T] = system.onto(out[T])
     return out, f"the SDP on the {K.size} columns off the {F.size} set aside ({res.solver} {res.status})"
 
@@ -307,16 +316,21 @@ def face_certificate(Q: sp.sparray, constraints, y: np.ndarray, theta_hat: np.nd
         if cf.certified and not cert.certified:
             cf.face = _forced_why(Q, As, F, cf)
             return yf, cf, f"set on the face of the bounded columns ({F.size} free, H vanishes there)", F
-    if forced is not None:  # the face's own dual (facial reduction), where the polish alone proves nothing
+    for _ in range(MAX_ROUNDS if forced is not None else 0):  # the face's own dual (facial reduction)
         got = face_dual(Q, constraints, F, d=d)
-        if got is not None:
-            yd = got[0]  # not polished onto stationarity: that system is consistent only along directions
-            # that move H_KK off ⪰ 0 (learned constraints hold at x̂ to ~1e-12 of ‖Aᵢ‖, not exactly)
-            cf = certificate(Q, constraints, yd, Th, d=d, tol=tol, floor=floor, trace=trace, free=F,
-                             method=how + f", from {got[1]}")
-            if cf.certified and not cert.certified:
-                cf.face = _forced_why(Q, As, F, cf)
-                return yd, cf, f"solved on the face of the bounded columns ({F.size} free, H vanishes there)", F
+        if got is None:
+            break
+        yd = got[0]  # not polished onto stationarity: that system is consistent only along directions
+        # that move H_KK off ⪰ 0 (learned constraints hold at x̂ to ~1e-12 of ‖Aᵢ‖, not exactly)
+        cf = certificate(Q, constraints, yd, Th, d=d, tol=tol, floor=floor, trace=trace, free=F,
+                         method=how + f", from {got[1]}")
+        if cf.certified and not cert.certified:
+            cf.face = _forced_why(Q, As, F, cf)
+            return yd, cf, f"solved on the face of the bounded columns ({F.size} free, H vanishes there)", F
+        grown = np.union1d(F, zero_diagonal(dual_matrix(Q, As, yd)))
+        if grown.size == F.size:
+            break
+        F = grown  # columns the face's optimal H leaves at H_jj = 0: free on the face too; solve again
     got = face_multipliers(Q, As, y, Th)
     if got is None or not np.all(np.isfinite(got[0])):
         return y, cert, "", None
