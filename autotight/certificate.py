@@ -311,8 +311,10 @@ def recession_columns(Q: sp.sparray, stacked: tuple[np.ndarray, ...]) -> np.ndar
     return np.flatnonzero(~diag)
 
 
-def stationarity_system(Q: sp.sparray, As: Sequence[sp.sparray], Th: np.ndarray) -> tuple[sp.csr_array, np.ndarray]:
-    """(G, g) with G y = g ⟺ H(y)Θ̂ᵀ = 0 and H(y)_{J,·} = 0 on the recession columns J.  The first N·d rows
+def stationarity_system(Q: sp.sparray, As: Sequence[sp.sparray], Th: np.ndarray,
+                        free: np.ndarray | None = None) -> tuple[sp.csr_array, np.ndarray]:
+    """(G, g) with G y = g ⟺ H(y)Θ̂ᵀ = 0 and H(y)_{J,·} = 0 on the columns J set aside (default: the
+    recession columns; ``free``: J given, e.g. a face of ``autotight.face``).  The first N·d rows
     (row-major): column i of G is vec(AᵢΘ̂ᵀ); then one row per entry (j, k), j ∈ J, of some Aᵢ or Q."""
     d, N = Th.shape
     stacked = r, c, v, owner = entries(As)
@@ -321,7 +323,7 @@ def stationarity_system(Q: sp.sparray, As: Sequence[sp.sparray], Th: np.ndarray)
     cols = np.repeat(owner, d)
     g = np.asarray(sp.csr_array(Q) @ Th.T).ravel()
     n_rows = N * d
-    J = recession_columns(Q, stacked)
+    J = recession_columns(Q, stacked) if free is None else np.asarray(free, dtype=np.int64)
     if J.size:  # one more row per entry (j, k), j ∈ J: (Σ yᵢAᵢ)_jk = Q_jk
         Qc = sp.coo_array(Q)
         on_J, q_on_J = np.isin(r, J), np.isin(Qc.row, J)
@@ -339,6 +341,7 @@ def stationarity_system(Q: sp.sparray, As: Sequence[sp.sparray], Th: np.ndarray)
 
 
 def polish_dual(Q: sp.sparray, As: Sequence[sp.sparray], y: np.ndarray, theta_hat: np.ndarray,
+                free: np.ndarray | None = None,
                 system: tuple[sp.csr_array, np.ndarray] | None = None) -> np.ndarray:
     """y + δ, δ the least change (2-norm) that makes H(y + δ)Θ̂ᵀ = 0 (and H's rows on recession columns
     zero, ``stationarity_system``): the minimum-norm least-squares solution of G δ = g − G y
@@ -346,10 +349,11 @@ def polish_dual(Q: sp.sparray, As: Sequence[sp.sparray], y: np.ndarray, theta_ha
     accuracy, the system is consistent only to that accuracy, and so is H(y + δ)Θ̂ᵀ = 0.  Then
     bᵀ(y + δ) = f(x̂) − ⟨H, Θ̂ᵀΘ̂⟩ ≈ f(x̂), up to that and x̂'s constraint residual; whether y + δ
     proves anything is λ_min's to say.  The rows on recession columns, which must hold exactly (to
-    roundoff) for a certificate, get a second least-change step of their own.  system: (G, g) of
-    ``stationarity_system(Q, As, Θ̂)`` when the caller has it."""
+    roundoff) for a certificate, get a second least-change step of their own.  ``free``: the columns
+    set aside instead of the recession columns (``stationarity_system``).  system: (G, g) of
+    ``stationarity_system(Q, As, Θ̂, free)`` when the caller has it."""
     Th = np.atleast_2d(np.asarray(theta_hat, dtype=float))
-    G, g = stationarity_system(Q, As, Th) if system is None else system
+    G, g = stationarity_system(Q, As, Th, free) if system is None else system
     y = np.asarray(y, dtype=float)
     y = y + min_norm_lstsq(G, g - G @ y)
     n_stat = Th.size
@@ -361,12 +365,13 @@ def polish_dual(Q: sp.sparray, As: Sequence[sp.sparray], y: np.ndarray, theta_ha
 
 def certificate(Q: sp.sparray, constraints: Sequence[Constraint], y: np.ndarray, theta_hat: np.ndarray, *,
                 d: int = 1, tol: float = 1e-6, floor: float = 1e-12, trace: float | None = None,
-                method: str = "given y") -> Certificate:
+                method: str = "given y", free: np.ndarray | None = None) -> Certificate:
     """What y proves about x̂ (Θ̂ = ``theta_hat``, (N,) or (d, N)): the bound of the module docstring.
 
     certified when the bound is finite and ≤ tol·max(|f̂|, floor·‖Q‖_max·tr X̂) (``floor`` states the
     absolute tolerance of a zero-cost candidate relative to the cost's scale).  ``trace``: a known
-    bound on tr(X) (default: ``trace_bound``).
+    bound on tr(X) (default: ``trace_bound``).  ``free``: columns to set aside besides the recession
+    columns (a face, ``autotight.face``); H must vanish on their rows too, to ``FREE_ATOL``·max|H|.
     """
     t0 = time.perf_counter()
     As, b = stack(constraints)
@@ -383,6 +388,9 @@ def certificate(Q: sp.sparray, constraints: Sequence[Constraint], y: np.ndarray,
     scale = float(abs(Q).max()) if Q.nnz else 1.0
     residual = float(np.linalg.norm(HT) / (np.linalg.norm(QT) + float(abs(H).max()) * np.sqrt(Xhat_tr) + 1e-300))
     J = recession_columns(Q, stacked)
+    n_recession = J.size
+    if free is not None:
+        J = np.union1d(J, np.asarray(free, dtype=np.int64))
     free_res = 0.0
     if J.size:
         K = np.setdiff1d(np.arange(H.shape[0]), J)
@@ -390,7 +398,8 @@ def certificate(Q: sp.sparray, constraints: Sequence[Constraint], y: np.ndarray,
         Hmax = float(abs(H).max()) if H.nnz else 1.0
         free_res = float(abs(HJ).max()) / Hmax if HJ.nnz else 0.0
         lam, lam_lo, how = lambda_min(sp.csc_array(H[K][:, K]))
-        how += f" on the {K.size} columns off the {J.size} recession columns"
+        how += f" on the {K.size} columns off the {J.size} {'recession ' if J.size == n_recession else ''}columns"
+        how += "" if J.size == n_recession else " set aside"
     else:
         K = None
         lam, lam_lo, how = lambda_min(H)
@@ -404,7 +413,8 @@ def certificate(Q: sp.sparray, constraints: Sequence[Constraint], y: np.ndarray,
     denom = max(abs(f_hat), floor * scale * Xhat_tr)
     budget = tol * denom - excess  # the largest correction that can still certify
     if free_res > FREE_ATOL:
-        msg = f"H does not vanish on the {J.size} recession columns (max |H_J·| = {free_res:.1e} of max |H|)"
+        msg = (f"H does not vanish on the {J.size} {'recession ' if J.size == n_recession else ''}columns set aside "
+               f"(max |H_J·| = {free_res:.1e} of max |H|)")
     elif neg == 0.0:
         correction, argument = 0.0, "H ⪰ 0"
     else:

@@ -119,10 +119,12 @@ def polished(Q, constraints: Sequence[Constraint], res: SDPResult, theta_hat: np
                                                                                            cert.cost)):
             steps.append(f"polished onto H(y)Θ̂ᵀ = 0 (‖δy‖ = {np.linalg.norm(y2 - y):.1e})")
             y, cert = y2, cert2
+    free = None  # the columns set aside on a face, if one certified
     if not cert.certified:  # the face of the bounded columns (autotight.face)
         from .face import face_certificate
 
-        y, cert, note = face_certificate(Q, constraints, y, Th, cert, d=d, tol=tol, floor=floor, trace=cert.trace)
+        y, cert, note, free = face_certificate(Q, constraints, y, Th, cert, d=d, tol=tol, floor=floor,
+                                               trace=cert.trace)
         steps += [note] if note else []
     excess = cert.dual_value - cert.cost
     allowed = allowed_excess(res, Q, constraints, y0_lambda_lower, cert.cost, tol, floor) if excess > 0 else 0.0
@@ -131,8 +133,10 @@ def polished(Q, constraints: Sequence[Constraint], res: SDPResult, theta_hat: np
         steps.append(f"not lowered: bᵀy exceeds f(x̂) by {excess:.1e}, beyond the solve's accuracy {allowed:.1e} "
                      "(an inconsistent solve)")
     if y3 is not None:
+        face = cert.face
         cert = certificate(Q, constraints, y3, Th, d=d, tol=tol, floor=floor, trace=cert.trace,
-                           method=cert.method.split(";")[0] + ", lowered to f(x̂)")
+                           method=cert.method.split(";")[0] + ", lowered to f(x̂)", free=free)
+        cert.face = face if free is not None else cert.face
         steps.append(f"h² multiplier lowered by {excess:.1e}")
         y = y3
     if not steps:

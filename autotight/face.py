@@ -1,20 +1,43 @@
 """The face of the bounded columns: multipliers that set aside the columns nothing bounds.
 
-Free columns F (``free_columns``): the largest set found by the fixed point "a column on which the cost
-has no entry, and neither the cost nor any constraint that touches no column of F has a diagonal
-entry".  It starts from the recession columns (``certificate.recession_columns``) and grows when a
-column's only diagonal entries lie in constraints that touch F.
+Argument (face).  If H = Q − Σ yᵢAᵢ vanishes on the rows (and so the columns) of a set F, then
+⟨H, X⟩ = ⟨H_KK, X_KK⟩ for every X (K: the other columns), and every argument of ``certificate``
+(H_KK ⪰ 0, trace bound on K, strict dual) applies to X_KK alone: the bound holds for the QCQP.
+  Proof: every term H_jk X_jk with j or k in F is 0.
+Soundness needs only that H vanish on F (``certificate`` checks it, to ``FREE_ATOL``·max|H|); how F
+was found decides whether a certificate exists, never whether it is valid.  Two ways, tried in turn
+by ``face_certificate``:
 
-Argument (face).  Fix the multipliers of the constraints touching F at 0 (``face_multipliers``).
-Then H = Q − Σ yᵢAᵢ vanishes on the rows and columns of F, and every dual bound on the face (the
-relaxation on the other columns K, with the constraints that do not touch F) is a lower bound for
-the QCQP.
-  Proof: Q and every Aᵢ with yᵢ ≠ 0 vanish on F, so ⟨H, X⟩ = ⟨H_KK, X_KK⟩ for every X; any argument of
-  ``certificate`` (H_KK ⪰ 0, trace bound on K, strict dual) then applies to X_KK alone.
-The multipliers of the other constraints are moved by the least change (2-norm) onto stationarity at
-x̂, H(y)Θ̂ᵀ = 0, with those of F's constraints held at 0; whether they prove anything is the
-certificate's to say.  Such y exists exactly when the relaxation on the face is tight at x̂ with
-the constraints that do not touch F.
+1. Forced columns (``forced_face``).  Start from the recession columns J (no diagonal entry in the cost
+   or any constraint: every dual feasible H has H_J· = 0).  Move y by the least change onto
+   H(y)Θ̂ᵀ = 0 and H(y)_J· = 0 (``certificate.polish_dual``).  A column j ∉ J on which H_jj is then 0
+   (to ``FREE_ATOL``·max|H|) while its row is not is forced free: its diagonal entries all lie in
+   combinations of the constraints that H_J· = 0 already fixes (stereo's t_x, whose only diagonal
+   entries cancel once the rows of t_y and u tᵀ vanish), and H ⪰ 0 with H_jj = 0 needs H_j· = 0.
+   Add it to J and polish again, until no column is added.  Multipliers of constraints that touch J
+   may stay nonzero: H vanishes on J by cancellation.
+2. Zero multipliers (``free_columns``, ``face_multipliers``).  F: the largest set found by the fixed
+   point "a column on which the cost has no entry, and neither the cost nor any constraint that
+   touches no column of F has a diagonal entry"; the multipliers of the constraints touching F are
+   fixed at 0 and the others moved by the least change onto H(y)Θ̂ᵀ = 0.
+
+Either face exists (a y with H(y)Θ̂ᵀ = 0 and H_F· = 0) exactly when the relaxation restricted to
+the columns K is tight at x̂; whether the multipliers prove it is the certificate's to say.
+
+Multipliers on the face (``face_dual``).  The SDP's own y is poor where columns are free: the primal
+optimal set is unbounded along X_FF, every dual feasible H has H_F· = 0 (no strictly feasible dual),
+and an interior-point solve stops early (stereo-2D's learned set: AlmostSolved, bᵀy above f(x̂) by
+1.6e-3 relative); the least change onto the face then lands far from H ⪰ 0.  The face's own dual
+is solved instead (facial reduction).  Write y = y₀ + N z with H(y₀)_F· = 0 and N a basis of the
+multipliers that leave H_F· unchanged (the constraints that touch no column of F, and the null space
+of the others' entries on F); then H(y) = H(y₀) − Σⱼ zⱼ Ãⱼ with Ãⱼ = Σᵢ Nᵢⱼ Aᵢ, all zero on F, and
+bᵀy = bᵀy₀ + (Nᵀb)ᵀz.  So max bᵀy s.t. H(y) ⪰ 0, H_F· = 0 is the SDP on the columns K
+    max (Nᵀb)ᵀz  s.t.  H(y₀)_KK − Σⱼ zⱼ (Ãⱼ)_KK ⪰ 0,
+whose primal min ⟨H(y₀)_KK, X⟩ s.t. ⟨(Ãⱼ)_KK, X⟩ = (Nᵀb)ⱼ, X ⪰ 0 has the rank-1 point Θ̂_K and a
+bounded optimal set.  Its z gives y = y₀ + N z, which ``certificate`` then judges (nothing about
+this solve is trusted: only H(y)_F· = 0 and the argument on K are).  Where that y leaves H_jj = 0 on
+some column j of K (``zero_diagonal``), j is free on the face too (its X_jj grew to ~1e6 in that
+solve): it joins F and the face's dual is solved again (facial reduction, one more step).
 """
 
 from __future__ import annotations
@@ -25,8 +48,17 @@ from typing import Sequence
 import numpy as np
 import scipy.sparse as sp
 
-from .certificate import entries, recession_columns, stationarity_system
+from .certificate import (FREE_ATOL, dual_matrix, entries, polish_dual, recession_columns,
+                          stationarity_system)
 from .lstsq import min_norm_lstsq
+
+
+#: ``face_dual`` works densely: at most this many constraints touching the face, and at most this many
+#: entries in its matrix of directions × |K|² (1.6e8 bytes)
+FACE_DUAL_MAX_TOUCHING = 3000
+FACE_DUAL_MAX_ENTRIES = 20_000_000
+#: a reduced constraint counts as zero (a linear dependence of the Aᵢ) below this multiple of the largest
+DEPENDENT_RTOL = 1e-6
 
 
 @dataclass
@@ -39,8 +71,192 @@ class Face:
     kept: np.ndarray
 
 
+@dataclass
+class FaceSystem:
+    """The equations H(y)_F· = 0: GF y_T = gF over the constraints T touching F (one row per entry (j, k),
+    j ∈ F, of some Aᵢ or Q), with GF's SVD (U, S, Vt) and its rank above ``DEPENDENT_RTOL``·S₀.
+    y0T: the least-norm solution on GF's range; null: a basis of GF's (near-)null space, (|T|, nullity)."""
+
+    T: np.ndarray
+    GF: np.ndarray
+    gF: np.ndarray
+    U: np.ndarray
+    S: np.ndarray
+    Vt: np.ndarray
+    rank: int
+
+    def onto(self, yT: np.ndarray) -> np.ndarray:
+        """yT moved by the least change onto GF yT = gF along GF's range."""
+        k = self.rank
+        return yT + self.Vt[:k].T @ ((self.U[:, :k].T @ (self.gF - self.GF @ yT)) / self.S[:k])
+
+    @property
+    def y0T(self) -> np.ndarray:
+        return self.onto(np.zeros(self.T.size))
+
+    @property
+    def null(self) -> np.ndarray:
+        return self.Vt[self.rank:].T
+
+    def consistent(self) -> bool:
+        """Whether some y makes H vanish on F (to 1e-9 of the system's scale)."""
+        if not self.T.size:
+            return not np.any(self.gF)
+        return bool(np.linalg.norm(self.GF @ self.y0T - self.gF) <= 1e-9 * max(np.linalg.norm(self.gF), self.S[0]))
+
+
+def face_system(Q: sp.sparray, stacked: tuple[np.ndarray, ...], F: np.ndarray) -> FaceSystem:
+    """The ``FaceSystem`` of F (``stacked`` = ``certificate.entries(As)``), dense in the touching constraints."""
+    n = Q.shape[0]
+    r, c, v, owner = stacked
+    onF = np.isin(r, F)
+    T = np.unique(owner[onF])
+    Qc = sp.coo_array(Q)
+    qF = np.isin(Qc.row, F)
+    keys = np.concatenate([r[onF] * n + c[onF], Qc.row[qF] * n + Qc.col[qF]])
+    uniq, inv = np.unique(keys, return_inverse=True)
+    n_on = int(onF.sum())
+    GF = np.zeros((uniq.size, T.size))
+    np.add.at(GF, (inv[:n_on], np.searchsorted(T, owner[onF])), v[onF])
+    gF = np.zeros(uniq.size)
+    np.add.at(gF, inv[n_on:], Qc.data[qF])
+    if T.size:
+        U, S, Vt = np.linalg.svd(GF, full_matrices=True)
+    else:
+        U, S, Vt = np.zeros((uniq.size, 0)), np.zeros(0), np.zeros((0, 0))
+    rank = int(np.sum(S > DEPENDENT_RTOL * S[0])) if S.size else 0
+    return FaceSystem(T, GF, gF, U, S, Vt, rank)
+
+
+def forced_columns(Q: sp.sparray, stacked: tuple[np.ndarray, ...], F: np.ndarray) -> np.ndarray:
+    """The columns j ∉ F whose H_jj the equations H_F· = 0 fix at 0 whatever y (linear algebra, no y):
+    no constraint off T has a diagonal entry at j, the diagonal functional of T's constraints at j lies in
+    GF's row space, and its value there is 0 (to 1e-9 of its scale).  H ⪰ 0 then needs H_j· = 0."""
+    if F.size == 0 or F.size >= Q.shape[0]:
+        return np.zeros(0, dtype=np.int64)
+    sys_ = face_system(Q, stacked, F)
+    if not sys_.T.size or sys_.T.size > FACE_DUAL_MAX_TOUCHING or not sys_.consistent():
+        return np.zeros(0, dtype=np.int64)
+    r, c, v, owner = stacked
+    n, m = Q.shape[0], int(owner.max()) + 1 if owner.size else 0
+    on_diag = (r == c) & (v != 0)
+    D = sp.csc_array((v[on_diag], (owner[on_diag], r[on_diag])), shape=(m, n))  # (constraint, column) → (Aᵢ)_jj
+    inT = np.zeros(m, dtype=bool)
+    inT[sys_.T] = True
+    off_T = np.asarray(abs(D[~inT]).sum(axis=0)).ravel() if (~inT).any() else np.zeros(n)
+    q_diag = sp.csr_array(Q).diagonal()
+    DT = D[sys_.T].toarray()  # (|T|, n)
+    on_null = np.linalg.norm(sys_.null.T @ DT, axis=0) if sys_.null.size else np.zeros(n)
+    size = np.linalg.norm(DT, axis=0)
+    value = q_diag - sys_.y0T @ DT
+    scale = np.abs(q_diag) + size * np.linalg.norm(sys_.y0T) + float(abs(Q).max())
+    forced = (off_T == 0) & (size > 0) & (on_null <= 1e-9 * size) & (np.abs(value) <= 1e-9 * scale)
+    forced[F] = False
+    return np.flatnonzero(forced)
+
+
+#: rounds of ``forced_face`` at most (each adds at least one column; one or two suffice on stereo)
+MAX_ROUNDS = 8
+
+
+def zero_diagonal(H: sp.sparray) -> np.ndarray:
+    """Columns j with |H_jj| ≤ ``FREE_ATOL``·max|H|: where H ⪰ 0 needs H_j· = 0 (sorted)."""
+    top = float(abs(H).max()) if H.nnz else 0.0
+    return np.flatnonzero(np.abs(sp.csr_array(H).diagonal()) <= FREE_ATOL * top) if top > 0 else np.zeros(0, int)
+
+
+def forced_face(Q: sp.sparray, As: Sequence[sp.sparray], y: np.ndarray,
+                theta_hat: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    """(y on the face, the columns F set aside, sorted): way 1 of the module docstring; None when
+    there are no recession columns to start from or y is not finite."""
+    stacked = entries(As)
+    F = recession_columns(Q, stacked)
+    if F.size == 0:
+        return None
+    Th = np.atleast_2d(np.asarray(theta_hat, dtype=float))
+    y = np.asarray(y, dtype=float)
+    for _ in range(MAX_ROUNDS):
+        y = polish_dual(Q, As, y, Th, free=F)
+        if not np.all(np.isfinite(y)):
+            return None
+        H = dual_matrix(Q, As, y, stacked=stacked)
+        top = float(abs(H).max()) if H.nnz else 0.0
+        if top == 0.0:
+            break
+        diag = np.abs(H.diagonal())
+        rowmax = np.asarray(abs(H).max(axis=0).todense()).ravel()
+        new = (diag <= FREE_ATOL * top) & (rowmax > FREE_ATOL * top)
+        new[forced_columns(Q, stacked, F)] = True  # what the equations force, whatever this y
+        new[F] = False
+        if not new.any():
+            break
+        F = np.union1d(F, np.flatnonzero(new))
+    return y, F
+
+
+
+
+def face_dual(Q: sp.sparray, constraints, F: np.ndarray, *, d: int = 1,
+              scale: np.ndarray | None = None, config=None) -> tuple[np.ndarray, str] | None:
+    """(y, the solve's note): multipliers with H(y)_F· = 0 from the SDP on the columns K off F
+    (module docstring, facial reduction); y₀ is the least-norm y with H(y₀)_F· = 0 (not the SDP's
+    own y, whose multipliers grow without bound along the face where no dual point is strictly
+    feasible: stereo-2D, pairs of multipliers near ±10 cancelling on F to 1e-10).  The reduced
+    constraints are an orthonormal basis (Frobenius, singular values above ``DEPENDENT_RTOL`` of the
+    largest) of the span of the (Ãⱼ)_KK, so near-dependent learned constraints give the solver no
+    ill-posed rows; the final y is put back onto H_F· = 0 along GF's range.
+    scale: the SDP's diagonal scaling D on all N columns (restricted to K here).  None when the dense work would exceed
+    ``FACE_DUAL_MAX_TOUCHING`` or ``FACE_DUAL_MAX_ENTRIES``, no y makes H vanish on F, or the solve
+    returns no finite multipliers."""
+    from . import sdp
+    from .certificate import stack
+    from .model import Constraint
+
+    As, b = stack(constraints)
+    n, m = Q.shape[0], len(As)
+    F = np.asarray(F, dtype=np.int64)
+    K = np.setdiff1d(np.arange(n), F)
+    stacked = r, c, v, owner = entries(As)
+    T = np.unique(owner[np.isin(r, F)])  # the constraints touching F
+    if T.size > FACE_DUAL_MAX_TOUCHING or m * K.size ** 2 > FACE_DUAL_MAX_ENTRIES:
+        return None
+    y0 = np.zeros(m)
+    keep = np.setdiff1d(np.arange(m), T)
+    P = sp.csc_array((np.ones(keep.size), (keep, np.arange(keep.size))), shape=(m, keep.size))
+    system = face_system(Q, stacked, F)
+    if T.size:  # y₀ and the null space N_T of the touching constraints' entries on F, from one SVD
+        if not system.consistent():
+            return None  # no y makes H vanish on F
+        y0[T] = system.y0T
+        NT = system.null  # (|T|, nullity)
+        rows, cols = np.repeat(T, NT.shape[1]), np.tile(np.arange(NT.shape[1]), T.size)
+        P = sp.hstack([P, sp.csc_array((NT.ravel(), (rows, cols)), shape=(m, NT.shape[1]))], format="csc")
+    Kpos = np.full(n, -1)
+    Kpos[K] = np.arange(K.size)
+    sel = (Kpos[r] >= 0) & (Kpos[c] >= 0)
+    A_K = sp.csr_array((v[sel], (owner[sel], Kpos[r[sel]] * K.size + Kpos[c[sel]])), shape=(m, K.size ** 2))
+    R = np.asarray((P.T @ A_K).todense())  # (p, |K|²): each direction's entries on K
+    Ur, Sr, Vr = np.linalg.svd(R, full_matrices=False)
+    kr = int(np.sum(Sr > DEPENDENT_RTOL * Sr[0])) if Sr.size else 0
+    W = P @ (Ur[:, :kr] / Sr[:kr])  # (m, kr): y = y₀ + W z moves H by −Σ zⱼ (row j of Vr)
+    bw = np.asarray(W.T @ b).ravel()
+    reduced = [Constraint(sp.coo_array(Vr[j].reshape(K.size, K.size)), float(bw[j]), name=f"face direction {j}",
+                          family="learned") for j in range(kr)]
+    Qr = sp.csr_array(dual_matrix(Q, As, y0))[K][:, K]
+    res = sdp.solve(Qr, reduced, d=d, config=config, scale=None if scale is None else scale[K])
+    if res.y is None or not np.all(np.isfinite(res.y)):
+        return None
+    out = y0 + np.asarray(W @ np.asarray(res.y, dtype=float)).ravel()
+    if T.size:  # back onto H_F· = 0 on GF's range (z can be large where the reduced constraints are small);
+        # not along GF's near-null directions (singular values below DEPENDENT_RTOL, learned relations that
+        # cancel on F to ~1e-11): that moves H_KK by far more (test module: 2e-5 against a cost of 2e-5;
+        # stereo-2D: λ_min(H_KK) to −9e-4)
+        out[T] = system.onto(out[T])
+    return out, f"the SDP on the {K.size} columns off the {F.size} set aside ({res.solver} {res.status})"
+
+
 def free_columns(Q: sp.sparray, As: Sequence[sp.sparray]) -> Face:
-    """The fixed point of the module docstring (at most N passes; usually one or two)."""
+    """The fixed point of way 2 of the module docstring (at most N passes; usually one or two)."""
     Qc = sp.coo_array(Q)
     stacked = r, c, v, owner = entries(As)
     n = Q.shape[0]
@@ -67,7 +283,8 @@ def free_columns(Q: sp.sparray, As: Sequence[sp.sparray]) -> Face:
 def face_multipliers(Q: sp.sparray, As: Sequence[sp.sparray], y: np.ndarray, theta_hat: np.ndarray,
                      face: Face | None = None) -> tuple[np.ndarray, Face] | None:
     """(y on the face, the face): y with the multipliers of the constraints touching F at 0 and the
-    others moved by the least change onto H(y)Θ̂ᵀ = 0 (module docstring); None when F is empty."""
+    others moved by the least change onto H(y)Θ̂ᵀ = 0 (way 2 of the module docstring); None when F is
+    empty."""
     face = free_columns(Q, As) if face is None else face
     if face.free.size == 0:
         return None
@@ -83,22 +300,57 @@ def face_multipliers(Q: sp.sparray, As: Sequence[sp.sparray], y: np.ndarray, the
 
 def face_certificate(Q: sp.sparray, constraints, y: np.ndarray, theta_hat: np.ndarray, cert, *, d: int = 1,
                      tol: float = 1e-6, floor: float = 1e-12, trace: float | None = None):
-    """(y, its Certificate, a note): the multipliers on the face (``face_multipliers``) and their
-    certificate when it certifies and ``cert`` (that of y) does not; else (y, cert, "")."""
+    """(y, its Certificate, a note, F): the multipliers on the first face of the module docstring whose
+    certificate certifies where ``cert`` (that of y) does not, and the columns F it set aside (pass them
+    as ``free`` to any later ``certificate`` of a y on that face); else (y, cert, "", None)."""
     from .certificate import certificate, stack
 
     As, _ = stack(constraints)
-    got = face_multipliers(Q, As, y, theta_hat)
-    if got is None or not np.all(np.isfinite(got[0])):
-        return y, cert, ""
-    yf, face = got
-    cf = certificate(Q, constraints, yf, np.asarray(theta_hat, dtype=float).reshape(d, -1), d=d, tol=tol,
-                     floor=floor, trace=trace, method=cert.method.split(";")[0] + ", on the face")
+    Th = np.asarray(theta_hat, dtype=float).reshape(d, -1)
+    how = cert.method.split(";")[0]
+    forced = forced_face(Q, As, y, Th)
+    if forced is not None:
+        yf, F = forced
+        cf = certificate(Q, constraints, yf, Th, d=d, tol=tol, floor=floor, trace=trace, free=F,
+                         method=how + ", on the face of the forced columns")
+        if cf.certified and not cert.certified:
+            cf.face = _forced_why(Q, As, F, cf)
+            return yf, cf, f"set on the face of the bounded columns ({F.size} free, H vanishes there)", F
+    for _ in range(MAX_ROUNDS if forced is not None else 0):  # the face's own dual (facial reduction)
+        got = face_dual(Q, constraints, F, d=d)
+        if got is None:
+            break
+        yd = got[0]  # not polished onto stationarity: that system is consistent only along directions
+        # that move H_KK off ⪰ 0 (learned constraints hold at x̂ to ~1e-12 of ‖Aᵢ‖, not exactly)
+        cf = certificate(Q, constraints, yd, Th, d=d, tol=tol, floor=floor, trace=trace, free=F,
+                         method=how + f", from {got[1]}")
+        if cf.certified and not cert.certified:
+            cf.face = _forced_why(Q, As, F, cf)
+            return yd, cf, f"solved on the face of the bounded columns ({F.size} free, H vanishes there)", F
+        grown = np.union1d(F, zero_diagonal(dual_matrix(Q, As, yd)))
+        if grown.size == F.size:
+            break
+        F = grown  # columns the face's optimal H leaves at H_jj = 0: free on the face too; solve again
+    multipliers = face_multipliers(Q, As, y, Th)
+    if multipliers is None or not np.all(np.isfinite(multipliers[0])):
+        return y, cert, "", None
+    yf, face = multipliers
+    cf = certificate(Q, constraints, yf, Th, d=d, tol=tol, floor=floor, trace=trace,
+                     method=how + ", on the face")
     if not (cf.certified and not cert.certified):  # kept only where it proves what y does not
-        return y, cert, ""
+        return y, cert, "", None
     why = (f"{face.free.size} column(s) set aside: the cost has no entry on them and no constraint that "
            f"leaves them out has a diagonal entry there; the multipliers of the {face.touching.size} "
            "constraint(s) touching them are 0, so H vanishes there")
     cf.face = why
     cf.assumptions += "; multipliers 0 on the constraints touching the columns set aside"
-    return yf, cf, f"set on the face of the bounded columns ({face.free.size} free, {face.touching.size} multipliers 0)"
+    note = f"set on the face of the bounded columns ({face.free.size} free, {face.touching.size} multipliers 0)"
+    return yf, cf, note, face.free
+
+
+def _forced_why(Q: sp.sparray, As: Sequence[sp.sparray], F: np.ndarray, cert) -> str:
+    """The certificate's ``face`` text for a face of ``forced_face``."""
+    n_rec = recession_columns(Q, entries(As)).size
+    return (f"{F.size} column(s) set aside: {n_rec} on which neither the cost nor any constraint has a diagonal "
+            f"entry, {F.size - n_rec} whose diagonal of H the vanishing of those rows and stationarity force to 0; "
+            f"H vanishes on them to {cert.free_residual:.1e} of max |H|")
