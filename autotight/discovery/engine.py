@@ -87,7 +87,8 @@ def discover(problem: Problem | str, params: Mapping[str, Any] | None = None, se
              carry_to: Mapping[str, Any] | None = None, groups: Any = None,
              learn_options: LearnOptions = LearnOptions(), criteria: Criteria = Criteria(),
              solver: SolverConfig | None = None, n_random: int = 2, compare: bool = True, jobs: int = 1,
-             scheduler: Any = None, progress: Callable[[str, str], None] | None = None) -> DiscoveryResult:
+             scheduler: Any = None, progress: Callable[[str, str], None] | None = None,
+             shortcut: bool = True) -> DiscoveryResult:
     """Discover one set for ``problem`` at ``params`` (over every point of ``over``) that passes validation.
 
     n_train: training instances per point.  n_heldout: held-out instances per point and round (0: no
@@ -97,8 +98,9 @@ def discover(problem: Problem | str, params: Mapping[str, Any] | None = None, se
     ``CARRY_TO`` hint, if any; ``{}``: none).  groups: learning groups (None: the module's
     ``DEFAULT_GROUPS``, else "factors").  criteria: what counts as tight (``criteria.accept``).  solver: the
     ``SolverConfig`` of every SDP solve.  compare: solve the paper's families on the last held-out batch too.
-    jobs/scheduler: where held-out instances run (``heldout``).  progress(stage, text) is called as work
-    proceeds.  Raises ``UnboundedRelaxation`` when no learned candidate bounds an unbounded relaxation.
+    jobs/scheduler: where held-out instances run (``heldout``).  shortcut: a held-out instance whose local
+    solution's certificate proves the set tight needs no full SDP (``shortcut``; the others are solved in
+    full).  progress(stage, text) is called as work proceeds.  Raises ``UnboundedRelaxation`` when no learned candidate bounds an unbounded relaxation.
     """
     prob = load(problem) if isinstance(problem, str) else problem
     seed = _count("seed", seed, 0)
@@ -182,7 +184,7 @@ def discover(problem: Problem | str, params: Mapping[str, Any] | None = None, se
         next_t = [n + len(b) for n, b in zip(next_t, batch)]
         held, n = timed("heldout_s", solve_batch, prob, {"set": ConstraintSet(ds)}, check_points, batch,
                         min_fraction=float(min_fraction), criteria=criteria, config=config, n_random=1, jobs=jobs,
-                        scheduler=scheduler)
+                        scheduler=scheduler, shortcut=shortcut)
         run.count("heldout", n)
         for i in todo:
             last[i] = held["set"][i]
@@ -223,7 +225,7 @@ def discover(problem: Problem | str, params: Mapping[str, Any] | None = None, se
     if compare and validated is not None and trainers[0].model.paper:  # on each point's latest batch
         got, n = timed("heldout_s", solve_batch, prob, {"paper": "paper"}, check_points,
                        [list(pr.seeds) for pr in last], min_fraction=float(min_fraction), criteria=criteria,
-                       config=config, n_random=1, jobs=jobs, scheduler=scheduler)
+                       config=config, n_random=1, jobs=jobs, scheduler=scheduler, shortcut=shortcut)
         run.count("paper", n)
         paper = got["paper"]
     validation = {"passed": validated, "min_fraction": float(min_fraction), "n_heldout": n_heldout,
