@@ -15,25 +15,37 @@ from .catalog import Catalog
 def _local_poly(c: Constraint, cols: np.ndarray) -> np.ndarray | None:
     """Monomial coefficients of c on the group's columns, or None if c reaches outside them."""
     U = sp.coo_array(c.A)
-    pos = {int(k): q for q, k in enumerate(cols)}
-    if not all(int(r) in pos for r in U.row):
+    cols = np.asarray(cols)
+    order = np.argsort(cols)
+    at = np.searchsorted(cols, U.row, sorter=order)
+    at_c = np.searchsorted(cols, U.col, sorter=order)
+    at, at_c = np.minimum(at, len(cols) - 1), np.minimum(at_c, len(cols) - 1)
+    if not (np.all(cols[order[at]] == U.row) and np.all(cols[order[at_c]] == U.col)):
         return None
-    loc = sp.coo_array((U.data, ([pos[int(r)] for r in U.row], [pos[int(q)] for q in U.col])),
-                       shape=(len(cols), len(cols)))
+    loc = sp.coo_array((U.data, (order[at], order[at_c])), shape=(len(cols), len(cols)))
     return sym_to_poly(loc)
 
 
-def span_residual(c: Constraint, basis: Sequence[Constraint], cols: np.ndarray) -> float:
-    """‖v − proj_span(basis) v‖ / ‖v‖ in monomial coefficients on ``cols`` (inf if c leaves them)."""
+def _span_basis(basis: Sequence[Constraint], cols: np.ndarray) -> np.ndarray | None:
+    """An orthonormal basis (columns) of the span of the monomial coefficients on ``cols`` of the constraints of
+    ``basis`` inside them (singular values below lstsq's default cutoff, ε·max(shape)·s_max, dropped)."""
+    B = [p for p in (_local_poly(b, cols) for b in basis) if p is not None]
+    if not B:
+        return None
+    U, sv, _ = np.linalg.svd(np.array(B).T, full_matrices=False)
+    return U[:, sv > np.finfo(float).eps * max(len(B), len(B[0])) * sv[0]]
+
+
+def span_residual(c: Constraint, basis: Sequence[Constraint] | np.ndarray | None, cols: np.ndarray) -> float:
+    """‖v − proj_span(basis) v‖ / ‖v‖ in monomial coefficients on ``cols`` (inf if c leaves them).  ``basis``:
+    constraints, or their ``_span_basis`` when it is shared by several calls."""
     v = _local_poly(c, cols)
     if v is None:
         return float("inf")
-    B = [p for p in (_local_poly(b, cols) for b in basis) if p is not None]
-    if not B:
+    U = basis if basis is None or isinstance(basis, np.ndarray) else _span_basis(basis, cols)
+    if U is None:
         return 1.0
-    M = np.array(B).T
-    coef, *_ = np.linalg.lstsq(M, v, rcond=None)
-    return float(np.linalg.norm(v - M @ coef) / max(float(np.linalg.norm(v)), 1e-300))
+    return float(np.linalg.norm(v - U @ (U.T @ v)) / max(float(np.linalg.norm(v)), 1e-300))
 
 
 def _group_for(c: Constraint, cat: Catalog):
@@ -55,6 +67,7 @@ def paper_in_span(cat: Catalog) -> dict[str, dict]:
     span of the primary constraints and every learned relation of the group that contains it."""
     model = cat.model
     out = {}
+    bases: dict[str, np.ndarray | None] = {}  # per group: its basis on its columns, built once
     for fam, cons in model.paper.items():
         worst = 0.0
         for c in cons:
@@ -62,23 +75,31 @@ def paper_in_span(cat: Catalog) -> dict[str, dict]:
             if g is None:
                 worst = float("inf")
                 continue
-            basis = _homogeneous(model) + cat.basic(g.group.name)
-            worst = max(worst, span_residual(c, basis, g.columns))
+            if g.group.name not in bases:
+                bases[g.group.name] = _span_basis(_homogeneous(model) + cat.basic(g.group.name), g.columns)
+            worst = max(worst, span_residual(c, bases[g.group.name], g.columns))
         out[fam] = {"count": len(cons), "max_residual": worst}
     return out
 
 
-def resemblance(c: Constraint, cat: Catalog, tol: float = 1e-6) -> str:
+def resemblance(c: Constraint, cat: Catalog, tol: float = 1e-6, cache: dict | None = None) -> str:
     """Which paper family (with the primary constraints) spans a learned constraint: a family name,
-    'paper (combined)', or 'new'."""
+    'paper (combined)', or 'new'.  ``cache``: a dict kept between calls on one catalog (the spans per group)."""
     model = cat.model
     g = _group_for(c, cat)
     if g is None:
         return "new"
-    prim = _homogeneous(model)
+    cache = {} if cache is None else cache
+
+    def basis(fam: str | None, cons: list[Constraint]) -> np.ndarray | None:
+        key = (g.group.name, fam)
+        if key not in cache:
+            cache[key] = _span_basis(_homogeneous(model) + cons, g.columns)
+        return cache[key]
+
     for fam, cons in model.paper.items():
-        if span_residual(c, prim + list(cons), g.columns) < tol:
+        if span_residual(c, basis(fam, list(cons)), g.columns) < tol:
             return fam
-    if model.paper and span_residual(c, prim + model.paper_constraints(), g.columns) < tol:
+    if model.paper and span_residual(c, basis(None, model.paper_constraints()), g.columns) < tol:
         return "paper (combined)"
     return "new"

@@ -104,9 +104,10 @@ def _indexed(key: tuple[int, int], ref: Any, params: dict[str, Any], seed: int, 
 def solve_batch(prob: Problem, sets: Mapping[str, ConstraintsLike], points: Sequence[tuple[dict, dict]],
                 batch: Sequence[Sequence[int]], *, min_fraction: float, criteria: Criteria, config: SolverConfig,
                 n_random: int = 1, jobs: int = 1, scheduler: Any = None,
-                shortcut: bool = False) -> tuple[dict[str, list[PointResult]], int]:
-    """Solve the seeds ``batch[i]`` at point i with every set (``shortcut``: the module docstring).  Returns
-    {set name: [PointResult per point]} (instances in seed order) and the number of SDP solver calls."""
+                shortcut: bool = False) -> tuple[dict[str, list[PointResult]], dict[str, int]]:
+    """Solve the seeds ``batch[i]`` at point i with every set (``shortcut``: the module docstring); the sets of
+    one instance share its generation, model and local search.  Returns {set name: [PointResult per point]}
+    (instances in seed order) and {set name: SDP solver calls}."""
     from ..report.backends import execute
 
     local = jobs == 1 and scheduler is None
@@ -115,7 +116,7 @@ def solve_batch(prob: Problem, sets: Mapping[str, ConstraintsLike], points: Sequ
              for i, seeds_ in enumerate(batch) for t, s in enumerate(seeds_)]
     done = dict(execute(_indexed, calls, jobs=jobs, scheduler=scheduler))
     out = {name: [PointResult(full, varied, min_fraction) for full, varied in points] for name in sets}
-    n = 0
+    n = {name: 0 for name in sets}
     for key, _, _, s, *_ in calls:
         for name, row in done[key].items():
             pr = out[name][key[0]]
@@ -123,5 +124,5 @@ def solve_batch(prob: Problem, sets: Mapping[str, ConstraintsLike], points: Sequ
             pr.reasons.append(row["reason"]); pr.n_constraints.append(row["n_constraints"])
             pr.statuses.append(row["status"]); pr.rel_gap.append(row["rel_gap"])
             pr.set_label = name
-            n += row["calls"]
+            n[name] += row["calls"]
     return out, n

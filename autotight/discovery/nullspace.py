@@ -97,7 +97,7 @@ def spectrum(Yn: np.ndarray, min_gap_decades: float, where: str = "", floor: flo
 
 def nullspace(Yn: np.ndarray, rank: int) -> np.ndarray:
     """Orthonormal nullspace basis (m × (m − rank)) of column-normalised data."""
-    _, _, Vt = sla.svd(Yn, full_matrices=True)
+    _, _, Vt = sla.svd(Yn, full_matrices=Yn.shape[0] < Yn.shape[1])  # Vt is m × m either way; U only as needed
     return Vt[rank:].T
 
 
