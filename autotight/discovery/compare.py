@@ -26,14 +26,23 @@ def _local_poly(c: Constraint, cols: np.ndarray) -> np.ndarray | None:
     return sym_to_poly(loc)
 
 
-def _span_basis(basis: Sequence[Constraint], cols: np.ndarray) -> np.ndarray | None:
-    """An orthonormal basis (columns) of the span of the monomial coefficients on ``cols`` of the constraints of
-    ``basis`` inside them (singular values below lstsq's default cutoff, ε·max(shape)·s_max, dropped)."""
-    B = [p for p in (_local_poly(b, cols) for b in basis) if p is not None]
+def _polys(cons: Sequence[Constraint], cols: np.ndarray) -> list[np.ndarray]:
+    """The monomial coefficients on ``cols`` of the constraints of ``cons`` inside them."""
+    return [p for p in (_local_poly(b, cols) for b in cons) if p is not None]
+
+
+def _orthonormal(B: list[np.ndarray]) -> np.ndarray | None:
+    """An orthonormal basis (columns) of the span of the vectors B (singular values below lstsq's default
+    cutoff, ε·max(shape)·s_max, dropped); None when B is empty."""
     if not B:
         return None
     U, sv, _ = np.linalg.svd(np.array(B).T, full_matrices=False)
     return U[:, sv > np.finfo(float).eps * max(len(B), len(B[0])) * sv[0]]
+
+
+def _span_basis(basis: Sequence[Constraint], cols: np.ndarray) -> np.ndarray | None:
+    """``_orthonormal`` of the constraints of ``basis`` inside ``cols``."""
+    return _orthonormal(_polys(basis, cols))
 
 
 def span_residual(c: Constraint, basis: Sequence[Constraint] | np.ndarray | None, cols: np.ndarray) -> float:
@@ -62,12 +71,21 @@ def _homogeneous(model: Model) -> list[Constraint]:
     return [c for c in model.primary() if c.b == 0]
 
 
-def paper_in_span(cat: Catalog) -> dict[str, dict]:
+def _primary_polys(model: Model, g, cache: dict) -> list[np.ndarray]:
+    """The homogeneous primary constraints inside group ``g`` as monomial coefficients (cached per group)."""
+    key = ("primary", g.group.name)
+    if key not in cache:
+        cache[key] = _polys(_homogeneous(model), g.columns)
+    return cache[key]
+
+
+def paper_in_span(cat: Catalog, cache: dict | None = None) -> dict[str, dict]:
     """Per paper family: count, and the largest relative residual of its constraints against the
-    span of the primary constraints and every learned relation of the group that contains it."""
+    span of the primary constraints and every learned relation of the group that contains it.  ``cache``: a
+    dict kept between calls on one catalog (here and in ``resemblance``)."""
     model = cat.model
+    cache = {} if cache is None else cache
     out = {}
-    bases: dict[str, np.ndarray | None] = {}  # per group: its basis on its columns, built once
     for fam, cons in model.paper.items():
         worst = 0.0
         for c in cons:
@@ -75,9 +93,10 @@ def paper_in_span(cat: Catalog) -> dict[str, dict]:
             if g is None:
                 worst = float("inf")
                 continue
-            if g.group.name not in bases:
-                bases[g.group.name] = _span_basis(_homogeneous(model) + cat.basic(g.group.name), g.columns)
-            worst = max(worst, span_residual(c, bases[g.group.name], g.columns))
+            key = ("learned", g.group.name)
+            if key not in cache:
+                cache[key] = _orthonormal(_primary_polys(model, g, cache) + _polys(cat.basic(g.group.name), g.columns))
+            worst = max(worst, span_residual(c, cache[key], g.columns))
         out[fam] = {"count": len(cons), "max_residual": worst}
     return out
 
@@ -92,9 +111,9 @@ def resemblance(c: Constraint, cat: Catalog, tol: float = 1e-6, cache: dict | No
     cache = {} if cache is None else cache
 
     def basis(fam: str | None, cons: list[Constraint]) -> np.ndarray | None:
-        key = (g.group.name, fam)
+        key = (fam, g.group.name)
         if key not in cache:
-            cache[key] = _span_basis(_homogeneous(model) + cons, g.columns)
+            cache[key] = _orthonormal(_primary_polys(model, g, cache) + _polys(cons, g.columns))
         return cache[key]
 
     for fam, cons in model.paper.items():

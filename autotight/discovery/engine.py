@@ -249,8 +249,8 @@ def discover(problem: Problem | str, params: Mapping[str, Any] | None = None, se
     first = next((tr for tr in trainers if tr.catalog is not None), None)
     span, like = {}, {}
     if compare and first is not None and first.catalog is not None and first.model.paper:
-        span = paper_in_span(first.catalog)
-        spans: dict = {}
+        spans: dict = {}  # the primary constraints' coefficients per group, shared by both
+        span = paper_in_span(first.catalog, spans)
         like = {c.name: resemblance(c, first.catalog, cache=spans) for p in pairs for c in first.pairs.get(p, [])}
     tm["sdp_training_s"] = run.sdp_s
     tm["total_s"] = time.perf_counter() - t0
