@@ -12,7 +12,7 @@ import scipy.sparse as sp
 from ..errors import LearningError, ProblemDefinitionError
 from ..model import HOMOGENISING, Constraint, Factor, Model, canonical_coo
 from ..svec import sym_to_poly, triu_indices
-from .nullspace import CLEAN, basic_solutions, free_monomials, nullspace, spectrum
+from .nullspace import CLEAN, basic_solutions, free_monomials, nullspace, spectrum, svd
 from .samples import SampleBank
 
 
@@ -274,7 +274,8 @@ def learn_group(model: Model, group: Group, bank: SampleBank, heldout: SampleBan
     D = np.linalg.norm(Y, axis=0)
     D[D == 0] = 1.0
     Yn = Y / D
-    spec = spectrum(Yn, opts.min_gap_decades, where=f" in group {group.name} ({m} monomials)")
+    sv, Vt = svd(Yn)
+    spec = spectrum(Yn, opts.min_gap_decades, where=f" in group {group.name} ({m} monomials)", values=sv)
     t1 = time.perf_counter()
     k = m - spec.rank
     degenerate = None
@@ -284,7 +285,7 @@ def learn_group(model: Model, group: Group, bank: SampleBank, heldout: SampleBan
         coeffs = np.zeros((m, 0))
         free = np.zeros(0, int)
     else:
-        Nn = nullspace(Yn, spec.rank)
+        Nn = nullspace(Yn, spec.rank, Vt)
         if whole_nullspace:
             whole = np.zeros((m, k))
             whole[order] = _orthonormal_relations(Nn, D)  # checked below only where it is needed
