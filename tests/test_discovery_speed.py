@@ -117,3 +117,23 @@ def test_batched_pose_residuals_equal_the_single_pose_map(pose):
     near_pi = lie.make_pose(lie.exp_so3(np.array([np.pi, 0, 0])), np.zeros(3))
     with pytest.raises(lie.CayleySingularityError):
         unary_residuals(near_pi, [np.eye(4)])
+
+
+def test_template_fits_with_a_shared_cache_equal_fresh_ones(pose):
+    """A set that grows (one pair, then two) is fitted from the kept instances: the same templates."""
+    from autotight.discovery.templates import learn_templates
+
+    params = pose.parse_params({"M": 3})
+    inst = pose.generate(params, 0)
+    cat = learn(pose, inst, pose.build(inst), seeds(0).constraints())
+    idents = [i for g in cat.groups[:1] for i in g.identities][:2]
+    pairs = [("pose_meas", i) for i in idents]
+    cache: dict = {}
+    learn_templates(pose, params, pairs[:1], 0, cache=cache)
+    n_kept = len(cache)
+    grown = learn_templates(pose, params, pairs, 0, cache=cache)
+    fresh = learn_templates(pose, params, pairs, 0)
+    assert n_kept > 0 and len(cache) >= n_kept
+    assert set(grown.templates) == set(fresh.templates) == {"pose_meas"} and grown.fallback == fresh.fallback
+    a, b = grown.templates["pose_meas"], fresh.templates["pose_meas"]
+    assert a.degree == b.degree and np.array_equal(a.W, b.W) and a.check == b.check

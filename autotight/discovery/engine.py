@@ -161,13 +161,15 @@ def discover(problem: Problem | str, params: Mapping[str, Any] | None = None, se
                       "heldout_seeds": "SeedSequence((seed, point, t, 2))"},
             "criteria": asdict(criteria)}
 
+    fits: dict = {}  # template fits of this discovery: instances and their learning, kept as the set grows
+
     def make_set(chosen: list) -> DiscoveredSet:
         ds = DiscoveredSet(prob.name, dict(points[0][0]), seed, list(chosen), asdict(learn_options), dict(info),
                            groups if isinstance(groups, str) else [list(g) for g in groups])
         if source is not None:
             ds.templates = source.template_set(prob).restricted(chosen)
         elif chosen:
-            ds.template_set(prob)
+            ds.template_set(prob, cache=fits)
         return ds
 
     rounds: list[dict[str, Any]] = []
