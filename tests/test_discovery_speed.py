@@ -80,7 +80,7 @@ def test_span_tests_with_a_shared_cache_equal_fresh_ones(pose):
     cat = learn(pose, inst, model, seeds(0).constraints())
     cache: dict = {}
     assert compare.paper_in_span(cat, cache) == compare.paper_in_span(cat)
-    learned = [c for g in cat.groups for c in cat.basic(g.group.name)]
+    learned = [c for g in cat.groups[:2] for c in cat.basic(g.group.name)][:8]
     assert learned and [compare.resemblance(c, cat, cache=cache) for c in learned] == \
         [compare.resemblance(c, cat) for c in learned]
     for fam, row in compare.paper_in_span(cat).items():  # the paper's families lie in the learned span
