@@ -137,3 +137,14 @@ def test_template_fits_with_a_shared_cache_equal_fresh_ones(pose):
     assert set(grown.templates) == set(fresh.templates) == {"pose_meas"} and grown.fallback == fresh.fallback
     a, b = grown.templates["pose_meas"], fresh.templates["pose_meas"]
     assert a.degree == b.degree and np.array_equal(a.W, b.W) and a.check == b.check
+
+
+def test_no_shortcut_is_tried_where_the_barrier_costs_more_than_the_sdp():
+    from autotight.discovery.shortcut import MAX_N
+
+    prob = load("discrete_trajectory")
+    inst = prob.generate({"K": 45}, 0)
+    model = prob.build(inst)
+    assert model.variables.N > MAX_N
+    cons = resolve("paper", prob, inst, model, seeds(0).constraints())
+    assert certified_tight(model, cons, prob.lift(inst, inst.truth), Criteria()) is None
