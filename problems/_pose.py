@@ -237,7 +237,8 @@ def binary_transport(data: np.ndarray) -> np.ndarray:
 
 def unary_residuals(T: np.ndarray, T_meas: Sequence[np.ndarray]) -> np.ndarray:
     """ξ_m = cay⁻¹(T T̃_m⁻¹)^∨ for each measurement, (M, 6); raises CayleySingularityError at angle π."""
-    return np.array([lie.cay_inv_se3(T @ lie.inv_se3(Tm)) for Tm in T_meas]).reshape(-1, 6)
+    Tm = np.asarray(T_meas, dtype=float).reshape(-1, 4, 4)
+    return lie.cay_inv_se3_batch(np.asarray(T, dtype=float) @ lie.inv_se3_batch(Tm)).reshape(-1, 6)
 
 
 def weighted_cost(V: Variables, xi: str, W: np.ndarray) -> sp.csr_array:

@@ -6,8 +6,10 @@ import argparse
 
 from ..io import atomic_write_text
 from ..outpaths import writing
+from ..threads import single_blas_thread
 
 
+@single_blas_thread
 def closed_form_output(problem, ds, args: argparse.Namespace) -> None:
     """Print the table "discovered family | closed form | paper family | relation" of the set ``ds`` (not with
     --json), and write its LaTeX to ``args.latex`` when given."""

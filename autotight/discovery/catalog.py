@@ -66,9 +66,9 @@ def sample_banks(problem: Problem, inst: Instance, model: Model, groups: Sequenc
 def learn(problem: Problem, inst: Instance, model: Model, rng: np.random.Generator,
           groups: str | Sequence[Sequence[str]] = "factors", opts: LearnOptions = LearnOptions(),
           types: Iterable[str] | None = None, progress=None, whole_nullspace: bool = False,
-          names: Iterable[str] | None = None) -> Catalog:
+          names: Iterable[str] | None = None, checked: bool = True) -> Catalog:
     """Learn every group (or only the factors of ``types``, or only the groups ``names``) of one instance
-    (``whole_nullspace``: see ``learn.learn_group``)."""
+    (``whole_nullspace``, ``checked``: see ``learn.learn_group``)."""
     gs = groups_of(model, groups)
     if types is not None:
         wanted = set(types)
@@ -82,10 +82,11 @@ def learn(problem: Problem, inst: Instance, model: Model, rng: np.random.Generat
     bank, heldout, t_sample = sample_banks(problem, inst, model, gs, opts, rng)
     t0 = time.perf_counter()
     learned: list[LearnedGroup] = []
-    spanning = SpanningIndex(spanning_matrices(model))  # grows with each group's new relations
+    spanning = SpanningIndex(spanning_matrices(model) if checked else [])  # grows with each group's new relations
     N = model.variables.N
     for g in gs:
-        lg = learn_group(model, g, bank, heldout, opts, spanning=spanning, whole_nullspace=whole_nullspace)
+        lg = learn_group(model, g, bank, heldout, opts, spanning=spanning, whole_nullspace=whole_nullspace,
+                         checked=checked)
         learned.append(lg)
         for j in lg.candidate_index():
             spanning.add(lg.constraint(j, N).A)

@@ -114,15 +114,16 @@ class DiscoveredSet:
     def options(self) -> LearnOptions:
         return LearnOptions(**self.learn_options) if self.learn_options else LearnOptions()
 
-    def template_set(self, problem: Problem, progress=None) -> TemplateSet:
-        """The templates (learned once, on fresh instances at ``template_points``, when not loaded)."""
+    def template_set(self, problem: Problem, progress=None, cache: dict | None = None) -> TemplateSet:
+        """The templates (learned once, on fresh instances at ``template_points``, when not loaded; ``cache``:
+        ``templates.learn_templates``'s)."""
         if self.templates is None:
             if self.groups != "factors":
                 self.templates = TemplateSet({}, {t: f"learned on groups {self.groups!r}, not factors: no template"
                                                   for t in sorted({t for t, _ in self.pairs})})
             else:
                 self.templates = learn_templates(problem, self.template_points(problem), self.pairs,
-                                                 int(self.seed or 0), self.options(), progress=progress)
+                                                 int(self.seed or 0), self.options(), progress=progress, cache=cache)
         return self.templates
 
     def template_points(self, problem: Problem) -> list[dict[str, Any]]:

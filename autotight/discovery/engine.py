@@ -87,7 +87,8 @@ def discover(problem: Problem | str, params: Mapping[str, Any] | None = None, se
              carry_to: Mapping[str, Any] | None = None, groups: Any = None,
              learn_options: LearnOptions = LearnOptions(), criteria: Criteria = Criteria(),
              solver: SolverConfig | None = None, n_random: int = 2, compare: bool = True, jobs: int = 1,
-             scheduler: Any = None, progress: Callable[[str, str], None] | None = None) -> DiscoveryResult:
+             scheduler: Any = None, progress: Callable[[str, str], None] | None = None,
+             shortcut: bool = True) -> DiscoveryResult:
     """Discover one set for ``problem`` at ``params`` (over every point of ``over``) that passes validation.
 
     n_train: training instances per point.  n_heldout: held-out instances per point and round (0: no
@@ -96,9 +97,11 @@ def discover(problem: Problem | str, params: Mapping[str, Any] | None = None, se
     carry_to: parameters (e.g. ``{"K": 200}``) at which the set must pass too (None: the module's
     ``CARRY_TO`` hint, if any; ``{}``: none).  groups: learning groups (None: the module's
     ``DEFAULT_GROUPS``, else "factors").  criteria: what counts as tight (``criteria.accept``).  solver: the
-    ``SolverConfig`` of every SDP solve.  compare: solve the paper's families on the last held-out batch too.
-    jobs/scheduler: where held-out instances run (``heldout``).  progress(stage, text) is called as work
-    proceeds.  Raises ``UnboundedRelaxation`` when no learned candidate bounds an unbounded relaxation.
+    ``SolverConfig`` of every SDP solve.  compare: solve the paper's families on the held-out batches too
+    (each point's latest is reported).  jobs/scheduler: where held-out instances run (``heldout``).
+    shortcut: a held-out instance whose local solution's certificate proves the set tight needs no full SDP
+    (``shortcut``; the others are solved in full).  progress(stage, text) is called as work proceeds.
+    Raises ``UnboundedRelaxation`` when no learned candidate bounds an unbounded relaxation.
     """
     prob = load(problem) if isinstance(problem, str) else problem
     seed = _count("seed", seed, 0)
@@ -158,13 +161,15 @@ def discover(problem: Problem | str, params: Mapping[str, Any] | None = None, se
                       "heldout_seeds": "SeedSequence((seed, point, t, 2))"},
             "criteria": asdict(criteria)}
 
+    fits: dict = {}  # template fits of this discovery: instances and their learning, kept as the set grows
+
     def make_set(chosen: list) -> DiscoveredSet:
         ds = DiscoveredSet(prob.name, dict(points[0][0]), seed, list(chosen), asdict(learn_options), dict(info),
                            groups if isinstance(groups, str) else [list(g) for g in groups])
         if source is not None:
             ds.templates = source.template_set(prob).restricted(chosen)
         elif chosen:
-            ds.template_set(prob)
+            ds.template_set(prob, cache=fits)
         return ds
 
     rounds: list[dict[str, Any]] = []
@@ -173,6 +178,11 @@ def discover(problem: Problem | str, params: Mapping[str, Any] | None = None, se
     next_t = [0] * len(check_points)
     validated: bool | None = None
     stop = ""
+    # the paper's families on every held-out batch, beside the set (one instance, model and local search for
+    # both); what is kept is each point's latest batch; their solver calls are not part of max_solves
+    with_paper = bool(compare and trainers[0].model.paper)
+    paper: list[Any] = [None] * len(check_points)
+    paper_calls = 0
     while n_heldout and not unreached:
         # a point whose latest batch had no failing instance is done: the set only grows from here on, and
         # tightness is monotone in the set, so that batch stays tight
@@ -180,12 +190,16 @@ def discover(problem: Problem | str, params: Mapping[str, Any] | None = None, se
         batch = [[heldout_seed(seed, i, next_t[i] + t) for t in range(n_heldout)] if i in todo else []
                  for i in range(len(check_points))]
         next_t = [n + len(b) for n, b in zip(next_t, batch)]
-        held, n = timed("heldout_s", solve_batch, prob, {"set": ConstraintSet(ds)}, check_points, batch,
+        sets: dict[str, Any] = {"set": ConstraintSet(ds)} | ({"paper": "paper"} if with_paper else {})
+        held, n = timed("heldout_s", solve_batch, prob, sets, check_points, batch,
                         min_fraction=float(min_fraction), criteria=criteria, config=config, n_random=1, jobs=jobs,
-                        scheduler=scheduler)
-        run.count("heldout", n)
+                        scheduler=scheduler, shortcut=shortcut)
+        run.count("heldout", n["set"])
+        paper_calls += n.get("paper", 0)
         for i in todo:
             last[i] = held["set"][i]
+            if with_paper:
+                paper[i] = held["paper"][i]
         failing = [(i, s) for i in todo for s, _, _ in last[i].with_outcome("not tight")]
         passed = all(pr.passed for pr in last)
         rounds.append(round_record(len(rounds), [last[i] for i in todo], len(pairs), passed))
@@ -219,13 +233,10 @@ def discover(problem: Problem | str, params: Mapping[str, Any] | None = None, se
         if spent:  # the last batch passed; its failing instances were taken in (the set only grew)
             validated = True
             break
-    paper: list[Any] = [None] * len(check_points)
-    if compare and validated is not None and trainers[0].model.paper:  # on each point's latest batch
-        got, n = timed("heldout_s", solve_batch, prob, {"paper": "paper"}, check_points,
-                       [list(pr.seeds) for pr in last], min_fraction=float(min_fraction), criteria=criteria,
-                       config=config, n_random=1, jobs=jobs, scheduler=scheduler)
-        run.count("paper", n)
-        paper = got["paper"]
+    if with_paper and validated is not None:
+        run.count("paper", paper_calls)
+    else:
+        paper = [None] * len(check_points)
     validation = {"passed": validated, "min_fraction": float(min_fraction), "n_heldout": n_heldout,
                   "max_rounds": max_rounds, "max_solves": max_solves, "rounds": rounds,
                   "message": _validation_message(validated, stop, rounds, n_heldout, unreached)}
@@ -240,8 +251,9 @@ def discover(problem: Problem | str, params: Mapping[str, Any] | None = None, se
     first = next((tr for tr in trainers if tr.catalog is not None), None)
     span, like = {}, {}
     if compare and first is not None and first.catalog is not None and first.model.paper:
-        span = paper_in_span(first.catalog)
-        like = {c.name: resemblance(c, first.catalog) for p in pairs for c in first.pairs.get(p, [])}
+        spans: dict = {}  # the primary constraints' coefficients per group, shared by both
+        span = paper_in_span(first.catalog, spans)
+        like = {c.name: resemblance(c, first.catalog, cache=spans) for p in pairs for c in first.pairs.get(p, [])}
     tm["sdp_training_s"] = run.sdp_s
     tm["total_s"] = time.perf_counter() - t0
     say("done", "")

@@ -7,6 +7,11 @@ failure of the instance, as in ``check``).  The instances run where ``report``'s
 cluster at ``scheduler``), and the results are put back in instance order, so the outcome does not
 depend on where they ran.  Counting is ``check``'s (``autotight.check.PointResult``): undecided instances
 are left out of the fraction, and a point passes when tight / (instances − undecided) ≥ min_fraction.
+
+With ``shortcut`` an instance whose local solution's certificate proves the set tight
+(``shortcut.certified_tight``: cost and rank, by exact tests) is counted tight without the full SDP;
+every other instance is solved as above, so an instance that fails is always one the full SDP judged.
+The set's constraints are checked on the instance's feasible points (``validity.check_valid``) either way.
 """
 
 from __future__ import annotations
@@ -18,7 +23,12 @@ from typing import Any
 from ..check import PointResult
 from ..constraint_set import ConstraintSet, ConstraintsLike
 from ..errors import AutotightError, ParameterError
-from ..pipeline import local_search, seeds, solve_instance
+from .. import sdp
+from ..constraint_set import resolve
+from ..pipeline import LocalSearch, feasible_points, local_search, seeds, solve_instance
+from ..validate import check_instance
+from ..validity import check_valid
+from .shortcut import Shortcut, certified_tight
 from ..problem import Problem, available, load
 from ..sdp.config import SolverConfig
 from ..tightness import Criteria
@@ -39,8 +49,10 @@ def problem_ref(prob: Problem, local: bool) -> Problem | str:
 
 
 def solve_one(ref: Problem | str, params: dict[str, Any], seed: int, sets: Mapping[str, ConstraintsLike],
-              criteria: Criteria, config: SolverConfig, n_random: int) -> dict[str, dict[str, Any]]:
-    """One held-out instance solved with every set: {set name: outcome, log SVR, reason, …}."""
+              criteria: Criteria, config: SolverConfig, n_random: int,
+              shortcut: bool = False) -> dict[str, dict[str, Any]]:
+    """One held-out instance solved with every set: {set name: outcome, log SVR, reason, …} (``shortcut``: the
+    module docstring; such a row has status "certified", log SVR NaN and no solver call)."""
     prob = load(ref)
     inst = prob.generate(params, seed)
     model = prob.build(inst)
@@ -56,6 +68,13 @@ def solve_one(ref: Problem | str, params: dict[str, Any], seed: int, sets: Mappi
                              "reason": f"cannot instantiate the set: {e}", "status": "not instantiated",
                              "rel_gap": float("nan"), "calls": 0}
                 continue
+        if shortcut:
+            proved = _certified(prob, inst, model, given, loc, criteria, config)
+            if proved is not None:
+                out[name] = {"outcome": "tight", "log_svr": float("nan"), "n_constraints": proved[0],
+                             "reason": proved[1].reason(), "status": "certified",
+                             "rel_gap": proved[1].rel_bound, "calls": 0}
+                continue
         r = solve_instance(prob, inst, given, config=config, criteria=criteria, model=model, local=loc,
                            raise_unbounded=False)
         out[name] = {"outcome": r.outcome, "log_svr": float(r.log_svr), "n_constraints": r.n_constraints,
@@ -64,25 +83,40 @@ def solve_one(ref: Problem | str, params: dict[str, Any], seed: int, sets: Mappi
     return out
 
 
+def _certified(prob: Problem, inst: Any, model: Any, given: ConstraintsLike, loc: LocalSearch, criteria: Criteria,
+               config: SolverConfig) -> tuple[int, Shortcut] | None:
+    """(number of constraints, the proof) when the certificate of ``loc``'s best solution proves ``given`` tight
+    on ``inst``; the checks of ``solve_instance`` (data, costs, every constraint on the feasible points) first."""
+    s = seeds(inst.seed if inst.seed is not None else 0)
+    cons = resolve(given, prob, inst, model, s.constraints())
+    check_instance(prob, inst, model, loc)
+    check_valid(prob.name, cons, feasible_points(prob, inst, loc, s.validity()))
+    gap = sdp.effective_tol(config.for_size(model.variables.N))
+    proof = certified_tight(model, cons, prob.lift(inst, loc.best.state), criteria, gap=gap)
+    return None if proof is None else (len(cons), proof)
+
+
 def _indexed(key: tuple[int, int], ref: Any, params: dict[str, Any], seed: int, sets: Any, criteria: Criteria,
-             config: SolverConfig, n_random: int) -> tuple[tuple[int, int], dict[str, dict[str, Any]]]:
-    return key, solve_one(ref, params, seed, sets, criteria, config, n_random)
+             config: SolverConfig, n_random: int, shortcut: bool) -> tuple[tuple[int, int], dict[str, dict[str, Any]]]:
+    return key, solve_one(ref, params, seed, sets, criteria, config, n_random, shortcut)
 
 
 def solve_batch(prob: Problem, sets: Mapping[str, ConstraintsLike], points: Sequence[tuple[dict, dict]],
                 batch: Sequence[Sequence[int]], *, min_fraction: float, criteria: Criteria, config: SolverConfig,
-                n_random: int = 1, jobs: int = 1, scheduler: Any = None) -> tuple[dict[str, list[PointResult]], int]:
-    """Solve the seeds ``batch[i]`` at point i with every set.  Returns {set name: [PointResult per point]}
-    (instances in seed order) and the number of SDP solver calls."""
+                n_random: int = 1, jobs: int = 1, scheduler: Any = None,
+                shortcut: bool = False) -> tuple[dict[str, list[PointResult]], dict[str, int]]:
+    """Solve the seeds ``batch[i]`` at point i with every set (``shortcut``: the module docstring); the sets of
+    one instance share its generation, model and local search.  Returns {set name: [PointResult per point]}
+    (instances in seed order) and {set name: SDP solver calls}."""
     from ..parallel import execute
 
     local = jobs == 1 and scheduler is None
     ref = problem_ref(prob, local)
-    calls = [((i, t), ref, points[i][0], s, dict(sets), criteria, config, n_random)
+    calls = [((i, t), ref, points[i][0], s, dict(sets), criteria, config, n_random, shortcut)
              for i, seeds_ in enumerate(batch) for t, s in enumerate(seeds_)]
     done = dict(execute(_indexed, calls, jobs=jobs, scheduler=scheduler))
     out = {name: [PointResult(full, varied, min_fraction) for full, varied in points] for name in sets}
-    n = 0
+    n = {name: 0 for name in sets}
     for key, _, _, s, *_ in calls:
         for name, row in done[key].items():
             pr = out[name][key[0]]
@@ -90,5 +124,5 @@ def solve_batch(prob: Problem, sets: Mapping[str, ConstraintsLike], points: Sequ
             pr.reasons.append(row["reason"]); pr.n_constraints.append(row["n_constraints"])
             pr.statuses.append(row["status"]); pr.rel_gap.append(row["rel_gap"])
             pr.set_label = name
-            n += row["calls"]
+            n[name] += row["calls"]
     return out, n

@@ -12,7 +12,7 @@ import scipy.sparse as sp
 from ..errors import LearningError, ProblemDefinitionError
 from ..model import HOMOGENISING, Constraint, Factor, Model, canonical_coo
 from ..svec import sym_to_poly, triu_indices
-from .nullspace import CLEAN, basic_solutions, free_monomials, nullspace, spectrum
+from .nullspace import CLEAN, basic_solutions, free_monomials, nullspace, spectrum, svd
 from .samples import SampleBank
 
 
@@ -239,7 +239,8 @@ class SpanningIndex:
 
 
 def learn_group(model: Model, group: Group, bank: SampleBank, heldout: SampleBank, opts: LearnOptions,
-                spanning: SpanningIndex | None = None, whole_nullspace: bool = False) -> LearnedGroup:
+                spanning: SpanningIndex | None = None, whole_nullspace: bool = False,
+                checked: bool = True) -> LearnedGroup:
     """Nullspace of the group's monomial data → basic solutions, primary-span flags, held-out check.
 
     ``spanning``: the constraints that count as spanned (default: the homogeneous primary
@@ -254,6 +255,9 @@ def learn_group(model: Model, group: Group, bank: SampleBank, heldout: SampleBan
     ``degenerate``.  Otherwise such a group raises.  With whole_nullspace, a group whose basic solutions
     exist but some fail the held-out check, or that is ``near_degenerate``, also gets that basis as
     ``whole`` (what ``catalog.carry_over`` uses when a wanted identity is inaccurate or named otherwise).
+
+    checked=False: the basic solutions only (what a template fit needs): no primary-span test and no
+    held-out check, so every relation reads as unchecked (held-out violation NaN: none passes).
     """
     t0 = time.perf_counter()
     V = model.variables
@@ -270,7 +274,8 @@ def learn_group(model: Model, group: Group, bank: SampleBank, heldout: SampleBan
     D = np.linalg.norm(Y, axis=0)
     D[D == 0] = 1.0
     Yn = Y / D
-    spec = spectrum(Yn, opts.min_gap_decades, where=f" in group {group.name} ({m} monomials)")
+    sv, Vt = svd(Yn)
+    spec = spectrum(Yn, opts.min_gap_decades, where=f" in group {group.name} ({m} monomials)", values=sv)
     t1 = time.perf_counter()
     k = m - spec.rank
     degenerate = None
@@ -280,7 +285,7 @@ def learn_group(model: Model, group: Group, bank: SampleBank, heldout: SampleBan
         coeffs = np.zeros((m, 0))
         free = np.zeros(0, int)
     else:
-        Nn = nullspace(Yn, spec.rank)
+        Nn = nullspace(Yn, spec.rank, Vt)
         if whole_nullspace:
             whole = np.zeros((m, k))
             whole[order] = _orthonormal_relations(Nn, D)  # checked below only where it is needed
@@ -297,9 +302,12 @@ def learn_group(model: Model, group: Group, bank: SampleBank, heldout: SampleBan
             degenerate, free, coeffs, whole = str(e), np.zeros(0, int), whole, None
     idents = ([f"{names[ii[order[f]]]}·{names[jj[order[f]]]}" for f in free] if degenerate is None
               else [f"nullspace[{q}]" for q in range(k)])
-    if spanning is None:
-        spanning = SpanningIndex(spanning_matrices(model))
-    in_span, viol = _span_and_heldout(coeffs, cols, order, D, spanning, heldout, opts)
+    if not checked:
+        in_span, viol = np.zeros(coeffs.shape[1], bool), np.full(coeffs.shape[1], np.nan)
+    else:
+        if spanning is None:
+            spanning = SpanningIndex(spanning_matrices(model))
+        in_span, viol = _span_and_heldout(coeffs, cols, order, D, spanning, heldout, opts)
     t2 = time.perf_counter()
     lg = LearnedGroup(group, cols, need, spec.rel, spec.rank, spec.gap_decades, idents, coeffs, in_span, viol,
                       opts.heldout_tol, {"nullspace_s": t1 - t0, "basis_s": t2 - t1},
@@ -307,6 +315,8 @@ def learn_group(model: Model, group: Group, bank: SampleBank, heldout: SampleBan
                       free=order[free] if degenerate is None else None)
     if whole is not None and (not lg.passed().all() or lg.near_degenerate):  # the same nullspace, orthonormal:
         # what carry-over uses where an identity is inaccurate (held-out failure) or named otherwise (near-degenerate)
+        if spanning is None:
+            spanning = SpanningIndex(spanning_matrices(model))
         w_span, w_viol = _span_and_heldout(whole, cols, order, D, spanning, heldout, opts)
         lg.whole = replace(lg, identities=[f"nullspace[{q}]" for q in range(k)], coeffs=whole, in_primary_span=w_span,
                            heldout_violation=w_viol, degenerate="the orthonormal basis of the nullspace", free=None)

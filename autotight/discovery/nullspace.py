@@ -60,15 +60,17 @@ class Spectrum:
         return self.rel.size - self.rank
 
 
-def spectrum(Yn: np.ndarray, min_gap_decades: float, where: str = "", floor: float = RANK_FLOOR) -> Spectrum:
+def spectrum(Yn: np.ndarray, min_gap_decades: float, where: str = "", floor: float = RANK_FLOOR,
+             values: np.ndarray | None = None) -> Spectrum:
     """Rank of column-normalised data from its largest relative spectral gap above the floor.
 
     Full rank (no relation) when the whole spectrum spans fewer than min_gap_decades/2
     decades.  Otherwise the largest gap whose upper end is ≥ floor (relative to σ_1) must span at
     least ``min_gap_decades``, else LearningError: near-relations that are neither exact nor absent
     cannot be read off.  A larger gap below the floor is reported in ``ignored_gap_decades``.
+    ``values``: Yn's singular values when already known (``svd``).
     """
-    s = sla.svdvals(Yn)
+    s = sla.svdvals(Yn) if values is None else np.asarray(values)
     m = Yn.shape[1]
     if s.size < m:
         s = np.concatenate([s, np.zeros(m - s.size)])
@@ -95,9 +97,16 @@ def spectrum(Yn: np.ndarray, min_gap_decades: float, where: str = "", floor: flo
     return Spectrum(rel, k + 1, gap, ignored, ignored_rank)
 
 
-def nullspace(Yn: np.ndarray, rank: int) -> np.ndarray:
-    """Orthonormal nullspace basis (m × (m − rank)) of column-normalised data."""
-    _, _, Vt = sla.svd(Yn, full_matrices=True)
+def svd(Yn: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(singular values, Vᵀ (m × m)) of Yn: one decomposition for ``spectrum`` and ``nullspace``."""
+    _, s, Vt = sla.svd(Yn, full_matrices=Yn.shape[0] < Yn.shape[1])  # Vt is m × m either way; U only as needed
+    return s, Vt
+
+
+def nullspace(Yn: np.ndarray, rank: int, Vt: np.ndarray | None = None) -> np.ndarray:
+    """Orthonormal nullspace basis (m × (m − rank)) of column-normalised data (``Vt``: from ``svd``)."""
+    if Vt is None:
+        Vt = svd(Yn)[1]
     return Vt[rank:].T
 
 

@@ -155,14 +155,36 @@ class TemplateSet:
 # ----------------------------------------------------------------------------- learning
 
 
+def _instance(problem: Problem, point: dict[str, Any], seed: int, cache: dict | None) -> tuple[Instance, Model]:
+    """The instance at ``point`` with generator seed ``seed`` and its model (kept in ``cache`` when given)."""
+    key = ("instance", problem.name, repr(sorted(point.items())), seed)
+    if cache is not None and key in cache:
+        return cache[key]
+    inst = problem.generate(point, np.random.default_rng(seed))
+    out = (inst, problem.build(inst))
+    if cache is not None:
+        cache[key] = out
+    return out
+
+
 def _factor_samples(problem: Problem, inst: Instance, model: Model, wanted: dict[str, list[str]],
-                    rng: np.random.Generator, opts: LearnOptions) -> tuple[dict[str, list], list[str]]:
-    """Per type: (data, stacked coefficient vector) of every factor of ``inst``; and issues."""
+                    rng: np.random.Generator, opts: LearnOptions,
+                    cache: dict | None = None) -> tuple[dict[str, list], list[str]]:
+    """Per type: (data, stacked coefficient vector) of every factor of ``inst``; and issues.  ``cache``: the
+    learning of each (instance, factor types) is kept, with the state of ``rng`` after it, so that a later fit
+    with other identities of the same types (a set that grew) reuses it and continues the same random stream."""
     from .catalog import learn
 
-    # the fit is checked separately (fresh instances): a few held-out samples suffice here
-    cat = learn(problem, inst, model, rng, "factors", replace(opts, heldout=min(opts.heldout, 6)),
-                types=sorted(wanted))
+    key = ("samples", id(inst), tuple(sorted(wanted)), repr(opts))
+    if cache is not None and key in cache:
+        cat, state = cache[key]
+        rng.bit_generator.state = state
+    else:
+        # only the basic solutions: the fit is checked separately (fresh instances, fresh states)
+        cat = learn(problem, inst, model, rng, "factors", replace(opts, heldout=min(opts.heldout, 6)),
+                    types=sorted(wanted), checked=False)
+        if cache is not None:
+            cache[key] = (cat, rng.bit_generator.state)
     out: dict[str, list] = {t: [] for t in wanted}
     issues: list[str] = []
     for g in cat.groups:
@@ -186,7 +208,7 @@ def _fit(D: np.ndarray, Y: np.ndarray, degree: int) -> np.ndarray:
 
 def learn_templates(problem: Problem, params: dict[str, Any] | Sequence[dict[str, Any]],
                     pairs: Sequence[tuple[str, str]], seed: int, opts: LearnOptions = LearnOptions(),
-                    progress=None) -> TemplateSet:
+                    progress=None, cache: dict | None = None) -> TemplateSet:
     """Fit a template per factor type of ``pairs`` from instances with seeds ``seed + 1000 + i``.
 
     ``params``: one parameter point, or several (a set discovered over a range): instance i is drawn at
@@ -197,7 +219,8 @@ def learn_templates(problem: Problem, params: dict[str, Any] | Sequence[dict[str
     Instances are generated until, for every type, some degree fits the collected factors and predicts
     ``VALIDATE`` further ones to ``FIT_RTOL``, or the most features (degree 2) are exhausted.  Every kept
     template is then checked on ``CHECK_INSTANCES`` fresh instances, and at least one per point
-    (``check_template``)."""
+    (``check_template``).  ``cache``: a dict kept between fits of one discovery (instances and their learning:
+    the same templates, without learning an instance twice)."""
     points = [dict(params)] if isinstance(params, dict) else [dict(p) for p in params]
     params = points[0]
     t0 = time.perf_counter()
@@ -217,8 +240,7 @@ def learn_templates(problem: Problem, params: dict[str, Any] | Sequence[dict[str
     while open_types and k < MAX_INSTANCES:
         rng = np.random.default_rng([seed, 1000 + k])
         point = points[k % len(points)]
-        inst = problem.generate(point, np.random.default_rng(seed + 1000 + k))
-        model = problem.build(inst)
+        inst, model = _instance(problem, point, seed + 1000 + k, cache)
         k += 1
         for t in list(open_types):
             fs = [f for f in model.factors if f.type == t]
@@ -227,7 +249,7 @@ def learn_templates(problem: Problem, params: dict[str, Any] | Sequence[dict[str
                 open_types.discard(t)
             else:
                 layout[t] = (list(fs[0].roles or fs[0].blocks), [model.variables.sizes[b] for b in fs[0].blocks])
-        got, issues = _factor_samples(problem, inst, model, {t: wanted[t] for t in open_types}, rng, opts)
+        got, issues = _factor_samples(problem, inst, model, {t: wanted[t] for t in open_types}, rng, opts, cache)
         for t in list(open_types):
             samples[t] += got[t]
             bad = [s for s in issues if s.startswith(f"identity {t}:")]
@@ -273,11 +295,11 @@ def learn_templates(problem: Problem, params: dict[str, Any] | Sequence[dict[str
                              fallback)
     t1 = time.perf_counter()
     templates |= transports
-    failed = _check_templates(problem, points, templates, wanted, seed, opts, fallback)
+    failed = _check_templates(problem, points, templates, wanted, seed, opts, fallback, cache)
     # a polynomial that fitted but failed its check (it matched a non-polynomial where it was fitted): transport
     retry = _transports(problem, params, [t for t in failed if not isinstance(failed[t], TransportTemplate)],
                         wanted, layout, seed, opts, fallback)
-    _check_templates(problem, points, retry, wanted, seed, opts, fallback)
+    _check_templates(problem, points, retry, wanted, seed, opts, fallback, cache)
     templates |= retry
     for tpl in templates.values():
         tpl.check |= {"check_instances": max(CHECK_INSTANCES, len(points)), "fit_rtol": FIT_RTOL,
@@ -303,7 +325,7 @@ def _transports(problem: Problem, params: dict[str, Any], types: Sequence[str], 
 
 
 def _check_templates(problem: Problem, points: list[dict[str, Any]], templates: dict, wanted: dict[str, list[str]],
-                     seed: int, opts: LearnOptions, fallback: dict[str, str]) -> dict:
+                     seed: int, opts: LearnOptions, fallback: dict[str, str], cache: dict | None = None) -> dict:
     """Check ``templates`` on fresh instances (seeds seed + 2000 + c, at least one per point) against
     re-learning (``FIT_RTOL``) and on fresh states (``heldout_tol``); a failing one moves from ``templates`` to
     ``fallback`` with its figures.  Returns the failed templates by type."""
@@ -311,10 +333,9 @@ def _check_templates(problem: Problem, points: list[dict[str, Any]], templates: 
     for c in range(max(CHECK_INSTANCES, len(points))):
         if not templates:
             break
-        inst = problem.generate(points[c % len(points)], np.random.default_rng(seed + 2000 + c))
-        model = problem.build(inst)
+        inst, model = _instance(problem, points[c % len(points)], seed + 2000 + c, cache)
         rng = np.random.default_rng([seed, 2000 + c])
-        got, _ = _factor_samples(problem, inst, model, {t: wanted[t] for t in templates}, rng, opts)
+        got, _ = _factor_samples(problem, inst, model, {t: wanted[t] for t in templates}, rng, opts, cache)
         for t in list(templates):
             tpl = templates[t]
             err = 0.0

@@ -1,0 +1,150 @@
+"""The shortcuts that make discovery fast give what the full computation gives: the held-out certificate
+decides only "tight", and only where the full SDP says tight too; span tests with a shared cache, template
+samples without checks and batched pose residuals equal their plain versions."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from autotight import lie
+from autotight.constraint_set import resolve
+from autotight.discovery import compare
+from autotight.discovery.catalog import learn
+from autotight.discovery.engine import discover
+from autotight.discovery.heldout import solve_batch
+from autotight.discovery.shortcut import certified_tight
+from autotight.pipeline import local_search, seeds, solve_instance
+from autotight.problem import load
+from autotight.sdp.config import SolverConfig
+from autotight.tightness import Criteria
+
+
+@pytest.fixture(scope="module")
+def pose():
+    return load("pose_averaging")
+
+
+def _case(prob, params, seed, name):
+    inst = prob.generate(params, seed)
+    model = prob.build(inst)
+    loc = local_search(prob, inst, seeds(seed).local(), 1)
+    cons = resolve(name, prob, inst, model, seeds(seed).constraints())
+    return inst, model, loc, cons
+
+
+@pytest.mark.parametrize("sigma", [0.1, 1.0])
+def test_the_certificate_proves_the_paper_set_tight_where_the_full_sdp_does(pose, sigma):
+    params = {"M": 4, "sigma": sigma}
+    for seed in (3, 4):
+        inst, model, loc, cons = _case(pose, params, seed, "paper")
+        proof = certified_tight(model, cons, pose.lift(inst, loc.best.state), Criteria())
+        full = solve_instance(pose, inst, "paper", model=model, local=loc)
+        assert proof is not None and 0 <= proof.rel_bound <= Criteria().gap_tol and proof.margin > 0
+        assert full.outcome == "tight" and full.log_svr > Criteria().min_log_svr
+
+
+def test_the_certificate_never_decides_a_loose_relaxation(pose):
+    """Primary constraints only: the relaxation is not tight (full SDP), and the shortcut says nothing."""
+    for seed in (3, 4):
+        inst, model, loc, cons = _case(pose, {"M": 4}, seed, "primary")
+        assert certified_tight(model, cons, pose.lift(inst, loc.best.state), Criteria()) is None
+        assert solve_instance(pose, inst, "primary", model=model, local=loc, raise_unbounded=False).outcome != "tight"
+
+
+def test_a_held_out_batch_has_the_same_outcomes_with_and_without_the_shortcut(pose):
+    points = [(pose.parse_params({"M": 4}), {})]
+    kw = dict(min_fraction=0.9, criteria=Criteria(), config=SolverConfig())
+    sets = {"paper": "paper", "primary": "primary"}
+    fast, n_fast = solve_batch(pose, sets, points, [[11, 12]], shortcut=True, **kw)
+    full, n_full = solve_batch(pose, sets, points, [[11, 12]], shortcut=False, **kw)
+    for name in sets:
+        assert fast[name][0].outcomes == full[name][0].outcomes and fast[name][0].seeds == [11, 12]
+    assert fast["paper"][0].statuses == ["certified"] * 2 and n_fast["paper"] == 0 < n_full["paper"]
+    assert n_fast["primary"] == n_full["primary"]  # not tight: always the full SDP
+
+
+@pytest.mark.slow  # two discoveries (~1 min); the held-out outcomes themselves: the test above
+def test_discovery_with_and_without_the_shortcut_finds_the_same_set():
+    kw = dict(n_heldout=3, compare=False)
+    fast = discover("pose_averaging", {"M": 3}, 1, **kw)
+    full = discover("pose_averaging", {"M": 3}, 1, shortcut=False, **kw)
+    assert fast.pairs == full.pairs and fast.validated == full.validated
+    assert [p.heldout.outcomes for p in fast.points] == [p.heldout.outcomes for p in full.points]
+    assert fast.solves_by_stage["heldout"] <= full.solves_by_stage["heldout"]
+
+
+def test_span_tests_with_a_shared_cache_equal_fresh_ones(pose):
+    inst = pose.generate({"M": 3}, 0)
+    model = pose.build(inst)
+    cat = learn(pose, inst, model, seeds(0).constraints())
+    cache: dict = {}
+    assert compare.paper_in_span(cat, cache) == compare.paper_in_span(cat)
+    learned = [c for g in cat.groups[:2] for c in cat.basic(g.group.name)][:8]
+    assert learned and [compare.resemblance(c, cat, cache=cache) for c in learned] == \
+        [compare.resemblance(c, cat) for c in learned]
+    for fam, row in compare.paper_in_span(cat).items():  # the paper's families lie in the learned span
+        assert row["max_residual"] < 1e-8, fam
+    # a residual against the orthonormal basis equals the least-squares one
+    g = cat.groups[0]
+    basis = compare._homogeneous(model) + cat.basic(g.group.name)
+    v, B = compare._local_poly(learned[0], g.columns), np.array(compare._polys(basis, g.columns)).T
+    coef, *_ = np.linalg.lstsq(B, v, rcond=None)
+    assert compare.span_residual(learned[0], basis, g.columns) == pytest.approx(
+        np.linalg.norm(v - B @ coef) / np.linalg.norm(v), abs=1e-12)
+
+
+def test_unchecked_learning_gives_the_same_basic_solutions(pose):
+    inst = pose.generate({"M": 3}, 1)
+    model = pose.build(inst)
+    a = learn(pose, inst, model, seeds(1).constraints())
+    b = learn(pose, inst, model, seeds(1).constraints(), checked=False)
+    for ga, gb in zip(a.groups, b.groups):
+        assert ga.identities == gb.identities and np.array_equal(ga.coeffs, gb.coeffs)
+        assert not gb.passed().any()  # unchecked relations are never offered as candidates
+
+
+def test_batched_pose_residuals_equal_the_single_pose_map(pose):
+    from problems._pose import unary_residuals
+
+    inst = pose.generate({"M": 6}, 2)
+    rng = np.random.default_rng(0)
+    for _ in range(5):
+        s = pose.sample(inst, rng, inst.truth, 0.5)
+        T = lie.make_pose(s["C"], s["r"])
+        want = np.array([lie.cay_inv_se3(T @ lie.inv_se3(Tm)) for Tm in inst.measurements["T_meas"]])
+        assert np.allclose(unary_residuals(T, inst.measurements["T_meas"]), want, rtol=0, atol=1e-13)
+    near_pi = lie.make_pose(lie.exp_so3(np.array([np.pi, 0, 0])), np.zeros(3))
+    with pytest.raises(lie.CayleySingularityError):
+        unary_residuals(near_pi, [np.eye(4)])
+
+
+def test_template_fits_with_a_shared_cache_equal_fresh_ones(pose):
+    """A set that grows (one pair, then two) is fitted from the kept instances: the same templates."""
+    from autotight.discovery.templates import learn_templates
+
+    params = pose.parse_params({"M": 3})
+    inst = pose.generate(params, 0)
+    cat = learn(pose, inst, pose.build(inst), seeds(0).constraints())
+    idents = [i for g in cat.groups[:1] for i in g.identities][:2]
+    pairs = [("pose_meas", i) for i in idents]
+    cache: dict = {}
+    learn_templates(pose, params, pairs[:1], 0, cache=cache)
+    n_kept = len(cache)
+    grown = learn_templates(pose, params, pairs, 0, cache=cache)
+    fresh = learn_templates(pose, params, pairs, 0)
+    assert n_kept > 0 and len(cache) >= n_kept
+    assert set(grown.templates) == set(fresh.templates) == {"pose_meas"} and grown.fallback == fresh.fallback
+    a, b = grown.templates["pose_meas"], fresh.templates["pose_meas"]
+    assert a.degree == b.degree and np.array_equal(a.W, b.W) and a.check == b.check
+
+
+def test_no_shortcut_is_tried_where_the_barrier_costs_more_than_the_sdp():
+    from autotight.discovery.shortcut import MAX_N
+
+    prob = load("discrete_trajectory")
+    inst = prob.generate({"K": 45}, 0)
+    model = prob.build(inst)
+    assert model.variables.N > MAX_N
+    cons = resolve("paper", prob, inst, model, seeds(0).constraints())
+    assert certified_tight(model, cons, prob.lift(inst, inst.truth), Criteria()) is None
