@@ -47,7 +47,8 @@ def timed_command(args: list[str]) -> dict:
         p = subprocess.run(["/usr/bin/time", "-v", exe, *args, "--json"], cwd=ROOT, capture_output=True, text=True,
                            timeout=TIMEOUT_S)
     except subprocess.TimeoutExpired:
-        return {"returncode": None, "wall_s": time.perf_counter() - t0, "error": f"timeout after {TIMEOUT_S} s"}
+        return {"returncode": None, "wall_s": time.perf_counter() - t0, "error": f"timeout after {TIMEOUT_S} s",
+                "load_before": load_before, "load_after": os.getloadavg()[0]}
     wall = time.perf_counter() - t0
     rss = re.search(r"Maximum resident set size \(kbytes\): (\d+)", p.stderr)
     el = re.search(r"Elapsed \(wall clock\) time \(h:mm:ss or m:ss\): ([\d:.]+)", p.stderr)
