@@ -134,13 +134,15 @@ def discover() -> list[str]:
     for run in d["runs"]:
         for who in ("old", "new"):
             r = run[who]
-            rows.append([run["command"], f"seed {run['seed']}", "two flows (before)" if who == "old" else "one engine",
-                         r.get("n_pairs"), r.get("n_constraints"), r.get("discover_s"),
+            rows.append([run["command"], f"seed {run['seed']}", d["old_ref"] if who == "old" else d.get("new_ref", "new"),
+                         r.get("n_pairs"), r.get("n_constraints"), r.get("discover_s"), r.get("discover_cpu_s", "—"),
                          {0: "passes", 1: "fails"}.get(r.get("follow_exit"), "—")])
+    load = d.get("load_average", d.get("load_average_at_end", []))
     return (["## Discovery (`benchmarks/discover.py`, `discover.json`)", "",
-             f"`{d['command']}`, the engine beside the flows of {d['old_ref']} in one run (load average "
-             f"{', '.join(f'{x:.1f}' for x in d['load_average'])} on {d['cpus']} cores).", ""]
-            + _table(["command", "seed", "engine", "pairs", "constraints", "discover s", "check afterwards"], rows))
+             f"`{d['command']}`, the engine of {d.get('new_ref', 'this checkout')} beside {d['old_ref']} in one run "
+             f"(load average {', '.join(f'{x:.1f}' for x in load)} on {d['cpus']} cores: compare the CPU seconds).", ""]
+            + _table(["command", "seed", "code", "pairs", "constraints", "discover s (wall)", "CPU s",
+                      "check afterwards"], rows))
 
 
 def trajectory_sdp() -> list[str]:
