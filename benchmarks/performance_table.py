@@ -134,7 +134,8 @@ def discover() -> list[str]:
     for run in d["runs"]:
         for who in ("old", "new"):
             r = run[who]
-            rows.append([run["command"], f"seed {run['seed']}", d["old_ref"] if who == "old" else d.get("new_ref", "new"),
+            code = d["old_ref"] if who == "old" else d.get("new_ref", "new")
+            rows.append([run["command"], f"seed {run['seed']}", code,
                          r.get("n_pairs"), r.get("n_constraints"), r.get("discover_s"), r.get("discover_cpu_s", "—"),
                          {0: "passes", 1: "fails"}.get(r.get("follow_exit"), "—")])
     load = d.get("load_average", d.get("load_average_at_end", []))
