@@ -38,8 +38,8 @@ and **may** define (the default is used otherwise)
 
 A module on the factor-graph layer (``autotight.graph``, ``docs/factor_graph.md``) writes ``PARAMS``,
 ``generate``, ``VARIABLES`` and ``factors`` and derives the other required parts with one call.  Modules are
-found by name in the ``problems`` package, then among the entry points of group ``autotight.problems``
-(``registered``), or by path.
+found by name among the entry points of group ``autotight.problems`` (the shipped ones are autotight's own,
+``available``; other packages add theirs, ``registered``), or by path.
 
 A state is a ``dict[str, np.ndarray]`` in the problem's own terms.  h² = 1 (d = 1) or Θ_hh = I_d
 is added to the primary constraints for you (``Model.homogenisation``); ``lift`` fills h in when it
@@ -58,7 +58,6 @@ import importlib
 import importlib.metadata
 import importlib.util
 import math
-import pkgutil
 import sys
 import weakref
 from collections.abc import Mapping
@@ -477,18 +476,43 @@ def perturb_state(state: State, rng: np.random.Generator, spread: float) -> Stat
 # ----------------------------------------------------------------------------- finding modules
 
 
-def available() -> list[str]:
-    """Names of the modules in the ``problems`` package."""
-    import problems
+#: The distribution whose entry points are the shipped problems.
+SHIPPED_BY = "autotight"
 
-    return sorted(m.name for m in pkgutil.iter_modules(problems.__path__) if not m.name.startswith("_"))
+
+def _entry_points() -> tuple[dict[str, importlib.metadata.EntryPoint], dict[str, importlib.metadata.EntryPoint]]:
+    """(shipped, others): the entry points of ``ENTRY_POINT_GROUP`` by name, those of this distribution and those
+    of other installed packages (a name both use is the shipped one's)."""
+    shipped: dict[str, importlib.metadata.EntryPoint] = {}
+    others: dict[str, importlib.metadata.EntryPoint] = {}
+    for ep in importlib.metadata.entry_points(group=ENTRY_POINT_GROUP):
+        dist = getattr(ep, "dist", None)
+        (shipped if dist is not None and dist.name == SHIPPED_BY else others)[ep.name] = ep
+    return shipped, {k: v for k, v in others.items() if k not in shipped}
+
+
+def available() -> list[str]:
+    """Names of the shipped problems (the entry points autotight itself installs)."""
+    return sorted(_entry_points()[0])
 
 
 def registered() -> dict[str, importlib.metadata.EntryPoint]:
-    """Problems that installed packages register under the entry-point group ``ENTRY_POINT_GROUP``, by name
-    (a name also shipped in ``problems`` is left out: the shipped module wins)."""
-    shipped = set(available())
-    return {ep.name: ep for ep in importlib.metadata.entry_points(group=ENTRY_POINT_GROUP) if ep.name not in shipped}
+    """Problems that other installed packages register under the entry-point group ``ENTRY_POINT_GROUP``, by
+    name (a name also shipped is left out: the shipped module wins)."""
+    return _entry_points()[1]
+
+
+def _all_entry_points() -> dict[str, importlib.metadata.EntryPoint]:
+    shipped, others = _entry_points()
+    return {**others, **shipped}
+
+
+def registered_name(prob: Problem) -> str | None:
+    """The name ``load`` finds ``prob`` by among the entry points (its module is the one an entry point names),
+    else None (a module loaded from a path or built in Python)."""
+    mod = getattr(prob.module, "__name__", None)
+    ep = _all_entry_points().get(prob.name)
+    return prob.name if ep is not None and not ep.attr and ep.module == mod else None
 
 
 def _module_file(ep: importlib.metadata.EntryPoint) -> Path | None:
@@ -532,13 +556,9 @@ def _load_file(path: Path) -> Problem:
         raise ProblemDefinitionError(f"problem path {path} is a directory, not a .py file")
     if path.suffix != ".py":
         raise ProblemDefinitionError(f"problem path {path} is not a .py file")
-    import problems
-
-    if path.resolve().parent in {Path(d).resolve() for d in problems.__path__} and path.stem in available():
-        return load(path.stem)  # a shipped module: imported in its package (its relative imports work)
-    for ep in registered().values():
+    for ep in _all_entry_points().values():
         if _module_file(ep) == path.resolve():
-            return _load_entry_point(ep)  # a registered module: its name (worker processes load by path)
+            return _load_entry_point(ep)  # a registered module: imported in its package (relative imports work)
     mod_name = f"autotight_user_problem_{path.stem}"
     spec = importlib.util.spec_from_file_location(mod_name, path)
     if spec is None or spec.loader is None:
@@ -556,8 +576,8 @@ def _load_file(path: Path) -> Problem:
 
 
 def load(name_or_path: str | Path | ModuleType | Problem) -> Problem:
-    """A problem by name (``problems.<name>``, else an entry point of ``ENTRY_POINT_GROUP``), by ``.py`` path, or
-    from a module object."""
+    """A problem by name (an entry point of ``ENTRY_POINT_GROUP``; a shipped name wins), by ``.py`` path, or from a
+    module object."""
     if isinstance(name_or_path, Problem):
         return name_or_path
     if isinstance(name_or_path, ModuleType):
@@ -565,17 +585,15 @@ def load(name_or_path: str | Path | ModuleType | Problem) -> Problem:
     s = str(name_or_path)
     if isinstance(name_or_path, Path) or s.endswith(".py") or "/" in s or "\\" in s:
         return _load_file(Path(s))
-    known = available()
-    if s not in known:
-        others = registered()
-        if s in others:
-            return _load_entry_point(others[s])
-        raise ProblemDefinitionError(f"unknown problem {s!r}; known problems: {', '.join(known + sorted(others))}")
-    try:
-        module = importlib.import_module(f"problems.{s}")
-    except Exception as e:
-        raise _import_failed(f"cannot import problem module {s!r} (problems/{s}.py)", e) from e
-    return Problem(module)
+    shipped, others = _entry_points()
+    ep = shipped.get(s) or others.get(s)
+    if ep is None:
+        if not shipped:
+            raise ProblemDefinitionError(f"unknown problem {s!r}: no problems are registered under the entry-point "
+                                         f"group {ENTRY_POINT_GROUP!r}; install autotight (pip install -e .)")
+        raise ProblemDefinitionError(f"unknown problem {s!r}; known problems: "
+                                     f"{', '.join(sorted(shipped) + sorted(others))}")
+    return _load_entry_point(ep)
 
 
 def parse_assignments(items: list[str] | None) -> dict[str, str]:

@@ -264,6 +264,30 @@ def test_a_broken_entry_point_is_one_line_naming_it(tmp_path, monkeypatch):
         load("broken_one")
 
 
+def test_shipped_problems_are_entry_points_and_win_over_a_package_using_their_name(tmp_path, monkeypatch):
+    from autotight.discovery.heldout import problem_ref
+    from autotight.problem import available, registered_name
+
+    _install_entry_point(tmp_path, "wahba", "user_wahba", EXAMPLE.read_text())
+    monkeypatch.syspath_prepend(str(tmp_path))
+    assert "wahba" in available() and "wahba" not in registered()
+    prob = load("wahba")
+    assert prob.module.__name__ == "problems.wahba"
+    assert registered_name(prob) == "wahba" and problem_ref(prob, local=False) == "wahba"
+    # the shipped module's file loads as the shipped problem (its package's relative imports work)
+    assert load(prob.path).module is prob.module
+    user = load(str(tmp_path / "user_wahba.py"))  # a file no entry point names: by path in workers
+    assert user.module.__name__ != "problems.wahba"
+
+
+def test_without_registered_problems_a_name_is_an_error_that_says_to_install(monkeypatch):
+    import importlib.metadata
+
+    monkeypatch.setattr(importlib.metadata, "entry_points", lambda **kw: [])
+    with pytest.raises(ProblemDefinitionError, match=r"no problems are registered .*pip install -e \."):
+        load("rotation_averaging")
+
+
 def test_the_worked_example_page_shows_the_module_file_as_it_is():
     import re
 

@@ -130,3 +130,12 @@ print("REPORT", autotight.cli.main(["report", "rotation_averaging", "--trials", 
     err = [ln for ln in out.stderr.splitlines() if ln.startswith("autotight: error:")]
     assert len(err) == 1 and "autotight[report]" in err[0] and "matplotlib" in err[0] and "pandas" in err[0], \
         out.stderr
+
+
+def test_every_shipped_problem_module_is_registered_as_an_entry_point():
+    declared = PYPROJECT["project"]["entry-points"]["autotight.problems"]
+    files = {p.stem for p in (ROOT / "problems").glob("*.py") if not p.stem.startswith("_")}
+    assert declared == {name: f"problems.{name}" for name in sorted(files)}
+    from autotight.problem import available
+
+    assert available() == sorted(files)  # the installed metadata is the declared one (reinstall after editing)

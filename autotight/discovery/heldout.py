@@ -29,19 +29,19 @@ from ..pipeline import LocalSearch, feasible_points, local_search, seeds, solve_
 from ..validate import check_instance
 from ..validity import check_valid
 from .shortcut import Shortcut, certified_tight
-from ..problem import Problem, available, load
+from ..problem import Problem, load, registered_name
 from ..sdp.config import SolverConfig
 from ..tightness import Criteria
 
 
 def problem_ref(prob: Problem, local: bool) -> Problem | str:
-    """How a worker loads ``prob``: the object itself in this process (``local``), else its name when it is a
-    shipped problem, else the absolute path of its module file."""
+    """How a worker loads ``prob``: the object itself in this process (``local``), else its name when an entry point
+    registers it, else the absolute path of its module file."""
     if local:
         return prob
-    mod = getattr(prob.module, "__name__", "")
-    if mod == f"problems.{prob.name}" and prob.name in available():
-        return prob.name
+    name = registered_name(prob)
+    if name is not None:
+        return name
     if prob.path is None:
         raise ParameterError(f"problem {prob.name!r} has no module file: it cannot run in worker processes "
                              "(use jobs=1)")
