@@ -8,8 +8,9 @@ quadratic through those three points, summed over the probed parameters.  The me
 ``BYTES_PER_NONZERO`` per nonzero of the data plus ``BYTES_PER_DENSE_ENTRY`` per entry of the
 N × N solution X, fitted to the peak RSS of ``autotight solve`` on rotation averaging with M = 50,
 200, 400 (89, 173, 350 MB); the run is refused when it exceeds the memory available.  A solve on
-our clique cover (``--solver ipm``, ``--decompose``) keeps X on the cliques' pattern above
-``DENSE_X_MAX`` columns: for it at most DENSE_X_MAX² entries of X count (``holds_dense_x``).
+our clique cover (``--solver ipm``, ``--decompose``; ``holds_dense_x``) keeps X on the cliques' pattern
+above ``DENSE_X_MAX`` columns: there no dense X counts, and the memory is ``COVER_BASE_BYTES`` plus
+``COVER_BYTES_PER_NONZERO`` per nonzero, fitted to long discrete trajectories (see those constants).
 
 Certify (``check_certify_size``) never forms X nor the full SDP on large problems (``autotight.certifier``):
 its memory is ``CERTIFY_BYTES_PER_NONZERO`` per nonzero of the same data, fitted to the peak RSS of
@@ -46,6 +47,12 @@ PROBE_FACTOR = 4
 CERTIFY_BYTES_PER_NONZERO = 1000.0
 PROBE_MIN = 64
 BYTES_PER_NONZERO = 3000.0
+#: a solve on a clique cover above DENSE_X_MAX columns (X sparse on the cliques' pattern): peak RSS =
+#: COVER_BASE_BYTES + COVER_BYTES_PER_NONZERO per nonzero of Q and the primary constraints, through the peak
+#: RSS of ``autotight solve discrete_trajectory --solver ipm`` with the set learned at K = 5 (3.6 redundant
+#: constraints per primary one): 0.82 GB at K = 1000 (4.9e5 nonzeros), 5.7 GB at K = 10 000 (4.9e6)
+COVER_BASE_BYTES = 3e8
+COVER_BYTES_PER_NONZERO = 1200.0
 BYTES_PER_DENSE_ENTRY = 100.0
 MAX_SECONDS = 24 * 3600.0
 ONE_RUN_SECONDS = 600.0
@@ -64,8 +71,9 @@ class SizeEstimate:
 
     @property
     def bytes(self) -> float:
-        n = self.N if self.dense_x else min(self.N, DENSE_X_MAX)
-        return self.nonzeros * BYTES_PER_NONZERO + n * n * BYTES_PER_DENSE_ENTRY
+        if self.dense_x or self.N <= DENSE_X_MAX:
+            return self.nonzeros * BYTES_PER_NONZERO + self.N * self.N * BYTES_PER_DENSE_ENTRY
+        return COVER_BASE_BYTES + self.nonzeros * COVER_BYTES_PER_NONZERO
 
 
 def holds_dense_x(config: SolverConfig | None) -> bool:

@@ -80,9 +80,9 @@ def test_sparse_solution_matches_dense(monkeypatch, backend):
 def test_size_estimate_counts_a_dense_x_only_for_solvers_that_hold_one():
     """Discrete trajectory K = 1000 (N ≈ 24 000): a solve that may hold X dense needs N² entries
     (> 50 GB: refused on this machine), one on our clique cover (``--solver ipm``, ``--decompose``)
-    keeps X on the cliques' pattern, so only the data's nonzeros and DENSE_X_MAX² entries count."""
-    from autotight.limits import estimate_size, holds_dense_x
-    from autotight.sdp.result import DENSE_X_MAX
+    keeps X on the cliques' pattern, so only the data's nonzeros count: within the 1 GB and 8 GB that
+    K = 1000 and K = 10 000 are to run in."""
+    from autotight.limits import COVER_BASE_BYTES, COVER_BYTES_PER_NONZERO, estimate_size, holds_dense_x
 
     prob = load("discrete_trajectory")
     params = prob.parse_params({"K": 1000})
@@ -91,5 +91,7 @@ def test_size_estimate_counts_a_dense_x_only_for_solvers_that_hold_one():
     assert holds_dense_x(SolverConfig(backend="ipm", decompose=False))
     dense, cover = estimate_size(prob, params, True), estimate_size(prob, params, False)
     assert 23_000 < dense.N < 25_000 and dense.bytes > 50e9
-    assert cover.bytes == pytest.approx(dense.bytes - (dense.N ** 2 - DENSE_X_MAX ** 2) * 100.0)
-    assert cover.bytes < 3e9
+    assert cover.nonzeros == dense.nonzeros
+    assert cover.bytes == pytest.approx(COVER_BASE_BYTES + cover.nonzeros * COVER_BYTES_PER_NONZERO)
+    assert cover.bytes < 1e9
+    assert estimate_size(prob, prob.parse_params({"K": 10_000}), False).bytes < 8e9
