@@ -14,6 +14,7 @@
 
 from __future__ import annotations
 
+import inspect
 import json
 from typing import Any
 
@@ -57,6 +58,9 @@ CLEAN = {clean!r}
 MAX_FREE_COND = {max_free_cond!r}
 
 
+{cleaned}
+
+
 def _syms(P, n):
     """coefficient vectors (..., m) -> symmetric (..., n, n) with x^T A x = p . monomials"""
     jj, ii = np.tril_indices(n)
@@ -97,15 +101,7 @@ def _carried_basic(P, Ms, free, rows):
     Pc = np.swapaxes(P @ G, 1, 2)  # (c, |rows|, m)
     Sc = _syms(Pc, n)
     V = _polys(np.swapaxes(Sc @ Ms[:, None], 2, 3) @ Ms[:, None])
-    size = np.linalg.norm(V, axis=(1, 2))
-    ok = np.isfinite(size) & (size <= MAX_FREE_COND)
-    V[~ok] = np.nan
-    W = V[ok]
-    W[:, :, free] = np.eye(len(free))[rows]
-    mx = np.max(np.abs(W), axis=2, keepdims=True)
-    W[np.abs(W) < CLEAN * mx] = 0.0
-    V[ok] = W
-    return V
+    return _cleaned(V, free, rows)[0]
 
 
 def _transport_coefficients(tpl, D):
@@ -231,10 +227,11 @@ def python_source(problem, ds, source: str) -> str:
     """The standalone module (see the module docstring)."""
     from ._version import __version__
     from .discovery.nullspace import CLEAN, MAX_FREE_COND
+    from .discovery.transport import _cleaned
 
     tpls = exported_templates(problem, ds)
     return PYTHON.format(source=source, problem=ds.problem, version=__version__, templates=json.dumps(tpls),
-                         clean=CLEAN, max_free_cond=MAX_FREE_COND)
+                         clean=CLEAN, max_free_cond=MAX_FREE_COND, cleaned=inspect.getsource(_cleaned).strip())
 
 
 def latex_source(problem, ds) -> str:

@@ -24,6 +24,7 @@ import scipy.sparse as sp
 from ..errors import AutotightError
 from ..model import Constraint, Model
 from ..problem import Problem
+from ..discovery.transport import Layout
 from ..svec import triu_indices
 
 #: the data of the instances are drawn at this noise level (when the problem has a ``sigma`` parameter),
@@ -87,7 +88,7 @@ def choose_pivots(G: np.ndarray, order: np.ndarray) -> np.ndarray:
 
 
 @dataclass
-class FactorSamples:
+class FactorSamples(Layout):
     """S factors of one type: data D (S, p); ``reducers`` (S, r, m): (G_P)⁻¹ G per factor, so that
     NF(v) = v − v[pivots] · reducer; ``paper``: family → (S, k, m) local coefficient vectors of its k rows."""
 
@@ -101,14 +102,6 @@ class FactorSamples:
     paper: dict[str, np.ndarray] = field(default_factory=dict)
     paper_rows: dict[str, list[str]] = field(default_factory=dict)
     instances: list[tuple[Any, Model, list]] = field(default_factory=list)
-
-    @property
-    def n_cols(self) -> int:
-        return int(sum(self.block_sizes))
-
-    @property
-    def n_monomials(self) -> int:
-        return self.n_cols * (self.n_cols + 1) // 2
 
     def normal_form(self, V: np.ndarray) -> np.ndarray:
         """NF of relations V (S, …, m), one factor per leading index."""

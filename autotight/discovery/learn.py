@@ -12,7 +12,7 @@ import scipy.sparse as sp
 from ..errors import LearningError, ProblemDefinitionError
 from ..model import HOMOGENISING, Constraint, Factor, Model, canonical_coo
 from ..svec import sym_to_poly, triu_indices
-from .nullspace import CLEAN, basic_solutions, free_monomials, nullspace, spectrum, svd
+from .nullspace import CLEAN, Spectrum, basic_solutions, free_monomials, nullspace, spectrum, svd
 from .samples import SampleBank
 
 
@@ -173,10 +173,8 @@ class LearnedGroup:
 
     def gaps(self) -> dict[str, Any]:
         """The chosen spectral gap (decades, rank) and any ignored one below the roundoff floor."""
-        out: dict[str, Any] = {"decades": float(self.gap_decades), "rank": int(self.rank)}
-        if self.ignored_gap_decades is not None and self.ignored_gap_rank is not None:
-            out["ignored"] = {"decades": float(self.ignored_gap_decades), "rank": int(self.ignored_gap_rank)}
-        return out
+        return Spectrum(self.spectrum_rel, self.rank, self.gap_decades, self.ignored_gap_decades,
+                        self.ignored_gap_rank).gaps()
 
     @property
     def n_monomials(self) -> int:
