@@ -18,7 +18,7 @@ from .constraint_set import ConstraintSet
 from .errors import AutotightError
 from .model import Constraint, Factor, Model, QuadForm, Variables
 from .pipeline import SolveResult
-from .problem import Instance, LocalResult, Param, Problem
+from .problem import Instance, LocalResult, Meta, Param, Problem
 from .sdp.config import SolverConfig, SolverOptions
 from .tightness import Criteria, Verdict
 from .validity import InvalidConstraintError
@@ -26,5 +26,5 @@ from .validity import InvalidConstraintError
 __all__ = ["__version__", "load_problem", "solve", "discover", "certify", "check_problem", "check_sufficient",
            "ConstraintSet", "SolveResult", "Criteria", "Verdict", "SolverConfig", "SolverOptions", "AutotightError",
            "InvalidConstraintError",
-           "Problem", "Param", "Instance", "LocalResult", "Model",
+           "Problem", "Param", "Meta", "Instance", "LocalResult", "Model",
            "Variables", "Factor", "QuadForm", "Constraint"]

@@ -96,7 +96,7 @@ def discover(problem: str | ModuleType | Problem, params: dict[str, Any] | None 
     whether a fresh held-out batch passed.  ``options`` are those of ``autotight.discovery.engine.discover``
     (over, n_train, n_heldout, min_fraction, max_rounds, max_solves, carry_to, groups, learn_options,
     criteria, n_random, compare, jobs, scheduler, progress).  solver: a ``SolverConfig`` (None: Clarabel, or
-    the backend a problem's ``CARRY_TO`` hint names).
+    the backend a problem's ``META.carry_to`` hint names).
     """
     from .discovery.engine import discover as _discover
 

@@ -16,7 +16,7 @@ Checks, each with a named one-line message (``ProblemCheck.lines``):
 - ``data``: finite measurements, Q and constraints, and cost weights the solver resolves
   (``autotight.validate.check_data``);
 - ``sample-spread``, ``random-state``, ``local-descent-perturbed``, ``errors``, ``marginal_log_svr`` and
-  the declared values (``SIGMAS``, ``PAPER_CLAIM``, ``DEFAULT_*``, ``CHECK_PARAMS``): see
+  the fields of ``META``: see
   ``autotight.checks_parts``.  Every part a module defines is called; a check that fails, or raises,
   is one FAIL line and the other checks still run.
 
@@ -163,7 +163,8 @@ class _Checker:
 @single_blas_thread
 def check_problem(problem: Problem | str, params: dict[str, Any] | None = None, seed: int = 0, n_samples: int = 5,
                   rng: np.random.Generator | None = None) -> ProblemCheck:
-    """Run every check on one instance (``params``: default the module's CHECK_PARAMS, else PARAMS' defaults)."""
+    """Run every check on one instance (``params``: default the module's ``META.check_params``, else PARAMS'
+    defaults)."""
     from . import checks_parts as more
     from .module_parts import check_params
 
@@ -184,7 +185,7 @@ def check_problem(problem: Problem | str, params: dict[str, Any] | None = None, 
                 seconds=sample_seconds)
     out = ProblemCheck(prob.name, prob.path, full, int(seed))
     if bad_check_params:
-        out.failures.append(f"CHECK_PARAMS: {bad_check_params} (checked at the defaults of PARAMS instead)")
+        out.failures.append(f"META.check_params: {bad_check_params} (checked at the defaults of PARAMS instead)")
     rng = rng if rng is not None else np.random.default_rng([int(seed), 1])
     t0 = time.perf_counter()
     try:
@@ -310,12 +311,12 @@ def check_problem(problem: Problem | str, params: dict[str, Any] | None = None, 
 
 
 def _carry(prob: Problem, given: dict[str, Any], out: ProblemCheck) -> None:
-    """A declared ``CARRY_TO`` hint names parameters of the problem with valid values."""
+    """A declared ``META.carry_to`` hint names parameters of the problem with valid values."""
     from .discovery.engine import carry_hint
 
     params, backend = carry_hint(prob)
     if not params:
-        out.passed.append("carry: no CARRY_TO hint; discover validates at the given parameters only")
+        out.passed.append("carry: no META.carry_to hint; discover validates at the given parameters only")
         return
     out.passed.append(f"carry: discover also validates at {params}" + (f" (with {backend})" if backend else ""))
 

@@ -19,7 +19,7 @@
 - ``errors``: ``errors`` (the module's or the default) returns finite floats at the truth and a sample.
 - ``marginal_log_svr`` (when defined): a float at the rank-1 X = lift(truth)ᵀlift(truth), above
   ``tightness.Criteria().min_log_svr`` (a rank-1 X must read as rank 1); skipped above ``MAX_DENSE_X`` columns.
-- declared values (``SIGMAS``, ``PAPER_CLAIM``, ``DEFAULT_*``, ``CHECK_PARAMS``): as
+- the fields of ``META`` (``sigmas``, ``paper_claim``, ``default_groups``, ``carry_to``, ``check_params``): as
   ``autotight.module_parts`` reads them.
 """
 
@@ -113,7 +113,7 @@ def check_random_state(prob: Problem, inst: Instance, model: Model, rng: np.rand
     v = relative_violation(cons, T[None])
     worst = float(v.max()) if v.size else 0.0
     out.measurements["random_state_violation"] = worst
-    what = "the module's" if "random_state" not in prob.derived else "the default (sample at RANDOM_SPREAD)"
+    what = "the module's" if "random_state" not in prob.derived else "the default (sample at META.random_spread)"
     ok = worst <= feas_tol
     name = cons[int(np.argmax(v))].name if v.size else ""
     (out.passed if ok else out.failures).append(
@@ -169,7 +169,7 @@ def check_marginal(prob: Problem, inst: Instance, theta: np.ndarray, out: Any) -
     T = np.atleast_2d(theta)
     if T.shape[1] > MAX_DENSE_X:
         out.warnings.append(f"marginal_log_svr: not checked (N = {T.shape[1]} > {MAX_DENSE_X}; give smaller "
-                            "CHECK_PARAMS)")
+                            "META.check_params)")
         return
     v = prob.marginal_log_svr(inst, T.T @ T, None)
     need = Criteria().min_log_svr
@@ -181,12 +181,14 @@ def check_marginal(prob: Problem, inst: Instance, theta: np.ndarray, out: Any) -
 
 
 def check_declared(prob: Problem, out: Any) -> None:
-    """Every declared value (``module_parts.READERS``) reads without error."""
+    """Every field of the module's ``META`` that it gives (``module_parts.READERS``) reads without error."""
+    from .meta import Meta
     from .module_parts import READERS
 
     for part, read in READERS.items():
-        if not hasattr(prob.module, part) or any(f.startswith(f"{part}:") for f in out.failures):
-            continue  # not declared, or reported already (CHECK_PARAMS, read first)
+        name = part.split(".", 1)[1]
+        if getattr(prob.meta, name) == getattr(Meta(), name) or any(f.startswith(f"{part}:") for f in out.failures):
+            continue  # not given, or reported already (META.check_params, read first)
         try:
             read(prob)
         except AutotightError as e:

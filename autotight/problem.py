@@ -19,20 +19,17 @@ and **may** define (the default is used otherwise)
 - ``NAME`` (the file name), ``DESCRIPTION`` (the docstring's first line);
 - ``cost(instance, state) -> float``: the original cost.  Default ⟨Q, ΘᵀΘ⟩ + ``cost_offset`` from
   build's model; write it anyway: an independent ``cost`` is what lets the check catch a wrong ``lift``;
-- ``random_state(instance, rng) -> state``: default ``sample(instance, rng, truth, RANDOM_SPREAD)``;
+- ``random_state(instance, rng) -> state``: default ``sample(instance, rng, truth, META.random_spread)``;
 - ``errors(instance, state) -> dict[str, float]``: default ``default_errors`` (rotation-like entries →
   angle in degrees, poses → angle and translation, other arrays → RMS norm of the difference);
 - ``marginal_log_svr(instance, X, cliques) -> float``: log SVR of the module's own reduced X (reported beside
   the plain log SVR);
-- ``SPREAD`` (0.5): the spread discovery samples with; ``RANDOM_SPREAD`` (π); ``SIGMAS`` (the noise levels
-  of ``report``); ``CHECK_PARAMS`` (parameters for ``check-module``; default ``PARAMS``' defaults);
-  ``PAPER_CLAIM``, ``DEFAULT_GROUPS``, ``CARRY_TO`` (``autotight.module_parts``
-  says what each holds and validates it where it is read);
+- ``META = Meta(...)``: the tools' policy for the problem, apart from its mathematics (``autotight.meta``):
+  report's noise levels, the paper's claim, discovery's groups and carry hint, check-module's parameters,
+  the sampling spreads; ``autotight.module_parts`` validates each field where it is read;
 - ``TRANSPORTS: dict[str, Callable]``: per factor type, ``transport(data) -> M`` (n × n, n the factor's
   local columns, h first): a factor's columns θ satisfy the relations of measurement ``data`` exactly
   when Mθ satisfies those of the reference measurement (``autotight.discovery.transport``);
-- ``CARRY_TO = {"params": {name: value}, "solver": backend}``: a hint that a discovered set of this problem
-  should carry to instances of these sizes: ``discover`` validates there too (``autotight.discovery.engine``);
 - ``DATA_NAMES: dict[str, Sequence[str]]``: per factor type, the names of its ``Factor.data`` entries
   (printed closed forms, ``autotight.closed_form``; default δ1, δ2, …).
 
@@ -71,6 +68,7 @@ import numpy as np
 
 from .errors import AutotightError, ParameterError, ProblemDefinitionError, ProblemModuleError
 from .lie import rotation_error_deg
+from .meta import LOOSE_NAMES, Meta
 from .model import Model, Variables
 
 State = dict[str, np.ndarray]
@@ -78,14 +76,10 @@ State = dict[str, np.ndarray]
 #: Parts every module must define.
 REQUIRED = ("PARAMS", "generate", "build", "lift", "sample", "local_solve", "recover")
 #: Parts with a default (``Problem`` derives them when absent).
-OPTIONAL = ("NAME", "DESCRIPTION", "cost", "random_state", "errors", "marginal_log_svr", "SPREAD", "RANDOM_SPREAD",
-            "SIGMAS", "PAPER_CLAIM", "DEFAULT_GROUPS", "CHECK_PARAMS", "TRANSPORTS", "CARRY_TO", "DATA_NAMES")
+OPTIONAL = ("NAME", "DESCRIPTION", "cost", "random_state", "errors", "marginal_log_svr", "META", "TRANSPORTS",
+            "DATA_NAMES")
 FUNCTIONS = ("generate", "build", "lift", "sample", "cost", "local_solve", "recover", "random_state", "errors",
              "marginal_log_svr")
-#: Default sampling spread (discovery's samples, check-module).
-SPREAD = 0.5
-#: Default spread of the derived ``random_state`` (a rotation by |N(0, π² I)| is far from the nominal).
-RANDOM_SPREAD = math.pi
 #: Relative tolerance on the primary constraints at sampled states (see ``relative_violation``).
 SAMPLE_TOL = 1e-8
 #: The entry-point group an installed package registers problems under: ``name = "pkg.module"``.
@@ -190,8 +184,19 @@ class Problem:
         doc = (module.__doc__ or "").strip()
         self.description: str = str(getattr(module, "DESCRIPTION", doc.splitlines()[0] if doc else ""))
         self.params: dict[str, Param] = dict(module.PARAMS)
-        self.spread = self._positive("SPREAD", SPREAD)
-        self.random_spread = self._positive("RANDOM_SPREAD", RANDOM_SPREAD)
+        loose = [n for n in LOOSE_NAMES if hasattr(module, n)]
+        if loose:
+            hint = ", ".join(f"{LOOSE_NAMES[n]}=…" for n in loose)
+            raise ProblemDefinitionError(f"{self.where()}: {', '.join(loose)} is tool policy: declare it as "
+                                         f"META = Meta({hint}) (from autotight.problem import Meta)")
+        meta = getattr(module, "META", Meta())
+        if not isinstance(meta, Meta):
+            raise ProblemDefinitionError(f"{self.where()}: META must be a Meta (from autotight.problem import Meta), "
+                                         f"got {_kind(meta)}")
+        #: the tools' policy for this problem (``autotight.meta``)
+        self.meta: Meta = meta
+        self.spread = self._positive("spread", meta.spread)
+        self.random_spread = self._positive("random_spread", meta.random_spread)
         #: parts this module leaves to the defaults
         self.derived: tuple[str, ...] = tuple(p for p in ("cost", "random_state", "errors") if not hasattr(module, p))
         self._models: dict[int, tuple[weakref.ref, Model]] = {}
@@ -199,10 +204,9 @@ class Problem:
     def __repr__(self) -> str:
         return f"Problem({self.name!r})"
 
-    def _positive(self, attr: str, default: float) -> float:
-        v = getattr(self.module, attr, default)
+    def _positive(self, field: str, v: Any) -> float:
         if isinstance(v, bool) or not isinstance(v, Real) or not math.isfinite(v) or v <= 0:
-            raise ProblemDefinitionError(f"problem module {self.name!r}: {attr} must be a positive number, got {v!r}")
+            raise ProblemDefinitionError(f"{self.where()}: META.{field} must be a positive number, got {v!r}")
         return float(v)
 
     # ------------------------------------------------------------------ the boundary into module code
@@ -321,7 +325,7 @@ class Problem:
 
     def sample(self, instance: Instance, rng: np.random.Generator, nominal: State | None = None,
                spread: float | None = None) -> State:
-        """A feasible state near ``nominal`` (default the truth) with ``spread`` (default ``SPREAD``)."""
+        """A feasible state near ``nominal`` (default the truth) with ``spread`` (default ``META.spread``)."""
         s = self.spread if spread is None else float(spread)
         return self._state("sample", self.call("sample", instance, rng,
                                                instance.truth if nominal is None else nominal, s))
@@ -352,7 +356,7 @@ class Problem:
         return self._state("recover", self.call("recover", instance, T[None, :] if T.ndim == 1 else T))
 
     def random_state(self, instance: Instance, rng: np.random.Generator) -> State:
-        """The module's random start, else ``sample(instance, rng, truth, RANDOM_SPREAD)``."""
+        """The module's random start, else ``sample(instance, rng, truth, META.random_spread)``."""
         if "random_state" in self.derived:
             return self.sample(instance, rng, instance.truth, self.random_spread)
         return self._state("random_state", self.call("random_state", instance, rng))

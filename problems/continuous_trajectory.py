@@ -55,7 +55,7 @@ from autotight.affine import Affine, H, const, quad, sum_quads, var
 from autotight.errors import ParameterError, ProblemDefinitionError, SolverError
 from autotight.gauss_newton import gauss_newton
 from autotight.model import Constraint, Factor, Model, QuadForm, Variables
-from autotight.problem import Instance, LocalResult, Param
+from autotight.problem import Instance, LocalResult, Meta, Param
 from autotight.sdp.result import log_svr
 
 from ._pose import (
@@ -83,15 +83,15 @@ GEOMETRIES = ("arc", "random_walk")
 
 NAME = "continuous_trajectory"
 DESCRIPTION = "Continuous-time (WNOA prior) SE(3) trajectory from sparse pose measurements (paper §5)."
-#: what the paper reports for R1–R8 (Fig. 11, 100 trials per σ on one geometry, and §5's text; the figure's
-#: values are not stated in the text), shown beside our verdicts in the report's "Against the paper" table
-PAPER_CLAIM = {
+#: the paper's claim for R1–R8 (Fig. 11, 100 trials per σ on one geometry, and §5's text; the figure's values
+#: are not stated in the text), shown beside our verdicts in the report's "Against the paper" table
+META = Meta(paper_claim={
     "source": "Fig. 11 and §5: 'log SVR values mostly above 5 up to about σ = 1'",
     "set": "paper",
     "by_sigma": {0.001: "log SVR above 5, 'noticeably lower than neighbouring noise levels' (they marginalise ϖ)",
                  1.0: "log SVR 'mostly above 5'"},
     "default": "log SVR above 5 (rank 1)",
-}
+})
 
 
 @dataclass(frozen=True)

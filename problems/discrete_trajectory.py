@@ -32,7 +32,7 @@ from autotight import lie
 from autotight.errors import ParameterError
 from autotight.gauss_newton import BlockJacobian, BlockPattern, block_sparse, block_weight, gauss_newton
 from autotight.model import Factor, Model, Variables
-from autotight.problem import Instance, LocalResult, Param
+from autotight.problem import Instance, LocalResult, Meta, Param
 
 from . import _pose_batch as pb
 from ._cayley import draw_valid
@@ -43,13 +43,6 @@ from ._pose import (POSE_ROLES, XI_ROLES, binary_cayley, binary_transport, decla
 
 NAME = "discrete_trajectory"
 DESCRIPTION = "Estimate K poses from pose and relative-pose measurements (paper §4)."
-#: what the paper reports for R1–R3 (Fig. 8, 100 trials per σ on one geometry; the figure's values are not
-#: stated in the text), shown beside our verdicts in the report's "Against the paper" table
-PAPER_CLAIM = {
-    "source": "Fig. 8: 'the global solution remains highly rank 1 over a wide range of measurement noise values'",
-    "set": "paper",
-    "default": "log SVR above 5 (rank 1)",
-}
 PARAMS = {
     "K": Param(20, "number of poses (≥ 2)", low=2),
     "sigma": Param(0.1, "noise standard deviation of every ξ component (rad, and length units)", low=0.0),
@@ -59,10 +52,19 @@ PARAMS = {
     "climb": Param(0.1, "vertical distance per step (makes the path a helix)"),
 }
 
-#: a hint (``autotight.discovery.engine``): a learned set should carry to long chains, so ``discover`` also
-#: validates it on held-out chains of 200 poses (every failing one becomes a training instance), with our IPM
-#: unless --solver is given.  Selected at K = 5 alone the set is one pair, not tight at K = 100.
-CARRY_TO = {"params": {"K": 200}, "solver": "ipm"}
+META = Meta(
+    #: the paper's claim for R1–R3 (Fig. 8, 100 trials per σ on one geometry; the figure's values are not
+    #: stated in the text), shown beside our verdicts in the report's "Against the paper" table
+    paper_claim={
+        "source": "Fig. 8: 'the global solution remains highly rank 1 over a wide range of measurement noise values'",
+        "set": "paper",
+        "default": "log SVR above 5 (rank 1)",
+    },
+    #: a hint (``autotight.discovery.engine``): a learned set should carry to long chains, so ``discover`` also
+    #: validates it on held-out chains of 200 poses (every failing one becomes a training instance), with our
+    #: IPM unless --solver is given.  Selected at K = 5 alone the set is one pair, not tight at K = 100.
+    carry_to={"params": {"K": 200}, "solver": "ipm"},
+)
 
 #: each factor type's learned relations move with its measurement (``Factor.data``) by this change of
 #: variables (``autotight.discovery.transport``): templates for relations that no low-degree polynomial fits

@@ -20,7 +20,7 @@ import numpy as np
 from autotight import lie
 from autotight.gauss_newton import block_weight, gauss_newton
 from autotight.model import Factor, Model, Variables
-from autotight.problem import Instance, LocalResult, Param
+from autotight.problem import Instance, LocalResult, Meta, Param
 
 from . import _pose_batch as pb
 from ._cayley import draw_valid
@@ -31,13 +31,13 @@ from ._pose import (POSE_ROLES, XI_ROLES, declare_pose, declare_xi, pose_blocks,
 
 NAME = "pose_averaging"
 DESCRIPTION = "Average M noisy SE(3) pose measurements (paper §3.2)."
-#: what the paper reports for R1+R2 (Fig. 5, 1000 trials of M = 10 per σ; the figure's values are not stated
-#: in the text), shown beside our verdicts in the report's "Against the paper" table
-PAPER_CLAIM = {
+#: the paper's claim for R1+R2 (Fig. 5, 1000 trials of M = 10 per σ; the figure's values are not stated in
+#: the text), shown beside our verdicts in the report's "Against the paper" table
+META = Meta(paper_claim={
     "source": "Fig. 5: 'the global solution remains highly rank 1 over a wide range of measurement noise values'",
     "set": "paper",
     "default": "log SVR above 5 (rank 1)",
-}
+})
 PARAMS = {
     "M": Param(10, "number of pose measurements", low=1),
     "sigma": Param(0.1, "noise standard deviation of each ξ_m component (rad, and length units; ≤ 10)", low=0.0,

@@ -22,7 +22,7 @@ from __future__ import annotations
 import numpy as np
 
 from autotight.graph import Euclidean, Factor, Variable, derive
-from autotight.problem import Instance, Param
+from autotight.problem import Instance, Meta, Param
 
 from . import _landmark_terms as lt
 
@@ -35,9 +35,9 @@ PARAMS = {
     "sigma": Param(0.01, "distance noise standard deviation (m)", low=0.0),
     "extent": Param(2.0, "anchors and positions lie in a box of this half-width (m)", low=0.0, low_open=True),
 }
-CHECK_PARAMS = {"dim": 3, "n_positions": 2, "n_anchors": 6, "sigma": 0.01, "extent": 2.0}
-PAPER_CLAIM = {"source": "AutoTight _results_test/terminal_output.log, RO (y_n) row: d = 3, N = 3",
-               "set": "paper", "default": "61 constraints → 33 required; rank-tight (SVR 2.3e9)"}
+META = Meta(check_params={"dim": 3, "n_positions": 2, "n_anchors": 6, "sigma": 0.01, "extent": 2.0},
+            paper_claim={"source": "AutoTight _results_test/terminal_output.log, RO (y_n) row: d = 3, N = 3",
+                         "set": "paper", "default": "61 constraints → 33 required; rank-tight (SVR 2.3e9)"})
 
 
 def vech(p: np.ndarray) -> np.ndarray:

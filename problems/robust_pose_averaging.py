@@ -91,7 +91,7 @@ from autotight.affine import Affine
 from autotight.errors import ParameterError
 from autotight.gauss_newton import block_weight, gauss_newton
 from autotight.model import Constraint, Factor, Model, QuadForm, Variables
-from autotight.problem import Instance, LocalResult, Param
+from autotight.problem import Instance, LocalResult, Meta, Param
 
 from ._cayley import draw_valid
 from ._pose import (POSE_ROLES, XI_ROLES, pose_blocks, pose_from_x, pose_orthonormality, pose_values,
@@ -131,13 +131,14 @@ PARAMS = {
                      "z_m = w_m·ξ_m (its relaxation has unbounded optimal sets)", choices=LIFTINGS),
 }
 
-#: the learning groups discovery uses by default for this problem (see the module docstring)
-DEFAULT_GROUPS = "factors"
-#: no paper families: the report's comparison row is AutoTight's published rPPR result, beside our discovered set
-PAPER_CLAIM = {"source": "AutoTight's published robust point registration (rPPR) row, not this problem's paper",
-               "set": "discovered",
-               "default": "rPPR: cost-tight (relative duality gap 1.1e-6, SVR 34), 925 of 1771 learned constraints, "
-                          "148 s"}
+#: discovery learns on factors (see the module docstring).  No paper families: the report's comparison row is
+#: AutoTight's published rPPR result, beside our discovered set
+META = Meta(default_groups="factors",
+            paper_claim={"source": "AutoTight's published robust point registration (rPPR) row, not this problem's "
+                                   "paper",
+                         "set": "discovered",
+                         "default": "rPPR: cost-tight (relative duality gap 1.1e-6, SVR 34), 925 of 1771 learned "
+                                    "constraints, 148 s"})
 #: the brute-force local solver enumerates 2^M labellings: refused above this M
 MAX_BRUTE_FORCE = 12
 

@@ -31,7 +31,7 @@ import numpy as np
 
 from autotight.constraints import Affine, Constraint, Factor, Model, QuadForm, Variables, sum_quads
 from autotight.errors import ParameterError
-from autotight.problem import Instance, LocalResult, Param
+from autotight.problem import Instance, LocalResult, Meta, Param
 
 from . import _landmark_terms as lt
 from . import _pose_vector as pv
@@ -46,8 +46,8 @@ PARAMS = {
     "beta": Param(0.1, "TLS threshold: a residual below β counts as an inlier", low=0.0, low_open=True),
     "outlier_extent": Param(2.0, "outliers are uniform in a box of this half-width", low=0.0, low_open=True),
 }
-PAPER_CLAIM = {"source": "AutoTight _results_test/terminal_output.log, rPPR row (wahba_3d_xwT_no_robust)",
-               "set": "paper", "default": "1771 constraints → 925 required; cost-tight (RDG 1.1e-6), SVR 34"}
+META = Meta(paper_claim={"source": "AutoTight _results_test/terminal_output.log, rPPR row (wahba_3d_xwT_no_robust)",
+                         "set": "paper", "default": "1771 constraints → 925 required; cost-tight (RDG 1.1e-6), SVR 34"})
 MAX_BRUTE_FORCE = 12
 
 

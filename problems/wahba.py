@@ -17,7 +17,7 @@ from __future__ import annotations
 import numpy as np
 
 from autotight.graph import Factor, derive
-from autotight.problem import Instance, Param
+from autotight.problem import Instance, Meta, Param
 
 from . import _landmark_terms as lt
 from . import _pose_vector as pv
@@ -29,8 +29,8 @@ PARAMS = {
     "n_points": Param(4, "number of point correspondences", low=1),
     "sigma": Param(0.01, "measurement noise standard deviation", low=0.0),
 }
-PAPER_CLAIM = {"source": "AutoTight _results_test/terminal_output.log, PPR row (wahba_3d_no_no)",
-               "set": "paper", "default": "21 constraints → 7 required; rank-tight (SVR 8.8e9)"}
+META = Meta(paper_claim={"source": "AutoTight _results_test/terminal_output.log, PPR row (wahba_3d_no_no)",
+                         "set": "paper", "default": "21 constraints → 7 required; rank-tight (SVR 8.8e9)"})
 
 
 def generate(params: dict, rng: np.random.Generator) -> Instance:

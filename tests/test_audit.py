@@ -37,7 +37,7 @@ HEAD = """
 from problems.rotation_averaging import *  # noqa: F401,F403
 import problems.rotation_averaging as ra
 import numpy as np
-from autotight.problem import LocalResult
+from autotight.problem import LocalResult, Meta
 NAME = "ra_broken"
 """
 
@@ -52,16 +52,16 @@ BROKEN = {
     "errors_text": "def errors(inst, state):\n    return {'a': 'x'}\n",
     "marginal_text": "def marginal_log_svr(inst, X, cliques):\n    return 'x'\n",
     "random_state_int": "def random_state(inst, rng):\n    return 5\n",
-    "sigmas_text": "SIGMAS = 'abc'\n",
-    "sigmas_int": "SIGMAS = 5\n",
-    "sigmas_negative": "SIGMAS = [0.1, -1.0]\n",
-    "claim_text": "PAPER_CLAIM = 'the paper'\n",
-    "claim_by_sigma_key": "PAPER_CLAIM = {'by_sigma': {'x': 'text'}}\n",
-    "claim_by_sigma_list": "PAPER_CLAIM = {'by_sigma': [1]}\n",
-    "carry_bogus": "CARRY_TO = {'K': 200}\n",
-    "groups_int": "DEFAULT_GROUPS = 5\n",
-    "carry_unknown_param": "CARRY_TO = {'params': {'bogus': 3}}\n",
-    "check_params_bad": "CHECK_PARAMS = {'M': -1}\n",
+    "sigmas_text": "META = Meta(sigmas='abc')\n",
+    "sigmas_int": "META = Meta(sigmas=5)\n",
+    "sigmas_negative": "META = Meta(sigmas=[0.1, -1.0])\n",
+    "claim_text": "META = Meta(paper_claim='the paper')\n",
+    "claim_by_sigma_key": "META = Meta(paper_claim={'by_sigma': {'x': 'text'}})\n",
+    "claim_by_sigma_list": "META = Meta(paper_claim={'by_sigma': [1]})\n",
+    "carry_bogus": "META = Meta(carry_to={'K': 200})\n",
+    "groups_int": "META = Meta(default_groups=5)\n",
+    "carry_unknown_param": "META = Meta(carry_to={'params': {'bogus': 3}})\n",
+    "check_params_bad": "META = Meta(check_params={'M': -1})\n",
     "weight_nan": "def generate(params, rng):\n    inst = ra.generate(params, rng)\n"
                   "    inst.measurements['W'][0] *= np.nan\n    return inst\n",
     "weight_1e30": "def generate(params, rng):\n    inst = ra.generate(params, rng)\n"
@@ -154,17 +154,17 @@ def _cli_cases(tmp: Path, mods: dict[str, str]) -> dict[str, tuple[list[str], st
         "errors_array_solve": (["solve", mods["errors_array"], *SMALL], "errors returned", None),
         "marginal_text_solve": (["solve", mods["marginal_text"], *SMALL], "marginal_log_svr", None),
         "carry_bogus_discover": (["discover", mods["carry_bogus"], *SMALL, "--heldout", "1", "--no-progress"],
-                                 "CARRY_TO", None),
+                                 "META.carry_to", None),
         "groups_int_discover": (["discover", mods["groups_int"], *SMALL, "--heldout", "1", "--no-progress"],
-                                "DEFAULT_GROUPS", None),
+                                "META.default_groups", None),
         "sigmas_text_report": (["report", mods["sigmas_text"], *SMALL, "--trials", "1", "--out", str(r / "s1"),
-                                "--no-progress", "-j", "1"], "SIGMAS", r / "s1"),
+                                "--no-progress", "-j", "1"], "META.sigmas", r / "s1"),
         "sigmas_int_report": (["report", mods["sigmas_int"], *SMALL, "--trials", "1", "--out", str(r / "s2"),
-                               "--no-progress", "-j", "1"], "SIGMAS", r / "s2"),
+                               "--no-progress", "-j", "1"], "META.sigmas", r / "s2"),
         "claim_text_report": (["report", mods["claim_text"], *SMALL, "--trials", "1", "--sigmas", "0.1", "--out",
-                               str(r / "c1"), "--no-progress", "-j", "1"], "PAPER_CLAIM", r / "c1"),
+                               str(r / "c1"), "--no-progress", "-j", "1"], "META.paper_claim", r / "c1"),
         "claim_key_report": (["report", mods["claim_by_sigma_key"], *SMALL, "--trials", "1", "--sigmas", "0.1",
-                              "--out", str(r / "c2"), "--no-progress", "-j", "1"], "PAPER_CLAIM", r / "c2"),
+                              "--out", str(r / "c2"), "--no-progress", "-j", "1"], "META.paper_claim", r / "c2"),
         **{f"set_{name}": (["solve", P, *SMALL, "--set", str(tmp / f"{name}.json")], words, None)
            for name, (_, words) in SETS.items()},
     }
@@ -272,16 +272,16 @@ CHECK_MODULE = {
     "errors_text": ("errors", "errors returned"),
     "marginal_text": ("marginal_log_svr", "returned str"),
     "random_state_int": ("random-state", "random_state returned"),
-    "sigmas_text": ("SIGMAS", "non-empty list"),
-    "sigmas_int": ("SIGMAS", "non-empty list"),
-    "sigmas_negative": ("SIGMAS", "> 0"),
-    "claim_text": ("PAPER_CLAIM", "must be a dict"),
-    "claim_by_sigma_key": ("PAPER_CLAIM", "by_sigma"),
-    "claim_by_sigma_list": ("PAPER_CLAIM", "by_sigma"),
-    "carry_bogus": ("CARRY_TO", "must be"),
-    "groups_int": ("DEFAULT_GROUPS", "factors"),
-    "carry_unknown_param": ("CARRY_TO", "is invalid"),
-    "check_params_bad": ("CHECK_PARAMS", "M=-1"),
+    "sigmas_text": ("META.sigmas", "non-empty list"),
+    "sigmas_int": ("META.sigmas", "non-empty list"),
+    "sigmas_negative": ("META.sigmas", "> 0"),
+    "claim_text": ("META.paper_claim", "must be a dict"),
+    "claim_by_sigma_key": ("META.paper_claim", "by_sigma"),
+    "claim_by_sigma_list": ("META.paper_claim", "by_sigma"),
+    "carry_bogus": ("META.carry_to", "must be"),
+    "groups_int": ("META.default_groups", "factors"),
+    "carry_unknown_param": ("META.carry_to", "is invalid"),
+    "check_params_bad": ("META.check_params", "M=-1"),
     "weight_nan": ("data", "NaN"),
     "weight_1e30": ("data", "condition number"),
 }

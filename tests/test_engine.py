@@ -312,12 +312,12 @@ def test_a_malformed_carry_hint_is_a_definition_error(hint):
     import problems.pose_averaging as base
     from autotight.discovery.engine import carry_hint
     from autotight.errors import ProblemDefinitionError
-    from autotight.problem import Problem
+    from autotight.problem import Meta, Problem
 
     mod = types.ModuleType("pose_copy")
     mod.__dict__.update({k: v for k, v in base.__dict__.items() if not k.startswith("__")})
-    mod.CARRY_TO = hint
-    with pytest.raises(ProblemDefinitionError, match="CARRY_TO"):
+    mod.META = Meta(carry_to=hint)
+    with pytest.raises(ProblemDefinitionError, match="META.carry_to"):
         carry_hint(Problem(mod))
-    mod.CARRY_TO = {"params": {"M": 7}, "solver": "ipm"}
+    mod.META = Meta(carry_to={"params": {"M": 7}, "solver": "ipm"})
     assert carry_hint(Problem(mod)) == ({"M": 7}, "ipm")

@@ -326,7 +326,7 @@ def test_spread_is_module_overridable_and_reaches_discovery(tmp_path):
     from autotight.discovery.learn import LearnOptions
     from autotight.discovery.samples import draw
 
-    prob = load(_module(tmp_path, "ra_spread", "SPREAD = 0.05\n"))
+    prob = load(_module(tmp_path, "ra_spread", "from autotight.problem import Meta\nMETA = Meta(spread=0.05)\n"))
     assert prob.spread == 0.05 and load("rotation_averaging").spread == 0.5
     assert LearnOptions().spread is None
     inst = prob.generate({"M": 3}, 0)
@@ -334,8 +334,20 @@ def test_spread_is_module_overridable_and_reaches_discovery(tmp_path):
     b = draw(prob, inst, 4, np.random.default_rng(5), 0.05).thetas
     c = draw(prob, inst, 4, np.random.default_rng(5), 0.5).thetas
     assert np.array_equal(a, b) and not np.allclose(a, c)
-    with pytest.raises(ProblemDefinitionError, match="SPREAD must be a positive number"):
-        load(_module(tmp_path, "ra_bad_spread", "SPREAD = -1\n"))
+    with pytest.raises(ProblemDefinitionError, match="META.spread must be a positive number"):
+        load(_module(tmp_path, "ra_bad_spread", "from autotight.problem import Meta\nMETA = Meta(spread=-1)\n"))
+
+
+def test_tool_policy_is_one_meta_value_and_loose_names_are_refused_with_the_replacement(tmp_path):
+    with pytest.raises(ProblemDefinitionError, match=r"SIGMAS, SPREAD is tool policy: declare it as "
+                                                     r"META = Meta\(sigmas=…, spread=…\)"):
+        load(_module(tmp_path, "ra_loose", "SIGMAS = [0.1]\nSPREAD = 0.2\n"))
+    with pytest.raises(ProblemDefinitionError, match="META must be a Meta"):
+        load(_module(tmp_path, "ra_meta_dict", "META = {'sigmas': [0.1]}\n"))
+    prob = load(_module(tmp_path, "ra_meta", "from autotight.problem import Meta\nMETA = Meta(sigmas=[0.2, 0.4])\n"))
+    from autotight.module_parts import sigmas
+
+    assert sigmas(prob) == (0.2, 0.4) and sigmas(load("rotation_averaging"), (1.0,)) == (1.0,)
 
 
 def test_default_errors_and_perturb_state_by_entry_kind():

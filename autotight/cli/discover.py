@@ -36,7 +36,7 @@ def register(sub: argparse._SubParsersAction, add_problem_args: Callable) -> Non
     add_range_args(p)
     p.add_argument("--out", default=None, help="save the discovered set as JSON to this file (checked before the work)")
     p.add_argument("--force", action="store_true", help="overwrite --out if it exists")
-    p.add_argument("--groups", default=None, help="the problem's DEFAULT_GROUPS or 'factors' (default), 'whole', "
+    p.add_argument("--groups", default=None, help="the problem's META.default_groups or 'factors' (default), 'whole', "
                    "'adjacent:TYPE+TYPE' (unions of neighbouring factors), comma-joined, or explicit blocks 'a,b;c,d'")
     p.add_argument("--train", type=pos_int, default=1, help="training instances per point (default 1)")
     p.add_argument("--heldout", type=nonneg_int, default=10,
@@ -48,8 +48,8 @@ def register(sub: argparse._SubParsersAction, add_problem_args: Callable) -> Non
     p.add_argument("--max-solves", type=pos_int, default=None, help="SDP solver calls at most (default: no limit)")
     p.add_argument("--carry-to", action="append", default=[], metavar="NAME=VALUE",
                    help="a size the set must pass at too, e.g. K=200 (repeatable; default: the problem's "
-                        "CARRY_TO hint)")
-    p.add_argument("--no-carry", action="store_true", help="ignore the problem's CARRY_TO hint")
+                        "META.carry_to hint)")
+    p.add_argument("--no-carry", action="store_true", help="ignore the problem's META.carry_to hint")
     p.add_argument("--jobs", "-j", type=pos_int, default=1, help="worker processes for the held-out solves (default 1)")
     p.add_argument("--scheduler", metavar="ADDRESS", default=None,
                    help="run the held-out solves on a Dask cluster at this scheduler address")
@@ -61,7 +61,7 @@ def register(sub: argparse._SubParsersAction, add_problem_args: Callable) -> Non
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("--latex", default=None, metavar="FILE",
                    help="write the discovered families' closed forms beside the paper's as LaTeX to FILE")
-    add_solver_args(p, default=None, note="with a CARRY_TO hint that names a backend: that one")
+    add_solver_args(p, default=None, note="with a META.carry_to hint that names a backend: that one")
     p.set_defaults(func=cmd_discover)
 
 

@@ -35,7 +35,7 @@ def register(sub: Any, add_problem_args: Callable[[argparse.ArgumentParser], Non
         if action.dest == "seed":
             action.help = "base seed: trial (i, t) uses SeedSequence((seed, i, t)) (default 0)"
     p.add_argument("--sigmas", metavar="LIST", default=None,
-                   help="comma-separated noise levels (default: the problem's SIGMAS, else 7 levels over 1e-3…1)")
+                   help="comma-separated noise levels (default: the problem's META.sigmas, else 7 levels over 1e-3…1)")
     p.add_argument("--trials", type=nonneg_int, default=100, help="trials per noise level (default 100)")
     p.add_argument("--sets", metavar="LIST", default=None,
                    help=f"constraint sets, a subset of {','.join(SETS)} "

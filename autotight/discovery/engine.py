@@ -59,12 +59,12 @@ from .trainers import Solves, Trainer, candidates, heldout_seed, learned_source,
 
 
 def default_groups(problem: Problem, groups: Any) -> Any:
-    """``groups``, or when None the problem module's ``DEFAULT_GROUPS`` (else "factors")."""
+    """``groups``, or when None the problem module's ``META.default_groups`` (else "factors")."""
     return module_parts.default_groups(problem) if groups is None else groups
 
 
 def carry_hint(problem: Problem) -> tuple[dict[str, Any], str | None]:
-    """The module's optional ``CARRY_TO`` hint as (parameters a set must also pass at, suggested backend)."""
+    """The module's optional ``META.carry_to`` hint as (parameters a set must also pass at, suggested backend)."""
     return module_parts.carry_to(problem)
 
 
@@ -95,8 +95,8 @@ def discover(problem: Problem | str, params: Mapping[str, Any] | None = None, se
     validation).  min_fraction: the pass rule of ``check``.  max_rounds: held-out batches at most;
     max_solves: SDP solver calls at most (None: no limit); either spent, validation has failed.
     carry_to: parameters (e.g. ``{"K": 200}``) at which the set must pass too (None: the module's
-    ``CARRY_TO`` hint, if any; ``{}``: none).  groups: learning groups (None: the module's
-    ``DEFAULT_GROUPS``, else "factors").  criteria: what counts as tight (``criteria.accept``).  solver: the
+    ``META.carry_to`` hint, if any; ``{}``: none).  groups: learning groups (None: the module's
+    ``META.default_groups``, else "factors").  criteria: what counts as tight (``criteria.accept``).  solver: the
     ``SolverConfig`` of every SDP solve.  compare: solve the paper's families on the held-out batches too
     (each point's latest is reported).  jobs/scheduler: where held-out instances run (``heldout``).
     shortcut: a held-out instance whose local solution's certificate proves the set tight needs no full SDP

@@ -236,7 +236,7 @@ def _has_marginal(df: pd.DataFrame) -> bool:
 def paper_table(df: pd.DataFrame, sigmas: Sequence[float], claim: dict[str, Any]) -> Table | None:
     """"Against the paper": per σ, our fraction tight, median log SVR (on the marginalised X where the
     module reports it) and trapped fraction for the paper's set, beside what the paper reports
-    (a module's ``PAPER_CLAIM``: source, set, by_sigma {σ: text}, default text)."""
+    (a module's ``META.paper_claim``: source, set, by_sigma {σ: text}, default text)."""
     name = claim.get("set", "paper")
     at_set = df[df["constraint_set"] == name]
     if at_set.empty:
@@ -254,7 +254,7 @@ def paper_table(df: pd.DataFrame, sigmas: Sequence[float], claim: dict[str, Any]
 
 
 def _claim(meta: dict[str, Any]) -> dict[str, Any] | None:
-    """The problem module's ``PAPER_CLAIM``, or None (no such attribute, or the module no longer loads)."""
+    """The problem module's ``META.paper_claim``, or None (no such attribute, or the module no longer loads)."""
     from ..errors import AutotightError
     from ..module_parts import paper_claim
     from ..problem import load

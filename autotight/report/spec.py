@@ -107,7 +107,7 @@ def trial_seeds(seed: int, sigma_index: int, trial: int) -> tuple[int, np.random
 
 
 def default_sigmas(problem: Problem) -> tuple[float, ...]:
-    """The module's ``SIGMAS`` if it defines them, else 7 log-spaced levels over 1e-3 … 1."""
+    """The module's ``META.sigmas`` if it defines them, else 7 log-spaced levels over 1e-3 … 1."""
     import autotight.module_parts as module_parts
 
     return module_parts.sigmas(problem, DEFAULT_SIGMAS)

@@ -173,7 +173,7 @@ def prepare_discovered(spec: SweepSpec, problem: Problem, out: Path,
     if not saved.is_file():
         params = problem.parse_params(spec.params)  # σ at the problem's default
         log(f"running discovery for {problem.name} at {params} (seed {spec.seed}); saving it to {saved}")
-        # the report's set is selected and validated at its own parameters (no CARRY_TO hint)
+        # the report's set is selected and validated at its own parameters (no META.carry_to hint)
         res = discover(problem, params, seed=spec.seed, criteria=spec.criteria, solver=spec.solver_config(),
                        carry_to={})
         with writing(saved):
