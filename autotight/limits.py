@@ -49,8 +49,9 @@ PROBE_MIN = 64
 BYTES_PER_NONZERO = 3000.0
 #: a solve on a clique cover above DENSE_X_MAX columns (X sparse on the cliques' pattern): peak RSS =
 #: COVER_BASE_BYTES + COVER_BYTES_PER_NONZERO per nonzero of Q and the primary constraints, through the peak
-#: RSS of ``autotight solve discrete_trajectory --solver ipm`` with the set learned at K = 5 (3.6 redundant
-#: constraints per primary one): 0.82 GB at K = 1000 (4.9e5 nonzeros), 5.7 GB at K = 10 000 (4.9e6)
+#: RSS of discrete trajectory solved by the IPM with the set learned at K = 5 (3.6 redundant constraints per
+#: primary one): 0.82 GB at K = 1000 (4.9e5 nonzeros, ``autotight solve``), 5.7 GB at K = 10 000 (4.9e6; three
+#: IPM iterations, benchmarks/results/probe_discrete_k10000.json: every iteration holds the same arrays)
 COVER_BASE_BYTES = 3e8
 COVER_BYTES_PER_NONZERO = 1200.0
 BYTES_PER_DENSE_ENTRY = 100.0
