@@ -3,13 +3,16 @@
 from __future__ import annotations
 
 import time
-from typing import Sequence
+from typing import TYPE_CHECKING, Sequence
 
 import numpy as np
 import scipy.sparse as sp
 
-from .config import Retries, SolverConfig, SolverConfigError
+from ..errors import SolverConfigError
 from .result import SDPResult, Status, finish
+
+if TYPE_CHECKING:
+    from .config import Retries, SolverConfig
 
 #: cvxpy's statuses that mean a solution, as ``Status``; any other stays cvxpy's own text
 CVXPY_STATUS = {"optimal": Status.SOLVED, "optimal_inaccurate": Status.ALMOST_SOLVED}
