@@ -3,16 +3,13 @@
 from __future__ import annotations
 
 import time
-from typing import TYPE_CHECKING, Sequence
+from typing import Sequence
 
 import numpy as np
 import scipy.sparse as sp
 
-from ..errors import SolverConfigError
+from .config import Retries, SolverConfig, SolverConfigError
 from .result import SDPResult, Status, finish
-
-if TYPE_CHECKING:
-    from .config import Retries, SolverConfig
 
 #: cvxpy's statuses that mean a solution, as ``Status``; any other stays cvxpy's own text
 CVXPY_STATUS = {"optimal": Status.SOLVED, "optimal_inaccurate": Status.ALMOST_SOLVED}
