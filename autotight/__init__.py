@@ -19,12 +19,12 @@ from .errors import AutotightError
 from .model import Constraint, Factor, Model, QuadForm, Variables
 from .pipeline import SolveResult
 from .problem import Instance, LocalResult, Meta, Param, Problem
-from .sdp.config import SolverConfig, SolverOptions
+from .sdp.config import ClarabelOptions, IpmOptions, SolverConfig, SolverOptions
 from .tightness import Criteria, Verdict
 from .validity import InvalidConstraintError
 
 __all__ = ["__version__", "load_problem", "solve", "discover", "certify", "check_problem", "check_sufficient",
            "ConstraintSet", "SolveResult", "Criteria", "Verdict", "SolverConfig", "SolverOptions", "AutotightError",
-           "InvalidConstraintError",
+           "InvalidConstraintError", "ClarabelOptions", "IpmOptions",
            "Problem", "Param", "Meta", "Instance", "LocalResult", "Model",
            "Variables", "Factor", "QuadForm", "Constraint"]

@@ -21,6 +21,11 @@ class ParameterError(AutotightError):
     """A problem parameter is missing, unknown or out of range."""
 
 
+class SolverConfigError(ParameterError):
+    """A ``SolverConfig`` field or a backend's option is unknown, out of range, or names a solver that is
+    not installed."""
+
+
 class LearningError(AutotightError):
     """Constraint learning cannot proceed (no spectral gap, infeasible samples, …)."""
 

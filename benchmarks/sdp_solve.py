@@ -59,7 +59,7 @@ def _instance(M: int, sigma: float, seed: int):
 
 
 def _clarabel_settings() -> dict[str, Any]:
-    """The settings the direct path uses (autotight.sdp.clarabel_direct._settings, default options)."""
+    """The settings the direct path uses (autotight.sdp.clarabel_direct.clarabel_settings, default options)."""
     from autotight.sdp import SolverConfig
 
     o = SolverConfig()

@@ -39,7 +39,7 @@ import numpy as np
 from autotight.io import jsonable, versions
 from autotight.pipeline import marginal_svr
 from autotight.problem import load
-from autotight.sdp import SolverConfig, solve_model
+from autotight.sdp import ClarabelOptions, SolverConfig, solve_model
 from autotight.threads import single_blas_thread
 
 #: method → SolverConfig fields (the time limit is added per run)
@@ -47,7 +47,7 @@ METHODS = {
     "chordal-pc": dict(decompose=False),  # explicit: a model may advise decomposing when left open
     "cliques": dict(decompose=True),
     "ipm": dict(backend="ipm"),
-    "chordal-default": dict(decompose=False, clarabel_chordal=True, chordal_merge="clique_graph"),
+    "chordal-default": dict(decompose=False, clarabel=ClarabelOptions(merge="clique_graph")),
 }
 
 

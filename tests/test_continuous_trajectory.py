@@ -10,7 +10,7 @@ import scipy.sparse as sp
 from autotight import lie
 from autotight.errors import ParameterError
 from autotight.problem import load
-from autotight.sdp import SolverConfig, solve_model
+from autotight.sdp import ClarabelOptions, SolverConfig, solve_model
 from autotight.sdp.chordal import has_running_intersection
 from autotight.tightness import relative_gap
 from problems import continuous_trajectory as ct
@@ -230,8 +230,8 @@ def _solve(inst, with_paper: bool = True):
     cons = model.primary() + (model.paper_constraints() if with_paper else [])
     # Clarabel's chordal decomposition with its clique-graph merging: on this problem (a Schur
     # complement that couples the whole chain) it is faster than parent-child merging
-    return solve_model(model, cons, SolverConfig(decompose=False, clarabel_chordal=True,
-                                                        chordal_merge="clique_graph"))
+    return solve_model(model, cons, SolverConfig(decompose=False,
+                                                        clarabel=ClarabelOptions(merge="clique_graph")))
 
 
 def _assert_tight(inst) -> None:

@@ -15,7 +15,7 @@ import scipy.sparse as sp
 from autotight import sdp
 from autotight.model import Constraint
 from autotight.problem import load
-from autotight.sdp import SolverConfig, clarabel_direct, schur_ipm, solve_model
+from autotight.sdp import ClarabelOptions, IpmOptions, SolverConfig, clarabel_direct, schur_ipm, solve_model
 from autotight.sdp.clique_program import clique_program
 from autotight.sdp.covers import CliqueCovers
 from autotight.sdp.registry import BACKENDS
@@ -121,12 +121,9 @@ def test_ipm_equals_clarabel_on_a_chain_sdp_far_from_rank_one(factor, search, mo
             return band_factor(self, ab, reg)
 
         monkeypatch.setattr(schur_ipm._BandSchur, "factor", pivoting)
-    if search != "nt":
-        solve_blocks = schur_ipm.solve_blocks
-        monkeypatch.setattr(schur_ipm, "solve_blocks", lambda *a, **k: solve_blocks(*a, **k, search=search))
     Q, cons, cl = _chain_maxcut(np.random.default_rng(0), 12, 6)
-    ref = sdp.solve(Q, cons, config=SolverConfig(clarabel_chordal=False))
-    res = schur_ipm.solve_ipm(*_data(Q, cons), 1, cl, IPM)
+    ref = sdp.solve(Q, cons, config=SolverConfig(clarabel=ClarabelOptions(chordal=False)))
+    res = schur_ipm.solve_ipm(*_data(Q, cons), 1, cl, SolverConfig(backend="ipm", ipm=IpmOptions(search=search)))
     assert ref.status == "Solved" and res.status == "Solved", (ref.summary(), res.summary(), res.message)
     assert res.solver == "autotight-ipm"
     assert ref.log_svr < 1

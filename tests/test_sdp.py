@@ -14,7 +14,8 @@ import scipy.sparse as sp
 from autotight import sdp
 from autotight.model import Constraint
 from autotight.errors import AutotightError
-from autotight.sdp import SolverConfig, SolverConfigError, SolverOptions, clarabel_direct, log_svr, rank_d_factor
+from autotight.sdp import (ClarabelOptions, SolverConfig, SolverConfigError, SolverOptions, clarabel_direct, log_svr,
+                           rank_d_factor)
 from autotight.sdp.registry import BACKENDS
 from autotight.sdp.result import SDPResult
 from autotight.tightness import judge
@@ -146,7 +147,7 @@ def test_config_validation_errors():
 
     bad = [dict(backend="gurobi-direct"), dict(backend="cvxpy:NOPE"), dict(backend="ipm:fast"), dict(tol=0.0),
            dict(tol=2.0), dict(max_iter=0), dict(time_limit=-1.0), dict(threads=-1), dict(scale="always"),
-           dict(regularization="tiny"), dict(chordal_merge="greedy"), dict(decompose="yes")]
+           dict(decompose="yes"), dict(clarabel={"chordal": False}), dict(ipm="hkm")]
     if "MOSEK" not in cp.installed_solvers():
         bad.append(dict(backend="cvxpy:MOSEK"))
     for kw in bad:
@@ -160,7 +161,7 @@ def test_config_validation_errors():
     with pytest.raises(SolverConfigError, match="tol"):
         SolverConfig(tol=0.0)
     assert SolverOptions is SolverConfig  # the old name keeps working
-    assert SolverOptions(tol=1e-8, regularization="default").backend == "auto"  # picked by size
+    assert SolverOptions(tol=1e-8).backend == "auto"  # picked by size
     assert SolverConfig(backend="cvxpy:scs").backend_arg == "scs"
 
 
@@ -324,7 +325,7 @@ def test_decomposed_dual_equals_dense_on_a_relaxation_that_is_not_rank_one():
         B = rng.standard_normal((len(C), len(C)))
         Q[np.ix_(C, C)] += B + B.T
     cons = [Constraint(sp.csr_array(([1.0], ([i], [i])), shape=(N, N)), 1.0, name=f"X{i}{i}=1") for i in range(N)]
-    dense = sdp.solve(sp.csr_array(Q), cons, config=SolverConfig(clarabel_chordal=False))
+    dense = sdp.solve(sp.csr_array(Q), cons, config=SolverConfig(clarabel=ClarabelOptions(chordal=False)))
     split = _on_cover(Q, cons, cl)
     assert dense.status == "Solved" and split.status == "Solved", (dense.status, split.status)
     assert dense.log_svr < 1  # far from rank 1
@@ -347,7 +348,7 @@ def test_a_stalled_solve_is_retried_and_every_call_is_counted(ra, monkeypatch):
     calls, times = [], []
 
     def stalling(Q, As, b, d, opts):
-        calls.append((opts.regularization, opts.chordal_merge))
+        calls.append((opts.clarabel.regularization, opts.clarabel.merge))
         res = real(Q, As, b, d, opts)
         if len(calls) < 3:
             res.status, res.X = "InsufficientProgress", None

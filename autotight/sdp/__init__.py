@@ -9,10 +9,9 @@ model's own clique cover (a hint) and a scaling vector:
   is chosen here (``covers.CliqueCovers``: min-fill covers of the columns and of the variable
   blocks, small cliques merged, and the hint, ranked by the backend's cost model);
 - retries: a result is solved again with each of the backend's ``retries`` configs in turn whose
-  statuses include its status (Clarabel: default regularisation on a stalled solve, or an
-  AlmostSolved one of at most 100 columns, then clique-graph merging on a stalled one); the retry replaces the result
-  when it is
-  Solved or the result is unusable;
+  statuses include its status (Clarabel, as ``config.clarabel`` allows: default regularisation on a
+  stalled solve, or an AlmostSolved one of at most 100 columns, then clique-graph merging on a stalled
+  one); the retry replaces the result when it is Solved or the result is unusable;
 - fallback: an unusable result of a backend with a ``fallback`` (the IPM) is solved again by that
   backend on its own cover (Clarabel's), with its retries;
 - scaling: ``scale`` = D (see ``solve``);
@@ -39,7 +38,10 @@ the attributes of ``backend.Backend``::
     # autotight/sdp/__init__.py, beside the shipped ones:
     BACKENDS["mysolver"] = MySolverBackend()
 
-and ``SolverConfig(backend="mysolver")`` selects it everywhere (API, CLI ``--solver``, reports).
+and ``SolverConfig(backend="mysolver")`` selects it everywhere (API, CLI ``--solver``, reports).  Settings
+that only this backend reads go in a frozen options dataclass in its module, validated in ``__post_init__``
+(SolverConfigError), and a field of ``SolverConfig`` holding it, as ``clarabel_direct.ClarabelOptions``
+(``SolverConfig.clarabel``) and ``schur_ipm.IpmOptions`` (``SolverConfig.ipm``).
 """
 
 from __future__ import annotations
@@ -52,7 +54,7 @@ import scipy.sparse as sp
 
 from ..model import Constraint, Model, fast_coo
 from ..threads import single_blas_thread
-from .config import AUTO, SolverConfig, SolverConfigError, SolverOptions
+from .config import AUTO, ClarabelOptions, IpmOptions, SolverConfig, SolverConfigError, SolverOptions
 from .covers import IPM_MERGE_CAPS, MERGE_MAX_SIZE, CliqueCovers
 from .clarabel_direct import ClarabelBackend
 from .cvxpy_path import CvxpyBackend
@@ -62,6 +64,7 @@ from .schur_ipm import IPMBackend
 from .result import SDPResult, Status, finish, log_svr, rank_d_factor
 
 __all__ = ["solve", "solve_model", "model_cover", "check_solver", "SolverConfig", "SolverConfigError", "SolverOptions",
+           "ClarabelOptions", "IpmOptions",
            "SDPResult", "BACKENDS", "CliqueCovers", "MERGE_MAX_SIZE", "IPM_MERGE_CAPS", "log_svr",
            "rank_d_factor"]
 

@@ -1,8 +1,13 @@
-"""``SolverConfig``: how the SDP layer solves one Shor relaxation (backend, accuracy, limits, scaling).
+"""``SolverConfig``: how the SDP layer solves one Shor relaxation (backend, accuracy, limits, scaling, and
+each backend's own options).
 
 A config is passed explicitly to every solve and never stored module-wide.  It is validated when it
 is built: an unknown backend, an out-of-range field or a cvxpy solver that is not installed raises
 ``SolverConfigError`` (an ``AutotightError``: a one-line input error) before any work is done.
+The backend-neutral fields sit on ``SolverConfig``; what only one backend reads is that backend's
+option object, defined in the backend's module and validated when it is built:
+``SolverConfig.clarabel`` (``clarabel_direct.ClarabelOptions``) and ``SolverConfig.ipm``
+(``schur_ipm.IpmOptions``).  The cvxpy path has none: it reads only the backend-neutral fields.
 """
 
 from __future__ import annotations
@@ -10,13 +15,13 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, replace
 
-from ..errors import ParameterError
+from ..errors import SolverConfigError
+from .clarabel_direct import ClarabelOptions
 from .registry import BACKENDS
+from .schur_ipm import IpmOptions
 
-
-class SolverConfigError(ParameterError):
-    """A ``SolverConfig`` field is unknown, out of range, or names a solver that is not installed."""
-
+__all__ = ["SolverConfig", "SolverConfigError", "ClarabelOptions", "IpmOptions", "AUTO", "AUTO_IPM_MIN_N",
+           "SCALES", "Retries"]
 
 SCALES = ("auto", "none")
 #: the backend name that lets the SDP layer choose (``SolverConfig.for_size``)
@@ -26,8 +31,6 @@ AUTO = "auto"
 #: Clarabel's chordal path 80–150 s; every instance of the regression set (rotation averaging, pose
 #: averaging M = 10, discrete K = 20, continuous K = 21: N ≤ 517) stays with Clarabel
 AUTO_IPM_MIN_N = 1000
-REGULARIZATIONS = ("small", "default")
-CHORDAL_MERGES = ("parent_child", "clique_graph", "none")
 
 
 @dataclass(frozen=True)
@@ -40,7 +43,7 @@ class SolverConfig:
         "cvxpy:<NAME>" (any solver cvxpy has installed: "cvxpy:SCS", "cvxpy:MOSEK", …).  See ``sdp.registry``.
     decompose: solve on a clique cover chosen by the SDP layer (``sdp.covers``): True, False, or
         None for the backend's default (clarabel: False, i.e. Clarabel's own chordal decomposition,
-        see ``clarabel_chordal``; ipm: True; cvxpy: no decomposition at all).
+        see ``ClarabelOptions.chordal``; ipm: True; cvxpy: no decomposition at all).
     tol: the backend's relative gap and feasibility tolerance (the IPM stops at no less than
         ``schur_ipm.IPM_MIN_TOL``).
     max_iter: iteration limit per solver call.  time_limit: seconds per solver call (inf: none).
@@ -48,16 +51,10 @@ class SolverConfig:
     scale: "auto" applies the diagonal congruence X = D X' D when ``solve`` is given a vector D;
         "none" ignores any vector (see ``sdp.scaling``).
 
-    Clarabel only:
-    clarabel_chordal: let Clarabel decompose the PSD cone along the chordal sparsity of the data
-        (when ``decompose`` is off), merging cliques by ``chordal_merge``.  On by default: 4× faster
-        on rotation averaging, 30× on pose averaging than one dense cone.
-    chordal_merge: "parent_child" (default; Clarabel's own default "clique_graph" took > 120 s on
-        the discrete trajectory at K = 10, where "parent_child" takes 1 s), "clique_graph" or "none".
-        A parent-child solve that stalls on a small lifting is retried with "clique_graph".
-    regularization: "small" (static 1e-10, no dynamic regularisation) solves tight, rank-deficient
-        relaxations to full accuracy; "default" (Clarabel's: static 1e-8, dynamic on) is more
-        robust, and a solve that stalls with "small" is retried with it.
+    clarabel: the Clarabel backend's options (``ClarabelOptions``: its chordal decomposition, clique
+        merging and regularisation, and the retries they imply); read by every solve that reaches
+        Clarabel, also the IPM's fallback and "auto" below ``AUTO_IPM_MIN_N``.
+    ipm: our IPM's options (``IpmOptions``: its search direction).
     """
 
     backend: str = AUTO
@@ -68,9 +65,8 @@ class SolverConfig:
     threads: int = 1
     verbose: bool = False
     scale: str = "auto"
-    clarabel_chordal: bool = True
-    chordal_merge: str = "parent_child"
-    regularization: str = "small"
+    clarabel: ClarabelOptions = ClarabelOptions()
+    ipm: IpmOptions = IpmOptions()
 
     def __post_init__(self) -> None:
         if not isinstance(self.backend, str):
@@ -85,11 +81,11 @@ class SolverConfig:
             raise SolverConfigError(f"time_limit must be > 0 seconds (inf: none), got {self.time_limit!r}")
         if not (isinstance(self.threads, int) and self.threads >= 0):
             raise SolverConfigError(f"threads must be an integer ≥ 0 (0: the solver's default), got {self.threads!r}")
-        for field, value, allowed in (("scale", self.scale, SCALES),
-                                      ("regularization", self.regularization, REGULARIZATIONS),
-                                      ("chordal_merge", self.chordal_merge, CHORDAL_MERGES)):
-            if value not in allowed:
-                raise SolverConfigError(f"unknown {field} {value!r}; use " + " or ".join(map(repr, allowed)))
+        if self.scale not in SCALES:
+            raise SolverConfigError(f"unknown scale {self.scale!r}; use " + " or ".join(map(repr, SCALES)))
+        for field, kind in (("clarabel", ClarabelOptions), ("ipm", IpmOptions)):
+            if not isinstance(getattr(self, field), kind):
+                raise SolverConfigError(f"{field} must be a {kind.__name__}, got {getattr(self, field)!r}")
         self.check()
 
     @property

@@ -24,7 +24,7 @@ Contract.
   It never raises on a numerical failure.  A result that is not usable is solved again by Clarabel
   (``IPMBackend.fallback``; the SDP layer does it and counts both calls).
 
-Method: Nesterov–Todd (default) or HKM search direction, Mehrotra's predictor-corrector, SDPT3's
+Method: Nesterov–Todd (default) or HKM search direction (``IpmOptions.search``), Mehrotra's predictor-corrector, SDPT3's
 infeasible start.  Each iteration solves the Schur complement system S Δy = r,
 S_il = Σ_k ⟨A_ik, P_k A_lk Q_k⟩ with (P, Q) = (W, W) for NT (W Z W = X) and (X, Z⁻¹) for HKM.
 S is sparse (S_il ≠ 0 only when constraints i and l touch a common block), assembled per block on
@@ -44,7 +44,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
-from typing import Any, Callable, Iterator, Sequence
+from typing import TYPE_CHECKING, Any, Callable, Iterator, Sequence
 
 import numpy as np
 import scipy.sparse as sp
@@ -52,8 +52,29 @@ import scipy.sparse.linalg as spla
 
 from ..svec import SQRT2, triu_indices
 from .clique_program import clique_program, complete_auto
-from .config import Retries, SolverConfig, SolverConfigError
+from ..errors import SolverConfigError
 from .result import SDPResult, Status, finish
+
+if TYPE_CHECKING:  # config imports IpmOptions from here
+    from .config import Retries, SolverConfig
+
+#: the search directions of ``solve_blocks`` (``IpmOptions.search``): Nesterov–Todd and HKM
+SEARCH_DIRECTIONS = ("nt", "hkm")
+
+
+@dataclass(frozen=True)
+class IpmOptions:
+    """Our IPM's own settings (``SolverConfig.ipm``); SolverConfigError when one is not a value it knows.
+
+    search: the search direction, "nt" (Nesterov–Todd, default) or "hkm" (see the module docstring).
+    """
+
+    search: str = "nt"
+
+    def __post_init__(self) -> None:
+        if self.search not in SEARCH_DIRECTIONS:
+            raise SolverConfigError(f"unknown IpmOptions.search {self.search!r}; use "
+                                    + " or ".join(map(repr, SEARCH_DIRECTIONS)))
 
 #: the stall clock's patience grows (STALL_ITERATIONS_ALMOST) once every relative residual is below this
 ALMOST_TOL = 1e-6
@@ -503,8 +524,8 @@ def solve_blocks(F: sp.csc_matrix, c: np.ndarray, g: np.ndarray, sizes: list[int
     block sizes n_k (R = Σ svec(n_k)).  Solved: gap, pinf and dinf (see IPMSolution) all ≤ tol.
     search: "nt" (Nesterov–Todd, default) or "hkm" (HKM) direction.
     Never raises on a numerical failure: the status says what happened."""
-    if search not in ("nt", "hkm"):
-        raise ValueError(f"unknown search direction {search!r}; use 'nt' or 'hkm'")
+    if search not in SEARCH_DIRECTIONS:
+        raise ValueError(f"unknown search direction {search!r}; use " + " or ".join(map(repr, SEARCH_DIRECTIONS)))
     t0 = time.perf_counter()
     P = svec_to_vec(sizes)
     Gv = sp.csr_array(P @ F)
@@ -657,12 +678,14 @@ IPM_MIN_TOL = 1e-7
 def solve_ipm(Q: sp.csr_array, As: Sequence[sp.csr_array], b: np.ndarray, d: int,
               cliques: Sequence[np.ndarray] | None, opts: SolverConfig) -> SDPResult:
     """The Shor SDP by our IPM on the clique blocks of ``clique_program`` (one block of all N
-    columns when ``cliques`` is None).  X is completed from the blocks' rank-d factors."""
+    columns when ``cliques`` is None), with ``opts.ipm``'s search direction.  X is completed from the
+    blocks' rank-d factors."""
     t0 = time.perf_counter()
     prog = clique_program(Q, As, b, cliques if cliques is not None else [np.arange(Q.shape[0])])
     t1 = time.perf_counter()
     sol = solve_blocks(prog.F, prog.c, prog.g, prog.sizes, tol=max(opts.tol, IPM_MIN_TOL),
-                       max_iter=opts.max_iter, time_limit=opts.time_limit, verbose=opts.verbose)
+                       max_iter=opts.max_iter, time_limit=opts.time_limit, verbose=opts.verbose,
+                       search=opts.ipm.search)
     X, svrs, completion = complete_auto(prog, sol.z, d)
     y = sol.y[:prog.m] / prog.scale
     res = SDPResult(status=sol.status, solver="autotight-ipm", d=d, X=X, y=y,
