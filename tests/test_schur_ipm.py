@@ -94,6 +94,33 @@ def _chain_maxcut(rng: np.random.Generator, cliques: int, width: int):
     return sp.csr_array(Q), cons, cl
 
 
+def test_the_block_program_holds_the_dense_data_exactly():
+    """Blocks z that agree with one X on every clique: Fᵀz gives ⟨Aᵢ, X⟩ for the constraints (each spread over
+    several cliques, so entries are placed in their home block or the entry's top block) and 0 for the
+    transfers, and cᵀz = scale·⟨Q, X⟩."""
+    from autotight.svec import svec
+
+    rng = np.random.default_rng(4)
+    Q, _, cl = _chain_maxcut(rng, 30, 6)
+    N = Q.shape[0]
+    As = []
+    for _ in range(60):  # four random entries, each inside one of two neighbouring cliques
+        k = int(rng.integers(len(cl) - 1))
+        ij = np.array([rng.choice(cl[k + int(rng.integers(2))], 2) for _ in range(4)])
+        A = sp.csr_array((rng.standard_normal(4), (ij[:, 0], ij[:, 1])), shape=(N, N))
+        As.append(sp.csr_array(A + A.T))
+    b = rng.standard_normal(len(As))
+    prog = clique_program(Q, As, b, cl)
+    X = rng.standard_normal((N, N))
+    X = X + X.T
+    z = np.concatenate([svec(X[np.ix_(C, C)]) for C in prog.cliques])
+    lhs = prog.F.T @ z
+    expect = np.array([np.sum(A.toarray() * X) for A in As])
+    assert np.abs(lhs[:prog.m] - expect).max() <= 1e-12 * max(1.0, np.abs(expect).max())
+    assert np.abs(lhs[prog.m:]).max() <= 1e-12 * np.abs(X).max()
+    assert abs(prog.c @ z - prog.scale * np.sum(Q.toarray() * X)) <= 1e-12 * abs(prog.scale) * np.abs(X).sum()
+
+
 def _chain_schur(rng: np.random.Generator, cliques: int, width: int):
     """The MaxCut chain's block program and its Schur-complement structure."""
     Q, cons, cl = _chain_maxcut(rng, cliques, width)

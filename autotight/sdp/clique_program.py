@@ -144,11 +144,12 @@ def _home_rows(G: sp.coo_array, cliques: Sequence[np.ndarray], pos: np.ndarray, 
     """
     gi, gj = position_to_ij(G.row)
     home = home_cliques(cliques, support_matrix(gi, gj, G.col, N, G.shape[1]))[G.col]
-    rows = np.full(G.nnz, -1, dtype=np.int64)
-    for k in np.unique(home):
-        sel = np.flatnonzero(home == k)
-        at, hit = _find(pos[start[k]:start[k + 1]], G.row[sel])
-        rows[sel[hit]] = start[k] + at[hit]
+    # one search over every block at once: (block, position) keys increase along the rows (blocks in
+    # order, each block's positions increasing), so a nonzero's row in its home block is a binary search
+    span = int(max(pos.max(initial=0), G.row.max(initial=0))) + 1
+    block = np.repeat(np.arange(len(cliques), dtype=np.int64), np.diff(start))
+    at, hit = _find(block * span + pos, home * span + G.row)
+    rows = np.where(hit, at, -1)
     miss = rows < 0
     order = np.argsort(pos[own])
     rows[miss] = own[order[np.searchsorted(pos[own][order], G.row[miss])]]
