@@ -265,6 +265,7 @@ def model_cover(model: Model, constraints: Sequence[Constraint], policy: str = "
                         hint).choose(policy)
 
 
+@single_blas_thread
 def solve_model(model: Model, constraints: Sequence[Constraint], config: SolverConfig | None = None,
                 scale: np.ndarray | None = None) -> SDPResult:
     """``solve`` for a model: its Q and d, its own clique cover as the hint, and its variable blocks
