@@ -39,9 +39,9 @@ the attributes of ``backend.Backend``::
     BACKENDS["mysolver"] = MySolverBackend()
 
 and ``SolverConfig(backend="mysolver")`` selects it everywhere (API, CLI ``--solver``, reports).  Settings
-that only this backend reads go in a frozen options dataclass in its module, validated in ``__post_init__``
-(SolverConfigError), and a field of ``SolverConfig`` holding it, as ``clarabel_direct.ClarabelOptions``
-(``SolverConfig.clarabel``) and ``schur_ipm.IpmOptions`` (``SolverConfig.ipm``).
+that only this backend reads go in a frozen options dataclass in ``sdp/options.py``, validated in
+``__post_init__`` (SolverConfigError), and a field of ``SolverConfig`` holding it, as ``options.ClarabelOptions``
+(``SolverConfig.clarabel``) and ``options.IpmOptions`` (``SolverConfig.ipm``).
 """
 
 from __future__ import annotations

@@ -15,8 +15,8 @@ turns a config into Clarabel's settings.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, replace
-from typing import TYPE_CHECKING, Sequence
+from dataclasses import replace
+from typing import Sequence
 
 import clarabel
 import numpy as np
@@ -25,47 +25,8 @@ import scipy.sparse as sp
 from ..svec import smat, svec_columns, svec_dim
 from .clique_program import clique_program, complete_auto, complete_from_cliques, cost_scale
 from ..errors import SolverConfigError
+from .config import Retries, SolverConfig
 from .result import SDPResult, Status, finish
-
-if TYPE_CHECKING:  # config imports ClarabelOptions from here
-    from .config import Retries, SolverConfig
-
-#: ``ClarabelOptions.regularization``'s values
-REGULARIZATIONS = ("small", "default")
-#: ``ClarabelOptions.merge``'s values (Clarabel's ``chordal_decomposition_merge_method``)
-CHORDAL_MERGES = ("parent_child", "clique_graph", "none")
-
-
-@dataclass(frozen=True)
-class ClarabelOptions:
-    """The Clarabel backend's own settings (``SolverConfig.clarabel``); SolverConfigError when one is
-    not a value it knows.
-
-    chordal: let Clarabel decompose the PSD cone along the chordal sparsity of the data (when
-        ``SolverConfig.decompose`` is off), merging cliques by ``merge``.  On by default: 4× faster
-        on rotation averaging, 30× on pose averaging than one dense cone.  Off: one dense cone.
-    merge: "parent_child" (default; Clarabel's own default "clique_graph" took > 120 s on the
-        discrete trajectory at K = 10, where "parent_child" takes 1 s), "clique_graph" or "none".
-        A parent-child solve that stalls on a small lifting is retried with "clique_graph"
-        (``ClarabelBackend.retries``).
-    regularization: "small" (static 1e-10, no dynamic regularisation) solves tight, rank-deficient
-        relaxations to full accuracy; "default" (Clarabel's: static 1e-8, dynamic on) is more
-        robust, and a solve that stalls with "small" is retried with it.
-    """
-
-    chordal: bool = True
-    merge: str = "parent_child"
-    regularization: str = "small"
-
-    def __post_init__(self) -> None:
-        if not isinstance(self.chordal, bool):
-            raise SolverConfigError(f"ClarabelOptions.chordal must be True or False, got {self.chordal!r}")
-        for field, allowed in (("merge", CHORDAL_MERGES), ("regularization", REGULARIZATIONS)):
-            value = getattr(self, field)
-            if value not in allowed:
-                raise SolverConfigError(f"unknown ClarabelOptions.{field} {value!r}; use "
-                                        + ", ".join(map(repr, allowed[:-1])) + f" or {allowed[-1]!r}")
-
 
 #: from this many columns of X on, Clarabel factors its KKT system with its supernodal solver "faer"
 #: (Clarabel ≥ 0.10, bundled, Apache-2.0) instead of qdldl.  Measured side by side (clarabel 0.11.1, one

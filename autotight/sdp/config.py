@@ -6,8 +6,8 @@ is built: an unknown backend, an out-of-range field or a cvxpy solver that is no
 ``SolverConfigError`` (an ``AutotightError``: a one-line input error) before any work is done.
 The backend-neutral fields sit on ``SolverConfig``; what only one backend reads is that backend's
 option object, defined in the backend's module and validated when it is built:
-``SolverConfig.clarabel`` (``clarabel_direct.ClarabelOptions``) and ``SolverConfig.ipm``
-(``schur_ipm.IpmOptions``).  The cvxpy path has none: it reads only the backend-neutral fields.
+``SolverConfig.clarabel`` (``options.ClarabelOptions``) and ``SolverConfig.ipm``
+(``options.IpmOptions``).  The cvxpy path has none: it reads only the backend-neutral fields.
 """
 
 from __future__ import annotations
@@ -16,9 +16,8 @@ import math
 from dataclasses import dataclass, replace
 
 from ..errors import SolverConfigError
-from .clarabel_direct import ClarabelOptions
+from .options import ClarabelOptions, IpmOptions
 from .registry import BACKENDS
-from .schur_ipm import IpmOptions
 
 __all__ = ["SolverConfig", "SolverConfigError", "ClarabelOptions", "IpmOptions", "AUTO", "AUTO_IPM_MIN_N",
            "SCALES", "Retries"]

@@ -44,7 +44,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any, Callable, Iterator, Sequence
+from typing import Any, Callable, Iterator, Sequence
 
 import numpy as np
 import scipy.sparse as sp
@@ -53,28 +53,9 @@ import scipy.sparse.linalg as spla
 from ..svec import SQRT2, triu_indices
 from .clique_program import clique_program, complete_auto
 from ..errors import SolverConfigError
+from .config import Retries, SolverConfig
+from .options import SEARCH_DIRECTIONS
 from .result import SDPResult, Status, finish
-
-if TYPE_CHECKING:  # config imports IpmOptions from here
-    from .config import Retries, SolverConfig
-
-#: the search directions of ``solve_blocks`` (``IpmOptions.search``): Nesterov–Todd and HKM
-SEARCH_DIRECTIONS = ("nt", "hkm")
-
-
-@dataclass(frozen=True)
-class IpmOptions:
-    """Our IPM's own settings (``SolverConfig.ipm``); SolverConfigError when one is not a value it knows.
-
-    search: the search direction, "nt" (Nesterov–Todd, default) or "hkm" (see the module docstring).
-    """
-
-    search: str = "nt"
-
-    def __post_init__(self) -> None:
-        if self.search not in SEARCH_DIRECTIONS:
-            raise SolverConfigError(f"unknown IpmOptions.search {self.search!r}; use "
-                                    + " or ".join(map(repr, SEARCH_DIRECTIONS)))
 
 #: the stall clock's patience grows (STALL_ITERATIONS_ALMOST) once every relative residual is below this
 ALMOST_TOL = 1e-6
