@@ -159,8 +159,8 @@ def evaluate_instance(problem: Problem, inst: Instance, sets: Mapping[str, Const
 
 def evaluate(problem: Problem, params: Mapping[str, Any], seed: int, sets: Mapping[str, ConstraintsLike],
              **kw: Any) -> InstanceEvaluation:
-    """``evaluate_instance`` on the instance ``problem.generate(params, seed)``, with the generators of
-    ``pipeline.seeds(seed)``; ``kw``: ``evaluate_instance``'s keywords (not the generators)."""
+    """``evaluate_instance`` on the instance ``problem.generate(params, seed)`` (so its generators default to
+    those of ``pipeline.seeds(seed)``); ``kw``: ``evaluate_instance``'s keywords."""
     inst = problem.generate(dict(params), seed)
     return evaluate_instance(problem, inst, sets, **kw)
 

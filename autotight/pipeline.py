@@ -1,7 +1,12 @@
-"""The one pipeline for one instance: build → local search → SDP → judge → recover → errors.
+"""The one pipeline for one instance: build → constraints → local search → SDP → recover → judge → errors.
 
-``solve_instance`` is what ``autotight.solve``, every trial of a report sweep and discovery's
-held-out check run.  Seeds (one scheme everywhere, see ``seeds``): an instance with seed s is
+``solve_instance`` is what ``autotight.solve`` runs, and what ``autotight.evaluate`` runs per constraint set
+for ``check``, every trial of a report sweep and discovery's held-out check.  Its steps are functions of
+their own: ``prepare`` (model, constraints, local search, checks) → ``solve_relaxation`` (the SDP) →
+``recover_estimate`` (the SDP's estimate and its refinement) → ``judge_relaxation`` (polish, certificate,
+verdict).
+
+Seeds (one scheme everywhere, see ``seeds``): an instance with seed s is
 ``generate(params, default_rng(s))``; its random local starts draw from ``default_rng([s, 1])``,
 re-instantiating a learned set draws from ``default_rng([s, 2])`` and the fresh samples of the validity
 check from ``default_rng([s, 3])``.
