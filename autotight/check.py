@@ -202,7 +202,8 @@ def solve_points(problem: Problem, sets: Mapping[str, ConstraintsLike], points: 
             s = instance_seed(seed, i, t)
             ev = evaluate(problem, full, s, sets, config=solver, criteria=criteria, n_random=n_random)
             for name, cons in sets.items():
-                r, row = ev.results[name], summary(ev.results[name])
+                r = ev.results[name]
+                row = summary(r)
                 pr = out[name][i]
                 if not isinstance(r, NotInstantiated):
                     pr.set_label = set_name(cons, ev.model)
