@@ -28,10 +28,11 @@ from typing import Any
 import numpy as np
 
 from .constraint_set import ConstraintSet, ConstraintsLike, set_name
-from .errors import AutotightError, ParameterError
+from .errors import ParameterError
+from .evaluate import NotInstantiated, evaluate, summary
 from .io import versions
 from .limits import check_count, check_size, count_arg
-from .pipeline import SolveResult, local_search, seeds, solve_instance
+from .pipeline import SolveResult
 from .points import parse_over, points_of
 from .problem import Problem, load
 from .tightness import Criteria, Outcome
@@ -59,6 +60,12 @@ class PointResult:
     statuses: list[str] = field(default_factory=list)
     rel_gap: list[float] = field(default_factory=list)
     set_label: str = ""
+
+    def add(self, seed: int, row: Mapping[str, Any]) -> None:
+        """Append one instance: its seed and its row of ``evaluate.summary`` (outcome, log SVR, reason, …)."""
+        self.seeds.append(int(seed)); self.outcomes.append(row["outcome"]); self.log_svr.append(row["log_svr"])
+        self.reasons.append(row["reason"]); self.n_constraints.append(row["n_constraints"])
+        self.statuses.append(row["status"]); self.rel_gap.append(row["rel_gap"])
 
     def count(self, outcome: str) -> int:
         return sum(o == outcome for o in self.outcomes)
@@ -193,27 +200,16 @@ def solve_points(problem: Problem, sets: Mapping[str, ConstraintsLike], points: 
     for i, (full, _) in enumerate(points):
         for t in range(instances):
             s = instance_seed(seed, i, t)
-            inst = problem.generate(full, s)
-            model = problem.build(inst)
-            loc = local_search(problem, inst, seeds(s).local(), n_random)
+            ev = evaluate(problem, full, s, sets, config=solver, criteria=criteria, n_random=n_random)
             for name, cons in sets.items():
+                r = ev.results[name]
+                row = summary(r)
                 pr = out[name][i]
-                given: Any = cons
-                if isinstance(cons, ConstraintSet):  # instantiated here: failing to is a failure of this instance
-                    try:
-                        given = cons.apply(problem, inst, model, seeds(s).constraints())
-                    except AutotightError as e:
-                        pr.seeds.append(s); pr.outcomes.append("not tight"); pr.log_svr.append(float("nan"))
-                        pr.reasons.append(f"cannot instantiate the set: {e}"); pr.n_constraints.append(0)
-                        pr.statuses.append("not instantiated"); pr.rel_gap.append(float("nan"))
-                        continue
-                r = solve_instance(problem, inst, given, config=solver, criteria=criteria, model=model, local=loc)
-                pr.set_label = set_name(cons, model)
-                n_solves += max(1, len(r.attempts))
-                pr.seeds.append(s); pr.outcomes.append(r.outcome); pr.log_svr.append(float(r.log_svr))
-                pr.reasons.append(r.verdict.reason); pr.n_constraints.append(r.n_constraints)
-                pr.statuses.append(r.sdp.status); pr.rel_gap.append(float(r.verdict.rel_gap))
-                if on_result is not None:
+                if not isinstance(r, NotInstantiated):
+                    pr.set_label = set_name(cons, ev.model)
+                pr.add(s, row)
+                n_solves += row["calls"]
+                if on_result is not None and isinstance(r, SolveResult):
                     on_result(r)
     return out, n_solves
 

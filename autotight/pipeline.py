@@ -1,7 +1,12 @@
-"""The one pipeline for one instance: build → local search → SDP → judge → recover → errors.
+"""The one pipeline for one instance: build → constraints → local search → SDP → recover → judge → errors.
 
-``solve_instance`` is what ``autotight.solve``, every trial of a report sweep and discovery's
-held-out check run.  Seeds (one scheme everywhere, see ``seeds``): an instance with seed s is
+``solve_instance`` is what ``autotight.solve`` runs, and what ``autotight.evaluate`` runs per constraint set
+for ``check``, every trial of a report sweep and discovery's held-out check.  Its steps are functions of
+their own: ``prepare`` (model, constraints, local search, checks) → ``solve_relaxation`` (the SDP) →
+``recover_estimate`` (the SDP's estimate and its refinement) → ``judge_relaxation`` (polish, certificate,
+verdict).
+
+Seeds (one scheme everywhere, see ``seeds``): an instance with seed s is
 ``generate(params, default_rng(s))``; its random local starts draw from ``default_rng([s, 1])``,
 re-instantiating a learned set draws from ``default_rng([s, 2])`` and the fresh samples of the validity
 check from ``default_rng([s, 3])``.
@@ -28,7 +33,7 @@ from .constraint_set import ConstraintsLike, resolve, set_name
 from .dual_polish import polished
 from .errors import ProblemModuleError
 from .unbounded import rank_out_of_reach
-from .model import Model
+from .model import Constraint, Model
 from .problem import Instance, LocalResult, Problem
 import autotight.sdp as sdp
 from .sdp.config import SolverConfig
@@ -222,6 +227,156 @@ def block_scale_at(problem: Problem, inst: Instance, model: Model, state: dict[s
     return block_scale(model.variables, [problem.lift(inst, state)])
 
 
+@dataclass
+class Prepared:
+    """One instance ready for its SDP (``prepare``): every input built, resolved and checked.
+
+    model: the instance's ``Model``; config: the solver configuration sized for it
+    (``SolverConfig.for_size``: "auto" picks the backend); constraints: every constraint of the SDP
+    (homogenisation, primary and the set's own, ``constraint_set.resolve``); local: the local searches;
+    times: ``build_s`` (model and constraint set), ``constraints_s`` (the set alone), ``local_s`` (the local
+    searches and the checks), in seconds.
+    """
+
+    model: Model
+    config: SolverConfig
+    constraints: list[Constraint]
+    local: LocalSearch
+    times: dict[str, float]
+
+
+def prepare(problem: Problem, inst: Instance, constraints: ConstraintsLike = None, *,
+            config: SolverConfig | None = None, n_random: int = 1, model: Model | None = None,
+            local: LocalSearch | None = None, rng_local: np.random.Generator | None = None,
+            rng_constraints: np.random.Generator | None = None) -> Prepared:
+    """Build (unless ``model`` is given), resolve ``constraints``, search locally (unless ``local`` is given),
+    then check the instance's data (``validate.check_instance``) and every constraint on the feasible points
+    held (``feasible_points``, ``validity.check_valid``: an ``InvalidConstraintError`` for a set that cuts
+    one off).  In this order; the generators default to the seed scheme of the module docstring."""
+    config = SolverConfig() if config is None else config
+    s = seeds(inst.seed if inst.seed is not None else 0)
+    t0 = time.perf_counter()
+    model = model if model is not None else problem.build(inst)
+    config = config.for_size(model.variables.N)  # "auto" picks the backend by the model's size
+    tm = time.perf_counter()
+    cons = resolve(constraints, problem, inst, model, rng_constraints or s.constraints())
+    t1 = time.perf_counter()
+    local = local if local is not None else local_search(problem, inst, rng_local or s.local(), n_random)
+    check_instance(problem, inst, model, local)  # NaN/inf data, or a cost that does not match its lifting
+    check_valid(problem.name, cons, feasible_points(problem, inst, local, s.validity()))
+    t2 = time.perf_counter()
+    # build_s: the model and its constraint set; constraints_s: the set alone (templates applied, or re-learned)
+    return Prepared(model, config, cons, local, {"build_s": t1 - t0, "constraints_s": t1 - tm, "local_s": t2 - t1})
+
+
+@dataclass
+class Relaxation:
+    """The SDP step's solves (``solve_relaxation``).  res: the solve kept (scaled unless only the plain data
+    gave a usable solution); unscaled: the other solve when a second one was made, else None; scale: the
+    diagonal D of X = D X' D the scaled solve used (None: no scaling)."""
+
+    res: SDPResult
+    unscaled: SDPResult | None
+    scale: np.ndarray | None
+
+
+def solve_relaxation(problem: Problem, inst: Instance, prep: Prepared, *, raise_unbounded: bool = True) -> Relaxation:
+    """The SDP of ``prep`` in the frame of ``block_scale_at`` at the best local solution, and once more on the
+    plain data when that solve is not usable.  A ray of unboundedness in either solve raises
+    ``UnboundedRelaxation`` (naming the unbounded blocks) when ``raise_unbounded``."""
+    model, cons, config = prep.model, prep.constraints, prep.config
+    scale = block_scale_at(problem, inst, model, prep.local.best.state, config)
+    res = sdp.solve_model(model, cons, config, scale)
+    unscaled = None
+    if scale is not None and not res.usable:  # the scaling did not help this solve: the plain data
+        unscaled = sdp.solve_model(model, cons, config, None)
+        if unscaled.usable:
+            res, unscaled = unscaled, res
+    ray = next((r for r in (res, unscaled) if r is not None and is_unbounded(r)), None)
+    if raise_unbounded and ray is not None:  # a ray proves unboundedness whichever data it was found with
+        blocks = unbounded_blocks(model, ray)
+        raise UnboundedRelaxation(unbounded_message(model, ray, blocks), blocks)
+    return Relaxation(res, unscaled, scale)
+
+
+@dataclass
+class Recovery:
+    """What the SDP's solution gives as a feasible point (``recover_estimate``).  estimate: the state
+    recovered from X (None when X was unusable or recovery failed); refined: the local solve started there;
+    best: the lowest-cost feasible point held (local searches, estimate, refined); note: text for the
+    verdict's reason ("" or "; recovery failed …")."""
+
+    estimate: dict[str, np.ndarray] | None
+    refined: LocalResult | None
+    best: LocalResult
+    note: str = ""
+
+
+def recover_estimate(problem: Problem, inst: Instance, prep: Prepared, res: SDPResult,
+                     criteria: Criteria) -> Recovery:
+    """Recover a state from ``res``'s X, refine it by a local solve and check every constraint at both.  A
+    recovery error on an X of log SVR ≤ ``criteria.min_log_svr`` (far from rank d) is noted, else raised."""
+    estimate = refined = None
+    best = prep.local.best
+    note = ""
+    if res.Theta is not None and res.usable:
+        try:
+            estimate = problem.recover(inst, res.Theta)
+        except ProblemModuleError as e:  # on an X far from rank d this is reported, not raised
+            if not res.log_svr <= criteria.min_log_svr:
+                raise
+            note = f"; recovery failed on a solution of rank > d: {e}"
+        else:
+            refined = problem.local_solve(inst, estimate)
+            rounded = LocalResult(estimate, problem.lifted_cost(inst, estimate, prep.model), 0, True,
+                                  message="the SDP's estimate")
+            check_valid(problem.name, prep.constraints, {"the SDP's estimate": problem.lift(inst, estimate),
+                                                         "the refined SDP estimate": problem.lift(inst, refined.state)})
+            best = min(best, refined, rounded, key=lambda r: r.cost)
+    return Recovery(estimate, refined, best, note)
+
+
+@dataclass
+class Judgement:
+    """The verdict on one relaxation (``judge_relaxation``).  res: the solve judged (multipliers polished);
+    certificate: what its multipliers prove about the best point; attempts: every SDP solve made (as
+    ``SolveResult.attempts``); note: text for the verdict's reason ("" or "; " + why rank d is out of reach)."""
+
+    res: SDPResult
+    verdict: Verdict
+    certificate: Certificate | None
+    attempts: list[dict[str, Any]]
+    note: str = ""
+
+
+def judge_relaxation(problem: Problem, inst: Instance, prep: Prepared, relax: Relaxation, best: LocalResult,
+                     criteria: Criteria) -> Judgement:
+    """Polish the multipliers at ``best`` and certify it (``dual_certificate``), judge against U = best.cost
+    (``tightness.judge``); an undecided verdict is solved once more at a 100× tighter tolerance where the
+    backend can go tighter (kept when that solve is usable).  A verdict neither rank nor cost tight notes
+    blocks that can grow at no cost (``unbounded.rank_out_of_reach``)."""
+    model, cons, config, scale = prep.model, prep.constraints, prep.config, relax.scale
+    upper = best.cost
+    res, cert = dual_certificate(problem, inst, model, cons, relax.res, best, criteria)
+    verdict = judge(res, upper, criteria, cert, Q=model.Q, constraints=cons, scale=scale)
+    attempts = ([] if relax.unscaled is None else [_attempt(relax.unscaled, None)]) + [_attempt(res, verdict)]
+    tighter = replace(config, tol=max(config.tol / 100, 1e-13))
+    # once more at a tighter tolerance, unless the backend cannot go tighter (the IPM's floor): the
+    # same solve again (discrete K = 1000, IPM: 41 s for an identical result)
+    if getattr(verdict, "undecided", False) and sdp.effective_tol(tighter) < sdp.effective_tol(config):
+        res2 = sdp.solve_model(model, cons, tighter, scale)
+        res2, cert2 = dual_certificate(problem, inst, model, cons, res2, best, criteria)
+        verdict2 = judge(res2, upper, criteria, cert2, Q=model.Q, constraints=cons, scale=scale)
+        attempts.append(_attempt(res2, verdict2))
+        if res2.usable:
+            res, verdict, cert = res2, verdict2, cert2
+    note = ""
+    if not verdict.rank_tight and not verdict.tight and (cert is None or cert.recession):
+        out_of_reach = rank_out_of_reach(model, cons)  # '' unless some block can grow at no cost
+        note = f"; {out_of_reach}" if out_of_reach else ""
+    return Judgement(res, verdict, cert, attempts, note)
+
+
 @single_blas_thread
 def solve_instance(problem: Problem, inst: Instance, constraints: ConstraintsLike = None, *,
                    config: SolverConfig | None = None, criteria: Criteria = Criteria(), n_random: int = 1,
@@ -241,71 +396,25 @@ def solve_instance(problem: Problem, inst: Instance, constraints: ConstraintsLik
     nothing bounds some blocks) raises ``UnboundedRelaxation`` naming those blocks in one line, unless
     ``raise_unbounded`` is False (then it is judged not tight, as discovery's held-out check needs for
     the primary constraints of a problem such as robust pose averaging).
+
+    The steps, in order: ``prepare`` (model, constraints, local search, checks) → ``solve_relaxation`` (the
+    SDP) → ``recover_estimate`` (estimate, refinement, U) → ``judge_relaxation`` (polish, certificate,
+    verdict, the retry).
     """
-    config = SolverConfig() if config is None else config
-    s = seeds(inst.seed if inst.seed is not None else 0)
-    t0 = time.perf_counter()
-    model = model if model is not None else problem.build(inst)
-    config = config.for_size(model.variables.N)  # "auto" picks the backend by the model's size
-    tm = time.perf_counter()
-    cons = resolve(constraints, problem, inst, model, rng_constraints or s.constraints())
-    t1 = time.perf_counter()
-    local = local if local is not None else local_search(problem, inst, rng_local or s.local(), n_random)
-    check_instance(problem, inst, model, local)  # NaN/inf data, or a cost that does not match its lifting
-    check_valid(problem.name, cons, feasible_points(problem, inst, local, s.validity()))
+    prep = prepare(problem, inst, constraints, config=config, n_random=n_random, model=model, local=local,
+                   rng_local=rng_local, rng_constraints=rng_constraints)
     t2 = time.perf_counter()
-    scale = block_scale_at(problem, inst, model, local.best.state, config)
-    res = sdp.solve_model(model, cons, config, scale)
-    unscaled = None
-    if scale is not None and not res.usable:  # the scaling did not help this solve: the plain data
-        unscaled = sdp.solve_model(model, cons, config, None)
-        if unscaled.usable:
-            res, unscaled = unscaled, res
-    ray = next((r for r in (res, unscaled) if r is not None and is_unbounded(r)), None)
-    if raise_unbounded and ray is not None:  # a ray proves unboundedness whichever data it was found with
-        blocks = unbounded_blocks(model, ray)
-        raise UnboundedRelaxation(unbounded_message(model, ray, blocks), blocks)
+    relax = solve_relaxation(problem, inst, prep, raise_unbounded=raise_unbounded)
     t3 = time.perf_counter()
-    estimate = refined = None
-    best = local.best
-    note = ""
-    if res.Theta is not None and res.usable:
-        try:
-            estimate = problem.recover(inst, res.Theta)
-        except ProblemModuleError as e:  # on an X far from rank d this is reported, not raised
-            if not res.log_svr <= criteria.min_log_svr:
-                raise
-            note = f"; recovery failed on a solution of rank > d: {e}"
-        else:
-            refined = problem.local_solve(inst, estimate)
-            rounded = LocalResult(estimate, problem.lifted_cost(inst, estimate, model), 0, True,
-                                  message="the SDP's estimate")
-            check_valid(problem.name, cons, {"the SDP's estimate": problem.lift(inst, estimate),
-                                             "the refined SDP estimate": problem.lift(inst, refined.state)})
-            best = min(best, refined, rounded, key=lambda r: r.cost)
-    upper = best.cost
-    res, cert = dual_certificate(problem, inst, model, cons, res, best, criteria)
-    verdict = judge(res, upper, criteria, cert, Q=model.Q, constraints=cons, scale=scale)
-    attempts = ([] if unscaled is None else [_attempt(unscaled, None)]) + [_attempt(res, verdict)]
-    tighter = replace(config, tol=max(config.tol / 100, 1e-13))
-    # once more at a tighter tolerance, unless the backend cannot go tighter (the IPM's floor): the
-    # same solve again (discrete K = 1000, IPM: 41 s for an identical result)
-    if getattr(verdict, "undecided", False) and sdp.effective_tol(tighter) < sdp.effective_tol(config):
-        res2 = sdp.solve_model(model, cons, tighter, scale)
-        res2, cert2 = dual_certificate(problem, inst, model, cons, res2, best, criteria)
-        verdict2 = judge(res2, upper, criteria, cert2, Q=model.Q, constraints=cons, scale=scale)
-        attempts.append(_attempt(res2, verdict2))
-        if res2.usable:
-            res, verdict, cert = res2, verdict2, cert2
-    if not verdict.rank_tight and not verdict.tight and (cert is None or cert.recession):
-        out_of_reach = rank_out_of_reach(model, cons)  # '' unless some block can grow at no cost
-        note += f"; {out_of_reach}" if out_of_reach else ""
-    verdict.reason += note
+    rec = recover_estimate(problem, inst, prep, relax.res, criteria)
+    jd = judge_relaxation(problem, inst, prep, relax, rec.best, criteria)
+    jd.verdict.reason += rec.note + jd.note
     t4 = time.perf_counter()
-    # build_s: the model and its constraint set; constraints_s: the set alone (templates applied, or re-learned)
-    times = {"build_s": t1 - t0, "constraints_s": t1 - tm, "local_s": t2 - t1, "sdp_total_s": t3 - t2,
-             "sdp_solve_s": res.solve_time_s, "refine_s": t4 - t3, "local_truth_s": local.from_truth.time_s}
-    return SolveResult(problem.name, inst, set_name(constraints, model), len(cons), res, verdict, local, estimate,
-                       refined, upper, problem.errors(inst, estimate) if estimate is not None else {},
-                       problem.errors(inst, local.from_truth.state), cert, marginal_svr(problem, inst, res), attempts,
-                       times)
+    model, local = prep.model, prep.local
+    times = {**prep.times, "sdp_total_s": t3 - t2, "sdp_solve_s": jd.res.solve_time_s, "refine_s": t4 - t3,
+             "local_truth_s": local.from_truth.time_s}
+    return SolveResult(problem.name, inst, set_name(constraints, model), len(prep.constraints), jd.res, jd.verdict,
+                       local, rec.estimate, rec.refined, rec.best.cost,
+                       problem.errors(inst, rec.estimate) if rec.estimate is not None else {},
+                       problem.errors(inst, local.from_truth.state), jd.certificate,
+                       marginal_svr(problem, inst, jd.res), jd.attempts, times)

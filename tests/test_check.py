@@ -8,7 +8,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from autotight import check
+from autotight import evaluate
 from autotight.check import PointResult, check_sufficient, instance_seed
 from autotight.cli import main
 from autotight.errors import ParameterError
@@ -88,7 +88,7 @@ def test_undecided_is_reported_separately_and_never_fails(monkeypatch):
                                verdict=SimpleNamespace(reason=f"bracket {out}", rel_gap=0.0), n_constraints=7,
                                sdp=SimpleNamespace(status="Solved"))
 
-    monkeypatch.setattr(check, "solve_instance", fake)
+    monkeypatch.setattr(evaluate, "solve_instance", fake)  # the loop check runs (autotight.evaluate)
     rep = check_sufficient("pose_averaging", "paper", [0.01, 0.1], instances=3, params={"M": 2})
     assert rep.passed and rep.n_solves == 12  # every attempt counts
     assert [p.count("undecided") for p in rep.points] == [1, 1] and rep.failing_seeds == []

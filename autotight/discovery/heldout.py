@@ -1,8 +1,8 @@
 """Held-out validation of a discovered set: fresh instances per point, solved in parallel.
 
 Each held-out instance is independent: generated from its seed, solved with every set through
-``autotight.pipeline.solve_instance`` (a learned set is instantiated on it first; failing to is a
-failure of the instance, as in ``check``).  The instances run where ``report``'s trials run
+``autotight.evaluate`` (one model and local search shared by the sets; a learned set is instantiated on it
+first, failing to is a failure of the instance, as in ``check``).  The instances run where ``report``'s trials run
 (``autotight.parallel.execute``: in process, joblib processes with ``jobs`` > 1, or a Dask
 cluster at ``scheduler``), and the results are put back in instance order, so the outcome does not
 depend on where they ran.  Counting is ``check``'s (``autotight.check.PointResult``): undecided instances
@@ -21,14 +21,10 @@ from pathlib import Path
 from typing import Any
 
 from ..check import PointResult
-from ..constraint_set import ConstraintSet, ConstraintsLike
-from ..errors import AutotightError, ParameterError
-from .. import sdp
-from ..constraint_set import resolve
-from ..pipeline import LocalSearch, feasible_points, local_search, seeds, solve_instance
-from ..validate import check_instance
-from ..validity import check_valid
-from .shortcut import Shortcut, certified_tight
+from ..constraint_set import ConstraintsLike
+from ..errors import ParameterError
+from ..evaluate import evaluate, summary
+from .shortcut import certified_tight
 from ..problem import Problem, load, registered_name
 from ..sdp.config import SolverConfig
 from ..tightness import Criteria
@@ -51,49 +47,13 @@ def problem_ref(prob: Problem, local: bool) -> Problem | str:
 def solve_one(ref: Problem | str, params: dict[str, Any], seed: int, sets: Mapping[str, ConstraintsLike],
               criteria: Criteria, config: SolverConfig, n_random: int,
               shortcut: bool = False) -> dict[str, dict[str, Any]]:
-    """One held-out instance solved with every set: {set name: outcome, log SVR, reason, …} (``shortcut``: the
-    module docstring; such a row has status "certified", log SVR NaN and no solver call)."""
+    """One held-out instance solved with every set: {set name: ``evaluate.summary`` row (outcome, log SVR,
+    reason, …)} (``shortcut``: the module docstring; such a row has status "certified", log SVR NaN and no
+    solver call)."""
     prob = load(ref)
-    inst = prob.generate(params, seed)
-    model = prob.build(inst)
-    loc = local_search(prob, inst, seeds(seed).local(), n_random)
-    out: dict[str, dict[str, Any]] = {}
-    for name, cons in sets.items():
-        given: Any = cons
-        if isinstance(cons, ConstraintSet):
-            try:
-                given = cons.apply(prob, inst, model, seeds(seed).constraints())
-            except AutotightError as e:
-                out[name] = {"outcome": "not tight", "log_svr": float("nan"), "n_constraints": 0,
-                             "reason": f"cannot instantiate the set: {e}", "status": "not instantiated",
-                             "rel_gap": float("nan"), "calls": 0}
-                continue
-        if shortcut:
-            proved = _certified(prob, inst, model, given, loc, criteria, config)
-            if proved is not None:
-                out[name] = {"outcome": "tight", "log_svr": float("nan"), "n_constraints": proved[0],
-                             "reason": proved[1].reason(), "status": "certified",
-                             "rel_gap": proved[1].rel_bound, "calls": 0}
-                continue
-        r = solve_instance(prob, inst, given, config=config, criteria=criteria, model=model, local=loc,
-                           raise_unbounded=False)
-        out[name] = {"outcome": r.outcome, "log_svr": float(r.log_svr), "n_constraints": r.n_constraints,
-                     "reason": r.verdict.reason, "status": r.sdp.status, "rel_gap": float(r.verdict.rel_gap),
-                     "calls": max(1, len(r.attempts))}
-    return out
-
-
-def _certified(prob: Problem, inst: Any, model: Any, given: ConstraintsLike, loc: LocalSearch, criteria: Criteria,
-               config: SolverConfig) -> tuple[int, Shortcut] | None:
-    """(number of constraints, the proof) when the certificate of ``loc``'s best solution proves ``given`` tight
-    on ``inst``; the checks of ``solve_instance`` (data, costs, every constraint on the feasible points) first."""
-    s = seeds(inst.seed if inst.seed is not None else 0)
-    cons = resolve(given, prob, inst, model, s.constraints())
-    check_instance(prob, inst, model, loc)
-    check_valid(prob.name, cons, feasible_points(prob, inst, loc, s.validity()))
-    gap = sdp.effective_tol(config.for_size(model.variables.N))
-    proof = certified_tight(model, cons, prob.lift(inst, loc.best.state), criteria, gap=gap)
-    return None if proof is None else (len(cons), proof)
+    ev = evaluate(prob, params, seed, sets, config=config, criteria=criteria, n_random=n_random,
+                  shortcut=certified_tight if shortcut else None, raise_unbounded=False)
+    return {name: summary(r) for name, r in ev.results.items()}
 
 
 def _indexed(key: tuple[int, int], ref: Any, params: dict[str, Any], seed: int, sets: Any, criteria: Criteria,
@@ -120,9 +80,7 @@ def solve_batch(prob: Problem, sets: Mapping[str, ConstraintsLike], points: Sequ
     for key, _, _, s, *_ in calls:
         for name, row in done[key].items():
             pr = out[name][key[0]]
-            pr.seeds.append(int(s)); pr.outcomes.append(row["outcome"]); pr.log_svr.append(row["log_svr"])
-            pr.reasons.append(row["reason"]); pr.n_constraints.append(row["n_constraints"])
-            pr.statuses.append(row["status"]); pr.rel_gap.append(row["rel_gap"])
+            pr.add(s, row)
             pr.set_label = name
             n[name] += row["calls"]
     return out, n

@@ -7,13 +7,14 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
-from typing import Any, Sequence
+from typing import Any, Sequence, cast
 
 import numpy as np
 from threadpoolctl import threadpool_limits
 
 from ..errors import AutotightError
-from ..pipeline import has_marginal, is_trapped, local_search, solve_instance
+from ..evaluate import evaluate_instance
+from ..pipeline import SolveResult, has_marginal, is_trapped
 from ..problem import Instance, Problem
 from .spec import SweepSpec, trial_seeds
 from .store import ERROR
@@ -85,25 +86,27 @@ def _errors(problem: Problem, inst: Instance, state: dict | None, prefix: str) -
 
 
 def _solve(problem: Problem, spec: SweepSpec, i: int, t: int, discovered: Any) -> list[dict[str, Any]]:
-    """Every constraint set of ``spec`` on trial (i, t)'s instance, through ``autotight.pipeline``
-    (one build and one local search shared by the sets)."""
+    """Every constraint set of ``spec`` on trial (i, t)'s instance, through ``autotight.evaluate`` (one build
+    and one local search shared by the sets; the local starts draw from the trial's ``rng_local``, a learned
+    set from its ``rng_disc``, ``spec.trial_seeds``)."""
     seed, rng_local, rng_disc = trial_seeds(spec.seed, i, t)
     t0 = time.perf_counter()
     inst = problem.generate(dict(spec.params, sigma=spec.sigmas[i]), seed)
-    model = problem.build(inst)
-    build_s = time.perf_counter() - t0
-    loc = local_search(problem, inst, rng_local, n_random=1)
+    generate_s = time.perf_counter() - t0
+    sets = {name: discovered[name] if discovered and name in discovered else name for name in spec.sets}
+    # an error, a failed instantiation of a learned set included, fails the whole trial (``run_trial``)
+    ev = evaluate_instance(problem, inst, sets, config=spec.solver_config(), criteria=spec.criteria,
+                           rng_local=rng_local, rng_constraints=rng_disc, n_random=1, catch_instantiate=False)
+    loc = ev.local
     truth, rand = loc.from_truth, loc.from_random[0]
     common = {"local_cost_truth": truth.cost, "local_cost_random": rand.cost,
               "local_converged_truth": truth.converged, "local_converged_random": rand.converged,
-              "local_truth_time_s": truth.time_s, "local_random_time_s": rand.time_s, "build_time_s": build_s,
+              "local_truth_time_s": truth.time_s, "local_random_time_s": rand.time_s,
+              "build_time_s": generate_s + ev.times["build_s"],
               **_errors(problem, inst, truth.state, "err_truth_"), **_errors(problem, inst, rand.state, "err_random_")}
-    config = spec.solver_config()
     rows, uppers = [], []
-    for name in spec.sets:
-        constraints = discovered[name] if discovered and name in discovered else name
-        out = solve_instance(problem, inst, constraints, config=config, criteria=spec.criteria, model=model,
-                             local=loc, rng_constraints=rng_disc)
+    for name, result in ev.results.items():
+        out = cast(SolveResult, result)  # without a shortcut, and an instantiation failure raised: always solved
         res, verdict = out.sdp, out.verdict
         uppers.append(out.upper)
         errs = {"err_sdp_" + k: v for k, v in out.errors_sdp.items()}
