@@ -403,3 +403,22 @@ def test_check_module_broken_generate_is_a_failed_check_and_bad_parameters_are_b
         """)
     assert main(["check-module", refuse]) == 2
     assert capsys.readouterr().err.strip() == "autotight: error: this combination of parameters is impossible"
+
+
+def test_assert_problem_module_passes_a_kept_contract_and_lists_every_failed_check(tmp_path):
+    from autotight.testing import assert_problem_module
+
+    res = assert_problem_module("rotation_averaging", {"M": 3})
+    assert res.ok and res.measurements["sample_violation"] <= 1e-8
+    broken = _module(tmp_path, "ra_two_broken", """
+        def sample(inst, rng, nominal, spread):
+            return dict(nominal)
+        def errors(inst, state):
+            return {'a': 'x'}
+        """)
+    with pytest.raises(AssertionError) as e:
+        assert_problem_module(broken, {"M": 3})
+    lines = str(e.value).splitlines()
+    assert lines[0].startswith("problem ra_two_broken fails")
+    failed = {ln.split(":")[0] for ln in lines[1:]}
+    assert {"FAIL sample-spread", "FAIL errors"} <= failed, lines
