@@ -30,10 +30,10 @@ from typing import Any, Optional, Protocol, Union
 import numpy as np
 
 from . import sdp
-from .constraint_set import ConstraintSet, ConstraintsLike
+from .constraint_set import ConstraintSet, ConstraintsLike, set_name
 from .errors import AutotightError
 from .model import Constraint, Model
-from .pipeline import LocalSearch, SolveResult, local_search, prepare, seeds, solve_instance
+from .pipeline import LocalSearch, Prepared, SolveResult, local_search, prepare, seeds, solve_instance, solve_prepared
 from .problem import Instance, Problem
 from .sdp.config import SolverConfig
 from .tightness import Criteria
@@ -102,19 +102,16 @@ def instantiate(problem: Problem, inst: Instance, model: Model, constraints: Con
     ``AutotightError``); anything else is returned as it is."""
     if not isinstance(constraints, ConstraintSet):
         return constraints
-    if constraints.problem != problem.name:
-        raise AutotightError(f"the constraint set is for {constraints.problem!r}, not {problem.name!r}")
     return constraints.apply(problem, inst, model, rng)
 
 
-def certify_local(problem: Problem, inst: Instance, model: Model, constraints: ConstraintsLike, local: LocalSearch,
-                  certifier: Certifier, *, config: SolverConfig, criteria: Criteria) -> Certified | None:
-    """``Certified`` when ``certifier`` proves ``constraints`` tight at ``local``'s best solution, else None; the
-    checks of ``pipeline.prepare`` (data, every constraint on the feasible points) first, their errors raised.
-    The certifier's gap is the relative gap of the solver the SDP would use (``sdp.effective_tol``)."""
-    prep = prepare(problem, inst, constraints, config=config, model=model, local=local)
+def certify_local(problem: Problem, inst: Instance, prep: Prepared, certifier: Certifier,
+                  criteria: Criteria) -> Certified | None:
+    """``Certified`` when ``certifier`` proves the prepared constraints (``pipeline.prepare``: data and every
+    constraint checked on the feasible points) tight at the local search's best solution, else None.  The
+    certifier's gap is the relative gap of the solver the SDP would use (``sdp.effective_tol``)."""
     gap = sdp.effective_tol(prep.config)
-    proof = certifier(model, prep.constraints, problem.lift(inst, local.best.state), criteria, gap)
+    proof = certifier(prep.model, prep.constraints, problem.lift(inst, prep.local.best.state), criteria, gap)
     return None if proof is None else Certified(len(prep.constraints), proof)
 
 
@@ -147,11 +144,12 @@ def evaluate_instance(problem: Problem, inst: Instance, sets: Mapping[str, Const
                 continue
         else:
             given = instantiate(problem, inst, model, cons, rng)
-        if shortcut is not None:
-            proved = certify_local(problem, inst, model, given, local, shortcut, config=config, criteria=criteria)
-            if proved is not None:
-                results[name] = proved
-                continue
+        if shortcut is not None:  # the checks run once, for the certificate and, if it does not decide, the SDP
+            prep = prepare(problem, inst, given, config=config, model=model, local=local)
+            proved = certify_local(problem, inst, prep, shortcut, criteria)
+            results[name] = proved if proved is not None else solve_prepared(
+                problem, inst, prep, set_name(given, model), criteria=criteria, raise_unbounded=raise_unbounded)
+            continue
         results[name] = solve_instance(problem, inst, given, config=config, criteria=criteria, model=model,
                                        local=local, raise_unbounded=raise_unbounded)
     return InstanceEvaluation(inst, model, local, results, {"build_s": t1 - t0, "local_s": t2 - t1})

@@ -403,6 +403,15 @@ def solve_instance(problem: Problem, inst: Instance, constraints: ConstraintsLik
     """
     prep = prepare(problem, inst, constraints, config=config, n_random=n_random, model=model, local=local,
                    rng_local=rng_local, rng_constraints=rng_constraints)
+    return solve_prepared(problem, inst, prep, set_name(constraints, prep.model), criteria=criteria,
+                          raise_unbounded=raise_unbounded)
+
+
+@single_blas_thread
+def solve_prepared(problem: Problem, inst: Instance, prep: Prepared, name: str, *, criteria: Criteria = Criteria(),
+                   raise_unbounded: bool = True) -> SolveResult:
+    """``solve_instance`` after its ``prepare`` step (``prep``; ``name``: the set's name in the result), for a
+    caller that prepared the instance already (e.g. to try a certificate first)."""
     t2 = time.perf_counter()
     relax = solve_relaxation(problem, inst, prep, raise_unbounded=raise_unbounded)
     t3 = time.perf_counter()
@@ -410,10 +419,10 @@ def solve_instance(problem: Problem, inst: Instance, constraints: ConstraintsLik
     jd = judge_relaxation(problem, inst, prep, relax, rec.best, criteria)
     jd.verdict.reason += rec.note + jd.note
     t4 = time.perf_counter()
-    model, local = prep.model, prep.local
+    local = prep.local
     times = {**prep.times, "sdp_total_s": t3 - t2, "sdp_solve_s": jd.res.solve_time_s, "refine_s": t4 - t3,
              "local_truth_s": local.from_truth.time_s}
-    return SolveResult(problem.name, inst, set_name(constraints, model), len(prep.constraints), jd.res, jd.verdict,
+    return SolveResult(problem.name, inst, name, len(prep.constraints), jd.res, jd.verdict,
                        local, rec.estimate, rec.refined, rec.best.cost,
                        problem.errors(inst, rec.estimate) if rec.estimate is not None else {},
                        problem.errors(inst, local.from_truth.state), jd.certificate,
