@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field
 from typing import Any
 
 #: the module-level names the fields replace (a module that still declares one is refused with a hint)
@@ -50,7 +50,3 @@ class Meta:
     check_params: Mapping[str, Any] = field(default_factory=dict)
     spread: float = 0.5
     random_spread: float = math.pi
-
-    @classmethod
-    def field_names(cls) -> tuple[str, ...]:
-        return tuple(f.name for f in fields(cls))
