@@ -342,7 +342,7 @@ def stationarity_system(Q: sp.sparray, As: Sequence[sp.sparray], Th: np.ndarray,
 
 def polish_dual(Q: sp.sparray, As: Sequence[sp.sparray], y: np.ndarray, theta_hat: np.ndarray,
                 free: np.ndarray | None = None,
-                system: tuple[sp.csr_array, np.ndarray] | None = None) -> np.ndarray:
+                system: tuple[sp.csr_array, np.ndarray] | None = None, equilibrate: bool = False) -> np.ndarray:
     """y + δ, δ the least change (2-norm) that makes H(y + δ)Θ̂ᵀ = 0 (and H's rows on recession columns
     zero, ``stationarity_system``): the minimum-norm least-squares solution of G δ = g − G y
     (``lstsq.min_norm_lstsq``).  Θ̂: (d, N).  Where x̂ is stationary only to the local solver's
@@ -351,15 +351,20 @@ def polish_dual(Q: sp.sparray, As: Sequence[sp.sparray], y: np.ndarray, theta_ha
     proves anything is λ_min's to say.  The rows on recession columns, which must hold exactly (to
     roundoff) for a certificate, get a second least-change step of their own.  ``free``: the columns
     set aside instead of the recession columns (``stationarity_system``).  system: (G, g) of
-    ``stationarity_system(Q, As, Θ̂, free)`` when the caller has it."""
+    ``stationarity_system(Q, As, Θ̂, free)`` when the caller has it (its rows may be weighted).
+    equilibrate: the least change in the metric of G's column norms (``lstsq.equilibrated_lstsq``)
+    instead of the 2-norm, for a y that starts far from stationarity on a badly scaled G."""
+    from .lstsq import equilibrated_lstsq
+
+    lstsq = equilibrated_lstsq if equilibrate else min_norm_lstsq
     Th = np.atleast_2d(np.asarray(theta_hat, dtype=float))
     G, g = stationarity_system(Q, As, Th, free) if system is None else system
     y = np.asarray(y, dtype=float)
-    y = y + min_norm_lstsq(G, g - G @ y)
+    y = y + lstsq(G, g - G @ y)
     n_stat = Th.size
     if G.shape[0] > n_stat:
         GJ, gJ = G[n_stat:], g[n_stat:]
-        y = y + min_norm_lstsq(GJ, gJ - GJ @ y, atol=1e-16)
+        y = y + lstsq(GJ, gJ - GJ @ y, atol=1e-16)
     return y
 
 

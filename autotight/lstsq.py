@@ -66,5 +66,17 @@ def min_norm_lstsq(G: sp.sparray, r: np.ndarray, *, atol: float = 1e-14) -> np.n
     return x
 
 
+def equilibrated_lstsq(G: sp.sparray, r: np.ndarray, *, atol: float = 1e-14) -> np.ndarray:
+    """A least-squares solution of G x = r: ``min_norm_lstsq`` in the variables z = C x, C = diag(G's column
+    norms) (a zero column keeps weight 1), so x has the least ‖C x‖ among the least-squares solutions.
+    Where G's columns differ in norm by orders (multipliers of constraints on entries of very different
+    size), the steps of ``min_norm_lstsq`` leave the components of small singular value unsettled in
+    the plain metric; equilibrated columns bring those singular values up to the rest."""
+    G = sp.csr_array(G)
+    norms = np.sqrt(np.asarray(G.multiply(G).sum(axis=0)).ravel())
+    norms[norms == 0] = 1.0
+    return min_norm_lstsq(sp.csr_array(G @ sp.diags_array(1.0 / norms)), r, atol=atol) / norms
+
+
 def _lsqr(G: sp.csr_array, r: np.ndarray, atol: float) -> np.ndarray:
     return spla.lsqr(G, r, atol=atol, btol=atol, iter_lim=10 * G.shape[1])[0]

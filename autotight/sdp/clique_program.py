@@ -53,6 +53,19 @@ class CliqueProgram:
     def sizes(self) -> list[int]:
         return [len(C) for C in self.cliques]
 
+    def congruence(self, D: np.ndarray) -> "CliqueProgram":
+        """The program of the data D Q D, D Aᵢ D (D: positive (N,), the diagonal of a congruence), on the
+        same cliques: each row of F and c (the svec entry (i, j)) times D_i D_j, the cost rescaled to
+        max|C_ij| = 1 again.  y and g are unchanged (⟨D A D, D⁻¹ X D⁻¹⟩ = ⟨A, X⟩); a transfer variable
+        is that of the unscaled program times D_i D_j."""
+        gi, gj = position_to_ij(self.pos)
+        s = np.asarray(D, float)[gi] * np.asarray(D, float)[gj]
+        cost = s * self.c / self.scale  # the unscaled cost D Q D, split as before
+        top = float(np.max(np.abs(cost), initial=0.0))
+        scale = 1.0 / top if top > 0 else 1.0
+        F = sp.csc_matrix(sp.diags_array(s) @ self.F)
+        return CliqueProgram(self.cliques, F, cost * scale, self.g, self.start, self.pos, self.m, self.N, scale)
+
     def pattern_matrix(self, z: np.ndarray) -> np.ndarray | None:
         """The N×N matrix with the blocks' svec entries z (R,) on the pattern, zero elsewhere
         (None if z is not a finite vector of the blocks' size)."""
