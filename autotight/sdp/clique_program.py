@@ -200,7 +200,10 @@ def clique_program(Q: sp.csr_array, As: Sequence[sp.csr_array], b: np.ndarray,
     # COO throughout: a CSR copy of the svec data would hold an index array of N(N+1)/2 + 1 entries
     # (2.3 GB at N = 24 000), the one quadratic array of the decomposition
     data = svec_columns([Q, *As], N).tocoo()  # column 0: Q
-    outside = np.setdiff1d(np.unique(data.row), pos)
+    own_order = np.argsort(pos[own])
+    known = pos[own][own_order]  # every entry of the pattern once, increasing
+    rows_used = np.unique(data.row)
+    outside = rows_used[~_find(known, rows_used)[1]]
     if outside.size:
         raise ValueError(f"{outside.size} entries of the cost or constraints lie outside every clique")
     isq = data.col == 0
@@ -210,8 +213,7 @@ def clique_program(Q: sp.csr_array, As: Sequence[sp.csr_array], b: np.ndarray,
                        (np.concatenate([g_row, moved, par_row[moved]]), np.concatenate([G.col, t, t]))),
                       shape=(nrow, m + moved.size))
     c = np.zeros(nrow)
-    own_order = np.argsort(pos[own])
-    at = np.searchsorted(pos[own][own_order], data.row[isq])
+    at = np.searchsorted(known, data.row[isq])
     c[own[own_order[at]]] = data.data[isq] * scale
     g = np.concatenate([np.asarray(b, float), np.zeros(moved.size)])
     return CliqueProgram(cliques, F, c, g, start, pos, m, N, scale)
