@@ -48,6 +48,7 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
+from .ldl import SymmetricLDL
 from .lstsq import min_norm_lstsq
 from .model import Constraint
 from .validity import VALID_RTOL, relative_violations
@@ -62,7 +63,7 @@ LANCZOS_MAXITER = 5000
 #: H's entries on recession columns count as zero up to this multiple of max|H| (module docstring)
 FREE_ATOL = 1e-12
 #: from this many columns on, ``lambda_min`` shifts to NEAR_SHIFT·max|H| below zero and factors H − σI
-#: symmetrically (``symmetric_lu``) instead of σ = −1e-3·max|H| with SuperLU's pivoting.  At a tight
+#: symmetrically (``symmetric_ldl``) instead of σ = −1e-3·max|H| with SuperLU's pivoting.  At a tight
 #: relaxation λ_min(H) ≈ 0 and on a long chain λ₂ is tiny (discrete K = 1000: λ₂ ≈ 1e-4, max|H| ≈ 4.5e3),
 #: so at σ = −1e-3·max|H| the shifted spectrum has no gap: 7 400 solves, 9.8 s per call, three calls per
 #: solve.  At σ = −1e-8·max|H|: 21 solves and 0.2 s, λ̂ equal to 1e-13 absolute (and closer to the
@@ -147,26 +148,23 @@ def dual_matrix(Q: sp.sparray, As: Sequence[sp.sparray], y: np.ndarray, *, stack
     return H
 
 
-def symmetric_lu(H: sp.sparray, shift: float):
-    """SuperLU of H − shift·I in symmetric mode without off-diagonal pivoting (an LDLᵀ in effect: the
-    fill of a symmetric ordering); raises RuntimeError when exactly singular."""
-    from scipy.sparse.linalg import splu
-
+def symmetric_ldl(H: sp.sparray, shift: float) -> SymmetricLDL:
+    """LDLᵀ of H − shift·I without pivoting (``ldl.SymmetricLDL``); raises RuntimeError when a pivot is
+    exactly zero."""
     n = H.shape[0]
-    return splu(sp.csc_matrix(H - shift * sp.identity(n, format="csc")), permc_spec="MMD_AT_PLUS_A",
-                diag_pivot_thresh=0.0, options=dict(SymmetricMode=True))
+    return SymmetricLDL(H - shift * sp.identity(n, format="csc"))
 
 
 def negative_pivots(H: sp.sparray, shift: float) -> int | None:
     """Number of negative eigenvalues of H − shift·I, by Sylvester's law on a symmetric LDLᵀ
-    (``symmetric_lu``); None if the factorisation fails or pivots off the diagonal."""
+    (``symmetric_ldl``); None if the factorisation breaks down or a pivot is not finite."""
     try:
-        lu = symmetric_lu(H, shift)
+        D = symmetric_ldl(H, shift).pivots
     except RuntimeError:  # exactly singular
         return None
-    if not np.array_equal(lu.perm_r, lu.perm_c):
+    if not np.all(np.isfinite(D)):
         return None
-    return int(np.count_nonzero(lu.U.diagonal() < 0))
+    return int(np.count_nonzero(D < 0))
 
 
 def lambda_min(H: sp.sparray) -> tuple[float, float, str]:
@@ -188,9 +186,9 @@ def lambda_min(H: sp.sparray) -> tuple[float, float, str]:
     if n >= NEAR_SHIFT_MIN_N:
         sigma = -NEAR_SHIFT * scale
         try:
-            lu = symmetric_lu(H, sigma)
-            if np.array_equal(lu.perm_r, lu.perm_c):  # else it pivoted: eigsh's own factorisation
-                inverse = spla.LinearOperator((n, n), matvec=lu.solve, dtype=float)
+            ldl = symmetric_ldl(H, sigma)
+            if np.all(np.isfinite(ldl.pivots)):  # else: eigsh's own factorisation
+                inverse = spla.LinearOperator((n, n), matvec=ldl.solve, dtype=float)
         except RuntimeError:  # exactly singular there: eigsh's own factorisation
             pass
     try:
@@ -342,7 +340,7 @@ def stationarity_system(Q: sp.sparray, As: Sequence[sp.sparray], Th: np.ndarray,
 
 def polish_dual(Q: sp.sparray, As: Sequence[sp.sparray], y: np.ndarray, theta_hat: np.ndarray,
                 free: np.ndarray | None = None,
-                system: tuple[sp.csr_array, np.ndarray] | None = None) -> np.ndarray:
+                system: tuple[sp.csr_array, np.ndarray] | None = None, equilibrate: bool = False) -> np.ndarray:
     """y + δ, δ the least change (2-norm) that makes H(y + δ)Θ̂ᵀ = 0 (and H's rows on recession columns
     zero, ``stationarity_system``): the minimum-norm least-squares solution of G δ = g − G y
     (``lstsq.min_norm_lstsq``).  Θ̂: (d, N).  Where x̂ is stationary only to the local solver's
@@ -351,15 +349,20 @@ def polish_dual(Q: sp.sparray, As: Sequence[sp.sparray], y: np.ndarray, theta_ha
     proves anything is λ_min's to say.  The rows on recession columns, which must hold exactly (to
     roundoff) for a certificate, get a second least-change step of their own.  ``free``: the columns
     set aside instead of the recession columns (``stationarity_system``).  system: (G, g) of
-    ``stationarity_system(Q, As, Θ̂, free)`` when the caller has it."""
+    ``stationarity_system(Q, As, Θ̂, free)`` when the caller has it (its rows may be weighted).
+    equilibrate: the least change in the metric of G's column norms (``lstsq.equilibrated_lstsq``)
+    instead of the 2-norm, for a y that starts far from stationarity on a badly scaled G."""
+    from .lstsq import equilibrated_lstsq
+
+    lstsq = equilibrated_lstsq if equilibrate else min_norm_lstsq
     Th = np.atleast_2d(np.asarray(theta_hat, dtype=float))
     G, g = stationarity_system(Q, As, Th, free) if system is None else system
     y = np.asarray(y, dtype=float)
-    y = y + min_norm_lstsq(G, g - G @ y)
+    y = y + lstsq(G, g - G @ y)
     n_stat = Th.size
     if G.shape[0] > n_stat:
         GJ, gJ = G[n_stat:], g[n_stat:]
-        y = y + min_norm_lstsq(GJ, gJ - GJ @ y, atol=1e-16)
+        y = y + lstsq(GJ, gJ - GJ @ y, atol=1e-16)
     return y
 
 

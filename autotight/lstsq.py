@@ -2,7 +2,7 @@
 
 LSQR needs iterations in proportion to G's condition, which grows with the length of a trajectory:
 polishing the dual of discrete K = 300 took 26 000 LSQR iterations (6.5 s), K = 1000 most of a minute.
-Here one sparse factorisation does it (linear in K on a chain): proximal-point steps
+Here one sparse LDLᵀ (``ldl.SymmetricLDL``) does it (linear in K on a chain): proximal-point steps
 
     x ← x + e,  e = argmin ‖G e − (r − G x)‖² + μ‖e‖² = Gᵀ(GGᵀ + μI)⁻¹(r − G x),
 
@@ -22,6 +22,8 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
+
+from .ldl import SymmetricLDL
 
 LSQR_MAX_COLUMNS = 4000  # LSQR up to this many columns (module docstring)
 MU_REL = 1e-8  # μ relative to ‖G‖_F²/rows (module docstring)
@@ -45,8 +47,7 @@ def min_norm_lstsq(G: sp.sparray, r: np.ndarray, *, atol: float = 1e-14) -> np.n
     try:
         kkt = sp.bmat([[sp.identity(m, format="csc"), G.T], [G, -mu * sp.identity(n, format="csc")]],
                       format="csc")
-        lu = spla.splu(kkt, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
-                       options=dict(SymmetricMode=True))
+        lu = SymmetricLDL(kkt)  # quasi-definite: an LDLᵀ exists under any symmetric ordering
     except RuntimeError:  # exactly singular factor: LSQR as before
         return _lsqr(G, r, atol)
     x = np.zeros(m)
@@ -54,7 +55,9 @@ def min_norm_lstsq(G: sp.sparray, r: np.ndarray, *, atol: float = 1e-14) -> np.n
     last = np.inf
     for _ in range(MAX_STEPS):
         rhs[m:] = r - G @ x
-        step = -(G.T @ lu.solve(rhs)[m:])
+        sol = lu.solve(rhs)
+        sol += lu.solve(rhs - kkt @ sol)  # one refinement step: the LDLᵀ does not pivot
+        step = -(G.T @ sol[m:])
         if not np.all(np.isfinite(step)):
             return _lsqr(G, r, atol)
         x += step
@@ -64,6 +67,18 @@ def min_norm_lstsq(G: sp.sparray, r: np.ndarray, *, atol: float = 1e-14) -> np.n
             break
         last = size
     return x
+
+
+def equilibrated_lstsq(G: sp.sparray, r: np.ndarray, *, atol: float = 1e-14) -> np.ndarray:
+    """A least-squares solution of G x = r: ``min_norm_lstsq`` in the variables z = C x, C = diag(G's column
+    norms) (a zero column keeps weight 1), so x has the least ‖C x‖ among the least-squares solutions.
+    Where G's columns differ in norm by orders (multipliers of constraints on entries of very different
+    size), the steps of ``min_norm_lstsq`` leave the components of small singular value unsettled in
+    the plain metric; equilibrated columns bring those singular values up to the rest."""
+    G = sp.csr_array(G)
+    norms = np.sqrt(np.asarray(G.multiply(G).sum(axis=0)).ravel())
+    norms[norms == 0] = 1.0
+    return min_norm_lstsq(sp.csr_array(G @ sp.diags_array(1.0 / norms)), r, atol=atol) / norms
 
 
 def _lsqr(G: sp.csr_array, r: np.ndarray, atol: float) -> np.ndarray:

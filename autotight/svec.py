@@ -73,16 +73,17 @@ def triu_entries(A: sp.spmatrix | sp.sparray) -> tuple[np.ndarray, np.ndarray, n
 def svec_columns(As: Sequence[sp.spmatrix | sp.sparray], n: int) -> sp.csc_array:
     """[svec A₁ … svec A_m] of sparse symmetric n×n matrices as one sparse (n(n+1)/2 × m) array,
     assembled in one pass from their upper triangles (no dense n×n)."""
-    rows, cols, vals = [], [], []
-    for k, A in enumerate(As):
-        r, c, v = triu_entries(A)
-        rows.append(c * (c + 1) // 2 + r)
-        cols.append(np.full(r.size, k))
-        vals.append(v * np.where(r == c, 1.0, SQRT2))
-    if not rows:
+    if not len(As):
         return sp.csc_array((svec_dim(n), 0))
-    return sp.csc_array((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
-                        shape=(svec_dim(n), len(As)))
+    # COO as stored (no N + 1 index array per matrix), concatenated once: one filter for all matrices
+    coo = [A if isinstance(A, (sp.coo_array, sp.coo_matrix)) else sp.coo_array(A) for A in As]
+    r = np.concatenate([A.row for A in coo]).astype(np.int64)
+    c = np.concatenate([A.col for A in coo]).astype(np.int64)
+    v = np.concatenate([A.data for A in coo]).astype(float)
+    k = np.repeat(np.arange(len(coo)), [A.data.size for A in coo])
+    keep = r <= c
+    r, c, v, k = r[keep], c[keep], v[keep], k[keep]
+    return sp.csc_array((v * np.where(r == c, 1.0, SQRT2), (c * (c + 1) // 2 + r, k)), shape=(svec_dim(n), len(As)))
 
 
 def svec_sparse(A: sp.spmatrix | sp.sparray) -> sp.csc_array:

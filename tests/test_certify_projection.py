@@ -64,3 +64,48 @@ def test_certify_rejects_unknown_method():
     p, inst, model, cons = _chain(3)
     with pytest.raises(ValueError, match="method"):
         certify_model(model, cons, np.asarray(p.lift(inst, inst.truth)), method="newton")
+
+
+def test_projection_certifies_a_chain_far_from_the_origin():
+    """A helix climbing 1 per step over 300 poses: positions up to 150 beside rotations of 1.  On the data as
+    given the rounds found no feasible point (137 rounds, then the barrier broke down); on the data scaled by
+    x̂'s block magnitudes (``certify_model``'s default) they do, and the polished y certifies x̂ with a
+    relative bound ≤ 1e-6 by a proof of H ⪰ 0 (no trace bound)."""
+    p = load("discrete_trajectory")
+    inst = p.generate(p.parse_params({"K": 300, "climb": 1.0}), 0)
+    model = p.build(inst)
+    loc = p.local_solve(inst, inst.truth)
+    Th = p.lift(inst, loc.state)
+    assert np.abs(Th).max() > 100
+    cert = certify_model(model, constraint_set(model, "paper"), Th, method="projection")
+    assert "feasible" in cert.method
+    assert cert.certified and cert.rel_bound <= 1e-6
+    assert cert.trace is None  # proved without a trace bound
+    assert cert.dual_value <= cert.cost + 1e-9 * abs(cert.cost)
+
+
+def test_congruence_scales_every_block_entry():
+    """CliqueProgram.congruence(D): the blocks of the scaled program at the correspondingly scaled w are
+    D_k S_k D_k (S_k the blocks of the given program), to roundoff."""
+    from autotight.certifier import default_cliques
+    from autotight.certificate import stack
+    from autotight.sdp.clique_program import clique_program
+    from autotight.sdp.schur_ipm import _Blocks, svec_to_vec
+
+    p, inst, model, cons = _chain(4)
+    As, b = stack(cons)
+    prog = clique_program(model.Q, As, b, default_cliques(model.Q, As, model.d))
+    rng = np.random.default_rng(3)
+    D = 10.0 ** rng.uniform(-2, 2, model.variables.N)
+    scaled = prog.congruence(D)
+    w = rng.standard_normal(prog.F.shape[1])
+    ratio = scaled.scale / prog.scale  # the scaled program's w for the same y
+    blocks = _Blocks(prog.sizes)
+    P = svec_to_vec(prog.sizes)
+    S = blocks.split(P @ (prog.c - prog.F @ w))
+    S2 = blocks.split(P @ (scaled.c - scaled.F @ (ratio * w)))
+    for (n, ids, _), Sg, S2g in zip(blocks.groups, S, S2):
+        Dk = np.stack([D[prog.cliques[k]] for k in ids])  # (B, n)
+        expect = ratio * Dk[:, :, None] * Sg * Dk[:, None, :]
+        assert np.abs(S2g - expect).max() <= 1e-12 * np.abs(expect).max()
+    assert np.abs(scaled.c).max() == pytest.approx(1.0)

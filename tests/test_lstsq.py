@@ -60,3 +60,22 @@ def test_lsqr_routes(monkeypatch, route):
 
 def test_empty_system():
     assert min_norm_lstsq(sp.csr_array((0, 3)), np.zeros(0)).tolist() == [0.0, 0.0, 0.0]
+
+
+@pytest.mark.parametrize("consistent", [True, False])
+def test_equilibrated_solution_is_the_least_squares_solution_of_least_column_weighted_norm(monkeypatch, consistent):
+    """Columns scaled by factors from 1e-4 to 1e4 (as multipliers of constraints on entries of very different
+    size): the solution equals C⁻¹ pinv(G C⁻¹) r (C: column norms) to 1e-8 relative, and its residual is
+    the least-squares residual."""
+    monkeypatch.setattr(lstsq, "LSQR_MAX_COLUMNS", 0)
+    rng = np.random.default_rng(1)
+    G0 = _chain(rng, 40)
+    G = sp.csr_array(G0 @ sp.diags_array(10.0 ** rng.uniform(-4, 4, G0.shape[1])))
+    Gd = G.toarray()
+    r = Gd @ rng.standard_normal(G.shape[1]) if consistent else rng.standard_normal(G.shape[0])
+    x = lstsq.equilibrated_lstsq(G, r)
+    norms = np.linalg.norm(Gd, axis=0)
+    ref = (np.linalg.pinv(Gd / norms) @ r) / norms
+    assert np.linalg.norm(norms * (x - ref)) <= 1e-8 * np.linalg.norm(norms * ref)
+    best = np.linalg.norm(Gd @ ref - r)
+    assert np.linalg.norm(Gd @ x - r) <= best + 1e-9 * np.linalg.norm(r)

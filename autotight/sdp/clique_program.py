@@ -53,6 +53,19 @@ class CliqueProgram:
     def sizes(self) -> list[int]:
         return [len(C) for C in self.cliques]
 
+    def congruence(self, D: np.ndarray) -> "CliqueProgram":
+        """The program of the data D Q D, D Aᵢ D (D: positive (N,), the diagonal of a congruence), on the
+        same cliques: each row of F and c (the svec entry (i, j)) times D_i D_j, the cost rescaled to
+        max|C_ij| = 1 again.  y and g are unchanged (⟨D A D, D⁻¹ X D⁻¹⟩ = ⟨A, X⟩); a transfer variable
+        is that of the unscaled program times D_i D_j."""
+        gi, gj = position_to_ij(self.pos)
+        s = np.asarray(D, float)[gi] * np.asarray(D, float)[gj]
+        cost = s * self.c / self.scale  # the unscaled cost D Q D, split as before
+        top = float(np.max(np.abs(cost), initial=0.0))
+        scale = 1.0 / top if top > 0 else 1.0
+        F = sp.csc_matrix(sp.diags_array(s) @ self.F)
+        return CliqueProgram(self.cliques, F, cost * scale, self.g, self.start, self.pos, self.m, self.N, scale)
+
     def pattern_matrix(self, z: np.ndarray) -> np.ndarray | None:
         """The N×N matrix with the blocks' svec entries z (R,) on the pattern, zero elsewhere
         (None if z is not a finite vector of the blocks' size)."""
@@ -187,7 +200,10 @@ def clique_program(Q: sp.csr_array, As: Sequence[sp.csr_array], b: np.ndarray,
     # COO throughout: a CSR copy of the svec data would hold an index array of N(N+1)/2 + 1 entries
     # (2.3 GB at N = 24 000), the one quadratic array of the decomposition
     data = svec_columns([Q, *As], N).tocoo()  # column 0: Q
-    outside = np.setdiff1d(np.unique(data.row), pos)
+    own_order = np.argsort(pos[own])
+    known = pos[own][own_order]  # every entry of the pattern once, increasing
+    rows_used = np.unique(data.row)
+    outside = rows_used[~_find(known, rows_used)[1]]
     if outside.size:
         raise ValueError(f"{outside.size} entries of the cost or constraints lie outside every clique")
     isq = data.col == 0
@@ -197,8 +213,7 @@ def clique_program(Q: sp.csr_array, As: Sequence[sp.csr_array], b: np.ndarray,
                        (np.concatenate([g_row, moved, par_row[moved]]), np.concatenate([G.col, t, t]))),
                       shape=(nrow, m + moved.size))
     c = np.zeros(nrow)
-    own_order = np.argsort(pos[own])
-    at = np.searchsorted(pos[own][own_order], data.row[isq])
+    at = np.searchsorted(known, data.row[isq])
     c[own[own_order[at]]] = data.data[isq] * scale
     g = np.concatenate([np.asarray(b, float), np.zeros(moved.size)])
     return CliqueProgram(cliques, F, c, g, start, pos, m, N, scale)
