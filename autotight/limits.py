@@ -33,7 +33,6 @@ from dataclasses import dataclass, replace
 from typing import Any, Sequence
 
 import numpy as np
-import scipy.sparse as sp
 
 from .errors import ParameterError
 from .sdp import BACKENDS, decomposes
