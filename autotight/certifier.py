@@ -338,7 +338,7 @@ def certify(Q: sp.sparray, constraints: Sequence[Constraint], theta_hat: np.ndar
 def _certify_projected(Q, As, constraints, prog, Th, *, d, tol, floor, trace,
                        scale: np.ndarray | None) -> Certificate:
     """The certificate of the y that Douglas–Rachford proposes (``dual_projection``), polished onto
-    stationarity and refined by LSQR (module docstring, Scope).
+    stationarity (module docstring, Scope).
 
     scale: D (N,) positive, or None.  With D, the rounds run on the congruent data D Q D, D Aᵢ D and
     Θ̂ D⁻¹ (``CliqueProgram.congruence``): the same multipliers y, and H(y) ⪰ 0 iff D H(y) D ⪰ 0,

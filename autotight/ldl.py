@@ -17,17 +17,15 @@ class SymmetricLDL:
     """P A Pᵀ = (I + L) D (I + L)ᵀ of a symmetric sparse A (only its upper triangle is read).
 
     ``solve(b)``: A⁻¹ b for b (n,).  ``pivots``: D (n,), whose signs are A's inertia.  Raises
-    RuntimeError when a pivot is exactly zero (the factorisation breaks down)."""
+    RuntimeError (qdldl's own) when a pivot is exactly zero or a diagonal entry is not stored: the
+    factorisation breaks down."""
 
     def __init__(self, A: sp.sparray):
         import qdldl
 
         upper = sp.triu(sp.csc_matrix(A), format="csc")
         upper.sort_indices()
-        try:
-            self._solver = qdldl.Solver(upper, upper=True)
-        except ValueError as e:  # qdldl reports a zero pivot as ValueError in some versions
-            raise RuntimeError(str(e)) from e
+        self._solver = qdldl.Solver(upper, upper=True)
         self.shape = upper.shape
 
     def solve(self, b: np.ndarray) -> np.ndarray:

@@ -79,3 +79,4 @@ def test_equilibrated_solution_is_the_least_squares_solution_of_least_column_wei
     assert np.linalg.norm(norms * (x - ref)) <= 1e-8 * np.linalg.norm(norms * ref)
     best = np.linalg.norm(Gd @ ref - r)
     assert np.linalg.norm(Gd @ x - r) <= best + 1e-9 * np.linalg.norm(r)
+
