@@ -41,7 +41,7 @@ def register(sub: Any, add_problem_args: Callable[[argparse.ArgumentParser], Non
 
 def cmd_solve(args: argparse.Namespace) -> int:
     from ..api import solve
-    from ..limits import check_size
+    from ..limits import check_certify_size
     from ..tightness import Criteria
 
     if args.skip_invalid and args.set in (None, "primary", "paper"):
@@ -49,10 +49,11 @@ def cmd_solve(args: argparse.Namespace) -> int:
     config = solver_config(args)
     prob = load(args.problem)
     params = prob.parse_params(parse_assignments(args.param))
-    check_size(prob, params, config)
     check_random_starts(prob, params, args.random_starts, "--random-starts")
     if args.verify == "certificate":  # the certificate of the local solution first; the SDP only if it fails
         from .certify import certificate_first
+
+        check_certify_size(prob, params)  # ``solve`` checks the SDP's size itself, before any work
 
         done = certificate_first(args, prob, params, constraints_arg(args.set, args.skip_invalid),
                                  Criteria(accept=args.accept))
