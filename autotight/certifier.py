@@ -363,7 +363,7 @@ def _certify_projected(Q, As, constraints, prog, Th, *, d, tol, floor, trace,
         weights[:Th.size] = np.repeat(D, d)  # row (j, a) of H Θ̂ᵀ: j·d + a (``stationarity_system``)
         G, g = sp.csr_array(sp.diags_array(weights) @ G), weights * g
         y = polish_dual(Q, As, pr.w[:prog.m] / prog.scale, Th, system=(G, g), equilibrate=True)
-    return certificate(Q, constraints, y, Th, d=d, tol=tol, floor=floor, trace=trace,
+    return certificate(Q, constraints, y, Th, d=d, tol=tol, floor=floor, trace=trace, estimate_lambda=False,
                        method=f"clique Douglas–Rachford ({pr.status}, {pr.iterations} rounds, margin {pr.margin:.2e} "
                               f"of max|Q|, {len(prog.cliques)} cliques ≤ {max(prog.sizes)})")
 

@@ -108,3 +108,23 @@ def test_congruence_scales_every_block_entry():
         expect = ratio * Dk[:, :, None] * Sg * Dk[:, None, :]
         assert np.abs(S2g - expect).max() <= 1e-12 * np.abs(expect).max()
     assert np.abs(scaled.c).max() == pytest.approx(1.0)
+
+
+def test_certificate_without_a_lambda_estimate_states_a_valid_bound():
+    """estimate_lambda=False (certify's choice): the same verdict and bound as with the Lanczos estimate, and the
+    lower bound on λ_min(H) it states instead, −(δ/d)·λ_max(E_h) from the strict dual, is below λ_min(H)."""
+    from autotight.certificate import certificate, dual_matrix, polish_dual, stack
+
+    p, inst, model, cons = _chain(12)
+    loc = p.local_solve(inst, inst.truth)
+    Th = np.atleast_2d(p.lift(inst, loc.state))
+    res = solve_model(model, cons)
+    As, _ = stack(cons)
+    y = polish_dual(model.Q, As, res.y, Th)
+    full = certificate(model.Q, cons, y, Th, d=model.d)
+    quick = certificate(model.Q, cons, y, Th, d=model.d, estimate_lambda=False)
+    assert quick.certified == full.certified and quick.certified
+    assert "not estimated" in quick.method and "not estimated" not in full.method
+    assert quick.bound == pytest.approx(full.bound, rel=1e-6, abs=1e-9 * abs(full.cost))
+    lam = np.linalg.eigvalsh(dual_matrix(model.Q, As, y).toarray())[0]
+    assert quick.lambda_lower <= lam + 1e-12 * abs(model.Q).max()
