@@ -51,6 +51,7 @@ import scipy.sparse.linalg as spla
 from .ldl import SymmetricLDL
 from .lstsq import min_norm_lstsq
 from .model import Constraint
+from .svec import stored_entries
 from .validity import VALID_RTOL, relative_violations
 
 #: below this many columns, eigenvalues are computed densely
@@ -120,22 +121,8 @@ def stack(constraints: Sequence[Constraint]) -> tuple[list[sp.coo_array], np.nda
 
 
 def entries(As: Sequence[sp.sparray]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """All entries of the Aᵢ in one pass: (row, col, value, i) arrays (i: the matrix holding the entry)."""
-    if not len(As):
-        z = np.zeros(0, dtype=np.int64)
-        return z, z, np.zeros(0), z
-    rows, cols, vals = [], [], []
-    for A in As:
-        if isinstance(A, (sp.csr_array, sp.csr_matrix)):
-            r, c = np.repeat(np.arange(A.shape[0]), np.diff(A.indptr)), A.indices
-        else:  # COO (the stored form) as it is: no N + 1 index array per matrix
-            A = A if isinstance(A, (sp.coo_array, sp.coo_matrix)) else sp.coo_array(A)
-            r, c = A.row, A.col
-        rows.append(r)
-        cols.append(c)
-        vals.append(A.data)
-    owner = np.repeat(np.arange(len(As)), [v.size for v in vals])  # one call, not one array per matrix
-    return np.concatenate(rows), np.concatenate(cols), np.concatenate(vals).astype(float), owner
+    """All entries of the Aᵢ in one pass: (row, col, value, i) arrays (``svec.stored_entries``)."""
+    return stored_entries(As)
 
 
 def dual_matrix(Q: sp.sparray, As: Sequence[sp.sparray], y: np.ndarray, *, stacked=None) -> sp.csc_array:

@@ -70,17 +70,31 @@ def triu_entries(A: sp.spmatrix | sp.sparray) -> tuple[np.ndarray, np.ndarray, n
     return r[keep], c[keep], A.data[keep]
 
 
+def stored_entries(As: Sequence[sp.spmatrix | sp.sparray]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Every stored entry of the matrices in one pass: (row, col, value, i) arrays, i the matrix holding the
+    entry.  COO and CSR as they are (no N + 1 index array per COO matrix); other formats through COO."""
+    if not len(As):
+        z = np.zeros(0, dtype=np.int64)
+        return z, z, np.zeros(0), z
+    rows, cols, vals = [], [], []
+    for A in As:
+        if isinstance(A, (sp.csr_array, sp.csr_matrix)):
+            r, c = np.repeat(np.arange(A.shape[0]), np.diff(A.indptr)), A.indices
+        else:
+            A = A if isinstance(A, (sp.coo_array, sp.coo_matrix)) else sp.coo_array(A)
+            r, c = A.row, A.col
+        rows.append(r)
+        cols.append(c)
+        vals.append(A.data)
+    owner = np.repeat(np.arange(len(As)), [v.size for v in vals])  # one call, not one array per matrix
+    return np.concatenate(rows), np.concatenate(cols), np.concatenate(vals).astype(float), owner
+
+
 def svec_columns(As: Sequence[sp.spmatrix | sp.sparray], n: int) -> sp.csc_array:
     """[svec A₁ … svec A_m] of sparse symmetric n×n matrices as one sparse (n(n+1)/2 × m) array,
     assembled in one pass from their upper triangles (no dense n×n)."""
-    if not len(As):
-        return sp.csc_array((svec_dim(n), 0))
-    # COO as stored (no N + 1 index array per matrix), concatenated once: one filter for all matrices
-    coo = [A if isinstance(A, (sp.coo_array, sp.coo_matrix)) else sp.coo_array(A) for A in As]
-    r = np.concatenate([A.row for A in coo]).astype(np.int64)
-    c = np.concatenate([A.col for A in coo]).astype(np.int64)
-    v = np.concatenate([A.data for A in coo]).astype(float)
-    k = np.repeat(np.arange(len(coo)), [A.data.size for A in coo])
+    r, c, v, k = stored_entries(As)
+    r, c = r.astype(np.int64), c.astype(np.int64)  # c(c + 1)/2 overflows int32 from n ≈ 46 000
     keep = r <= c
     r, c, v, k = r[keep], c[keep], v[keep], k[keep]
     return sp.csc_array((v * np.where(r == c, 1.0, SQRT2), (c * (c + 1) // 2 + r, k)), shape=(svec_dim(n), len(As)))

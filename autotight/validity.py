@@ -26,6 +26,7 @@ import numpy as np
 
 from .errors import AutotightError, ProblemModuleError
 from .model import Constraint
+from .svec import stored_entries
 
 #: largest relative violation (module docstring) of a constraint at a feasible point: far above the
 #: roundoff of a lifting computed from a state on its manifold (≤ 1e-12 on the shipped problems), far
@@ -41,15 +42,9 @@ class InvalidConstraintError(AutotightError):
 
 
 def stacked_entries(constraints: Sequence[Constraint]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """(row, col, value, owner) of every stored entry of every constraint's A, in one pass."""
-    if not constraints:
-        z = np.zeros(0, dtype=np.int64)
-        return z, z, np.zeros(0), z
-    rows = np.concatenate([c.A.row for c in constraints])
-    cols = np.concatenate([c.A.col for c in constraints])
-    vals = np.concatenate([c.A.data for c in constraints]).astype(float)
-    owner = np.repeat(np.arange(len(constraints)), [c.A.data.size for c in constraints])
-    return rows, cols, vals, owner
+    """(row, col, value, owner) of every stored entry of every constraint's A, in one pass
+    (``svec.stored_entries``)."""
+    return stored_entries([c.A for c in constraints])
 
 
 def relative_violations(constraints: Sequence[Constraint], thetas: Sequence[np.ndarray]) -> np.ndarray:
