@@ -412,6 +412,7 @@ class CertifyRun:
     certificate: Certificate
 
 
+@single_blas_thread
 def certify_instance(problem, inst, constraints=None, *, start="truth", criteria=None,
                      max_iter: int = 50, model: Model | None = None) -> CertifyRun:
     """Run the local solver on ``inst`` from ``start`` ("truth", "random": the first random start of

@@ -76,9 +76,11 @@ def stored_entries(As: Sequence[sp.spmatrix | sp.sparray]) -> tuple[np.ndarray, 
     if not len(As):
         z = np.zeros(0, dtype=np.int64)
         return z, z, np.zeros(0), z
-    rows, cols, vals = [], [], []
+    rows, cols, vals, counts = [], [], [], []
     for A in As:
-        if isinstance(A, (sp.csr_array, sp.csr_matrix)):
+        if type(A) is sp.coo_array:  # the common case first: ``coords`` without the ``row``/``col`` properties
+            r, c = A.coords
+        elif isinstance(A, (sp.csr_array, sp.csr_matrix)):
             r, c = np.repeat(np.arange(A.shape[0]), np.diff(A.indptr)), A.indices
         else:
             A = A if isinstance(A, (sp.coo_array, sp.coo_matrix)) else sp.coo_array(A)
@@ -86,7 +88,8 @@ def stored_entries(As: Sequence[sp.spmatrix | sp.sparray]) -> tuple[np.ndarray, 
         rows.append(r)
         cols.append(c)
         vals.append(A.data)
-    owner = np.repeat(np.arange(len(As)), [v.size for v in vals])  # one call, not one array per matrix
+        counts.append(A.data.size)
+    owner = np.repeat(np.arange(len(As)), counts)  # one call, not one array per matrix
     return np.concatenate(rows), np.concatenate(cols), np.concatenate(vals).astype(float), owner
 
 

@@ -419,15 +419,10 @@ def violations(tpl: TypeTemplate | TransportTemplate, cols: np.ndarray, coeffs: 
     k = len(tpl.identities)
     out = np.zeros((cols.shape[0], k))
     norms = np.linalg.norm(thetas, axis=1)  # (S, N)
+    owner = (q[:, None] == np.arange(k)[None, :]).astype(float)  # (s, k): the identity of each support entry
     for T, nr in zip(thetas, norms):
-        prod = np.einsum("dfs,dfs->fs", T[:, gi], T[:, gj]) * coeffs
-        mag = nr[gi] * nr[gj] * np.abs(coeffs)
-        val = np.zeros((cols.shape[0], k))
-        den = np.zeros((cols.shape[0], k))
-        for a in range(k):
-            sel = q == a
-            val[:, a] = prod[:, sel].sum(axis=1)
-            den[:, a] = mag[:, sel].sum(axis=1)
+        val = (np.einsum("dfs,dfs->fs", T[:, gi], T[:, gj]) * coeffs) @ owner
+        den = (nr[gi] * nr[gj] * np.abs(coeffs)) @ owner
         out = np.maximum(out, np.abs(val) / np.maximum(den, 1e-300))
     return out
 
