@@ -25,7 +25,7 @@ from ..errors import AutotightError
 from ..model import Constraint, Model
 from ..problem import Problem
 from ..discovery.transport import Layout
-from ..svec import triu_indices
+from ..svec import stored_entries, triu_indices
 
 #: the data of the instances are drawn at this noise level (when the problem has a ``sigma`` parameter),
 #: so that the measurements of every factor type vary over their whole range
@@ -54,6 +54,26 @@ def local_poly(c: Constraint, cols: np.ndarray) -> np.ndarray | None:
     n = len(cols)
     out = np.zeros(n * (n + 1) // 2)
     np.add.at(out, q[up] * (q[up] + 1) // 2 + r[up], np.where(r[up] == q[up], 1.0, 2.0) * U.data[up])
+    return out
+
+
+def local_polys(rows: np.ndarray, cols_: np.ndarray, vals: np.ndarray, owner: np.ndarray, m: int, cols: np.ndarray,
+                N: int) -> np.ndarray:
+    """``local_poly`` of every matrix that lies on ``cols``, from the stored entries (rows, cols_, vals, owner) of m
+    symmetric N × N matrices (``svec.stored_entries``) → (number of those matrices, |cols|(|cols| + 1)/2), in
+    the matrices' order; the matrices that reach outside ``cols`` are left out."""
+    pos = np.full(N, -1, dtype=np.int64)
+    pos[cols] = np.arange(len(cols))
+    r, q = pos[rows], pos[cols_]
+    outside = np.bincount(owner, weights=(r < 0) | (q < 0), minlength=m)
+    on = np.flatnonzero(outside == 0)
+    rank = np.full(m, -1, dtype=np.int64)
+    rank[on] = np.arange(on.size)
+    keep = (rank[owner] >= 0) & (r <= q)
+    r, q, k = r[keep], q[keep], rank[owner[keep]]
+    n = len(cols)
+    out = np.zeros((on.size, n * (n + 1) // 2))
+    np.add.at(out, (k, q * (q + 1) // 2 + r), np.where(r == q, 1.0, 2.0) * vals[keep])
     return out
 
 
@@ -147,7 +167,8 @@ def collect(problem: Problem, params: dict[str, Any], factor_type: str, n: int, 
         fs = [f for f in model.factors if f.type == factor_type]
         if not fs:
             raise AutotightError(f"factor type {factor_type!r} has no factor on an instance with params {pars}")
-        prim = [(c, np.unique(sp.coo_array(c.A).row)) for c in model.primary() if c.b == 0]
+        prim = [c.A for c in model.primary() if c.b == 0]
+        pr, pc, pv, owner = stored_entries(prim)  # a constraint lies on a factor when all its rows do
         paper_of: dict[str, list[Constraint]] = {}
         for cons in model.paper.values():
             for c in cons:
@@ -163,11 +184,7 @@ def collect(problem: Problem, params: dict[str, Any], factor_type: str, n: int, 
                 order = pivot_order(model.d, len(cols))
             elif sizes != layout[1]:
                 raise AutotightError(f"factors of type {factor_type!r} have different block sizes")
-            inside = np.zeros(V.N, dtype=bool)
-            inside[cols] = True
-            G = np.array([p for p in (local_poly(c, cols) for c, rows in prim if inside[rows].all())
-                          if p is not None])
-            G = G.reshape(-1, len(cols) * (len(cols) + 1) // 2)
+            G = local_polys(pr, pc, pv, owner, len(prim), cols, V.N)
             if pivots is None:
                 assert order is not None
                 pivots = choose_pivots(G, order)
