@@ -313,6 +313,24 @@ def test_merge_small_respects_the_cap_and_keeps_a_clique_tree():
     assert len(merge_small(cl, 6)) == len(cl)  # no union fits: unchanged
 
 
+def test_entry_cliques_are_the_maximal_cliques_of_a_chordal_extension():
+    """On random graphs: every edge lies in a clique, no clique lies inside another, the cliques form a clique
+    tree, and they equal the pairwise ``maximal`` of all elimination cliques (the linear test agrees)."""
+    from autotight.sdp.chordal import clique_tree, entry_cliques, maximal
+
+    rng = np.random.default_rng(7)
+    for trial in range(60):
+        N = int(rng.integers(3, 30))
+        r, c = rng.integers(1, N, 2 * N), rng.integers(1, N, 2 * N)
+        cl = entry_cliques(N, r, c)
+        sets = [set(k.tolist()) for k in cl]
+        assert all(any({a, b} <= s for s in sets) for a, b in zip(r.tolist(), c.tolist()))
+        assert all(0 in s for s in sets)  # h is in every clique
+        assert not any(a < b for a in sets for b in sets)
+        assert [k.tolist() for k in maximal(cl)] == [k.tolist() for k in cl]
+        assert _subtree_property(cl, clique_tree(cl))
+
+
 def test_decomposed_dual_equals_dense_on_a_relaxation_that_is_not_rank_one():
     """A MaxCut-type SDP (min ⟨Q,X⟩, X_ii = 1) on a chain of overlapping cliques with random Q: its
     optimum is far from rank 1, so the clique blocks must agree on their overlaps through the

@@ -185,7 +185,7 @@ def entry_cliques(N: int, rows: np.ndarray, cols: np.ndarray, always: Sequence[i
     key = {i: (fill(i), len(adj[i])) for i in range(N) if alive[i]}
     heap = [(k, i) for i, k in key.items()]
     heapq.heapify(heap)
-    cliques: list[frozenset[int]] = []
+    cliques: list[tuple[int, list[int]]] = []  # (v, its neighbours when eliminated), in elimination order
     while heap:
         k, v = heapq.heappop(heap)
         if not alive[v] or key[v] != k:
@@ -200,7 +200,7 @@ def entry_cliques(N: int, rows: np.ndarray, cols: np.ndarray, always: Sequence[i
                     adj[b].add(a)
                     added.append((a, b))
         alive[v] = False
-        cliques.append(frozenset([v, *nb]))
+        cliques.append((v, nb))
         # fill changes for v's neighbours (they lost v) and for the common neighbours of the
         # endpoints of each added edge (that pair is no longer missing); nobody else's
         touched = set(nb)
@@ -210,9 +210,26 @@ def entry_cliques(N: int, rows: np.ndarray, cols: np.ndarray, always: Sequence[i
             if alive[u]:
                 key[u] = (fill(u), len(adj[u]))
                 heapq.heappush(heap, (key[u], u))
-    uniq = [np.array(sorted(c), dtype=np.int64) for c in dict.fromkeys(cliques)]
     head = sorted(fixed)
-    return [np.array(head + sorted(c.tolist()), dtype=np.int64) for c in maximal(uniq)]
+    return [np.array(head + sorted([v, *nb]), dtype=np.int64) for v, nb in elimination_maximal(cliques)]
+
+
+def elimination_maximal(cliques: Sequence[tuple[int, list[int]]]) -> list[tuple[int, list[int]]]:
+    """The maximal ones of the elimination cliques {v} ∪ N⁺(v) of a perfect elimination ordering (given in
+    that order, N⁺(v) the neighbours of v eliminated after it), in the same order.
+
+    Such a clique is contained in another exactly when some u has v as its parent (the first of N⁺(u) to be
+    eliminated) and |N⁺(u)| = |N⁺(v)| + 1: then N⁺(u) = {v} ∪ N⁺(v) (N⁺(u) ∖ {v} ⊆ N⁺(v) by the perfect
+    ordering).  Linear in the cliques' sizes, where the pairwise test of ``maximal`` is not."""
+    order = {v: k for k, (v, _) in enumerate(cliques)}
+    size = {v: len(nb) for v, nb in cliques}
+    inside: set[int] = set()
+    for _, nb in cliques:
+        if nb:
+            parent = min(nb, key=order.__getitem__)
+            if len(nb) == size[parent] + 1:
+                inside.add(parent)
+    return [(v, nb) for v, nb in cliques if v not in inside]
 
 
 def block_cliques(sizes: Sequence[int], rows: np.ndarray, cols: np.ndarray) -> list[np.ndarray]:
