@@ -76,6 +76,40 @@ def test_reduction_removes_on_the_hardest_instance_and_widens_only_where_the_res
     assert run.n_solves <= 45
 
 
+class _Scored(_Needs):
+    """_Needs that leaves an SDP solution whose violation by a pair is 1 for the pairs of needs[s], else 0.1."""
+
+    def solve(self, tr, chosen, stage):
+        from types import SimpleNamespace
+
+        tight = super().solve(tr, chosen, stage)
+        tr.last = SimpleNamespace(sdp=SimpleNamespace(X=tr.seed, usable=True, status="Solved"))
+        return tight
+
+
+class _ScoredTrainer(Trainer):
+    def violation(self, X, pair):
+        return 1.0 if any(pair in n for n in _Scored.current.needs[X]) else 0.1
+
+
+def test_instances_taken_in_together_are_tightened_one_at_a_time(monkeypatch):
+    """Five held-out failures that all need pair "b": the first is tightened (2 solves), the other four are
+    tight with its result (1 solve each); tightening them together solves each of the five twice."""
+    import autotight.discovery.select as select
+
+    monkeypatch.setattr(select, "unbounded_blocks", lambda model, res: [])
+    needs = {s: [{"b"}] for s in range(1, 6)}
+    counts = {}
+    for fn in (select.tighten_each, select.tighten):
+        run = _Scored(needs)
+        _Scored.current = run
+        trainers = [_ScoredTrainer(0, s, None, None, None, {}) for s in needs]  # type: ignore[arg-type]
+        chosen = fn(run, trainers, list("abcde"), lambda *a: None, ["a"], "validate")
+        assert "b" in chosen and all(any(n <= set(chosen) for n in needs[s]) for s in needs)
+        counts[fn.__name__] = run.n_solves
+    assert counts == {"tighten_each": 6, "tighten": 10}
+
+
 class _Blind(_Needs):
     """_Needs whose solves of a loose set return no usable X (a NumericalError)."""
 

@@ -17,13 +17,14 @@ those sizes as well.
    the set in parallel (``heldout``: ``jobs``/``scheduler``).  A point passes as in ``check``: tight /
    (instances − undecided) ≥ ``min_fraction``.
 5. **Close the loop**: every held-out instance the set fails becomes a training instance; the set is
-   tightened from where it is on them (its pairs stay: dropping them to fit the new instances would lose
-   what the earlier batches showed; the added pairs are reduced over all training instances), and the
-   points with a failing instance get a fresh batch (the set only grows and tightness is monotone in the
-   set, so a batch without failures stays tight).  It stops when every point's latest batch has no failing
-   instance, or when ``max_rounds`` rounds or ``max_solves`` SDP solver calls are spent.  The set is
-   validated when every point's latest batch passes at ``min_fraction`` (a passing batch's failing
-   instances are still taken in); otherwise the result records that validation failed.
+   tightened from where it is on them, one at a time (``select.tighten_each``; its pairs stay: dropping
+   them to fit the new instances would lose what the earlier batches showed; the added pairs are reduced
+   over all training instances), and the points with a failing instance get a fresh batch (the set only
+   grows and tightness is monotone in the set, so a batch without failures stays tight).  It stops when
+   every point's latest batch has no failing instance, or when ``max_rounds`` rounds or ``max_solves`` SDP
+   solver calls are spent.  The set is validated when every point's latest batch passes at
+   ``min_fraction`` (a passing batch's failing instances are still taken in); otherwise the result
+   records that validation failed.
 6. The set (``DiscoveredSet``) is saved with the evidence of every round (``DiscoveryResult.record``).
 
 Seeds (``trainers``): training ``seed`` for the first instance at the first point, else
@@ -54,7 +55,7 @@ from .discovered import DiscoveredSet
 from .heldout import solve_batch
 from .learn import LearnOptions
 from .result import DiscoveryResult, PointRecord, round_record
-from .select import reduce, tighten
+from .select import reduce, tighten, tighten_each
 from .trainers import Solves, Trainer, candidates, heldout_seed, learned_source, make_trainer, training_seed
 
 
@@ -221,7 +222,7 @@ def discover(problem: Problem | str, params: Mapping[str, Any] | None = None, se
                      source, "held-out") for i, s in failing]
         trainers += new
         cands = candidates(trainers, source is not None)
-        more = timed("tighten_s", tighten, run, new, cands, say, pairs, "validate")
+        more = timed("tighten_s", tighten_each, run, new, cands, say, pairs, "validate")
         reached = [tr for tr in trainers if tr.reached]
         rounds[-1]["taken_in"] = len(new)
         rounds[-1]["not_reached"] = len(trainers) - len(reached)

@@ -12,6 +12,8 @@ and left out of the rest.  A solve without a usable X ranks nothing: the instanc
 rank the round, and the blind one is solved again with the larger set; only when every loose instance
 is blind is every remaining pair added at once (the reduction removes those not needed).
 
+``tighten_each`` runs it on one instance at a time (the held-out instances a set failed, taken in together).
+
 **Reduce** (``reduce``).  Pairs ordered by their largest normalised dual importance Σ|yᵢ|‖Aᵢ‖_F on any
 instance (least important first) are removed in blocks that double after a success and halve after a
 failure.  A removal is tried on the *probe* instances only, at first the hardest one (the largest set
@@ -108,6 +110,17 @@ def tighten(run: Solves, trainers: list[Trainer], candidates: list[Pair], say: S
             chosen += remaining
         loose = [tr for tr in loose if not run.solve(tr, chosen, "tighten")]
         say("tighten", f"{len(chosen)} pairs, {len(loose)} not tight")
+    return chosen
+
+
+def tighten_each(run: Solves, trainers: list[Trainer], candidates: list[Pair], say: Say, start: Sequence[Pair] = (),
+                 stage: str = "validate") -> list[Pair]:
+    """``tighten`` on one trainer at a time, in order, each from the set the ones before it left: for instances
+    that the set failed together (a held-out batch), where the pairs that fix the first usually fix the others,
+    so each of those costs one solve instead of one per greedy round."""
+    chosen = list(start)
+    for tr in trainers:
+        chosen = tighten(run, [tr], candidates, say, chosen, stage)
     return chosen
 
 
