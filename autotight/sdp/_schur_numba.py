@@ -1,0 +1,99 @@
+"""numba kernels of ``schur_kernel`` (imported only when they are used: importing numba costs time).
+The arrays' meanings are those of ``schur_kernel.BlockProducts``."""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+
+@njit(cache=True)
+def accumulate_group(out, ids, P, Q, same, lower, row_off, nz_off, sup_off, tgt_off, indptr, indices, data, a, b,
+                     targets, m_max, s_max):  # pragma: no cover - compiled
+    """For each block ids[j] (data P[j], Q[j]): K = the kernel on its support, Y = G K, and for i ≥ l
+    S_il = (G Yᵀ)_il added to out at its target (lower: targets packed row-major over i ≥ l; else
+    row-major over all m² entries, S_il added at (i, l) and (l, i))."""
+    K = np.empty((s_max, s_max))
+    Y = np.empty((m_max, s_max))
+    Yt = np.empty((s_max, m_max))
+    row = np.empty(m_max)
+    for j in range(ids.size):
+        k = ids[j]
+        Pk = P[j]
+        Qk = Q[j]
+        s0 = sup_off[k]
+        s = sup_off[k + 1] - s0
+        r0 = row_off[k]
+        m = row_off[k + 1] - r0 - 1
+        z0 = nz_off[k]
+        # K_uw (symmetric): 2(P_ac P_bd + P_ad P_bc) when P is Q, else the four-term orbit sum
+        for u in range(s):
+            pa = Pk[a[s0 + u]]
+            pb = Pk[b[s0 + u]]
+            qa = Qk[a[s0 + u]]
+            qb = Qk[b[s0 + u]]
+            for w in range(u + 1):
+                aw = a[s0 + w]
+                bw = b[s0 + w]
+                if same:
+                    v = 2.0 * (pa[aw] * pb[bw] + pa[bw] * pb[aw])
+                else:
+                    v = pa[aw] * qb[bw] + pa[bw] * qb[aw] + pb[aw] * qa[bw] + pb[bw] * qa[aw]
+                K[u, w] = v
+                K[w, u] = v
+        # Y = G K (rows of G are sparse: a sum of rows of K)
+        for i in range(m):
+            for w in range(s):
+                Y[i, w] = 0.0
+            for p in range(indptr[r0 + i], indptr[r0 + i + 1]):
+                g = data[z0 + p]
+                u = indices[z0 + p]
+                for w in range(s):
+                    Y[i, w] += g * K[u, w]
+        # S_k = G Yᵀ (= Y Gᵀ) on its lower triangle, into out: row i of S_k = Σ_p g_p (column u_p of Y),
+        # contiguous in Yt = Yᵀ
+        for w in range(s):
+            for i in range(m):
+                Yt[w, i] = Y[i, w]
+        t0 = tgt_off[k]
+        for i in range(m):
+            for l in range(i + 1):
+                row[l] = 0.0
+            for p in range(indptr[r0 + i], indptr[r0 + i + 1]):
+                g = data[z0 + p]
+                u = indices[z0 + p]
+                for l in range(i + 1):
+                    row[l] += g * Yt[u, l]
+            if lower:
+                t = t0 + i * (i + 1) // 2
+                for l in range(i + 1):
+                    out[targets[t + l]] += row[l]
+            else:
+                for l in range(i + 1):
+                    out[targets[t0 + i * m + l]] += row[l]
+                for l in range(i):
+                    out[targets[t0 + l * m + i]] += row[l]
+
+
+@njit(cache=True)
+def first_not_above(M, order, lam, start):  # pragma: no cover - compiled
+    """The first position p ≥ start of ``order`` whose block M[order[p]] − lam·I is not positive definite
+    (its Cholesky factorisation meets a pivot ≤ 0), or order.size when there is none."""
+    n = M.shape[1]
+    L = np.empty((n, n))
+    for p in range(start, order.size):
+        k = order[p]
+        for j in range(n):
+            d = M[k, j, j] - lam
+            for t in range(j):
+                d -= L[j, t] * L[j, t]
+            if not d > 0.0:  # also catches NaN
+                return p
+            d = np.sqrt(d)
+            L[j, j] = d
+            for i in range(j + 1, n):
+                v = M[k, i, j]
+                for t in range(j):
+                    v -= L[i, t] * L[j, t]
+                L[i, j] = v / d
+    return order.size
