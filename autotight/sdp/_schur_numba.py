@@ -97,3 +97,28 @@ def first_not_above(M, order, lam, start):  # pragma: no cover - compiled
                     v -= L[i, t] * L[j, t]
                 L[i, j] = v / d
     return order.size
+
+
+@njit(cache=True)
+def full_band(low, ab):  # pragma: no cover - compiled
+    """ab (3b + 1, M) ← the general band storage of the symmetric matrix with lower band ``low`` (b + 1, M):
+    rows 0 … b − 1 zero (the LU's fill), ab[2b − t, j] = low[t, j − t] (0 for j < t), ab[2b + t, j] = low[t, j]."""
+    b = low.shape[0] - 1
+    for j in range(low.shape[1]):
+        for r in range(b):
+            ab[r, j] = 0.0
+        for t in range(b, 0, -1):
+            ab[2 * b - t, j] = low[t, j - t] if j >= t else 0.0
+        for t in range(b + 1):
+            ab[2 * b + t, j] = low[t, j]
+
+
+@njit(cache=True)
+def scaled_band(ab, dsc, reg, out):  # pragma: no cover - compiled
+    """out[t, j] = ab[t, j]·dsc[j]·dsc[j + t] (0 where j + t ≥ M), plus reg on t = 0."""
+    bp1, M = ab.shape
+    for j in range(M):
+        for t in range(bp1):
+            out[t, j] = ab[t, j] * dsc[j] * dsc[j + t] if j + t < M else 0.0
+        out[0, j] += reg
+

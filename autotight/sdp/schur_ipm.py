@@ -56,6 +56,7 @@ from ..errors import SolverConfigError
 from .config import Retries, SolverConfig
 from .options import SEARCH_DIRECTIONS
 from .result import SDPResult, Status, finish
+from . import schur_kernel
 from .schur_kernel import COMPILED_MIN_BLOCKS, BlockProducts, max_step
 
 #: the stall clock's patience grows (STALL_ITERATIONS_ALMOST) once every relative residual is below this
@@ -193,9 +194,10 @@ def _inner(X: list[np.ndarray], Z: list[np.ndarray]) -> float:
     return sum(float(np.einsum("bij,bij->", a, b)) for a, b in zip(X, Z))
 
 
-def _inverse_factors(X: list[np.ndarray]) -> list[np.ndarray]:
-    """L⁻¹ per block, X = L Lᵀ (Cholesky); LinAlgError when a block is not positive definite."""
-    return [np.linalg.inv(np.linalg.cholesky(Xg)) for Xg in X]
+def _inverse_factors(X: list[np.ndarray]) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """(L, L⁻¹) per block, X = L Lᵀ (Cholesky); LinAlgError when a block is not positive definite."""
+    L = [np.linalg.cholesky(Xg) for Xg in X]
+    return L, [np.linalg.inv(Lg) for Lg in L]
 
 
 def _max_step(Linv: list[np.ndarray], dX: list[np.ndarray]) -> float:
@@ -448,6 +450,9 @@ class _BandSchur:
                 self.targets.append(np.where(pi >= pl, pl * (b + 1) + (pi - pl), self.size).astype(itype).ravel())
         self.pivoting = False
         self._held: dict[str, Any] = {}  # the last factorisation's arrays, released by the next ``assemble``
+        # the compiled path's scaled and full band arrays, reused by the next factorisation (``_held`` may
+        # hold them as its factors until the next ``assemble``)
+        self._buffers: dict[str, np.ndarray] = {}
 
     @classmethod
     def make(cls, Gv: sp.csr_array, blocks: _Blocks, compiled: bool | None = None) -> "_BandSchur | None":
@@ -485,6 +490,9 @@ class _BandSchur:
         """LAPACK's general band storage (kl = ku = b, with b more rows for the LU's fill) of the
         symmetric matrix whose lower band is ``low``: A[i, j] at row 2b + i − j."""
         b, M = self.b, self.M
+        if self.compiled is not None:
+            self._buffers["full"] = schur_kernel.full_band(low, self._buffers.get("full"))
+            return self._buffers["full"]
         ab = np.zeros((3 * b + 1, M), order="F")
         ab[2 * b:, :] = low
         for t in range(1, b + 1):
@@ -506,6 +514,9 @@ class _BandSchur:
         b, inner, held = self.b, None, self._held
 
         def scaled() -> np.ndarray:
+            if self.compiled is not None:  # into the last factorisation's buffer (released by ``assemble``)
+                self._buffers["scaled"] = schur_kernel.scaled_band(ab, dsc, reg, self._buffers.get("scaled"))
+                return self._buffers["scaled"]
             out = self._scaled(ab, dsc)
             out[0] += reg
             return out
@@ -604,14 +615,17 @@ def solve_blocks(F: sp.csc_matrix, c: np.ndarray, g: np.ndarray, sizes: list[int
             status, message = Status.INSUFFICIENT_PROGRESS, f"no progress in {stall} iterations"
             break
         try:
-            # the inverse Cholesky factors of X and Z: the step lengths of every direction of this
+            # the (inverse) Cholesky factors of X and Z: the step lengths of every direction of this
             # iteration, NT's scaling and Z⁻¹ = L_Z⁻ᵀ L_Z⁻¹ (one factorisation per block and iteration)
-            LXi, LZi = _inverse_factors(X), _inverse_factors(Z)
-            Zinv = [np.swapaxes(Li, -1, -2) @ Li for Li in LZi]
+            (L, LXi), (_, LZi) = _inverse_factors(X), _inverse_factors(Z)
+
+            def z_inverse() -> list[np.ndarray]:
+                return [np.swapaxes(Li, -1, -2) @ Li for Li in LZi]
+
+            Zinv = z_inverse() if search == "hkm" else None  # NT needs it only when the corrector falls back
             if search == "nt":
                 # NT scaling: X = L Lᵀ, Lᵀ Z L = U Λ² Uᵀ, G = L U Λ^(−1/2), W = G Gᵀ (W Z W = X);
                 # in the scaled space G⁻¹ X G⁻ᵀ = Gᵀ Z G = Λ
-                L = [np.linalg.cholesky(Xg) for Xg in X]
                 lam2, U = zip(*[np.linalg.eigh(np.swapaxes(Lg, -1, -2) @ Zg @ Lg) for Lg, Zg in zip(L, Z)])
                 lam = [np.sqrt(np.maximum(l2, 1e-300)) for l2 in lam2]  # Lᵀ Z L ≻ 0 in exact arithmetic
                 G = [Lg @ Ug / np.sqrt(lg)[:, None, :] for Lg, Ug, lg in zip(L, U, lam)]
@@ -619,6 +633,7 @@ def solve_blocks(F: sp.csc_matrix, c: np.ndarray, g: np.ndarray, sizes: list[int
                 W = [Gg @ np.swapaxes(Gg, -1, -2) for Gg in G]
                 left, right = W, W
             else:  # HKM: ΔX = H − X ΔZ Z⁻¹
+                assert Zinv is not None
                 left, right = X, Zinv
             solve = schur.factor(schur.assemble(left, right), SCHUR_REG)
             KRd = [a @ Rg @ b for a, Rg, b in zip(left, Rd, right)]
@@ -647,11 +662,13 @@ def solve_blocks(F: sp.csc_matrix, c: np.ndarray, g: np.ndarray, sizes: list[int
                     V = 2 * R / (lg[:, :, None] + lg[:, None, :])
                     H.append(Gg @ V @ np.swapaxes(Gg, -1, -2))
             else:
+                assert Zinv is not None
                 H = [sigma * mu * Zi - Xg - a @ b @ Zi for Zi, Xg, a, b in zip(Zinv, X, dX, dZ)]
             dX, dy, dZ = direction(H)  # corrector
             ap, ad = step(LXi, dX, gamma), step(LZi, dZ, gamma)
             if min(ap, ad) < CORRECTOR_FALLBACK * pred:
                 # the second-order term hurts (seen near degenerate optima): centre without it
+                Zinv = Zinv if Zinv is not None else z_inverse()
                 dX1, dy1, dZ1 = direction([sigma * mu * Zi - Xg for Zi, Xg in zip(Zinv, X)])
                 ap1, ad1 = step(LXi, dX1, gamma), step(LZi, dZ1, gamma)
                 if min(ap1, ad1) > min(ap, ad):

@@ -97,3 +97,31 @@ def max_step(Linv: list[np.ndarray], dX: list[np.ndarray], limit: float = np.inf
     if lam >= lam0:  # no block leaves the cone before limit
         return limit
     return -1.0 / lam
+
+
+def _buffer(out: np.ndarray | None, shape: tuple[int, int]) -> np.ndarray:
+    """``out`` when it is a Fortran-ordered float64 array of ``shape`` (a buffer reused across iterations:
+    a fresh one of ~100 MB costs its page faults each time), else a new one."""
+    if out is not None and out.shape == shape and out.dtype == np.float64 and out.flags.f_contiguous:
+        return out
+    return np.empty(shape, order="F")
+
+
+def full_band(low: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+    """LAPACK's general band storage (kl = ku = b, b more rows for the LU's fill; Fortran order) of the
+    symmetric M × M matrix whose lower band storage (b + 1, M) is ``low``: ab[2b + i − j, j] = A[i, j]
+    (``schur_ipm._BandSchur._full_band``), column by column; written into ``out`` when it fits."""
+    b = low.shape[0] - 1
+    ab = _buffer(out, (3 * b + 1, low.shape[1]))
+    _kernels().full_band(np.asfortranarray(low), ab)
+    return ab
+
+
+def scaled_band(ab: np.ndarray, dsc: np.ndarray, reg: float, out: np.ndarray | None = None) -> np.ndarray:
+    """D S D + reg·I in lower band storage ((b + 1, M), Fortran order) from S's (``ab``) and D = diag(dsc):
+    entry (t, j) is ab[t, j]·dsc[j]·dsc[j + t], multiplied in that order (``schur_ipm._BandSchur._scaled``);
+    the unused corner (j + t ≥ M) is 0; written into ``out`` when it fits."""
+    res = _buffer(out, ab.shape)
+    _kernels().scaled_band(ab, dsc, reg, res)
+    return res
+
