@@ -217,8 +217,11 @@ def _step(Linv: list[np.ndarray], dX: list[np.ndarray], gamma: float) -> float:
 
 def _step_compiled(Linv: list[np.ndarray], dX: list[np.ndarray], gamma: float) -> float:
     """``_step`` by ``schur_kernel.max_step``: the blocks' eigenvalues only where a Cholesky test says
-    they could limit the step below 1/γ (the same value)."""
-    return min(1.0, gamma * max_step(Linv, dX, 1.0 / gamma))
+    they could limit the step below 1/γ; the same value (1 exactly when no block does: γ·(1/γ) may round
+    below 1)."""
+    limit = 1.0 / gamma
+    alpha = max_step(Linv, dX, limit)
+    return 1.0 if alpha >= limit else min(1.0, gamma * alpha)
 
 
 def block_data(Gv: sp.csr_array, blocks: _Blocks
