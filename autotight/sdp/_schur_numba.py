@@ -27,14 +27,16 @@ def accumulate_group(out, ids, P, Q, same, lower, row_off, nz_off, sup_off, tgt_
         m = row_off[k + 1] - r0 - 1
         z0 = nz_off[k]
         # K_uw (symmetric): 2(P_ac P_bd + P_ad P_bc) when P is Q, else the four-term orbit sum
+        aa = a[s0:s0 + s]
+        bb = b[s0:s0 + s]
         for u in range(s):
-            pa = Pk[a[s0 + u]]
-            pb = Pk[b[s0 + u]]
-            qa = Qk[a[s0 + u]]
-            qb = Qk[b[s0 + u]]
+            pa = Pk[aa[u]]
+            pb = Pk[bb[u]]
+            qa = Qk[aa[u]]
+            qb = Qk[bb[u]]
             for w in range(u + 1):
-                aw = a[s0 + w]
-                bw = b[s0 + w]
+                aw = aa[w]
+                bw = bb[w]
                 if same:
                     v = 2.0 * (pa[aw] * pb[bw] + pa[bw] * pb[aw])
                 else:
