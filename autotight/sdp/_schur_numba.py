@@ -10,9 +10,9 @@ from numba import njit
 @njit(cache=True)
 def accumulate_group(out, ids, P, Q, same, lower, row_off, nz_off, sup_off, tgt_off, indptr, indices, data, a, b,
                      targets, m_max, s_max):  # pragma: no cover - compiled
-    """For each block ids[j] (data P[j], Q[j]): K = the kernel on its support, Y = G K, and for i ≥ l
-    S_il = (G Yᵀ)_il added to out at its target (lower: targets packed row-major over i ≥ l; else
-    row-major over all m² entries, S_il added at (i, l) and (l, i))."""
+    """For each block ids[j] (data P[j], Q[j]): K = the kernel on its support, Y = G K, and
+    S_il = (G Yᵀ)_il added to out at its target, for i ≥ l (lower: targets packed row-major over i ≥ l)
+    or for every (i, l) (targets row-major over all m² entries)."""
     K = np.empty((s_max, s_max))
     Y = np.empty((m_max, s_max))
     Yt = np.empty((s_max, m_max))
@@ -26,7 +26,8 @@ def accumulate_group(out, ids, P, Q, same, lower, row_off, nz_off, sup_off, tgt_
         r0 = row_off[k]
         m = row_off[k + 1] - r0 - 1
         z0 = nz_off[k]
-        # K_uw (symmetric): 2(P_ac P_bd + P_ad P_bc) when P is Q, else the four-term orbit sum
+        # K_uw: 2(P_ac P_bd + P_ad P_bc) when P is Q (symmetric: the lower half, mirrored), else the
+        # four-term orbit sum at every (u, w), in the numpy code's order
         aa = a[s0:s0 + s]
         bb = b[s0:s0 + s]
         for u in range(s):
@@ -34,15 +35,18 @@ def accumulate_group(out, ids, P, Q, same, lower, row_off, nz_off, sup_off, tgt_
             pb = Pk[bb[u]]
             qa = Qk[aa[u]]
             qb = Qk[bb[u]]
-            for w in range(u + 1):
-                aw = aa[w]
-                bw = bb[w]
-                if same:
+            if same:
+                for w in range(u + 1):
+                    aw = aa[w]
+                    bw = bb[w]
                     v = 2.0 * (pa[aw] * pb[bw] + pa[bw] * pb[aw])
-                else:
-                    v = pa[aw] * qb[bw] + pa[bw] * qb[aw] + pb[aw] * qa[bw] + pb[bw] * qa[aw]
-                K[u, w] = v
-                K[w, u] = v
+                    K[u, w] = v
+                    K[w, u] = v
+            else:
+                for w in range(s):
+                    aw = aa[w]
+                    bw = bb[w]
+                    K[u, w] = pa[aw] * qb[bw] + pa[bw] * qb[aw] + pb[aw] * qa[bw] + pb[bw] * qa[aw]
         # Y = G K (rows of G are sparse: a sum of rows of K)
         for i in range(m):
             for w in range(s):
@@ -52,29 +56,24 @@ def accumulate_group(out, ids, P, Q, same, lower, row_off, nz_off, sup_off, tgt_
                 u = indices[z0 + p]
                 for w in range(s):
                     Y[i, w] += g * K[u, w]
-        # S_k = G Yᵀ (= Y Gᵀ) on its lower triangle, into out: row i of S_k = Σ_p g_p (column u_p of Y),
+        # S_k = G Yᵀ (= Y Gᵀ), or its lower triangle, into out: row i of S_k = Σ_p g_p (column u_p of Y),
         # contiguous in Yt = Yᵀ
         for w in range(s):
             for i in range(m):
                 Yt[w, i] = Y[i, w]
         t0 = tgt_off[k]
         for i in range(m):
-            for l in range(i + 1):
+            n_l = i + 1 if lower else m  # the lower triangle, or the whole row
+            for l in range(n_l):
                 row[l] = 0.0
             for p in range(indptr[r0 + i], indptr[r0 + i + 1]):
                 g = data[z0 + p]
                 u = indices[z0 + p]
-                for l in range(i + 1):
+                for l in range(n_l):
                     row[l] += g * Yt[u, l]
-            if lower:
-                t = t0 + i * (i + 1) // 2
-                for l in range(i + 1):
-                    out[targets[t + l]] += row[l]
-            else:
-                for l in range(i + 1):
-                    out[targets[t0 + i * m + l]] += row[l]
-                for l in range(i):
-                    out[targets[t0 + l * m + i]] += row[l]
+            t = t0 + (i * (i + 1) // 2 if lower else i * m)
+            for l in range(n_l):
+                out[targets[t + l]] += row[l]
 
 
 @njit(cache=True)

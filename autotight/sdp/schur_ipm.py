@@ -34,7 +34,9 @@ regularised by ``SCHUR_REG``.  When the blocks' constraints can be ordered into 
 (``_BandSchur``: Cholesky, banded LU with partial pivoting once a pivot is not positive); else by sparse
 LDLᵀ (qdldl, Apache-2.0: AMD ordering and symbolic analysis once per solve, a numeric refactorisation
 per iteration), with SuperLU's partial pivoting for the rest of the solve once a pivot is not positive.
-One refinement step is kept only when it lowers the residual.  Per iteration this costs about
+One refinement step is kept only when it lowers the residual.  From ``COMPILED_MIN_BLOCKS`` blocks on, S's
+assembly, the step lengths and the band's scaling and full storage run as compiled kernels
+(``schur_kernel``, numba) with the same arithmetic as the numpy code here.  Per iteration this costs about
 ``iteration_cost`` (a ranking used to choose the cover, not a prediction).  Everything works on full
 row-major vec(·) of each block; the svec data of ``clique_program`` is mapped once by ``svec_to_vec``.
 Measurements and the variants tried are in benchmarks/README.md.
