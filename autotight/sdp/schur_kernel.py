@@ -1,13 +1,14 @@
-"""Compiled (numba) kernels of the IPM's per-iteration block work: the Schur complement's assembly and
-the step length to the cone's boundary.  ``schur_ipm`` calls them through ``BlockProducts`` and
-``max_step``; the numpy formulas there are the reference they are tested against.
+"""Compiled (numba) kernels of the IPM's per-iteration block work: the Schur complement's assembly
+(``BlockProducts``), the step length to the cone's boundary (``max_step``), and the band's scaling and
+full storage for LAPACK (``scaled_band``, ``full_band``).  ``schur_ipm`` uses them from
+``COMPILED_MIN_BLOCKS`` blocks on; its numpy code is the reference they are tested against, and they do
+its floating-point operations in its order (the same iterates).
 
 Conventions: the blocks of one size group are a C-contiguous (B, n, n) float64 array; block k's
 constraint data G_k is a CSR matrix (m_k × s_k) over its support entries (a_u, b_u), a_u ≤ b_u, in half
-form with the weights 1/o_u (``schur_ipm.block_data``), and its m_k × m_k product goes to
-``targets[k]`` (row-major m_k × m_k positions in a flat output array; entries not wanted point at one
-spare slot).  numba compiles the kernels once per machine (``cache=True``: in ``__pycache__`` beside
-this file); the first call of a fresh install pays the compilation (see ``COMPILED_MIN_BLOCKS``).
+form with the weights 1/o_u (``schur_ipm.block_data``).  numba compiles the kernels on first use and
+caches them (``cache=True``: in ``__pycache__`` beside this file, or under ``NUMBA_CACHE_DIR``): the
+first call of a fresh install pays the compilation (~2–3 s), later processes load it (~0.2 s).
 """
 
 from __future__ import annotations
@@ -17,14 +18,14 @@ from typing import Any
 import numpy as np
 import scipy.sparse as sp
 
-#: below this many blocks the numpy loop of ``schur_ipm.block_products`` assembles S: its per-block
-#: overhead is small there, and a process that has no compiled cache yet does not pay numba's
-#: import and compilation for a problem that solves in a fraction of a second
+#: below this many blocks ``schur_ipm`` keeps its numpy code: the per-block overhead is small there, and
+#: such a problem does not pay numba's import and the kernels' loading (~0.3 s, ~100 MB resident) or
+#: their first compilation
 COMPILED_MIN_BLOCKS = 50
 
 
 def _kernels() -> Any:
-    """The numba module of the kernels (imported on first use: numba's import costs ~0.3 s)."""
+    """The numba module of the kernels (imported on first use: numba's import costs ~0.15 s)."""
     from . import _schur_numba
 
     return _schur_numba
