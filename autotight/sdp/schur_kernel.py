@@ -18,10 +18,12 @@ from typing import Any
 import numpy as np
 import scipy.sparse as sp
 
-#: below this many blocks ``schur_ipm`` keeps its numpy code: the per-block overhead is small there, and
-#: such a problem does not pay numba's import and the kernels' loading (~0.3 s, ~100 MB resident) or
-#: their first compilation
-COMPILED_MIN_BLOCKS = 50
+#: below this many blocks ``schur_ipm`` keeps its numpy code, so that no problem gets slower even in the
+#: first process of an installation, which compiles the kernels (~2–3 s; later processes load them in
+#: ~0.3 s, and numba adds ~100 MB resident).  ``autotight solve discrete_trajectory`` (one block per
+#: pose), wall s, base / kernels with an empty cache / with a filled one: K = 50: 2.6 / 4.4 / 2.3;
+#: K = 100: 6.0 / 7.8 / 5.3; K = 200: 13.3 / 12.3 / 9.1
+COMPILED_MIN_BLOCKS = 150
 
 
 def _kernels() -> Any:
