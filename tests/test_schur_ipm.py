@@ -52,10 +52,12 @@ def test_svec_to_vec_maps_svec_to_row_major_vec_and_back():
     assert np.abs(P.T @ v - s).max() <= 1e-12
 
 
+@pytest.mark.parametrize("compiled", [False, True])
 @pytest.mark.parametrize("search", ["hkm", "nt"])
-def test_schur_complement_equals_its_definition(search):
+def test_schur_complement_equals_its_definition(search, compiled):
     """S_il = Σ_k ⟨A_ik, P_k A_lk Q_k⟩ on random blocks and random sparse constraints, for HKM
-    (P, Q) = (X, Z⁻¹) and for NT P = Q = W (the same list, which ``assemble`` folds as one kernel)."""
+    (P, Q) = (X, Z⁻¹) and for NT P = Q = W (the same list, which ``assemble`` folds as one kernel), by the
+    numpy loop and by the compiled kernel (``schur_kernel``)."""
     rng = np.random.default_rng(1)
     sizes = [3, 4, 3]
     R = sum(n * (n + 1) // 2 for n in sizes)
@@ -63,7 +65,8 @@ def test_schur_complement_equals_its_definition(search):
     P = schur_ipm.svec_to_vec(sizes)
     Gv = sp.csr_array(P @ F)
     blocks = schur_ipm._Blocks(sizes)
-    schur = schur_ipm._Schur(Gv, blocks)
+    schur = schur_ipm._Schur(Gv, blocks, compiled=compiled)
+    assert (schur.compiled is not None) == compiled
 
     def spd(n: int) -> np.ndarray:
         B = rng.standard_normal((n, n))
@@ -129,13 +132,16 @@ def _chain_schur(rng: np.random.Generator, cliques: int, width: int):
     return Q, cons, prog, blocks, schur_ipm._Schur(sp.csr_array(schur_ipm.svec_to_vec(prog.sizes) @ prog.F), blocks)
 
 
+@pytest.mark.parametrize("compiled", [False, True])
 @pytest.mark.parametrize("factor,search", [("band", "nt"), ("band-lu", "nt"), ("ldl", "nt"), ("superlu", "nt"),
                                            ("band", "hkm")])
-def test_ipm_equals_clarabel_on_a_chain_sdp_far_from_rank_one(factor, search, monkeypatch):
+def test_ipm_equals_clarabel_on_a_chain_sdp_far_from_rank_one(factor, search, compiled, monkeypatch):
     """MaxCut-type chain SDP: the optimum is far from rank 1, so the blocks must agree on their
     overlaps.  The same optimum with the banded Cholesky (the chain's default), with banded LU
     (pivoting from the first iteration), with sparse LDLᵀ (qdldl: no band) and with the SuperLU
-    fallback (every LDLᵀ reported as not positive definite), and with either search direction."""
+    fallback (every LDLᵀ reported as not positive definite), and with either search direction; with
+    the numpy per-block code and with the compiled kernels (``schur_kernel``, forced on 12 blocks)."""
+    monkeypatch.setattr(schur_ipm, "COMPILED_MIN_BLOCKS", 1 if compiled else 10 ** 9)
     if factor in ("ldl", "superlu"):
         monkeypatch.setattr(schur_ipm._BandSchur, "make", classmethod(lambda cls, Gv, blocks: None))
     if factor == "superlu":
@@ -277,16 +283,19 @@ def test_schur_complement_stays_sparse_along_a_chain():
     assert 1.8 <= size[1] / size[0] <= 2.2 and 1.8 <= nnz[1] / nnz[0] <= 2.2, (size, nnz)
 
 
-def test_band_schur_equals_the_sparse_schur_complement_and_solves_it():
+@pytest.mark.parametrize("compiled", [False, True])
+def test_band_schur_equals_the_sparse_schur_complement_and_solves_it(compiled):
     """On a chain, ``_BandSchur`` holds the same S as ``_Schur`` (to rounding) in a band whose width does not
     grow with the chain's length, and both of its factorisations (Cholesky, and LU with pivoting) solve
-    S Δy = r to a residual near roundoff."""
+    S Δy = r to a residual near roundoff; with the numpy code and with the compiled kernels (the band's
+    assembly, scaling and full storage)."""
     rng = np.random.default_rng(3)
     widths = []
     for cliques in (12, 24):
         _, _, prog, blocks, schur = _chain_schur(rng, cliques, 6)
-        band = schur_ipm._BandSchur.make(sp.csr_array(schur_ipm.svec_to_vec(prog.sizes) @ prog.F), blocks)
-        assert band is not None
+        band = schur_ipm._BandSchur.make(sp.csr_array(schur_ipm.svec_to_vec(prog.sizes) @ prog.F), blocks,
+                                         compiled=compiled)
+        assert band is not None and (band.compiled is not None) == compiled
         widths.append(band.b)
         B = [rng.standard_normal((ids.size, n, n)) for n, ids, _ in blocks.groups]
         W = [b @ np.swapaxes(b, 1, 2) + b.shape[-1] * np.eye(b.shape[-1]) for b in B]  # positive definite
@@ -302,6 +311,65 @@ def test_band_schur_equals_the_sparse_schur_complement_and_solves_it():
             dy = band.factor(ab, schur_ipm.SCHUR_REG)(r)
             assert np.linalg.norm(S @ dy - r) <= 1e-8 * np.linalg.norm(r), pivoting
     assert widths[0] == widths[1]
+
+
+def _spd_blocks(rng: np.random.Generator, B: int, n: int, floor: float) -> np.ndarray:
+    A = rng.standard_normal((B, n, n))
+    return A @ np.swapaxes(A, 1, 2) + floor * np.eye(n)
+
+
+def _brute_step(X: np.ndarray, dX: np.ndarray) -> float:
+    """The largest α with X_k + α dX_k ⪰ 0 for every block, from the generalised eigenvalues of (dX_k, X_k)."""
+    import scipy.linalg as sla
+
+    lam = min(float(sla.eigh(d, x, eigvals_only=True)[0]) for x, d in zip(X, dX))
+    return np.inf if lam >= 0 else -1.0 / lam
+
+
+@pytest.mark.parametrize("n,B", [(1, 5), (4, 30), (9, 40)])
+def test_compiled_step_length_is_the_largest_step_in_the_cone(n, B):
+    """``schur_kernel.max_step`` (eigenvalues only where a Cholesky test fails) equals the brute-force step
+    from every block's generalised eigenvalues and the numpy ``_max_step``, for directions that leave the
+    cone at very different steps per block, for directions inside it (∞), and with a limit below and
+    above the step."""
+    from autotight.sdp import schur_kernel
+
+    rng = np.random.default_rng(n)
+    X = _spd_blocks(rng, B, n, 0.1)
+    Linv = [np.linalg.inv(np.linalg.cholesky(X))]
+    D = rng.standard_normal((B, n, n))
+    dX = (D + np.swapaxes(D, 1, 2)) * rng.uniform(0.01, 10.0, B)[:, None, None]  # leaves the cone at many steps
+    psd = _spd_blocks(rng, B, n, 0.0)  # X + α·psd ⪰ 0 for every α ≥ 0
+    for direction, expect in [(dX, _brute_step(X, dX)), (psd, np.inf), (-X, 1.0)]:
+        assert schur_ipm._max_step(Linv, [direction]) == pytest.approx(expect, rel=1e-9)
+        got = schur_kernel.max_step(Linv, [direction])
+        assert got == pytest.approx(expect, rel=1e-9)
+        assert got == schur_ipm._max_step(Linv, [direction])  # the same eigenvalue computation
+        for limit in (0.5 * expect, 2.0 * expect) if np.isfinite(expect) else (3.0,):
+            assert schur_kernel.max_step(Linv, [direction], limit) == pytest.approx(min(expect, limit), rel=1e-9)
+
+
+def test_compiled_kernels_leave_the_iterates_unchanged(monkeypatch):
+    """A 60-block chain solved with the compiled kernels (threshold lowered) and with the numpy code
+    (threshold raised) takes the same iterations to the same costs, with S as a band and stored whole
+    (sparse LDLᵀ), for NT and HKM: the kernels do the same arithmetic (bit for bit here; the tolerance
+    leaves room for a BLAS that rounds the numpy path's products differently)."""
+    Q, cons, cl = _chain_maxcut(np.random.default_rng(5), 60, 6)
+    make = schur_ipm._BandSchur.make
+    out = {}
+    for band in (True, False):
+        monkeypatch.setattr(schur_ipm._BandSchur, "make", make if band else classmethod(lambda cls, Gv, blocks: None))
+        for compiled in (True, False):
+            monkeypatch.setattr(schur_ipm, "COMPILED_MIN_BLOCKS", 1 if compiled else 10 ** 9)
+            for search in ("nt", "hkm"):
+                out[band, compiled, search] = schur_ipm.solve_ipm(
+                    *_data(Q, cons), 1, cl, SolverConfig(backend="ipm", ipm=IpmOptions(search=search)))
+    for band, search in [(True, "nt"), (True, "hkm"), (False, "nt"), (False, "hkm")]:
+        a, b = out[band, True, search], out[band, False, search]
+        assert a.status == b.status and a.status in ("Solved", "AlmostSolved"), (a.summary(), b.summary())
+        assert a.iterations == b.iterations
+        assert abs(a.primal_cost - b.primal_cost) <= 1e-9 * abs(b.primal_cost)
+        assert abs(a.dual_cost - b.dual_cost) <= 1e-9 * abs(b.dual_cost)
 
 
 def test_block_loads_count_the_constraints_each_block_receives():

@@ -34,7 +34,9 @@ regularised by ``SCHUR_REG``.  When the blocks' constraints can be ordered into 
 (``_BandSchur``: Cholesky, banded LU with partial pivoting once a pivot is not positive); else by sparse
 LDLᵀ (qdldl, Apache-2.0: AMD ordering and symbolic analysis once per solve, a numeric refactorisation
 per iteration), with SuperLU's partial pivoting for the rest of the solve once a pivot is not positive.
-One refinement step is kept only when it lowers the residual.  Per iteration this costs about
+One refinement step is kept only when it lowers the residual.  From ``COMPILED_MIN_BLOCKS`` blocks on, S's
+assembly, the step lengths and the band's scaling and full storage run as compiled kernels
+(``schur_kernel``, numba) with the same arithmetic as the numpy code here.  Per iteration this costs about
 ``iteration_cost`` (a ranking used to choose the cover, not a prediction).  Everything works on full
 row-major vec(·) of each block; the svec data of ``clique_program`` is mapped once by ``svec_to_vec``.
 Measurements and the variants tried are in benchmarks/README.md.
@@ -56,6 +58,8 @@ from ..errors import SolverConfigError
 from .config import Retries, SolverConfig
 from .options import SEARCH_DIRECTIONS
 from .result import SDPResult, Status, finish
+from . import schur_kernel
+from .schur_kernel import COMPILED_MIN_BLOCKS, BlockProducts, max_step
 
 #: the stall clock's patience grows (STALL_ITERATIONS_ALMOST) once every relative residual is below this
 ALMOST_TOL = 1e-6
@@ -192,9 +196,10 @@ def _inner(X: list[np.ndarray], Z: list[np.ndarray]) -> float:
     return sum(float(np.einsum("bij,bij->", a, b)) for a, b in zip(X, Z))
 
 
-def _inverse_factors(X: list[np.ndarray]) -> list[np.ndarray]:
-    """L⁻¹ per block, X = L Lᵀ (Cholesky); LinAlgError when a block is not positive definite."""
-    return [np.linalg.inv(np.linalg.cholesky(Xg)) for Xg in X]
+def _inverse_factors(X: list[np.ndarray]) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """(L, L⁻¹) per block, X = L Lᵀ (Cholesky); LinAlgError when a block is not positive definite."""
+    L = [np.linalg.cholesky(Xg) for Xg in X]
+    return L, [np.linalg.inv(Lg) for Lg in L]
 
 
 def _max_step(Linv: list[np.ndarray], dX: list[np.ndarray]) -> float:
@@ -205,6 +210,20 @@ def _max_step(Linv: list[np.ndarray], dX: list[np.ndarray]) -> float:
         ev = np.linalg.eigvalsh(_sym(Li @ dXg @ np.swapaxes(Li, -1, -2)))
         lam = min(lam, float(ev[:, 0].min()))
     return np.inf if lam >= 0 else -1.0 / lam
+
+
+def _step(Linv: list[np.ndarray], dX: list[np.ndarray], gamma: float) -> float:
+    """The step length min(1, γ·α), α = ``_max_step`` (the largest step that stays in the cone)."""
+    return min(1.0, gamma * _max_step(Linv, dX))
+
+
+def _step_compiled(Linv: list[np.ndarray], dX: list[np.ndarray], gamma: float) -> float:
+    """``_step`` by ``schur_kernel.max_step``: the blocks' eigenvalues only where a Cholesky test says
+    they could limit the step below 1/γ; the same value (1 exactly when no block does: γ·(1/γ) may round
+    below 1)."""
+    limit = 1.0 / gamma
+    alpha = max_step(Linv, dX, limit)
+    return 1.0 if alpha >= limit else min(1.0, gamma * alpha)
 
 
 def block_data(Gv: sp.csr_array, blocks: _Blocks
@@ -257,10 +276,19 @@ def block_products(per_block: list[sp.csr_array], support: list[tuple[np.ndarray
             yield k, Sk.ravel()
 
 
+def _compiled_products(per_block: list[sp.csr_array], support: list[tuple[np.ndarray, np.ndarray, np.ndarray]],
+                       targets: np.ndarray, blocks: _Blocks, compiled: bool | None) -> BlockProducts | None:
+    """The compiled assembly of S (``schur_kernel``) over the blocks' concatenated targets, or None for the
+    numpy loop (``block_products``); compiled=None: compiled from COMPILED_MIN_BLOCKS blocks on."""
+    if compiled is None:
+        compiled = len(per_block) >= COMPILED_MIN_BLOCKS
+    return BlockProducts(per_block, support, targets, blocks.groups) if compiled else None
+
+
 class _Schur:
     """S's sparsity pattern, the per-block constraint data that fill it, and its factorisation."""
 
-    def __init__(self, Gv: sp.csr_array, blocks: _Blocks):
+    def __init__(self, Gv: sp.csr_array, blocks: _Blocks, compiled: bool | None = None):
         M = Gv.shape[1]
         self.per_block, self.support, inc = block_data(Gv, blocks)
         keys = [(ids[:, None] * M + ids[None, :]).ravel() for ids in inc]
@@ -274,6 +302,7 @@ class _Schur:
         self.inverse = np.searchsorted(self.rows * M + self.cols, np.concatenate(keys))
         self.M = M
         self.blocks = blocks
+        self.compiled = _compiled_products(self.per_block, self.support, self.inverse, blocks, compiled)
         # the upper triangle (row ≤ column) of S in CSC order: qdldl's input
         self.upper = np.flatnonzero(self.cols >= self.rows)
         self.diag = np.flatnonzero(self.cols == self.rows)
@@ -289,6 +318,10 @@ class _Schur:
         four terms then count that entry's one orbit member twice) and 1 otherwise;
         = 2 (W_ac W_bd + W_ad W_bc) / (o_u o_w) when P is Q (NT).  This costs |support|² per block
         instead of n⁴.  (The Gram form B_kᵀB_k, b_i = vec(L_Pᵀ A_i L_Q), was less accurate.)"""
+        if self.compiled is not None:
+            out = np.zeros(self.rows.size)
+            self.compiled.accumulate(out, P, Q)
+            return out
         parts: list[np.ndarray] = [np.zeros(0)] * len(self.per_block)
         for k, part in block_products(self.per_block, self.support, self.blocks, P, Q):
             parts[k] = part
@@ -395,7 +428,7 @@ class _BandSchur:
     the solve.  Built by ``make``, which returns None when the band would be too wide (``BAND_FILL_MAX``)."""
 
     def __init__(self, per_block: list[sp.csr_array], support: list, inc: list[np.ndarray], blocks: _Blocks,
-                 pos: np.ndarray, b: int):
+                 pos: np.ndarray, b: int, compiled: bool | None = None):
         M = pos.size
         self.per_block, self.support, self.blocks, self.M, self.b = per_block, support, blocks, M, b
         self.size = (b + 1) * M
@@ -403,15 +436,32 @@ class _BandSchur:
         # each block entry (i, l) of S_k → its place in the band (column-major (b + 1) × M), or the
         # sentinel ``size`` for the upper triangle (S is symmetric: each pair is summed once)
         self.targets: list[np.ndarray] = []
-        for ids in inc:
-            pi, pl = pos[ids][:, None], pos[ids][None, :]
-            self.targets.append(np.where(pi >= pl, pl * (b + 1) + (pi - pl), self.size).astype(itype).ravel())
         self.order = np.argsort(pos)  # the constraint at each position
+        self.compiled: BlockProducts | None = None
+        if compiled if compiled is not None else len(per_block) >= COMPILED_MIN_BLOCKS:
+            # G_k's rows in band order, so that the lower triangle of S_k is the band's: packed targets
+            perms = [np.argsort(pos[ids]) for ids in inc]
+            packed = []
+            for ids, perm in zip(inc, perms):
+                pi, pl = np.tril_indices(ids.size)
+                ps = pos[ids][perm]
+                packed.append((ps[pl] * (b + 1) + (ps[pi] - ps[pl])).astype(itype))
+            self.compiled = BlockProducts([G[perm] for G, perm in zip(per_block, perms)], support,
+                                          np.concatenate(packed) if packed else np.zeros(0, itype), blocks.groups,
+                                          lower=True)
+        else:
+            for ids in inc:
+                pi, pl = pos[ids][:, None], pos[ids][None, :]
+                self.targets.append(np.where(pi >= pl, pl * (b + 1) + (pi - pl), self.size).astype(itype).ravel())
         self.pivoting = False
         self._held: dict[str, Any] = {}  # the last factorisation's arrays, released by the next ``assemble``
+        # the compiled path's scaled and full band arrays, reused by the next factorisation (``_held`` may
+        # hold them as its factors until the next ``assemble``)
+        self._buffers: dict[str, np.ndarray] = {}
 
     @classmethod
-    def make(cls, Gv: sp.csr_array, blocks: _Blocks) -> "_BandSchur | None":
+    def make(cls, Gv: sp.csr_array, blocks: _Blocks, compiled: bool | None = None) -> "_BandSchur | None":
+        """The band form of S, or None when it would be too wide; compiled: see ``_compiled_products``."""
         per_block, support, inc = block_data(Gv, blocks)
         M = Gv.shape[1]
         if M == 0:
@@ -420,13 +470,16 @@ class _BandSchur:
         lower = sum(i.size * (i.size + 1) // 2 for i in inc)
         if (b + 1) * M > BAND_FILL_MAX * max(lower, M):
             return None
-        return cls(per_block, support, inc, blocks, pos, b)
+        return cls(per_block, support, inc, blocks, pos, b, compiled)
 
     def assemble(self, P: list[np.ndarray], Q: list[np.ndarray]) -> np.ndarray:
         """S (see ``_Schur.assemble``) in band storage: a (b + 1) × M array, Fortran order.  The solver of the
         previous ``factor`` is invalid from here on (its arrays are released: a few bands at a time)."""
         self._held.clear()
         flat = np.zeros(self.size + 1)  # the last entry collects the upper triangle
+        if self.compiled is not None:
+            self.compiled.accumulate(flat, P, Q)
+            return flat[:self.size].reshape(self.M, self.b + 1).T
         for k, part in block_products(self.per_block, self.support, self.blocks, P, Q):
             np.add.at(flat, self.targets[k], part)
         return flat[:self.size].reshape(self.M, self.b + 1).T
@@ -442,6 +495,9 @@ class _BandSchur:
         """LAPACK's general band storage (kl = ku = b, with b more rows for the LU's fill) of the
         symmetric matrix whose lower band is ``low``: A[i, j] at row 2b + i − j."""
         b, M = self.b, self.M
+        if self.compiled is not None:
+            self._buffers["full"] = schur_kernel.full_band(low, self._buffers.get("full"))
+            return self._buffers["full"]
         ab = np.zeros((3 * b + 1, M), order="F")
         ab[2 * b:, :] = low
         for t in range(1, b + 1):
@@ -463,6 +519,9 @@ class _BandSchur:
         b, inner, held = self.b, None, self._held
 
         def scaled() -> np.ndarray:
+            if self.compiled is not None:  # into the last factorisation's buffer (released by ``assemble``)
+                self._buffers["scaled"] = schur_kernel.scaled_band(ab, dsc, reg, self._buffers.get("scaled"))
+                return self._buffers["scaled"]
             out = self._scaled(ab, dsc)
             out[0] += reg
             return out
@@ -514,6 +573,7 @@ def solve_blocks(F: sp.csc_matrix, c: np.ndarray, g: np.ndarray, sizes: list[int
     cv = P @ c
     blocks = _Blocks(sizes)
     schur: _Schur | _BandSchur = _BandSchur.make(Gv, blocks) or _Schur(Gv, blocks)
+    step = _step_compiled if len(sizes) >= COMPILED_MIN_BLOCKS else _step
     nrm_g, nrm_c = 1 + np.max(np.abs(g), initial=0.0), 1 + np.max(np.abs(cv), initial=0.0)
 
     def A(mats: list[np.ndarray]) -> np.ndarray:
@@ -560,14 +620,17 @@ def solve_blocks(F: sp.csc_matrix, c: np.ndarray, g: np.ndarray, sizes: list[int
             status, message = Status.INSUFFICIENT_PROGRESS, f"no progress in {stall} iterations"
             break
         try:
-            # the inverse Cholesky factors of X and Z: the step lengths of every direction of this
+            # the (inverse) Cholesky factors of X and Z: the step lengths of every direction of this
             # iteration, NT's scaling and Z⁻¹ = L_Z⁻ᵀ L_Z⁻¹ (one factorisation per block and iteration)
-            LXi, LZi = _inverse_factors(X), _inverse_factors(Z)
-            Zinv = [np.swapaxes(Li, -1, -2) @ Li for Li in LZi]
+            (L, LXi), (_, LZi) = _inverse_factors(X), _inverse_factors(Z)
+
+            def z_inverse() -> list[np.ndarray]:
+                return [np.swapaxes(Li, -1, -2) @ Li for Li in LZi]
+
+            Zinv = z_inverse() if search == "hkm" else None  # NT needs it only when the corrector falls back
             if search == "nt":
                 # NT scaling: X = L Lᵀ, Lᵀ Z L = U Λ² Uᵀ, G = L U Λ^(−1/2), W = G Gᵀ (W Z W = X);
                 # in the scaled space G⁻¹ X G⁻ᵀ = Gᵀ Z G = Λ
-                L = [np.linalg.cholesky(Xg) for Xg in X]
                 lam2, U = zip(*[np.linalg.eigh(np.swapaxes(Lg, -1, -2) @ Zg @ Lg) for Lg, Zg in zip(L, Z)])
                 lam = [np.sqrt(np.maximum(l2, 1e-300)) for l2 in lam2]  # Lᵀ Z L ≻ 0 in exact arithmetic
                 G = [Lg @ Ug / np.sqrt(lg)[:, None, :] for Lg, Ug, lg in zip(L, U, lam)]
@@ -575,6 +638,7 @@ def solve_blocks(F: sp.csc_matrix, c: np.ndarray, g: np.ndarray, sizes: list[int
                 W = [Gg @ np.swapaxes(Gg, -1, -2) for Gg in G]
                 left, right = W, W
             else:  # HKM: ΔX = H − X ΔZ Z⁻¹
+                assert Zinv is not None
                 left, right = X, Zinv
             solve = schur.factor(schur.assemble(left, right), SCHUR_REG)
             KRd = [a @ Rg @ b for a, Rg, b in zip(left, Rd, right)]
@@ -588,8 +652,7 @@ def solve_blocks(F: sp.csc_matrix, c: np.ndarray, g: np.ndarray, sizes: list[int
                 return dX, dy, dZ
 
             dX, dy, dZ = direction([-Xg for Xg in X])  # predictor: σ = 0
-            ap = min(1.0, gamma * _max_step(LXi, dX))
-            ad = min(1.0, gamma * _max_step(LZi, dZ))
+            ap, ad = step(LXi, dX, gamma), step(LZi, dZ, gamma)
             mu_aff = _inner([Xg + ap * a for Xg, a in zip(X, dX)], [Zg + ad * b for Zg, b in zip(Z, dZ)])
             sigma = min(1.0, (mu_aff / blocks.order / mu) ** max(1.0, 3 * min(ap, ad) ** 2))
             pred = min(ap, ad)
@@ -604,14 +667,15 @@ def solve_blocks(F: sp.csc_matrix, c: np.ndarray, g: np.ndarray, sizes: list[int
                     V = 2 * R / (lg[:, :, None] + lg[:, None, :])
                     H.append(Gg @ V @ np.swapaxes(Gg, -1, -2))
             else:
+                assert Zinv is not None
                 H = [sigma * mu * Zi - Xg - a @ b @ Zi for Zi, Xg, a, b in zip(Zinv, X, dX, dZ)]
             dX, dy, dZ = direction(H)  # corrector
-            ap = min(1.0, gamma * _max_step(LXi, dX))
-            ad = min(1.0, gamma * _max_step(LZi, dZ))
+            ap, ad = step(LXi, dX, gamma), step(LZi, dZ, gamma)
             if min(ap, ad) < CORRECTOR_FALLBACK * pred:
                 # the second-order term hurts (seen near degenerate optima): centre without it
+                Zinv = Zinv if Zinv is not None else z_inverse()
                 dX1, dy1, dZ1 = direction([sigma * mu * Zi - Xg for Zi, Xg in zip(Zinv, X)])
-                ap1, ad1 = min(1.0, gamma * _max_step(LXi, dX1)), min(1.0, gamma * _max_step(LZi, dZ1))
+                ap1, ad1 = step(LXi, dX1, gamma), step(LZi, dZ1, gamma)
                 if min(ap1, ad1) > min(ap, ad):
                     dX, dy, dZ, ap, ad = dX1, dy1, dZ1, ap1, ad1
         except np.linalg.LinAlgError as e:  # the factorisation broke down (raised by _Schur.factor)
