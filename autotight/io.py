@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-PACKAGES = ("numpy", "scipy", "clarabel", "cvxpy", "qdldl", "pandas")
+PACKAGES = ("numpy", "scipy", "clarabel", "cvxpy", "qdldl", "numba", "pandas")
 
 
 def versions() -> dict[str, str]:

@@ -55,6 +55,7 @@ import scipy.sparse.linalg as spla
 from ..svec import SQRT2, triu_indices
 from .clique_program import clique_program, complete_auto
 from ..errors import SolverConfigError
+from ..threads import single_blas_thread
 from .config import Retries, SolverConfig
 from .options import SEARCH_DIRECTIONS
 from .result import SDPResult, Status, finish
@@ -557,6 +558,7 @@ class _BandSchur:
         return solve
 
 
+@single_blas_thread
 def solve_blocks(F: sp.csc_matrix, c: np.ndarray, g: np.ndarray, sizes: list[int], *, tol: float = 1e-7,
                  max_iter: int = 100, time_limit: float = np.inf, verbose: bool = False,
                  search: str = "nt") -> IPMSolution:
