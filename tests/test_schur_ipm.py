@@ -205,6 +205,19 @@ def test_contradictory_constraints_are_a_status_not_an_exception(ra):
     assert not v.tight and res.status in v.reason
 
 
+def test_above_the_fallback_size_an_unusable_ipm_result_stands_and_says_why(ra, monkeypatch):
+    """The contradictory SDP above with ``FALLBACK_MAX_N`` below its size: one call (the IPM's), its status
+    reported as it is, and the message names the fallback that was not tried."""
+    inst = ra.generate({"M": 2, "sigma": 0.1}, 0)
+    model = ra.build(inst)
+    N = model.variables.N
+    cons = model.primary() + [Constraint(sp.csr_array(([1.0], ([0], [0])), shape=(N, N)), 2.0, name="h2=2")]
+    monkeypatch.setattr(sdp, "FALLBACK_MAX_N", N - 1)
+    res = sdp.solve(model.Q, cons, config=SolverConfig(backend="ipm", decompose=False))
+    assert not res.usable and res.n_calls == 1 and res.solver == "autotight-ipm", res.message
+    assert f"not solved again by clarabel: N = {N} columns > {N - 1}" in res.message
+
+
 def test_an_unusable_ipm_result_is_solved_again_by_clarabel_and_both_calls_count(ra, monkeypatch):
     """The IPM backend is stubbed to stop short (InsufficientProgress, no X, 1.5 s): Clarabel's answer
     is returned, n_calls is 2, both calls' times are summed and the message lists both."""

@@ -13,7 +13,8 @@ model's own clique cover (a hint) and a scaling vector:
   stalled solve, or an AlmostSolved one of at most 100 columns, then clique-graph merging on a stalled
   one); the retry replaces the result when it is Solved or the result is unusable;
 - fallback: an unusable result of a backend with a ``fallback`` (the IPM) is solved again by that
-  backend on its own cover (Clarabel's), with its retries;
+  backend on its own cover (Clarabel's), with its retries, up to ``FALLBACK_MAX_N`` columns; above, the
+  first backend's result stands, and its message says that no fallback was tried and why;
 - scaling: ``scale`` = D (see ``solve``);
 - counting: every solver call is counted in ``SDPResult.n_calls``, its solve and set-up times are
   summed into ``solve_time_s`` and ``setup_time_s``, and ``message`` lists every attempt.
@@ -63,10 +64,16 @@ from .registry import BACKENDS
 from .schur_ipm import IPMBackend
 from .result import SDPResult, Status, finish, log_svr, rank_d_factor
 
-__all__ = ["solve", "solve_model", "model_cover", "check_solver", "SolverConfig", "SolverConfigError", "SolverOptions",
+__all__ = ["solve", "solve_model", "FALLBACK_MAX_N",
+           "model_cover", "check_solver", "SolverConfig", "SolverConfigError", "SolverOptions",
            "ClarabelOptions", "IpmOptions",
            "SDPResult", "BACKENDS", "CliqueCovers", "MERGE_MAX_SIZE", "IPM_MERGE_CAPS", "log_svr",
            "rank_d_factor"]
+
+#: above this many columns an unusable result is not solved again by the fallback: Clarabel's memory on the
+#: chordal cover grows faster than the data (discrete trajectory with the set learned at K = 5: K = 4000,
+#: N = 96 000, passed 21 GB before its first iteration, where the IPM had held 1.6 GB at K = 2000)
+FALLBACK_MAX_N = 20_000
 
 #: the shipped backends (``registry``)
 BACKENDS.update(clarabel=ClarabelBackend(), ipm=IPMBackend(), cvxpy=CvxpyBackend())
@@ -221,11 +228,15 @@ def _solve(Q: sp.spmatrix | sp.sparray, constraints: Sequence[Constraint], d: in
     covers = CliqueCovers(Qs, As_s, d, block_sizes, cliques) if needs_cover else None
     log: list[_Attempt] = []
     res = _with_retries(backend, "", Qs, As_s, b, d, _cover(backend, decompose, covers), config, log)
-    if not res.usable and fb is not None:
+    skipped = ""
+    if not res.usable and fb is not None and N > FALLBACK_MAX_N:
+        skipped = (f"; not solved again by {fb.name}: N = {N} columns > {FALLBACK_MAX_N} (its memory grows faster "
+                   "than the data)")
+    elif not res.usable and fb is not None:
         # the backend's attainable accuracy was not enough: the fallback on its own cover
         fb_cover = _cover(fb, decompose, covers)
         res = _with_retries(fb, f"solved again by {fb.name}", Qs, As_s, b, d, fb_cover, config, log)
-    message = "; ".join(a.describe(k + 1) for k, a in enumerate(log))  # before res (one of them) is changed
+    message = "; ".join(a.describe(k + 1) for k, a in enumerate(log)) + skipped  # before res is changed
     solve_s, setup_s = sum(a.res.solve_time_s for a in log), sum(a.res.setup_time_s for a in log)
     res.n_calls, res.solve_time_s, res.setup_time_s, res.message = len(log), solve_s, setup_s, message
     if D is not None:
