@@ -278,13 +278,17 @@ def block_products(per_block: list[sp.csr_array], support: list[tuple[np.ndarray
             yield k, Sk.ravel()
 
 
+def _use_compiled(n_blocks: int, compiled: bool | None = None) -> bool:
+    """Whether the compiled kernels run: ``compiled`` when given, else from COMPILED_MIN_BLOCKS blocks on."""
+    return n_blocks >= COMPILED_MIN_BLOCKS if compiled is None else compiled
+
+
 def _compiled_products(per_block: list[sp.csr_array], support: list[tuple[np.ndarray, np.ndarray, np.ndarray]],
                        targets: np.ndarray, blocks: _Blocks, compiled: bool | None) -> BlockProducts | None:
     """The compiled assembly of S (``schur_kernel``) over the blocks' concatenated targets, or None for the
-    numpy loop (``block_products``); compiled=None: compiled from COMPILED_MIN_BLOCKS blocks on."""
-    if compiled is None:
-        compiled = len(per_block) >= COMPILED_MIN_BLOCKS
-    return BlockProducts(per_block, support, targets, blocks.groups) if compiled else None
+    numpy loop (``block_products``); compiled: see ``_use_compiled``."""
+    return BlockProducts(per_block, support, targets, blocks.groups) if _use_compiled(len(per_block), compiled) \
+        else None
 
 
 #: refinement steps of S Δy = r at most (``refined_solve``): each is kept only when it lowers the residual, and
@@ -464,7 +468,7 @@ class _BandSchur:
         self.targets: list[np.ndarray] = []
         self.order = np.argsort(pos)  # the constraint at each position
         self.compiled: BlockProducts | None = None
-        if compiled if compiled is not None else len(per_block) >= COMPILED_MIN_BLOCKS:
+        if _use_compiled(len(per_block), compiled):
             # G_k's rows in band order, so that the lower triangle of S_k is the band's: packed targets
             perms = [np.argsort(pos[ids]) for ids in inc]
             packed = []
@@ -596,7 +600,7 @@ def solve_blocks(F: sp.csc_matrix, c: np.ndarray, g: np.ndarray, sizes: list[int
     cv = P @ c
     blocks = _Blocks(sizes)
     schur: _Schur | _BandSchur = _BandSchur.make(Gv, blocks) or _Schur(Gv, blocks)
-    step = _step_compiled if len(sizes) >= COMPILED_MIN_BLOCKS else _step
+    step = _step_compiled if _use_compiled(len(sizes)) else _step
     nrm_g, nrm_c = 1 + np.max(np.abs(g), initial=0.0), 1 + np.max(np.abs(cv), initial=0.0)
 
     def A(mats: list[np.ndarray]) -> np.ndarray:
