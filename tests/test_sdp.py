@@ -508,3 +508,23 @@ def test_effective_tolerance_is_the_backends_floor_when_higher():
     assert sdp.effective_tol(SolverConfig(tol=1e-8)) == 1e-8
     assert sdp.effective_tol(SolverConfig(backend="ipm", tol=1e-8)) == IPM_MIN_TOL == 1e-7
     assert sdp.effective_tol(SolverConfig(backend="ipm", tol=1e-5)) == 1e-5
+
+
+def test_home_cliques_is_the_clique_holding_most_columns_lowest_on_ties():
+    """``chordal.home_cliques`` against the direct count |C_k ∩ S_j| per clique and constraint, on random
+    covers with a hub of columns in all but one clique (the product is then nearly dense) and many ties."""
+    from autotight.sdp.chordal import home_cliques, support_matrix
+
+    for seed in range(20):
+        rng = np.random.default_rng(seed)
+        N, p, m = 30, 12, 40
+        hub = [1, 2, 3]
+        cliques = [np.unique(np.r_[0, hub if k else [], rng.choice(np.arange(4, N), 5, replace=False)]).astype(np.int64)
+                   for k in range(p)]
+        cols = [rng.choice(N, rng.integers(1, 6), replace=False) for _ in range(m)]
+        rows = np.concatenate(cols)
+        owner = np.repeat(np.arange(m), [c.size for c in cols])
+        support = support_matrix(rows, rows, owner, N, m)
+        count = np.array([[np.intersect1d(c, s).size for s in cols] for c in cliques])  # (p, m)
+        want = np.argmax(count, axis=0)  # the first maximum: the lowest clique index
+        assert np.array_equal(home_cliques(cliques, support), want)
