@@ -26,6 +26,8 @@ from autotight.sdp.clarabel_direct import ClarabelBackend, clarabel_settings
     (lambda: ClarabelOptions(merge="greedy"), "ClarabelOptions.merge", ("'parent_child'", "'clique_graph'", "'none'")),
     (lambda: ClarabelOptions(regularization="tiny"), "ClarabelOptions.regularization", ("'small'", "'default'")),
     (lambda: IpmOptions(search="sd"), "IpmOptions.search", ("'nt'", "'hkm'")),
+    (lambda: IpmOptions(step_fraction=1.0), "IpmOptions.step_fraction", ("(0, 1)",)),
+    (lambda: IpmOptions(step_fraction="0.9"), "IpmOptions.step_fraction", ("(0, 1)",)),
 ])
 def test_a_bad_option_is_a_one_line_error_naming_the_field_and_its_values(make, field, allowed):
     with pytest.raises(SolverConfigError) as e:
@@ -45,7 +47,7 @@ def test_a_config_takes_only_option_objects():
 def test_the_defaults_are_the_documented_ones():
     c = SolverConfig()
     assert c.clarabel == ClarabelOptions(chordal=True, merge="parent_child", regularization="small")
-    assert c.ipm == IpmOptions(search="nt")
+    assert c.ipm == IpmOptions(search="nt", step_fraction=None)
 
 
 def test_clarabel_options_reach_clarabels_settings():
@@ -118,3 +120,28 @@ def test_the_ipm_search_direction_is_an_option_and_both_reach_clarabels_optimum(
         assert seen[-1] == s and r.n_calls == 1  # solved by the IPM itself, not its Clarabel fallback
         assert r.status == "Solved" and r.solver == "autotight-ipm", r.message
         assert abs(r.primal_cost - ref) <= 1e-6 * ref
+
+
+def test_a_stalled_ipm_solve_is_retried_with_the_fixed_step_fraction(ra, monkeypatch):
+    """``IPMBackend.retries``: SDPT3's step lengths first; a solve that stalls is solved again with
+    ``RETRY_STEP_FRACTION``, which reaches the ``solve_blocks`` loop, and that result is kept (Clarabel's
+    optimum to 1e-6); a config that fixes the fraction itself gets no retry."""
+    model = ra.build(ra.generate({"M": 4, "sigma": 0.1}, 0))
+    cons = model.primary()
+    ref = sdp.solve(model.Q, cons, config=SolverConfig(backend="clarabel")).primal_cost
+    real, seen = schur_ipm.solve_blocks, []
+
+    def stalls_unless_fixed(*a, **k):
+        seen.append(k["step_fraction"])
+        res = real(*a, **k)
+        if k["step_fraction"] is None:
+            res.status = schur_ipm.Status.INSUFFICIENT_PROGRESS
+        return res
+
+    monkeypatch.setattr(schur_ipm, "solve_blocks", stalls_unless_fixed)
+    r = sdp.solve(model.Q, cons, config=SolverConfig(backend="ipm"))
+    assert seen == [None, schur_ipm.RETRY_STEP_FRACTION] and r.n_calls == 2
+    assert r.solver == "autotight-ipm" and r.usable and "retried with the fixed step fraction" in r.message
+    assert abs(r.primal_cost - ref) <= 1e-6 * ref
+    fixed = SolverConfig(backend="ipm", ipm=IpmOptions(step_fraction=0.8))
+    assert schur_ipm.IPMBackend().retries(fixed, True, 50) == []

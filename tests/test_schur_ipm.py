@@ -187,8 +187,9 @@ def test_ipm_on_one_dense_block_equals_clarabel(ra):
 
 
 def test_contradictory_constraints_are_a_status_not_an_exception(ra):
-    """h² = 1 and h² = 2: the IPM has no infeasibility certificate and must not report a solution;
-    ``sdp.solve`` then asks Clarabel, whose certificate gives the status, and says so."""
+    """h² = 1 and h² = 2: the IPM has no infeasibility certificate and must not report a solution, with
+    either step rule (its retry); ``sdp.solve`` then asks Clarabel, whose certificate gives the status,
+    and says so."""
     inst = ra.generate({"M": 2, "sigma": 0.1}, 0)
     model = ra.build(inst)
     N = model.variables.N
@@ -199,28 +200,29 @@ def test_contradictory_constraints_are_a_status_not_an_exception(ra):
     assert own.status in ("NumericalError", "InsufficientProgress", "MaxIterations"), own.status
     res = sdp.solve(model.Q, cons, config=SolverConfig(backend="ipm", decompose=False))
     assert not res.usable and "infeasible" in res.status.lower(), res.status
-    assert res.n_calls == 2, res.message
-    assert res.message.startswith(f"1. autotight-ipm {own.status}") and "2. solved again by clarabel" in res.message
+    assert res.n_calls == 3, res.message
+    assert res.message.startswith(f"1. autotight-ipm {own.status}"), res.message
+    assert "2. retried with the fixed step fraction" in res.message and "3. solved again by clarabel" in res.message
     v = judge(res, 1.0)
     assert not v.tight and res.status in v.reason
 
 
 def test_above_the_fallback_size_an_unusable_ipm_result_stands_and_says_why(ra, monkeypatch):
-    """The contradictory SDP above with ``FALLBACK_MAX_N`` below its size: one call (the IPM's), its status
-    reported as it is, and the message names the fallback that was not tried."""
+    """The contradictory SDP above with ``FALLBACK_MAX_N`` below its size: the IPM's calls only (its own and
+    its retry), its status reported as it is, and the message names the fallback that was not tried."""
     inst = ra.generate({"M": 2, "sigma": 0.1}, 0)
     model = ra.build(inst)
     N = model.variables.N
     cons = model.primary() + [Constraint(sp.csr_array(([1.0], ([0], [0])), shape=(N, N)), 2.0, name="h2=2")]
     monkeypatch.setattr(sdp, "FALLBACK_MAX_N", N - 1)
     res = sdp.solve(model.Q, cons, config=SolverConfig(backend="ipm", decompose=False))
-    assert not res.usable and res.n_calls == 1 and res.solver == "autotight-ipm", res.message
+    assert not res.usable and res.n_calls == 2 and res.solver == "autotight-ipm", res.message
     assert f"not solved again by clarabel: N = {N} columns > {N - 1}" in res.message
 
 
 def test_an_unusable_ipm_result_is_solved_again_by_clarabel_and_both_calls_count(ra, monkeypatch):
-    """The IPM backend is stubbed to stop short (InsufficientProgress, no X, 1.5 s): Clarabel's answer
-    is returned, n_calls is 2, both calls' times are summed and the message lists both."""
+    """The IPM backend is stubbed to stop short (InsufficientProgress, no X, 1.5 s), its retry too:
+    Clarabel's answer is returned, n_calls is 3, the calls' times are summed and the message lists each."""
     inst = ra.generate({"M": 3, "sigma": 0.1}, 0)
     model = ra.build(inst)
 
@@ -233,11 +235,12 @@ def test_an_unusable_ipm_result_is_solved_again_by_clarabel_and_both_calls_count
     res = sdp.solve(model.Q, model.primary(), config=IPM)
     ref = sdp.solve(model.Q, model.primary())
     assert res.solver.startswith("clarabel") and res.status == "Solved"
-    assert res.n_calls == 2
-    assert res.solve_time_s == pytest.approx(1.5 + ref.solve_time_s, abs=0.5 * ref.solve_time_s + 0.05)
-    assert res.solve_time_s > 1.5 and res.setup_time_s > 0.25
+    assert res.n_calls == 3
+    assert res.solve_time_s == pytest.approx(3.0 + ref.solve_time_s, abs=0.5 * ref.solve_time_s + 0.05)
+    assert res.solve_time_s > 3.0 and res.setup_time_s > 0.5
     assert res.message.startswith("1. autotight-ipm InsufficientProgress (1.50 s; no progress in 5 iterations)")
-    assert "; 2. solved again by clarabel: clarabel" in res.message
+    assert "; 2. retried with the fixed step fraction" in res.message
+    assert "; 3. solved again by clarabel: clarabel" in res.message
     assert abs(res.primal_cost - ref.primal_cost) <= 1e-9 * ref.primal_cost
 
 
@@ -513,11 +516,11 @@ def test_clarabel_resolves_on_its_own_cover(monkeypatch):
                         lambda Q, As, b, d, cliques, config:
                         seen["clarabel"].append(cliques) or real(Q, As, b, d, cliques, config))
     res = solve_model(model, cons, IPM)
-    assert res.usable and res.solver == "clarabel-cliques" and res.n_calls == 2, res.message
+    assert res.usable and res.solver == "clarabel-cliques" and res.n_calls == 3, res.message  # IPM, retry, Clarabel
     covers = _covers(model, cons)
     want, ipm = covers.choose("clarabel"), covers.choose("ipm")
     assert [c.tolist() for c in want] != [c.tolist() for c in ipm]
-    assert len(seen["ipm"]) == 1 and [c.tolist() for c in seen["ipm"][0]] == [c.tolist() for c in ipm]
+    assert len(seen["ipm"]) == 2 and all([c.tolist() for c in s] == [c.tolist() for c in ipm] for s in seen["ipm"])
     assert len(seen["clarabel"]) == 1 and [c.tolist() for c in seen["clarabel"][0]] == [c.tolist() for c in want]
 
 

@@ -56,11 +56,17 @@ class IpmOptions:
     """Our IPM's own settings (``SolverConfig.ipm``); SolverConfigError when one is not a value it knows.
 
     search: the search direction, "nt" (Nesterov–Todd, default) or "hkm" (see the module docstring).
+    step_fraction: each step goes this fraction (in (0, 1)) of the way to the cone's boundary; None
+        (default): SDPT3's rule, 0.9 and then 0.9 + 0.09·min(α_p, α_d) after steps of lengths α_p, α_d.
     """
 
     search: str = "nt"
+    step_fraction: float | None = None
 
     def __post_init__(self) -> None:
         if self.search not in SEARCH_DIRECTIONS:
             raise SolverConfigError(f"unknown IpmOptions.search {self.search!r}; use "
                                     + " or ".join(map(repr, SEARCH_DIRECTIONS)))
+        f = self.step_fraction
+        if f is not None and (isinstance(f, bool) or not isinstance(f, (int, float)) or not 0 < f < 1):
+            raise SolverConfigError(f"IpmOptions.step_fraction must be None or a number in (0, 1), got {f!r}")

@@ -24,8 +24,10 @@ Contract.
   It never raises on a numerical failure.  A result that is not usable is solved again by Clarabel
   (``IPMBackend.fallback``; the SDP layer does it and counts both calls).
 
-Method: Nesterov–Todd (default) or HKM search direction (``IpmOptions.search``), Mehrotra's predictor-corrector, SDPT3's
-infeasible start.  Each iteration solves the Schur complement system S Δy = r,
+Method: Nesterov–Todd (default) or HKM search direction (``IpmOptions.search``), Mehrotra's predictor-corrector,
+SDPT3's infeasible start and step lengths (or a fixed fraction of the way to the cone's boundary,
+``IpmOptions.step_fraction``: the retry of a solve that stalls, ``IPMBackend.retries``).
+Each iteration solves the Schur complement system S Δy = r,
 S_il = Σ_k ⟨A_ik, P_k A_lk Q_k⟩ with (P, Q) = (W, W) for NT (W Z W = X) and (X, Z⁻¹) for HKM.
 S is sparse (S_il ≠ 0 only when constraints i and l touch a common block), assembled per block on
 the entries its constraints touch (``_Schur.assemble``), equilibrated to a unit diagonal and
@@ -46,7 +48,7 @@ Measurements and the variants tried are in benchmarks/README.md.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any, Callable, Iterator, Sequence
 
 import numpy as np
@@ -77,6 +79,10 @@ SCHUR_REG = 1e-12
 #: the corrector is replaced by the centred first-order direction when its shortest step is below
 #: this fraction of the predictor's
 CORRECTOR_FALLBACK = 0.5
+#: SDPT3's step lengths: the fraction γ of the way to the cone's boundary starts at GAMMA_START and is
+#: GAMMA_START + GAMMA_GAIN·min(α_p, α_d) after a step of lengths α_p, α_d
+GAMMA_START = 0.9
+GAMMA_GAIN = 0.09
 #: the cost is scaled to max|C_ij| = 1; below this magnitude the gap is measured absolutely
 GAP_FLOOR = 1e-6
 #: stop (InsufficientProgress) after this many iterations without progress (``_StallClock``)
@@ -586,10 +592,11 @@ class _BandSchur:
 @single_blas_thread
 def solve_blocks(F: sp.csc_matrix, c: np.ndarray, g: np.ndarray, sizes: list[int], *, tol: float = 1e-7,
                  max_iter: int = 100, time_limit: float = np.inf, verbose: bool = False,
-                 search: str = "nt") -> IPMSolution:
+                 search: str = "nt", step_fraction: float | None = None) -> IPMSolution:
     """Solve the block SDP with svec data: cost c (R,), constraint columns F (R × M), right side g (M,),
     block sizes n_k (R = Σ svec(n_k)).  Solved: gap, pinf and dinf (see IPMSolution) all ≤ tol.
-    search: "nt" (Nesterov–Todd, default) or "hkm" (HKM) direction.
+    search: "nt" (Nesterov–Todd, default) or "hkm" (HKM) direction.  step_fraction: each step goes this
+    fraction of the way to the cone's boundary; None (default): SDPT3's GAMMA_START + GAMMA_GAIN·min(α_p, α_d).
     Never raises on a numerical failure: the status says what happened."""
     if search not in SEARCH_DIRECTIONS:
         raise ValueError(f"unknown search direction {search!r}; use " + " or ".join(map(repr, SEARCH_DIRECTIONS)))
@@ -616,7 +623,7 @@ def solve_blocks(F: sp.csc_matrix, c: np.ndarray, g: np.ndarray, sizes: list[int
     eta = max(10.0, np.sqrt(nmax), float(np.linalg.norm(cv)), float(col_norm.max()))
     X, Z, y = blocks.identity(xi), blocks.identity(eta), np.zeros(g.size)
     C = blocks.split(cv)
-    gamma = 0.9
+    gamma = GAMMA_START if step_fraction is None else step_fraction
     status, message, it = Status.MAX_ITERATIONS, "", 0
     best: tuple | None = None
     clock = _StallClock(tol)
@@ -713,7 +720,7 @@ def solve_blocks(F: sp.csc_matrix, c: np.ndarray, g: np.ndarray, sizes: list[int
         X = [Xg + ap * a for Xg, a in zip(X, dX)]
         y = y + ad * dy
         Z = [Zg + ad * b for Zg, b in zip(Z, dZ)]
-        gamma = 0.9 + 0.09 * min(ap, ad)
+        gamma = GAMMA_START + GAMMA_GAIN * min(ap, ad) if step_fraction is None else step_fraction
     assert best is not None  # the loop body runs at least once
     err, Xb, yb, pobj, dobj, gap, pinf, dinf, _ = best
     if almost_solved(status, gap, pinf, dinf):
@@ -757,7 +764,7 @@ def solve_ipm(Q: sp.csr_array, As: Sequence[sp.csr_array], b: np.ndarray, d: int
     t1 = time.perf_counter()
     sol = solve_blocks(prog.F, prog.c, prog.g, prog.sizes, tol=max(opts.tol, IPM_MIN_TOL),
                        max_iter=opts.max_iter, time_limit=opts.time_limit, verbose=opts.verbose,
-                       search=opts.ipm.search)
+                       search=opts.ipm.search, step_fraction=opts.ipm.step_fraction)
     X, svrs, completion = complete_auto(prog, sol.z, d)
     y = sol.y[:prog.m] / prog.scale
     res = SDPResult(status=sol.status, solver="autotight-ipm", d=d, X=X, y=y,
@@ -770,9 +777,22 @@ def solve_ipm(Q: sp.csr_array, As: Sequence[sp.csr_array], b: np.ndarray, d: int
     return finish(res)
 
 
+#: the fixed step fraction of the retry (``IPMBackend.retries``), and the statuses that get it
+RETRY_STEP_FRACTION = 0.9
+RETRY_STATUSES = (Status.INSUFFICIENT_PROGRESS, Status.NUMERICAL_ERROR)
+
+
 class IPMBackend:
     """Our IPM (this module) on the clique cover of policy "ipm"; an unusable result is solved again
-    by Clarabel (``fallback``) on Clarabel's own cover."""
+    by Clarabel (``fallback``) on Clarabel's own cover.
+
+    Retry (``retries``): a solve with SDPT3's step lengths that stalls (``RETRY_STATUSES``) is solved again
+    with the fixed fraction ``RETRY_STEP_FRACTION``.  SDPT3's longer steps after a full one can leave the
+    iterate where every later step is ~1e-2 long: on low-noise instances (discrete trajectory K = 100,
+    σ = 0.001, the set learned at K = 5) the solve stalled at a relative gap of 1e-1 and Clarabel solved
+    again for minutes; the fixed fraction reaches AlmostSolved there.  Not the default: over the 49 block
+    programs of benchmarks/ipm_corpus.py it fails on 8 against 12 but takes 14 % longer, 20–40 % on the
+    discrete trajectory at K = 1000."""
 
     name = "ipm"
     decompose_default = True
@@ -790,4 +810,7 @@ class IPMBackend:
         return solve_ipm(Q, As, b, d, cliques, config)
 
     def retries(self, config: SolverConfig, decomposed: bool, N: int) -> Retries:
-        return []
+        if config.ipm.step_fraction is not None:
+            return []
+        fixed = replace(config, ipm=replace(config.ipm, step_fraction=RETRY_STEP_FRACTION))
+        return [(f"the fixed step fraction {RETRY_STEP_FRACTION}", fixed, RETRY_STATUSES)]
