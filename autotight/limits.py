@@ -10,7 +10,8 @@ N × N solution X, fitted to the peak RSS of ``autotight solve`` on rotation ave
 200, 400 (89, 173, 350 MB); the run is refused when it exceeds the memory available.  A solve on
 our clique cover (``--solver ipm``, ``--decompose``; ``holds_dense_x``) keeps X on the cliques' pattern
 above ``DENSE_X_MAX`` columns: there no dense X counts, and the memory is ``COVER_BASE_BYTES`` plus a
-linear and a quadratic term in the nonzeros, fitted to long discrete trajectories (see those constants).
+linear term in the nonzeros, fitted to long discrete trajectories, and a quadratic one where Clarabel may
+solve again (see those constants).
 
 Certify (``check_certify_size``) never forms X nor the full SDP on large problems (``autotight.certifier``):
 its memory is ``CERTIFY_BYTES_PER_NONZERO`` per nonzero of the same data, fitted to the peak RSS of
@@ -35,7 +36,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from .errors import ParameterError
-from .sdp import BACKENDS, decomposes
+from .sdp import BACKENDS, FALLBACK_MAX_N, decomposes
 from .sdp.config import AUTO, SolverConfig
 from .sdp.result import DENSE_X_MAX
 
@@ -47,14 +48,14 @@ CERTIFY_BYTES_PER_NONZERO = 1000.0
 PROBE_MIN = 64
 BYTES_PER_NONZERO = 3000.0
 #: a solve on a clique cover above DENSE_X_MAX columns (X sparse on the cliques' pattern): peak RSS =
-#: COVER_BASE_BYTES + COVER_BYTES_PER_NONZERO · z + COVER_BYTES_PER_NONZERO_SQUARED · z², z the nonzeros of Q
-#: and the primary constraints.  Discrete trajectory solved by the IPM with the set learned at K = 5 (3.6
-#: redundant constraints per primary one): 0.82 GB at K = 1000 (z = 4.9e5, ``autotight solve``); at K = 10 000
-#: (z = 4.9e6) 5.7 GB after three IPM iterations (benchmarks/results/probe_discrete_k10000.json), but the whole
-#: solve was killed by the kernel at 24 GB (benchmarks/results/scale_k10000.json): the growth is superlinear,
-#: and the quadratic term puts K = 10 000 at 30 GB, refused before the work instead of killed after it
+#: COVER_BASE_BYTES + COVER_BYTES_PER_NONZERO · z, z the nonzeros of Q and the primary constraints, plus
+#: COVER_BYTES_PER_NONZERO_SQUARED · z² where the SDP layer may hand an unusable result to Clarabel's chordal
+#: solve (N ≤ ``sdp.FALLBACK_MAX_N``), whose memory grows faster (at K = 4000 it passed 21 GB).  Discrete
+#: trajectory solved by the IPM with the set learned at K = 5 (3.6 redundant constraints per primary one),
+#: whole ``solve`` pipeline: 0.83, 1.59, 3.24 and 7.86 GB at K = 1000, 2000, 4000 and 10 000
+#: (z = 4.9e5 … 4.9e6), linear at about 1540 B per nonzero
 COVER_BASE_BYTES = 3e8
-COVER_BYTES_PER_NONZERO = 1200.0
+COVER_BYTES_PER_NONZERO = 1600.0
 COVER_BYTES_PER_NONZERO_SQUARED = 1e-3
 BYTES_PER_DENSE_ENTRY = 100.0
 MAX_SECONDS = 24 * 3600.0
@@ -77,7 +78,8 @@ class SizeEstimate:
         if self.dense_x or self.N <= DENSE_X_MAX:
             return self.nonzeros * BYTES_PER_NONZERO + self.N * self.N * BYTES_PER_DENSE_ENTRY
         z = self.nonzeros
-        return COVER_BASE_BYTES + z * COVER_BYTES_PER_NONZERO + z * z * COVER_BYTES_PER_NONZERO_SQUARED
+        fallback = z * z * COVER_BYTES_PER_NONZERO_SQUARED if self.N <= FALLBACK_MAX_N else 0.0
+        return COVER_BASE_BYTES + z * COVER_BYTES_PER_NONZERO + fallback
 
 
 def holds_dense_x(config: SolverConfig | None) -> bool:
