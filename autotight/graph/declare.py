@@ -3,7 +3,8 @@
 ``Variable(name, manifold, lifting={block: fn}, type=None, block=None)``: a state entry ``name`` on
 ``manifold`` (``autotight.graph.manifolds``).  The truth's entry fixes how many there are: an array of the
 manifold's shape is one variable, a stack (N, *shape) is N of them (block names ``name0 … name{N−1}``;
-``block`` renames the main block).  The lifted vector holds, per variable, its embedding (the main block)
+``block`` renames the main block, or splits it into equal named parts, e.g. ("c1", "c2", "c3") for the
+columns of vec C).  The lifted vector holds, per variable, its embedding (the main block)
 and one block per ``lifting`` entry, ``fn(x) -> (E,)``, which must be a polynomial of degree ≤ 2 in the
 embedding's entries (e.g. vech(p pᵀ)); its primary constraints fn(x) − h·z = 0 are derived from it
 (``LiftingFit``).  ``type`` names the factor type of the variable's own model factor (default: ``name``):
@@ -18,7 +19,18 @@ the factor's local columns [h, the variables' blocks in order]).  ``jacobian(*vi
 optional (the chain rule through the lifting when the residual is affine, central finite differences on
 the retraction otherwise).  ``constraints``: extra primary constraints [(name, (n, n) matrix)] on the same
 local columns (value 0); ``data``: the factor's measurement vector (``autotight.model.Factor.data``);
-``type``: its factor type.
+``type``: its factor type; ``name``: its model factor's name.
+
+``Factor(…, auxiliary=Auxiliary(blocks, value, equations, jacobian=None))``: lifted blocks the factor owns,
+which are not a polynomial lifting of one variable but functions of the factor's variables and data (e.g.
+a Cayley residual φ = cay⁻¹(C C̃ᵀ)).  ``blocks``: {name: size}; their columns follow every variable's
+blocks in the lifted vector (block ``b_j`` for the j-th factor declaring ``b``) and the factor's local
+columns (after its variables').  ``value(*views) -> (Σ sizes,)``: their value at states (ValueError where
+undefined: ``sample`` draws again).  ``equations(*views, aux) -> (k,)``: their defining relations, each a
+polynomial of degree ≤ 2 in the local entries (``aux.<block>`` the blocks' entries), zero at the value;
+fitted into k primary constraints of the factor (``terms``).  ``jacobian(*views, aux) -> (Σ sizes, Σ dof)``:
+∂value/∂ε for the local solver (default central differences).  The residual then gets ``aux`` after the
+views, e.g. ``lambda C, aux: aux.phi``, so a cost on the blocks is an affine residual.
 """
 
 from __future__ import annotations
