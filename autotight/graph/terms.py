@@ -186,7 +186,8 @@ class Term:
             return np.eye(m)
         W = np.asarray(w, float)
         W = W * np.eye(m) if W.ndim == 0 else W
-        if W.shape != (m, m) or not np.all(np.isfinite(W)) or not np.allclose(W, W.T):
+        # non-finite entries pass: they come from the measurements, which autotight.validate reports by name
+        if W.shape != (m, m) or not np.allclose(W, W.T, equal_nan=True):
             raise ProblemDefinitionError(f"{self.where}: weight must be a number or a symmetric ({m}, {m}) matrix")
         return 0.5 * (W + W.T)  # symmetric to the last bit (eᵀWe is the same), so is the lifted cost
 
