@@ -11,6 +11,8 @@ Tolerances and what they mean:
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -264,3 +266,24 @@ def test_local_solver_from_nearby_start_reaches_truth_solution(ra):
         assert r.converged
         assert r.cost == pytest.approx(ref.cost, rel=1e-9)
         assert np.linalg.norm(r.state["C"] - ref.state["C"]) <= 1e-6
+
+
+def test_recomputed_trials_have_the_committed_reports_verdicts(tmp_path):
+    """The first trial at every σ of reports/rotation_averaging, recomputed now (same seeds), has its verdict,
+    outcome and certificate, and its SDP and local costs to 1e-6 relative (the SDP's accuracy; the committed
+    solves agree with these to about 1e-10)."""
+    pd = pytest.importorskip("pandas")  # the report extra
+    pytest.importorskip("matplotlib")
+    from autotight.cli import main
+
+    committed = Path(__file__).resolve().parents[1] / "reports" / "rotation_averaging" / "trials.csv"
+    out = tmp_path / "rep"
+    assert main(["report", "rotation_averaging", "--trials", "1", "--sets", "primary", "--jobs", "1",
+                 "--no-progress", "--out", str(out)]) == 0
+    new, old = pd.read_csv(out / "trials.csv"), pd.read_csv(committed)
+    both = new.merge(old, on=["sigma_index", "trial", "constraint_set"], suffixes=("", "_committed"))
+    assert len(both) == len(new) == 7
+    for col in ("seed", "verdict", "outcome", "tight", "certified", "trapped", "n_constraints"):
+        assert (both[col] == both[col + "_committed"]).all(), col
+    for col in ("sdp_cost", "local_cost_truth", "local_cost_random", "global_cost"):
+        assert np.allclose(both[col], both[col + "_committed"], rtol=1e-6, atol=0), col
