@@ -313,10 +313,19 @@ def test_a_wrong_auxiliary_relation_fails_check_module():
     assert res.measurements["sample_violation"] > 1e-3
 
 
-def test_auxiliary_equations_must_be_quadratic():
-    prob = _planar_module(equations=lambda C, Cm, phi: _cayley2(C, Cm, phi) * (1.0 + phi[0] ** 2))
-    with pytest.raises(ProblemDefinitionError, match=r"^factor 'meas_0': the auxiliary's equations are not "
-                                                     r"polynomials of degree ≤ 2"):
+def _on_the_manifold_only(C, Cm, phi):
+    if not np.allclose(C.T @ C, np.eye(2)):
+        raise ValueError("C is not a rotation")
+    return _cayley2(C, Cm, phi)
+
+
+@pytest.mark.parametrize("equations, message", [
+    (lambda C, Cm, phi: _cayley2(C, Cm, phi) * (1.0 + phi[0] ** 2), "are not polynomials of degree ≤ 2"),
+    (_on_the_manifold_only, r"raised ValueError \(C is not a rotation\) at entries off the manifolds"),
+], ids=["cubic", "manifold-only"])
+def test_auxiliary_equations_must_be_quadratic_polynomials_of_the_entries(equations, message):
+    prob = _planar_module(equations=equations)
+    with pytest.raises(ProblemDefinitionError, match=rf"^factor 'meas_0': the auxiliary's equations {message}"):
         prob.build(prob.generate({}, 0))
 
 

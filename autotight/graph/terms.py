@@ -18,7 +18,7 @@ auxiliary's ``jacobian`` or central differences of its ``value`` (``aux_lineariz
 
 from __future__ import annotations
 
-from typing import Sequence
+from typing import Callable, Sequence
 
 import numpy as np
 
@@ -109,7 +109,12 @@ class Term:
 
         def call(v: np.ndarray) -> np.ndarray:
             theta = np.concatenate(([1.0], v))
-            e = np.asarray(self.aux.equations(*self._views(theta)), float)
+            try:
+                e = np.asarray(self.aux.equations(*self._views(theta)), float)
+            except (ArithmeticError, ValueError, np.linalg.LinAlgError) as err:
+                raise ProblemDefinitionError(
+                    f"{self.where}: the auxiliary's equations raised {type(err).__name__} ({err}) at entries off the "
+                    "manifolds; write them as polynomials of the views' entries") from err
             if e.ndim > 1 or not e.size or not np.all(np.isfinite(e)):
                 raise ProblemDefinitionError(f"{self.where}: the auxiliary's equations must return a non-empty "
                                              f"finite vector, got shape {e.shape}")
@@ -240,7 +245,7 @@ class Term:
             return e, J
         return e, self._differences(own, lambda vals: self._residual(self.lifted(vals)))
 
-    def _differences(self, own: Sequence[np.ndarray], fn) -> np.ndarray:
+    def _differences(self, own: Sequence[np.ndarray], fn: Callable[[list], np.ndarray]) -> np.ndarray:
         """Central differences of fn(values of the factor's variables) along each retraction direction, (·, Σ dof)."""
         cols = []
         for i, (el, v) in enumerate(zip(self.elements, own)):
