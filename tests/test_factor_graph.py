@@ -419,6 +419,19 @@ def test_without_registered_problems_a_name_is_an_error_that_says_to_install(mon
         load("rotation_averaging")
 
 
+def test_the_auxiliary_example_on_the_layer_page_is_the_shipped_module():
+    """Every line of docs/factor_graph.md's rotation-averaging snippet is a line of problems/rotation_averaging.py
+    (comments aside)."""
+    import re
+
+    page = (ROOT / "docs" / "factor_graph.md").read_text()
+    [snippet] = [c for c in re.findall(r"```python\n(.*?)```", page, re.S) if "rotation_meas" in c]
+    source = (ROOT / "problems" / "rotation_averaging.py").read_text().splitlines()
+    module = {line.split("  #")[0].rstrip() for line in source}
+    lines = [line.split("  #")[0].rstrip() for line in snippet.splitlines() if line.strip()]
+    assert len(lines) >= 10 and [line for line in lines if line not in module] == []
+
+
 def test_the_worked_example_page_shows_the_module_file_as_it_is():
     import re
 
