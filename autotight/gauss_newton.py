@@ -13,6 +13,7 @@ singularity; any other exception from ``linearize`` or ``retract`` is a bug and 
 from __future__ import annotations
 
 import time
+import warnings
 from dataclasses import dataclass
 from typing import Any, Callable
 
@@ -54,9 +55,15 @@ def solve_banded_spd(H: sp.sparray, g: np.ndarray, b: int) -> np.ndarray:
 
 
 def _solve(Hm: Any, g: np.ndarray) -> np.ndarray:
-    """Hm ε = g (sparse by SuperLU, dense by LAPACK)."""
+    """Hm ε = g (sparse by SuperLU, dense by LAPACK); a singular Hm raises np.linalg.LinAlgError either way
+    (SuperLU's warning, which would reach the user's terminal, becomes the error)."""
     if sp.issparse(Hm):
-        return spla.spsolve(sp.csc_array(Hm), g)
+        with warnings.catch_warnings():
+            warnings.simplefilter("error", spla.MatrixRankWarning)
+            try:
+                return spla.spsolve(sp.csc_array(Hm), g)
+            except spla.MatrixRankWarning as e:
+                raise np.linalg.LinAlgError(str(e)) from None
     return np.linalg.solve(Hm, g)
 
 

@@ -6,20 +6,19 @@ Lifting  x = [h, c₁, c₂, c₃, φ₁, …, φ_M]  (n = 10 + 3M),  cost  Σ �
 Primary constraints: c_iᵀc_j = δ_ij h² and, per m, c_i − c̃_{m,i} − ½ φ_m × (c_i + c̃_{m,i}) = 0.
 The paper finds Shor's relaxation tight without redundant constraints.
 
-The worked example of docs/problem_contract.md: it imports only public names (``autotight.constraints``,
-``autotight.problem``, ``autotight.lie``, ``autotight.gauss_newton``).
+Written on the factor-graph layer (``autotight.graph``): the variable C ∈ SO(3) (blocks c₁, c₂, c₃, its own
+factor of type "so3" holding c_iᵀc_j = δ_ij h²) and one factor "meas_m" of type "rotation_meas" per
+measurement, owning the auxiliary block φ_m = cay⁻¹(C C̃_mᵀ) (its defining Cayley relation the primary
+constraint, its residual φ_m, weight W_m).
 """
 
 from __future__ import annotations
 
 import numpy as np
-from scipy.linalg import block_diag
 
 from autotight import lie
-from autotight.constraints import (Factor, Model, Variables, draw_valid, measured_columns, orthonormality, rot_blocks,
-                                   rotation_cayley, rotation_values, state_columns, weighted_norm)
-from autotight.gauss_newton import gauss_newton
-from autotight.problem import Instance, LocalResult, Param
+from autotight.graph import Auxiliary, Factor, Rotation, Variable, derive
+from autotight.problem import Instance, Param
 
 NAME = "rotation_averaging"
 DESCRIPTION = "Average M noisy rotation measurements (paper §3.1)."
@@ -54,72 +53,30 @@ def generate(params: dict, rng: np.random.Generator) -> Instance:
     return Instance(NAME, dict(params), {"C_meas": np.array(Cs), "W": np.array(Ws)}, {"C": C})
 
 
-def _variables(M: int) -> Variables:
-    return Variables([(c, 3) for c in rot_blocks()] + [(f"phi_{m}", 3) for m in range(M)])
+#: C ∈ SO(3) as its columns c₁, c₂, c₃
+VARIABLES = [Variable("C", Rotation(3), type="so3", block=("c1", "c2", "c3"))]
 
 
-def build(inst: Instance) -> Model:
-    Cm, Ws = inst.measurements["C_meas"], inst.measurements["W"]
-    M = len(Cm)
-    V = _variables(M)
-    factors = [Factor("rotation", "so3", ("h", *rot_blocks()), constraints=orthonormality(V, factor="rotation"))]
-    for m in range(M):
-        name, phi = f"meas_{m}", f"phi_{m}"
-        cons = rotation_cayley(V, state_columns(), measured_columns(Cm[m]), phi, name)
-        factors.append(Factor(name, "rotation_meas", ("h", *rot_blocks(), phi), cost=weighted_norm(V, phi, Ws[m]),
-                              constraints=cons, roles=("h", "c1", "c2", "c3", "phi")))
-    return Model(V, factors)
+def cayley(C: np.ndarray, C_meas: np.ndarray, phi: np.ndarray) -> np.ndarray:
+    """(I − ½φ^∧) C − (I + ½φ^∧) C̃ column by column, c_i − c̃_i − ½ φ × (c_i + c̃_i) (9,): zero at φ = cay⁻¹(C C̃ᵀ)."""
+    return (C - C_meas - 0.5 * lie.hat(phi) @ (C + C_meas)).ravel(order="F")
 
 
-def residuals(inst: Instance, C: np.ndarray) -> list[np.ndarray]:
-    return [lie.cay_inv(C @ Cm.T) for Cm in inst.measurements["C_meas"]]
+def factors(inst: Instance):
+    """Per m: φ_m = cay⁻¹(C C̃_mᵀ), defined by ``cayley``; residual φ_m, weight W_m."""
+    for m, (Cm, W) in enumerate(zip(inst.measurements["C_meas"], inst.measurements["W"])):
+        phi = Auxiliary({"phi": 3}, value=lambda C, Cm=Cm: lie.cay_inv(C.x @ Cm.T),
+                        equations=lambda C, a, Cm=Cm: cayley(C.x, Cm, a.phi),
+                        jacobian=lambda C, a: lie.jac_cay_inv(a.phi))
+        yield Factor("C", lambda C, a: a.phi, type="rotation_meas", weight=W, auxiliary=phi, name=f"meas_{m}")
 
 
-def lift(inst: Instance, state: dict) -> np.ndarray:
-    C = state["C"]
-    vals = rotation_values(C) | {f"phi_{m}": p for m, p in enumerate(residuals(inst, C))}
-    return _variables(len(inst.measurements["C_meas"])).assemble(vals)
-
-
-def cost(inst: Instance, state: dict) -> float:
-    return float(sum(p @ W @ p for p, W in zip(residuals(inst, state["C"]), inst.measurements["W"])))
-
-
-def sample(inst: Instance, rng: np.random.Generator, nominal: dict, spread: float) -> dict:
-    """C = exp(spread·ν^∧) C_nominal, ν ~ N(0, I); redrawn if a residual hits the Cayley singularity."""
-    return draw_valid(lambda: {"C": lie.exp_so3(spread * rng.standard_normal(3)) @ nominal["C"]},
-                      lambda state: residuals(inst, state["C"]))
+build, lift, cost, sample, local_solve, recover = derive(VARIABLES, factors)
 
 
 def random_state(inst: Instance, rng: np.random.Generator) -> dict:
+    """A uniform rotation (drawn again at a Cayley singularity of a residual)."""
     return sample(inst, rng, {"C": lie.random_rotation(rng)}, 0.0)
-
-
-def _linearize(inst: Instance, C: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Stacked residuals φ_m, Jacobians J_c(φ_m)⁻¹ w.r.t. ψ (C = cay(ψ^∧) C_op), block-diagonal W."""
-    es, Js = [], []
-    for Cm in inst.measurements["C_meas"]:
-        phi, J = lie.residual_so3(C, Cm)
-        es.append(phi)
-        Js.append(J)
-    W = block_diag(*inst.measurements["W"])
-    return np.concatenate(es), np.vstack(Js), W
-
-
-def local_solve(inst: Instance, init: dict, max_iter: int = 200) -> LocalResult:
-    """Gauss-Newton (App. A.2, with LM damping): (Σ J_mᵀ W_m J_m) ψ = −Σ J_mᵀ W_m φ_m, C ← cay(ψ^∧) C."""
-    res = gauss_newton(lambda C: _linearize(inst, C), lambda C, psi: lie.cay(psi) @ C, init["C"].copy(),
-                       max_iter=max_iter)
-    res.state = {"C": res.state}
-    return res
-
-
-def recover(inst: Instance, Theta: np.ndarray) -> dict:
-    """C from the rank-1 factor x: the raw 3×3 block (its det is reported) projected to SO(3)."""
-    x = Theta.reshape(-1)
-    x = x / x[0]
-    C_raw = x[1:10].reshape(3, 3, order="F")
-    return {"C": lie.project_to_so3(C_raw), "det_raw": np.array(np.linalg.det(C_raw))}
 
 
 def errors(inst: Instance, state: dict) -> dict:

@@ -63,14 +63,15 @@ VARIANTS = {
 
 
 def broken_module(folder: Path, variant: str) -> Path:
-    """problems/rotation_averaging.py with the part of ``variant`` replaced (importable by path)."""
+    """problems/rotation_averaging.py with the part of ``variant`` replaced (importable by path): the original
+    kept as ``_orig_PART``, the replacement defined after it."""
     part, body = VARIANTS[variant]
     src = (ROOT / "problems" / "rotation_averaging.py").read_text(encoding="utf-8")
     src = src.replace("from ._", "from problems._")  # relative imports of the package's helpers
-    src, n = re.subn(rf"^def {part}\(", f"def _orig_{part}(", src, flags=re.M)
-    assert n == 1, (variant, part)
+    # the part is a function of the module or one of the names derive() returns
+    assert re.search(rf"^(def {part}\(|(\w+, )*{part}(, \w+)* = )", src, flags=re.M), (variant, part)
     path = folder / f"ra_{variant}.py"
-    path.write_text(src + "\n\n" + body, encoding="utf-8")
+    path.write_text(src + f"\n\n_orig_{part} = {part}\n\n" + body, encoding="utf-8")
     return path
 
 

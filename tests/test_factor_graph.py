@@ -16,8 +16,8 @@ import pytest
 
 from autotight import cli
 from autotight.checks import check_problem
-from autotight.errors import ProblemDefinitionError, ProblemModuleError
-from autotight.graph import Euclidean, Factor, Rotation, Variable, derive
+from autotight.errors import ProblemDefinitionError, ProblemModuleError, SolverError
+from autotight.graph import Auxiliary, Euclidean, Factor, Rotation, Variable, derive
 from autotight.problem import Instance, Param, load, registered
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -227,6 +227,137 @@ def test_rotation_manifold_tangent_constraints_and_projection(d):
     assert np.linalg.det(M.project(-C if d == 3 else C @ np.diag([1, -1]))) > 0
 
 
+# ----------------------------------------------------------------------------- auxiliary blocks
+#
+# A toy: planar rotation averaging.  C ∈ SO(2) from measurements C̃_m; each factor owns φ_m = 2 tan(θ_m / 2),
+# θ_m the angle of C C̃_mᵀ (the 2-D Cayley residual, not a polynomial of C), defined by the quadratic relation
+# (I − ½φJ) C = (I + ½φJ) C̃, and its residual is φ_m.
+
+J2 = np.array([[0.0, -1.0], [1.0, 0.0]])
+
+
+def _planar(params, rng):
+    C = Rotation(2).retract(np.eye(2), rng.uniform(-np.pi, np.pi, 1))
+    meas = np.array([Rotation(2).retract(C, 0.3 * rng.standard_normal(1)) for _ in range(params["M"])])
+    return Instance("planar", dict(params), {"C_meas": meas}, {"C": C})
+
+
+def _half_tan(C, Cm):
+    R = C @ Cm.T
+    if 1.0 + R[0, 0] < 1e-8:
+        raise ValueError("the Cayley map is singular at θ = π")
+    return np.array([2.0 * R[1, 0] / (1.0 + R[0, 0])])
+
+
+def _cayley2(C, Cm, phi, sign=1.0):
+    return (C - Cm - sign * 0.5 * phi[0] * J2 @ (C + Cm)).ravel(order="F")
+
+
+def _planar_factors(equations=_cayley2, jacobian=True, value=_half_tan):
+    def factors(inst):
+        for m, Cm in enumerate(inst.measurements["C_meas"]):
+            aux = Auxiliary({"phi": 1}, value=lambda C, Cm=Cm: value(C.x, Cm),
+                            equations=lambda C, a, Cm=Cm: equations(C.x, Cm, a.phi),
+                            jacobian=(lambda C, a: [[1.0 + 0.25 * a.phi[0] ** 2]]) if jacobian else None)
+            yield Factor("C", lambda C, a: a.phi, type="meas", auxiliary=aux, name=f"meas_{m}")
+    return factors
+
+
+PLANAR_VARS = [Variable("C", Rotation(2), type="so2", block=("c1", "c2"))]
+
+
+def _planar_module(**kw):
+    return load(_module(PLANAR_VARS, _planar_factors(**kw), _planar, {"M": Param(4)}))
+
+
+def test_auxiliary_blocks_are_lifted_after_the_variables_with_their_factor_and_roles():
+    prob = _planar_module()
+    inst = prob.generate({}, 0)
+    model = prob.build(inst)
+    V = model.variables
+    assert [(b, V.sizes[b]) for b in V.names] == [("h", 1), ("c1", 2), ("c2", 2)] + [(f"phi_{m}", 1) for m in range(4)]
+    meas = [f for f in model.factors if f.type == "meas"]
+    assert [f.name for f in meas] == [f"meas_{m}" for m in range(4)]
+    assert all(f.blocks == ("h", "c1", "c2", f"phi_{m}") and f.roles == ("h", "c1", "c2", "phi")
+               for m, f in enumerate(meas))
+    assert all(len(f.constraints) == 4 for f in meas)  # the 2 × 2 entries of the relation
+    # the lifted φ_m is the measurement's half-angle tangent, and the cost Σ φ_m² equals ⟨Q, xxᵀ⟩
+    x = np.asarray(prob.lift(inst, inst.truth)).reshape(-1)
+    phis = [_half_tan(inst.truth["C"], Cm)[0] for Cm in inst.measurements["C_meas"]]
+    assert np.allclose(x[-4:], phis, rtol=0, atol=1e-15)
+    assert x @ model.Q @ x == pytest.approx(prob.cost(inst, inst.truth), rel=1e-12)
+
+
+def test_auxiliary_values_meet_their_constraints_on_fresh_samples_and_the_module_checks():
+    prob = _planar_module()
+    assert check_problem(prob, seed=1).ok
+    inst = prob.generate({}, 5)
+    model, rng = prob.build(inst), np.random.default_rng(3)
+    worst = 0.0
+    for _ in range(50):
+        x = np.asarray(prob.lift(inst, prob.sample(inst, rng, inst.truth, 1.0))).reshape(-1)
+        worst = max(worst, max(abs(x @ c.A @ x - c.b) for c in model.primary()))
+    assert worst <= 1e-12
+    # the primary relaxation is tight here, as in 3-D (the paper's rotation averaging)
+    from autotight.api import solve
+
+    res = solve(prob, {}, 5, constraints="primary")
+    assert res.outcome == "tight" and res.log_svr > RANK_ONE_LOG_SVR
+
+
+def test_a_wrong_auxiliary_relation_fails_check_module():
+    """½φJ with the wrong sign: the lifted φ does not meet the fitted constraints, and the check says so."""
+    prob = _planar_module(equations=lambda C, Cm, phi: _cayley2(C, Cm, phi, sign=-1.0))
+    res = check_problem(prob, seed=1)
+    assert not res.ok and any(f.startswith("sample-feasible:") for f in res.failures)
+    assert res.measurements["sample_violation"] > 1e-3
+
+
+def _on_the_manifold_only(C, Cm, phi):
+    if not np.allclose(C.T @ C, np.eye(2)):
+        raise ValueError("C is not a rotation")
+    return _cayley2(C, Cm, phi)
+
+
+@pytest.mark.parametrize("equations, message", [
+    (lambda C, Cm, phi: _cayley2(C, Cm, phi) * (1.0 + phi[0] ** 2), "are not polynomials of degree ≤ 2"),
+    (_on_the_manifold_only, r"raised ValueError \(C is not a rotation\) at entries off the manifolds"),
+], ids=["cubic", "manifold-only"])
+def test_auxiliary_equations_must_be_quadratic_polynomials_of_the_entries(equations, message):
+    prob = _planar_module(equations=equations)
+    with pytest.raises(ProblemDefinitionError, match=rf"^factor 'meas_0': the auxiliary's equations {message}"):
+        prob.build(prob.generate({}, 0))
+
+
+def test_auxiliary_jacobian_by_differences_solves_like_the_declared_one():
+    a, b = _planar_module(), _planar_module(jacobian=False)
+    inst = a.generate({}, 7)
+    start = {"C": Rotation(2).retract(inst.truth["C"], np.array([1.5]))}
+    ra, rb = a.local_solve(inst, start), b.local_solve(b.generate({}, 7), start)
+    assert ra.converged and rb.converged and abs(ra.cost - rb.cost) <= 1e-9 * ra.cost
+    # the optimum of Σ φ_m² lies between the measurements: the residuals' (signed) sum is zero there
+    phis = np.array([_half_tan(ra.state["C"], Cm)[0] for Cm in inst.measurements["C_meas"]])
+    assert abs(np.sum(phis * (1.0 + 0.25 * phis ** 2))) <= 1e-6
+
+
+def test_sample_redraws_where_an_auxiliary_is_undefined_and_says_when_it_always_is():
+    def near(C, Cm):  # undefined beyond 0.5 rad from the measurement
+        if abs(np.arctan2((C @ Cm.T)[1, 0], (C @ Cm.T)[0, 0])) > 0.5:
+            raise ValueError("too far")
+        return _half_tan(C, Cm)
+
+    prob = _planar_module(value=near)
+    inst = prob.generate({"M": 1}, 0)
+    rng = np.random.default_rng(0)
+    for _ in range(20):
+        prob.lift(inst, prob.sample(inst, rng, inst.truth, 0.5))  # raises if a sample were undefined
+    never = _planar_module(value=lambda C, Cm: (_ for _ in ()).throw(ValueError("never defined")))
+    inst = never.generate({"M": 1}, 0)
+    with pytest.raises(SolverError, match=r"no sample where every auxiliary block is defined in 100 draws \(the last: "
+                                          r"never defined\); reduce the spread"):
+        never.sample(inst, rng, inst.truth, 0.1)
+
+
 # ----------------------------------------------------------------------------- entry points
 
 
@@ -286,6 +417,19 @@ def test_without_registered_problems_a_name_is_an_error_that_says_to_install(mon
     monkeypatch.setattr(importlib.metadata, "entry_points", lambda **kw: [])
     with pytest.raises(ProblemDefinitionError, match=r"no problems are registered .*pip install -e \."):
         load("rotation_averaging")
+
+
+def test_the_auxiliary_example_on_the_layer_page_is_the_shipped_module():
+    """Every line of docs/factor_graph.md's rotation-averaging snippet is a line of problems/rotation_averaging.py
+    (comments aside)."""
+    import re
+
+    page = (ROOT / "docs" / "factor_graph.md").read_text()
+    [snippet] = [c for c in re.findall(r"```python\n(.*?)```", page, re.S) if "rotation_meas" in c]
+    source = (ROOT / "problems" / "rotation_averaging.py").read_text().splitlines()
+    module = {line.split("  #")[0].rstrip() for line in source}
+    lines = [line.split("  #")[0].rstrip() for line in snippet.splitlines() if line.strip()]
+    assert len(lines) >= 10 and [line for line in lines if line not in module] == []
 
 
 def test_the_worked_example_page_shows_the_module_file_as_it_is():

@@ -9,15 +9,18 @@ The model's factors (``autotight.model.Factor``), which discovery learns on, are
   all belong to it and that has no constraints of its own;
 - one per (type, variables) of the other declared factors without constraints of their own (their costs
   summed), named ``type:variables``;
-- one per declared factor with constraints of its own (named ``type_i``, with its ``data``).
+- one per declared factor with constraints or auxiliary blocks of its own (named ``Factor.name``, default
+  ``type_i``, with its ``data``).
 
-Roles of a variable's blocks inside a factor: its main block's name without the index and its lifting
-blocks' names, suffixed ``_k`` (k its position in the factor) when a variable of the same name appears twice.
+Roles of a variable's blocks inside a factor: its main block's names without the index and its lifting
+blocks' names, suffixed ``_k`` (k its position in the factor) when a variable of the same name appears twice;
+then the factor's auxiliary blocks' names.  The auxiliary blocks of the factors, after every variable's
+blocks in factor order: block ``b`` of the j-th factor declaring a block ``b`` is named ``b_j``.
 """
 
 from __future__ import annotations
 
-from typing import Iterable, Sequence
+from typing import Any, Iterable, Mapping, Sequence
 
 import numpy as np
 import scipy.sparse as sp
@@ -25,6 +28,7 @@ import scipy.sparse as sp
 from ..errors import ProblemDefinitionError
 from ..model import Constraint, Factor, Model, canonical_coo
 from .declare import Factor as Declared
+from .declare import Variable
 from .layout import Element, Layout
 from .terms import Term
 
@@ -35,18 +39,26 @@ def _global(local: np.ndarray, columns: np.ndarray, N: int) -> sp.coo_array:
     return canonical_coo(columns[r], columns[c], local[r, c], N)
 
 
-def _stem(el: Element) -> str:
-    """The element's main block name without its index."""
-    return el.var.block or el.var.name
-
-
 def _roles(elements: Sequence[Element]) -> tuple[str, ...]:
-    stems = [_stem(el) for el in elements]
+    stems = [el.var.main_blocks() for el in elements]
     out: list[str] = ["h"]
     for k, el in enumerate(elements):
-        sfx = f"_{k}" if stems.count(_stem(el)) > 1 else ""
-        out += [_stem(el) + sfx] + [f.name + sfx for f in el.var.fits()]
+        sfx = f"_{k}" if stems.count(el.var.main_blocks()) > 1 else ""
+        out += [b + sfx for b in el.var.main_blocks()] + [f.name + sfx for f in el.var.fits()]
     return tuple(out)
+
+
+def _auxiliary_blocks(factors: Sequence[Declared]) -> list[list[str]]:
+    """Per factor, its auxiliary blocks' names in the lifted vector (``b_j``: the j-th factor declaring ``b``)."""
+    seen: dict[str, int] = {}
+    out: list[list[str]] = []
+    for f in factors:
+        names = []
+        for b in f.auxiliary.blocks if f.auxiliary is not None else ():
+            names.append(f"{b}_{seen.get(b, 0)}")
+            seen[b] = seen.get(b, 0) + 1
+        out.append(names)
+    return out
 
 
 def _own_factors(layout: Layout) -> dict[tuple[str, int | None], list[Element]]:
@@ -60,13 +72,22 @@ def _own_factors(layout: Layout) -> dict[tuple[str, int | None], list[Element]]:
 class Graph:
     """The declared variables and factors on one instance (see the module docstring)."""
 
-    def __init__(self, layout: Layout, factors: Iterable[Declared]):
-        self.layout = layout
-        self.terms: list[Term] = []
-        for i, f in enumerate(factors):
+    def __init__(self, variables: Sequence[Variable], truth: Mapping[str, Any], factors: Iterable[Declared]):
+        declared = list(factors)
+        for f in declared:
             if not isinstance(f, Declared):
                 raise ProblemDefinitionError(f"factors must yield autotight.graph.Factor, got {type(f).__name__}")
-            self.terms.append(Term(f, layout, f"{f.type or 'factor'}_{i}"))
+        aux = _auxiliary_blocks(declared)
+        sizes = [list(f.auxiliary.blocks.values()) if f.auxiliary is not None else [] for f in declared]
+        self.layout = layout = Layout(variables, truth, [(b, k) for bs, ks in zip(aux, sizes) for b, k in zip(bs, ks)])
+        self.terms: list[Term] = []
+        for i, (f, bs) in enumerate(zip(declared, aux)):
+            self.terms.append(Term(f, layout, f.name or f"{f.type or 'factor'}_{i}", bs))
+        self.aux_terms = [t for t in self.terms if t.aux is not None]
+        names = [t.name for t in self.terms if t.factor.constraints or t.aux is not None]
+        if len(set(names)) != len(names):
+            raise ProblemDefinitionError(f"factors with constraints or auxiliary blocks need distinct names, "
+                                         f"got {names}")
         self._stack: tuple[sp.csr_array, sp.csr_array, list[tuple[int, Term]]] | None = None
 
     def model(self) -> Model:
@@ -78,7 +99,7 @@ class Graph:
         own: list[Term] = []
         for t in self.terms:
             keys = {home[el.main] for el in t.elements}
-            if t.factor.constraints:
+            if t.factor.constraints or t.aux is not None:
                 own.append(t)
             elif len(keys) == 1:
                 costs[keys.pop()].append(t)
@@ -90,7 +111,9 @@ class Graph:
             cons = []
             for el in els:
                 cols = np.concatenate([[0], L.columns(el)])
-                cons += [Constraint(_global(M, cols, N), 0.0, name=f"{name}:{el.main}:{nm}", factor=name)
+                split = len(el.var.main_blocks()) > 1  # named by the variable, not its first block
+                label = el.var.name + ("" if index is None else str(index)) if split else el.main
+                cons += [Constraint(_global(M, cols, N), 0.0, name=f"{name}:{label}:{nm}", factor=name)
                          for nm, M in el.var.local_constraints()]
             factors.append(Factor(name, typ, ("h",) + tuple(b for el in els for b in el.blocks),
                                   cost=self._cost(costs[(typ, index)], N), constraints=cons, roles=_roles(els)))
@@ -101,8 +124,11 @@ class Graph:
         for t in own:
             cons = [Constraint(_global(M, t.columns, N), 0.0, name=f"{t.name}:{nm}", factor=t.name)
                     for nm, M in t.local_constraints()]
-            factors.append(Factor(t.name, t.type, ("h",) + tuple(b for el in t.elements for b in el.blocks),
-                                  cost=self._cost([t], N), constraints=cons, roles=_roles(t.elements),
+            roles = _roles(t.elements) + (tuple(t.aux.blocks) if t.aux is not None else ())
+            if len(set(roles)) != len(roles):
+                raise ProblemDefinitionError(f"factor {t.name!r}: its blocks' roles {roles} are not distinct")
+            blocks = ("h",) + tuple(b for el in t.elements for b in el.blocks) + t.aux_blocks
+            factors.append(Factor(t.name, t.type, blocks, cost=self._cost([t], N), constraints=cons, roles=roles,
                                   data=t.factor.data))
         return Model(L.V, factors)
 
@@ -119,6 +145,15 @@ class Graph:
             cols.append(t.columns[j])
             vals.append(C[i, j])
         return canonical_coo(np.concatenate(rows), np.concatenate(cols), np.concatenate(vals), N)
+
+    # ------------------------------------------------------------------ at a state
+    def lift(self, values: Sequence[np.ndarray]) -> np.ndarray:
+        """x = [h, blocks…] (N,), h = 1: the layout's lift with each factor's auxiliary blocks (ValueError where
+        an auxiliary value is undefined)."""
+        x = self.layout.lift(values)
+        for t in self.aux_terms:
+            x[t.aux_columns] = t.aux_value(t.own(values))
+        return x
 
     # ------------------------------------------------------------------ the local solver's view
     def cost(self, values: Sequence[np.ndarray]) -> float:
@@ -152,20 +187,29 @@ class Graph:
 
     def linearize(self, values: Sequence[np.ndarray]) -> tuple[np.ndarray, sp.csr_array, sp.csr_array]:
         """Stacked (e, J, W) for ``gauss_newton``: J (m, n_tangent) sparse, W block diagonal.  The affine
-        residuals in two sparse products, e = M x and J = M ∂x/∂ε; the others term by term."""
+        residuals in two sparse products, e = M x and J = M ∂x/∂ε (x and ∂x/∂ε: the variables' by their
+        polynomials, the auxiliary blocks' term by term); the others term by term."""
         M, W, others = self._stacked()
-        x, dx = self.layout.lift_polynomial(values)
+        rows, cols, vals, aux = [], [], [], []
+        for t in self.aux_terms:
+            a, Ja = t.aux_linearize(t.own(values))
+            aux.append((t.aux_columns, a))
+            i, j = np.nonzero(Ja)
+            rows.append(t.aux_columns[i])
+            cols.append(t.tangent[j])
+            vals.append(Ja[i, j])
+        x, dx = self.layout.lift_polynomial(values, (rows, cols, vals))
+        for columns, a in aux:
+            x[columns] = a
         e, J = M @ x, M @ dx
         if others:
             rows, cols, vals = [], [], []
             for r0, t in others:
                 et, Jt = t.linearize(values)
                 e[r0:r0 + et.size] = et
-                tangent = np.concatenate([np.arange(el.tangent_offset, el.tangent_offset + el.dof)
-                                          for el in t.elements])
                 i, j = np.nonzero(Jt)
                 rows.append(r0 + i)
-                cols.append(tangent[j])
+                cols.append(t.tangent[j])
                 vals.append(Jt[i, j])
             J = sp.csr_array(J + sp.csr_array((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
                                               shape=J.shape))

@@ -3,7 +3,8 @@
 ``Variable(name, manifold, lifting={block: fn}, type=None, block=None)``: a state entry ``name`` on
 ``manifold`` (``autotight.graph.manifolds``).  The truth's entry fixes how many there are: an array of the
 manifold's shape is one variable, a stack (N, *shape) is N of them (block names ``name0 … name{N−1}``;
-``block`` renames the main block).  The lifted vector holds, per variable, its embedding (the main block)
+``block`` renames the main block, or splits it into equal named parts, e.g. ("c1", "c2", "c3") for the
+columns of vec C).  The lifted vector holds, per variable, its embedding (the main block)
 and one block per ``lifting`` entry, ``fn(x) -> (E,)``, which must be a polynomial of degree ≤ 2 in the
 embedding's entries (e.g. vech(p pᵀ)); its primary constraints fn(x) − h·z = 0 are derived from it
 (``LiftingFit``).  ``type`` names the factor type of the variable's own model factor (default: ``name``):
@@ -18,7 +19,18 @@ the factor's local columns [h, the variables' blocks in order]).  ``jacobian(*vi
 optional (the chain rule through the lifting when the residual is affine, central finite differences on
 the retraction otherwise).  ``constraints``: extra primary constraints [(name, (n, n) matrix)] on the same
 local columns (value 0); ``data``: the factor's measurement vector (``autotight.model.Factor.data``);
-``type``: its factor type.
+``type``: its factor type; ``name``: its model factor's name.
+
+``Factor(…, auxiliary=Auxiliary(blocks, value, equations, jacobian=None))``: lifted blocks the factor owns,
+which are not a polynomial lifting of one variable but functions of the factor's variables and data (e.g.
+a Cayley residual φ = cay⁻¹(C C̃ᵀ)).  ``blocks``: {name: size}; their columns follow every variable's
+blocks in the lifted vector (block ``b_j`` for the j-th factor declaring ``b``) and the factor's local
+columns (after its variables').  ``value(*views) -> (Σ sizes,)``: their value at states (ValueError where
+undefined: ``sample`` draws again).  ``equations(*views, aux) -> (k,)``: their defining relations, each a
+polynomial of degree ≤ 2 in the local entries (``aux.<block>`` the blocks' entries), zero at the value;
+fitted into k primary constraints of the factor (``terms``).  ``jacobian(*views, aux) -> (Σ sizes, Σ dof)``:
+∂value/∂ε for the local solver (default central differences).  The residual then gets ``aux`` after the
+views, e.g. ``lambda C, aux: aux.phi``, so a cost on the blocks is an affine residual.
 """
 
 from __future__ import annotations
@@ -35,6 +47,9 @@ from .manifolds import Manifold
 
 #: a lifting block must equal its fitted polynomial of degree ≤ 2 to this relative accuracy at a random point
 LIFTING_RTOL = 1e-9
+
+#: relative size (to the largest value at the probe points) below which a fitted coefficient is rounding
+ROUNDING = 32 * np.finfo(float).eps
 
 View = SimpleNamespace
 
@@ -81,10 +96,30 @@ class LiftingFit:
         return out
 
 
+def fit_quadratic(call: Callable[[np.ndarray], np.ndarray], p: int
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+    """The polynomial c0 + G v + [vᵀ S_e v]_e of degree ≤ 2 that ``call(v) -> (E,)`` is in v (size p), from exact
+    differences at ``factor_batch.probe_points``: (c0 (E,), G (E, p), S (E, p, p) symmetric, the relative
+    error of the fit at a random point, which is rounding when ``call`` is such a polynomial).  Coefficients
+    within ``ROUNDING`` of the largest value at the probes are rounding of the differences and set to 0, so
+    a polynomial's absent monomials stay exactly absent (e.g. ½φ × c̃ at φ = ±e_j leaves ~1e-17 on φ_j²)."""
+    values = np.array([call(v) for v in probe_points(p, 2)])
+    coef = coefficients(values, p, 2)
+    coef[np.abs(coef) <= ROUNDING * max(1.0, float(np.abs(values).max()))] = 0.0
+    c0, lin, sq, cross = coef[0], coef[1:p + 1], coef[p + 1:2 * p + 1], coef[2 * p + 1:]
+    S = np.zeros((values.shape[1], p, p))
+    S[:, np.arange(p), np.arange(p)] = sq.T
+    i, j = np.triu_indices(p, 1)
+    S[:, i, j] = S[:, j, i] = 0.5 * cross.T
+    v = np.random.default_rng(0).standard_normal(p)
+    want = call(v)
+    got = features(v[None], 2)[0] @ coef
+    return c0, lin.T.copy(), S, float(np.abs(got - want).max() / max(1.0, float(np.abs(want).max())))
+
+
 def fit_lifting(name: str, fn: Callable[[np.ndarray], Any], manifold: Manifold, where: str) -> LiftingFit:
-    """The polynomial of degree ≤ 2 that ``fn`` (of the manifold's ambient value) is in the embedding's entries,
-    from exact differences at ``factor_batch.probe_points`` and checked at a random point."""
-    p = manifold.size
+    """The polynomial of degree ≤ 2 that ``fn`` (of the manifold's ambient value) is in the embedding's entries
+    (``fit_quadratic``), checked at a random point to ``LIFTING_RTOL``."""
 
     def call(v: np.ndarray) -> np.ndarray:
         z = np.asarray(fn(manifold.unembed(v)), dtype=float)
@@ -93,23 +128,21 @@ def fit_lifting(name: str, fn: Callable[[np.ndarray], Any], manifold: Manifold, 
                                          f"got shape {z.shape}")
         return z.reshape(-1)
 
-    probes = probe_points(p, 2)
-    values = np.array([call(v) for v in probes])
-    coef = coefficients(values, p, 2)
-    c0, lin, sq, cross = coef[0], coef[1:p + 1], coef[p + 1:2 * p + 1], coef[2 * p + 1:]
-    E = values.shape[1]
-    S = np.zeros((E, p, p))
-    S[:, np.arange(p), np.arange(p)] = sq.T
-    i, j = np.triu_indices(p, 1)
-    S[:, i, j] = S[:, j, i] = 0.5 * cross.T
-    fit = LiftingFit(name, fn, c0, lin.T.copy(), S)
-    v = np.random.default_rng(0).standard_normal(p)
-    want = call(v)
-    got = features(v[None], 2)[0] @ coef
-    if np.abs(got - want).max() > LIFTING_RTOL * max(1.0, float(np.abs(want).max())):
+    c0, G, S, err = fit_quadratic(call, manifold.size)
+    if err > LIFTING_RTOL:
         raise ProblemDefinitionError(f"{where}: lifting block {name!r} is not a polynomial of degree ≤ 2 in the "
                                      "variable's entries")
-    return fit
+    return LiftingFit(name, fn, c0, G, S)
+
+
+def quadratic_forms(c0: np.ndarray, G: np.ndarray, S: np.ndarray) -> np.ndarray:
+    """(E, 1 + p, 1 + p): each polynomial c0_e + G_e v + vᵀ S_e v homogenised, [h; v]ᵀ M_e [h; v]."""
+    E, p = G.shape
+    M = np.zeros((E, 1 + p, 1 + p))
+    M[:, 0, 0] = c0
+    M[:, 0, 1:] = M[:, 1:, 0] = 0.5 * G
+    M[:, 1:, 1:] = S
+    return M
 
 
 @dataclass
@@ -121,18 +154,27 @@ class Variable:
     lifting: Mapping[str, Callable[[np.ndarray], Any]] = field(default_factory=dict)
     #: the factor type of the variable's own model factor (default: its name)
     type: str | None = None
-    #: the name of its main block (default: its name)
-    block: str | None = None
+    #: the name of its main block (default: its name), or a tuple of names splitting it into that many equal
+    #: consecutive blocks (e.g. ("c1", "c2", "c3"): the columns of vec C)
+    block: str | tuple[str, ...] | None = None
 
     def __post_init__(self) -> None:
-        for what, v in (("name", self.name), ("block", self.block if self.block is not None else "x")):
+        parts = self.block if isinstance(self.block, tuple) else ("x" if self.block is None else self.block,)
+        for what, v in (("name", self.name),) + tuple(("block", b) for b in parts):
             if not isinstance(v, str) or not v.isidentifier() or v == "h":
                 raise ProblemDefinitionError(f"a variable's {what} must be an identifier other than 'h', got {v!r}")
+        if len(set(parts)) != len(parts) or self.manifold.size % len(parts):
+            raise ProblemDefinitionError(f"variable {self.name!r}: its main block of size {self.manifold.size} "
+                                         f"does not split into the distinct blocks {parts}")
         bad = [b for b in self.lifting if not isinstance(b, str) or not b.isidentifier() or b in ("x", "h")]
         if bad:
             raise ProblemDefinitionError(f"variable {self.name!r}: lifting block names must be identifiers other "
                                          f"than 'x' and 'h', got {bad}")
         self._fits: list[LiftingFit] | None = None
+
+    def main_blocks(self) -> tuple[str, ...]:
+        """The names of its main block's parts (one, unless ``block`` splits it), without an element's index."""
+        return self.block if isinstance(self.block, tuple) else (self.block or self.name,)
 
     def fits(self) -> list[LiftingFit]:
         """The lifting blocks as fitted polynomials (computed once)."""
@@ -177,6 +219,42 @@ def _pad(M: np.ndarray, n: int) -> np.ndarray:
 
 
 @dataclass
+class Auxiliary:
+    """Lifted blocks owned by one factor, functions of its variables' values and its data (see the module
+    docstring): ``blocks`` {name: size} in order, ``value(*views) -> (Σ sizes,)`` at states (ValueError where
+    undefined), ``equations(*views, aux) -> (k,)`` their defining relations, each a polynomial of degree ≤ 2 in
+    the factor's local entries and zero at the value, ``jacobian(*views, aux) -> (Σ sizes, Σ dof)`` optional."""
+
+    blocks: Mapping[str, int]
+    value: Callable[..., Any]
+    equations: Callable[..., Any]
+    jacobian: Callable[..., Any] | None = None
+
+    def __post_init__(self) -> None:
+        self.blocks = dict(self.blocks)
+        bad = [b for b, k in self.blocks.items() if not isinstance(b, str) or not b.isidentifier() or b in ("x", "h")
+               or isinstance(k, bool) or not isinstance(k, (int, np.integer)) or k < 1]
+        if not self.blocks or bad:
+            raise ProblemDefinitionError("auxiliary blocks must map identifiers other than 'x' and 'h' to positive "
+                                         f"sizes, got {self.blocks}")
+        for what, fn in (("value", self.value), ("equations", self.equations)):
+            if not callable(fn):
+                raise ProblemDefinitionError(f"auxiliary blocks {list(self.blocks)}: {what} must be a function")
+
+    @property
+    def size(self) -> int:
+        return int(sum(self.blocks.values()))
+
+    def view(self, a: np.ndarray) -> View:
+        """The ``View`` of the blocks' entries a (Σ sizes,): one attribute per block."""
+        out, o = {}, 0
+        for b, k in self.blocks.items():
+            out[b] = a[o:o + k]
+            o += k
+        return View(**out)
+
+
+@dataclass
 class Factor:
     """A cost term on variables (see the module docstring)."""
 
@@ -188,6 +266,10 @@ class Factor:
     cost: np.ndarray | None = None
     constraints: Sequence[tuple[str, np.ndarray]] = ()
     data: np.ndarray | None = None
+    #: lifted blocks of its own (``Auxiliary``), after every variable's blocks in the lifted vector
+    auxiliary: Auxiliary | None = None
+    #: its model factor's name (default ``type_i``, i its position among the declared factors)
+    name: str | None = None
 
     def __post_init__(self) -> None:
         self.variables = (self.variables,) if isinstance(self.variables, str) else tuple(self.variables)
@@ -195,3 +277,7 @@ class Factor:
             raise ProblemDefinitionError(f"a factor needs distinct variables, got {self.variables}")
         if not callable(self.residual):
             raise ProblemDefinitionError(f"factor on {self.variables}: residual must be a function")
+        if self.auxiliary is not None and not isinstance(self.auxiliary, Auxiliary):
+            raise ProblemDefinitionError(f"factor on {self.variables}: auxiliary must be an autotight.graph.Auxiliary")
+        if self.name is not None and (not isinstance(self.name, str) or not self.name):
+            raise ProblemDefinitionError(f"factor on {self.variables}: name must be a non-empty string")

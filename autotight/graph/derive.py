@@ -15,9 +15,10 @@ blocks); ``cost`` (Σ eᵀWe of the declared residuals; the lifted cost equals i
 affine in the lifting, so the check's ``cost`` test then checks the declarations' consistency, not an
 independent formula); ``sample`` (each variable retracted from the nominal by spread·ν, ν ~ N(0, I): a
 state on the manifolds, whose lifting meets every derived primary constraint; factors' own constraints must
-hold for every value of their variables); ``local_solve`` (``autotight.gauss_newton`` on the retractions,
-options ``max_iter``, ``rel_tol``); ``recover`` (each variable's main block, projected onto its manifold;
-the rotations' raw determinants as ``det_raw``, ``layout.Layout.recover``).  ``errors`` and
+hold for every value of their variables; drawn again, up to ``SAMPLE_TRIES`` times, while an auxiliary
+value raises ValueError, e.g. at a singularity of its map); ``local_solve`` (``autotight.gauss_newton`` on
+the retractions, options ``max_iter``, ``rel_tol``); ``recover`` (each variable's main block, projected onto
+its manifold; the rotations' raw determinants as ``det_raw``, ``layout.Layout.recover``).  ``errors`` and
 ``random_state`` are the contract's defaults (``autotight.problem``).
 """
 
@@ -28,12 +29,14 @@ from typing import Any, Callable, Iterable, NamedTuple, Sequence, cast
 
 import numpy as np
 
-from ..errors import ProblemDefinitionError
+from ..errors import ProblemDefinitionError, SolverError
 from ..gauss_newton import gauss_newton
 from ..model import Model
 from .assemble import Graph
 from .declare import Factor, Variable
-from .layout import Layout
+
+#: draws of ``sample`` before it gives up on states where every auxiliary value is defined
+SAMPLE_TRIES = 100
 
 
 class Parts(NamedTuple):
@@ -59,7 +62,7 @@ def derive(variables: Sequence[Variable] | Callable[[Any], Sequence[Variable]],
         if hit is not None and hit[0]() is inst:
             return hit[1]
         declared = variables(inst) if callable(variables) else variables
-        g = Graph(Layout(list(declared), inst.truth), factors(inst))
+        g = Graph(list(declared), inst.truth, factors(inst))
         for k in [k for k, (ref, _) in cache.items() if ref() is None]:
             del cache[k]
         cache[id(inst)] = (weakref.ref(inst), g)
@@ -69,16 +72,30 @@ def derive(variables: Sequence[Variable] | Callable[[Any], Sequence[Variable]],
         return graph(inst).model()
 
     def lift(inst: Any, state: dict) -> np.ndarray:
-        L = graph(inst).layout
-        return L.lift(L.values(state))
+        g = graph(inst)
+        return g.lift(g.layout.values(state))
 
     def cost(inst: Any, state: dict) -> float:
         g = graph(inst)
         return g.cost(g.layout.values(state))
 
     def sample(inst: Any, rng: np.random.Generator, nominal: dict, spread: float) -> dict:
-        L = graph(inst).layout
-        return L.state(L.retract(L.values(nominal), spread * rng.standard_normal(L.n_tangent)))
+        g = graph(inst)
+        L = g.layout
+        start = L.values(nominal)
+        for _ in range(SAMPLE_TRIES):
+            values = L.retract(start, spread * rng.standard_normal(L.n_tangent))
+            if not g.aux_terms:
+                break
+            try:
+                g.lift(values)
+                break
+            except ValueError as e:
+                undefined = e
+        else:
+            raise SolverError(f"no sample where every auxiliary block is defined in {SAMPLE_TRIES} draws (the last: "
+                              f"{undefined}); reduce the spread")
+        return L.state(values)
 
     def local_solve(inst: Any, init: dict, max_iter: int = 200, rel_tol: float = 1e-12) -> Any:
         g = graph(inst)

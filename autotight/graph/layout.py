@@ -2,8 +2,9 @@
 
 The truth fixes the variables' multiplicity (``declare.Variable``).  Blocks, in order: per variable
 (declaration order), per element (index order), the main block ``name`` (one variable) or ``name{i}``
-(a stack; ``Variable.block`` for ``name`` when given), then its lifting blocks ``block`` or ``block{i}``.
-A state is ``{name: value or (N, *shape) stack}`` with one entry per declared variable.
+(a stack; ``Variable.block`` for ``name`` when given, each of its parts when it splits the block), then its
+lifting blocks ``block`` or ``block{i}``; after every variable, the factors' auxiliary blocks
+(``assemble``).  A state is ``{name: value or (N, *shape) stack}`` with one entry per declared variable.
 """
 
 from __future__ import annotations
@@ -46,7 +47,8 @@ class Element:
 class Layout:
     """The instance's elements and ``Variables`` (d = 1), with lift, recover and retraction."""
 
-    def __init__(self, variables: Sequence[Variable], truth: Mapping[str, Any]):
+    def __init__(self, variables: Sequence[Variable], truth: Mapping[str, Any],
+                 auxiliary: Sequence[tuple[str, int]] = ()):
         if not variables or not all(isinstance(v, Variable) for v in variables):
             raise ProblemDefinitionError("VARIABLES must be a non-empty list of autotight.graph.Variable")
         names = [v.name for v in variables]
@@ -69,15 +71,20 @@ class Layout:
                 raise ProblemDefinitionError(f"variable {var.name!r} on {var.manifold!r}: the truth's entry has shape "
                                              f"{shape}, expected {want} or (N, *{want})")
             self.counts[var.name] = count
-            fits = var.fits()
+            fits, parts = var.fits(), var.main_blocks()
+            sizes = [var.manifold.size // len(parts)] * len(parts) + [f.size for f in fits]
             for i in [None] if count is None else range(count):
                 sfx = "" if i is None else str(i)
-                el = Element(var, i, ((var.block or var.name) + sfx,) + tuple(f.name + sfx for f in fits), offset)
+                el = Element(var, i, tuple(b + sfx for b in parts) + tuple(f.name + sfx for f in fits), offset)
                 self.elements.append(el)
-                blocks += [(el.main, var.manifold.size)] + [(b, f.size) for b, f in zip(el.blocks[1:], fits)]
+                blocks += list(zip(el.blocks, sizes))
                 offset += el.dof
         self.n_tangent = offset
-        self.V = Variables(blocks)
+        taken = {b for b, _ in blocks}
+        clash = [b for b, _ in auxiliary if b in taken or b == "h"]
+        if clash:
+            raise ProblemDefinitionError(f"auxiliary blocks {clash} have the names of other blocks")
+        self.V = Variables(blocks + list(auxiliary))
         self.by_main = {el.main: el for el in self.elements}
         for el in self.elements:  # also by name and index when the main block is renamed
             self.by_main.setdefault(el.var.name + ("" if el.index is None else str(el.index)), el)
@@ -136,13 +143,15 @@ class Layout:
             x[cols] = el.var.lifted(v)
         return x
 
-    def lift_polynomial(self, values: Sequence[np.ndarray]) -> tuple[np.ndarray, sp.csr_array]:
+    def lift_polynomial(self, values: Sequence[np.ndarray],
+                        extra: tuple[list, list, list] | None = None) -> tuple[np.ndarray, sp.csr_array]:
         """(x, ∂x/∂ε) at the values from the liftings' fitted polynomials, a variable's elements at once: x as
         ``lift`` (up to rounding), ∂x/∂ε (N, n_tangent) the embedding's tangent map T and each lifting block's
-        gradient times T (the h row zero).  For the local solver, which evaluates them at every step."""
+        gradient times T (the h row zero), plus ``extra`` entries (rows, columns, values lists) of ∂x/∂ε.  For
+        the local solver, which evaluates them at every step."""
         x = np.zeros(self.V.N)
         x[0] = 1.0
-        rows, cols, vals = [], [], []
+        rows, cols, vals = extra if extra is not None else ([], [], [])
         for var, idx, columns in self.families:
             man, fits = var.manifold, var.fits()
             E = np.array([man.embed(values[k]) for k in idx])  # (n, p)
@@ -162,7 +171,8 @@ class Layout:
         """Each element's main block, unembedded, from x divided by h (when h ≠ 0): not yet on its manifold."""
         x = np.asarray(x, float).reshape(-1)
         x = x / x[0] if x[0] != 0 else x
-        return [el.var.manifold.unembed(x[self.V.slice(el.main)]) for el in self.elements]
+        return [el.var.manifold.unembed(x[cols[:el.var.manifold.size]])
+                for el, cols in zip(self.elements, self._columns)]
 
     def recover(self, x: np.ndarray) -> dict[str, np.ndarray]:
         """The state of x: each element's ``raw`` value projected onto its manifold; for the rotations, the

@@ -1,29 +1,37 @@
 """A declared factor resolved on one instance: its local columns, lifted residual map, cost and Jacobian.
 
 Local columns of a factor: [h, then each variable's columns (main block, lifting blocks)] in the order
-the factor names its variables.  A factor without a declared ``cost`` must have a residual affine in its
+the factor names its variables, then its auxiliary blocks (``declare.Auxiliary``), whose values at a state
+are ``value`` of its variables' views and whose ``equations`` are fitted into primary constraints on the
+local columns (``declare.fit_quadratic``, checked at a random point to ``EQUATION_RTOL``; the views then
+hold arbitrary entries, so the equations must be polynomials of the views' entries, not of points of the
+manifolds).  A factor without a declared ``cost`` must have a residual affine in its
 views' entries: e = b·h + A θ is read off by evaluating ``residual`` at θ = e_h and e_h + e_j, and
 checked at a fixed generic θ (``check_point``, ``AFFINE_RTOL``); its lifted cost is Mᵀ W M with
 M = [b A], and its Jacobian with respect to the retraction steps is A·∂θ/∂ε (exact, through the
 lifting's fitted polynomials; ``assemble``).  A factor with a declared ``cost`` has its residual
 evaluated at states only (it may need its variables on their manifolds); its Jacobian is the declared
 ``jacobian`` or central differences of the residual along each retraction direction (step ``FD_STEP``).
+An affine residual of a factor with auxiliary blocks is stacked likewise, the auxiliary rows of ∂θ/∂ε the
+auxiliary's ``jacobian`` or central differences of its ``value`` (``aux_linearize``).
 """
 
 from __future__ import annotations
 
-from typing import Sequence
+from typing import Callable, Sequence
 
 import numpy as np
 
 from ..errors import ProblemDefinitionError
-from .declare import Factor, View
+from .declare import Factor, View, fit_quadratic, quadratic_forms
 from .layout import Element, Layout
 
 #: an affine residual must match its read-off map at a random point to this relative accuracy
 AFFINE_RTOL = 1e-9
 #: central-difference step along a retraction direction (residuals without an affine form or a jacobian)
 FD_STEP = 1e-6
+#: an auxiliary's equations must match their fitted polynomials of degree ≤ 2 to this relative accuracy
+EQUATION_RTOL = 1e-9
 
 
 def _vector(e: object, where: str) -> np.ndarray:
@@ -43,14 +51,21 @@ def check_point(n: int) -> np.ndarray:
 class Term:
     """One declared factor on one instance (see the module docstring)."""
 
-    def __init__(self, factor: Factor, layout: Layout, name: str):
-        self.factor, self.name = factor, name
+    def __init__(self, factor: Factor, layout: Layout, name: str, aux_blocks: Sequence[str] = ()):
+        self.factor, self.name, self.aux = factor, name, factor.auxiliary
         self.where = f"factor {name!r}"
         self.elements: list[Element] = [layout.element(v, self.where) for v in factor.variables]
         self.positions = [layout.position[el.main] for el in self.elements]
-        self.columns = np.concatenate([[0]] + [layout.columns(el) for el in self.elements])
+        #: the auxiliary blocks' names in the lifted vector and their columns
+        self.aux_blocks = tuple(aux_blocks)
+        self.aux_columns = layout.V.index(self.aux_blocks) if self.aux_blocks else np.zeros(0, int)
+        self.columns = np.concatenate([[0]] + [layout.columns(el) for el in self.elements] + [self.aux_columns])
         self.sizes = [layout.columns(el).size for el in self.elements]
+        #: the factor's variables' entries of the stacked tangent vector, in its order
+        self.tangent = np.concatenate([np.arange(el.tangent_offset, el.tangent_offset + el.dof)
+                                       for el in self.elements])
         self.n = int(self.columns.size)
+        self._aux_constraints = self._fit_equations() if self.aux is not None else []
         if factor.cost is None:
             M = self._affine_map()
             if M is None:
@@ -72,13 +87,72 @@ class Term:
         names = [el.var.name for el in self.elements]
         return self.factor.type or ("-".join(names) if len(names) > 1 else f"{names[0]}_factor")
 
-    def _views(self, theta: np.ndarray) -> list[View]:
+    def _var_views(self, theta: np.ndarray) -> list[View]:
+        """One view per variable of the local columns θ."""
         out: list[View] = []
         o = 1
         for el, k in zip(self.elements, self.sizes):
             out.append(el.var.view(theta[o:o + k]))
             o += k
         return out
+
+    def _views(self, theta: np.ndarray) -> list[View]:
+        """The residual's arguments: the variables' views, then the auxiliary blocks' view (if any)."""
+        out = self._var_views(theta)
+        if self.aux is not None:
+            out.append(self.aux.view(theta[self.n - self.aux.size:]))
+        return out
+
+    def _fit_equations(self) -> list[tuple[str, np.ndarray]]:
+        """The auxiliary's equations as (name, (n, n) matrix) on the local columns."""
+        assert self.aux is not None
+
+        def call(v: np.ndarray) -> np.ndarray:
+            theta = np.concatenate(([1.0], v))
+            try:
+                e = np.asarray(self.aux.equations(*self._views(theta)), float)
+            except (ArithmeticError, ValueError, np.linalg.LinAlgError) as err:
+                raise ProblemDefinitionError(
+                    f"{self.where}: the auxiliary's equations raised {type(err).__name__} ({err}) at entries off the "
+                    "manifolds; write them as polynomials of the views' entries") from err
+            if e.ndim > 1 or not e.size or not np.all(np.isfinite(e)):
+                raise ProblemDefinitionError(f"{self.where}: the auxiliary's equations must return a non-empty "
+                                             f"finite vector, got shape {e.shape}")
+            return e.reshape(-1)
+
+        c0, G, S, err = fit_quadratic(call, self.n - 1)
+        if err > EQUATION_RTOL:
+            raise ProblemDefinitionError(f"{self.where}: the auxiliary's equations are not polynomials of degree "
+                                         "≤ 2 in the factor's local entries (its variables' blocks and its own)")
+        return [(f"aux[{k}]", M) for k, M in enumerate(quadratic_forms(c0, G, S))]
+
+    def _state_views(self, own: Sequence[np.ndarray]) -> list[View]:
+        """The variables' views at their values (x and each lifting block)."""
+        return [View(x=np.asarray(v, float), **{f.name: np.asarray(f.fn(v), float).reshape(-1) for f in el.var.fits()})
+                for el, v in zip(self.elements, own)]
+
+    def aux_value(self, own: Sequence[np.ndarray]) -> np.ndarray:
+        """The auxiliary blocks' values at the factor's variables' values (ValueError where undefined)."""
+        assert self.aux is not None
+        a = np.asarray(self.aux.value(*self._state_views(own)), float)
+        if a.shape not in ((self.aux.size,), (1, self.aux.size)) or not np.all(np.isfinite(a)):
+            raise ProblemDefinitionError(f"{self.where}: the auxiliary's value must be a finite vector of size "
+                                         f"{self.aux.size}, got shape {a.shape}")
+        return a.reshape(-1)
+
+    def aux_linearize(self, own: Sequence[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+        """(a, ∂a/∂ε (Σ sizes, Σ dof)) of the auxiliary blocks at the factor's variables' values, ε the variables'
+        retraction steps in its order: the declared ``jacobian``, else central differences of ``value``."""
+        assert self.aux is not None
+        a = self.aux_value(own)
+        if self.aux.jacobian is None:
+            return a, self._differences(own, self.aux_value)
+        dof = sum(el.dof for el in self.elements)
+        J = np.asarray(self.aux.jacobian(*self._state_views(own), self.aux.view(a)), float)
+        if J.shape != (self.aux.size, dof):
+            raise ProblemDefinitionError(f"{self.where}: the auxiliary's jacobian returned shape {J.shape}, "
+                                         f"expected ({self.aux.size}, {dof})")
+        return a, J
 
     def _residual(self, theta: np.ndarray) -> np.ndarray:
         return _vector(self.factor.residual(*self._views(theta)), self.where)
@@ -117,9 +191,10 @@ class Term:
             return np.eye(m)
         W = np.asarray(w, float)
         W = W * np.eye(m) if W.ndim == 0 else W
-        if W.shape != (m, m) or not np.all(np.isfinite(W)) or not np.allclose(W, W.T):
+        # non-finite entries pass: they come from the measurements, which autotight.validate reports by name
+        if W.shape != (m, m) or not np.allclose(W, W.T, equal_nan=True):
             raise ProblemDefinitionError(f"{self.where}: weight must be a number or a symmetric ({m}, {m}) matrix")
-        return W
+        return 0.5 * (W + W.T)  # symmetric to the last bit (eᵀWe is the same), so is the lifted cost
 
     def _local(self, C: object, what: str) -> np.ndarray:
         A = np.asarray(C, float)
@@ -136,7 +211,9 @@ class Term:
         return self.M.T @ self.W @ self.M
 
     def local_constraints(self) -> list[tuple[str, np.ndarray]]:
-        return [(nm, self._local(C, f"constraint {nm!r}")) for nm, C in self.factor.constraints]
+        """The declared constraints, then the auxiliary's fitted equations."""
+        return [(nm, self._local(C, f"constraint {nm!r}")) for nm, C in self.factor.constraints] + \
+            self._aux_constraints
 
     # ------------------------------------------------------------------ at a state
     def own(self, values: Sequence[np.ndarray]) -> list[np.ndarray]:
@@ -145,7 +222,8 @@ class Term:
 
     def lifted(self, own: Sequence[np.ndarray]) -> np.ndarray:
         """θ on the local columns (h = 1) at the factor's variables' values."""
-        return np.concatenate([[1.0]] + [el.var.lifted(v) for el, v in zip(self.elements, own)])
+        parts = [[1.0]] + [el.var.lifted(v) for el, v in zip(self.elements, own)]
+        return np.concatenate(parts + ([self.aux_value(own)] if self.aux is not None else []))
 
     def residual(self, values: Sequence[np.ndarray]) -> np.ndarray:
         """The declared residual at the layout's values (its views of the lifted θ)."""
@@ -157,14 +235,18 @@ class Term:
         retraction steps in its order: the declared ``jacobian``, else central differences."""
         own = self.own(values)
         theta = self.lifted(own)
-        dof = sum(el.dof for el in self.elements)
+        e = self._residual(theta)
         if self.factor.jacobian is not None:
-            e = self._residual(theta)
+            dof = sum(el.dof for el in self.elements)
             J = np.asarray(self.factor.jacobian(*self._views(theta)), float)
             if J.shape != (e.size, dof):
                 raise ProblemDefinitionError(f"{self.where}: jacobian returned shape {J.shape}, "
                                              f"expected ({e.size}, {dof})")
             return e, J
+        return e, self._differences(own, lambda vals: self._residual(self.lifted(vals)))
+
+    def _differences(self, own: Sequence[np.ndarray], fn: Callable[[list], np.ndarray]) -> np.ndarray:
+        """Central differences of fn(values of the factor's variables) along each retraction direction, (·, Σ dof)."""
         cols = []
         for i, (el, v) in enumerate(zip(self.elements, own)):
             for k in range(el.dof):
@@ -172,5 +254,5 @@ class Term:
                 step[k] = FD_STEP
                 plus, minus = list(own), list(own)
                 plus[i], minus[i] = el.var.manifold.retract(v, step), el.var.manifold.retract(v, -step)
-                cols.append((self._residual(self.lifted(plus)) - self._residual(self.lifted(minus))) / (2 * FD_STEP))
-        return self._residual(theta), np.stack(cols, axis=1)
+                cols.append((fn(plus) - fn(minus)) / (2 * FD_STEP))
+        return np.stack(cols, axis=1)
