@@ -98,8 +98,8 @@ def discover(problem: Problem | str, params: Mapping[str, Any] | None = None, se
     carry_to: parameters (e.g. ``{"K": 200}``) at which the set must pass too (None: the module's
     ``META.carry_to`` hint, if any; ``{}``: none).  groups: learning groups (None: the module's
     ``META.default_groups``, else "factors").  criteria: what counts as tight (``criteria.accept``).  solver: the
-    ``SolverConfig`` of every SDP solve.  compare: solve the paper's families on the held-out batches too
-    (each point's latest is reported).  jobs/scheduler: where held-out instances run (``heldout``).
+    ``SolverConfig`` of every SDP solve.  compare: also solve the paper's families on each point's latest held-out
+    batch (once validation ends).  jobs/scheduler: where held-out instances run (``heldout``).
     shortcut: a held-out instance whose local solution's certificate proves the set tight needs no full SDP
     (``shortcut``; the others are solved in full).  progress(stage, text) is called as work proceeds.
     Raises ``UnboundedRelaxation`` when no learned candidate bounds an unbounded relaxation.
@@ -179,11 +179,12 @@ def discover(problem: Problem | str, params: Mapping[str, Any] | None = None, se
     next_t = [0] * len(check_points)
     validated: bool | None = None
     stop = ""
-    # the paper's families on every held-out batch, beside the set (one instance, model and local search for
-    # both); what is kept is each point's latest batch; their solver calls are not part of max_solves
+    # the paper's families are solved once the loop ends, on each point's latest batch (the one kept): a batch
+    # that fails is replaced by a fresh one, so solving them on every batch (the carry's held-out SDPs) was
+    # wasted; their solver calls are not part of max_solves
     with_paper = bool(compare and trainers[0].model.paper)
     paper: list[Any] = [None] * len(check_points)
-    paper_calls = 0
+    kept: list[list[int]] = [[] for _ in check_points]  # the seeds of each point's latest batch
     while n_heldout and not unreached:
         # a point whose latest batch had no failing instance is done: the set only grows from here on, and
         # tightness is monotone in the set, so that batch stays tight
@@ -191,16 +192,13 @@ def discover(problem: Problem | str, params: Mapping[str, Any] | None = None, se
         batch = [[heldout_seed(seed, i, next_t[i] + t) for t in range(n_heldout)] if i in todo else []
                  for i in range(len(check_points))]
         next_t = [n + len(b) for n, b in zip(next_t, batch)]
-        sets: dict[str, Any] = {"set": ConstraintSet(ds)} | ({"paper": "paper"} if with_paper else {})
-        held, n = timed("heldout_s", solve_batch, prob, sets, check_points, batch,
+        held, n = timed("heldout_s", solve_batch, prob, {"set": ConstraintSet(ds)}, check_points, batch,
                         min_fraction=float(min_fraction), criteria=criteria, config=config, n_random=1, jobs=jobs,
                         scheduler=scheduler, shortcut=shortcut)
         run.count("heldout", n["set"])
-        paper_calls += n.get("paper", 0)
         for i in todo:
             last[i] = held["set"][i]
-            if with_paper:
-                paper[i] = held["paper"][i]
+            kept[i] = batch[i]
         failing = [(i, s) for i in todo for s, _, _ in last[i].with_outcome("not tight")]
         passed = all(pr.passed for pr in last)
         rounds.append(round_record(len(rounds), [last[i] for i in todo], len(pairs), passed))
@@ -235,9 +233,11 @@ def discover(problem: Problem | str, params: Mapping[str, Any] | None = None, se
             validated = True
             break
     if with_paper and validated is not None:
-        run.count("paper", paper_calls)
-    else:
-        paper = [None] * len(check_points)
+        held, n = timed("heldout_s", solve_batch, prob, {"paper": "paper"}, check_points, kept,
+                        min_fraction=float(min_fraction), criteria=criteria, config=config, n_random=1, jobs=jobs,
+                        scheduler=scheduler, shortcut=shortcut)
+        paper = held["paper"]
+        run.count("paper", n["paper"])
     validation = {"passed": validated, "min_fraction": float(min_fraction), "n_heldout": n_heldout,
                   "max_rounds": max_rounds, "max_solves": max_solves, "rounds": rounds,
                   "message": _validation_message(validated, stop, rounds, n_heldout, unreached)}
