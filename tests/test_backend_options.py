@@ -102,12 +102,17 @@ def test_every_clarabel_option_solves_to_the_same_optimum(ra):
         assert abs(r.primal_cost - f) <= 1e-7 * f, (name, r.primal_cost, f)
 
 
+def _rotation_m4(ra):
+    """Rotation averaging, M = 4 (σ = 0.1, seed 0): its model, primary constraints and Clarabel's optimal cost."""
+    model = ra.build(ra.generate({"M": 4, "sigma": 0.1}, 0))
+    cons = model.primary()
+    return model, cons, sdp.solve(model.Q, cons, config=SolverConfig(backend="clarabel")).primal_cost
+
+
 def test_the_ipm_search_direction_is_an_option_and_both_reach_clarabels_optimum(ra, monkeypatch):
     """Rotation averaging, M = 4, by our IPM with the Nesterov–Todd and the HKM direction: each reaches
     ``solve_blocks`` and both end Solved at Clarabel's optimum (1e-6 relative)."""
-    model = ra.build(ra.generate({"M": 4, "sigma": 0.1}, 0))
-    cons = model.primary()
-    ref = sdp.solve(model.Q, cons, config=SolverConfig(backend="clarabel")).primal_cost
+    model, cons, ref = _rotation_m4(ra)
     real, seen = schur_ipm.solve_blocks, []
 
     def recording(*a, **k):
@@ -126,9 +131,7 @@ def test_a_stalled_ipm_solve_is_retried_with_the_fixed_step_fraction(ra, monkeyp
     """``IPMBackend.retries``: SDPT3's step lengths first; a solve that stalls is solved again with
     ``RETRY_STEP_FRACTION``, which reaches the ``solve_blocks`` loop, and that result is kept (Clarabel's
     optimum to 1e-6); a config that fixes the fraction itself gets no retry."""
-    model = ra.build(ra.generate({"M": 4, "sigma": 0.1}, 0))
-    cons = model.primary()
-    ref = sdp.solve(model.Q, cons, config=SolverConfig(backend="clarabel")).primal_cost
+    model, cons, ref = _rotation_m4(ra)
     real, seen = schur_ipm.solve_blocks, []
 
     def stalls_unless_fixed(*a, **k):
