@@ -273,30 +273,39 @@ def prepare(problem: Problem, inst: Instance, constraints: ConstraintsLike = Non
 class Relaxation:
     """The SDP step's solves (``solve_relaxation``).  res: the solve kept (scaled unless only the plain data
     gave a usable solution); unscaled: the other solve when a second one was made, else None; scale: the
-    diagonal D of X = D X' D the scaled solve used (None: no scaling)."""
+    diagonal D of X = D X' D the scaled solve used (None: no scaling); certified: when the scaled solve was
+    not usable, ``dual_certificate`` of its multipliers at the best local solution (the polished solve and
+    the certificate), else None."""
 
     res: SDPResult
     unscaled: SDPResult | None
     scale: np.ndarray | None
+    certified: tuple[SDPResult, Certificate | None] | None = None
 
 
-def solve_relaxation(problem: Problem, inst: Instance, prep: Prepared, *, raise_unbounded: bool = True) -> Relaxation:
+def solve_relaxation(problem: Problem, inst: Instance, prep: Prepared, *, raise_unbounded: bool = True,
+                     criteria: Criteria = Criteria()) -> Relaxation:
     """The SDP of ``prep`` in the frame of ``block_scale_at`` at the best local solution, and once more on the
-    plain data when that solve is not usable.  A ray of unboundedness in either solve raises
-    ``UnboundedRelaxation`` (naming the unbounded blocks) when ``raise_unbounded``."""
+    plain data when that solve is not usable, unless its multipliers, polished at the best local solution,
+    certify that solution (``dual_certificate``): the relaxation's optimum is then known to the certificate's
+    bound and another solve cannot change the verdict (discrete trajectory K = 10 000: each solve ~10 min).
+    A ray of unboundedness in either solve raises ``UnboundedRelaxation`` (naming the unbounded blocks) when
+    ``raise_unbounded``."""
     model, cons, config = prep.model, prep.constraints, prep.config
     scale = block_scale_at(problem, inst, model, prep.local.best.state, config)
     res = sdp.solve_model(model, cons, config, scale)
-    unscaled = None
-    if scale is not None and not res.usable:  # the scaling did not help this solve: the plain data
-        unscaled = sdp.solve_model(model, cons, config, None)
+    unscaled, certified = None, None
+    if not res.usable and res.y is not None and not is_unbounded(res):
+        certified = dual_certificate(problem, inst, model, cons, res, prep.local.best, criteria)
+    if scale is not None and not res.usable and not (certified and certified[1] and certified[1].certified):
+        unscaled = sdp.solve_model(model, cons, config, None)  # the scaling did not help this solve: the plain data
         if unscaled.usable:
-            res, unscaled = unscaled, res
+            res, unscaled, certified = unscaled, res, None
     ray = next((r for r in (res, unscaled) if r is not None and is_unbounded(r)), None)
     if raise_unbounded and ray is not None:  # a ray proves unboundedness whichever data it was found with
         blocks = unbounded_blocks(model, ray)
         raise UnboundedRelaxation(unbounded_message(model, ray, blocks), blocks)
-    return Relaxation(res, unscaled, scale)
+    return Relaxation(res, unscaled, scale, certified)
 
 
 @dataclass
@@ -357,7 +366,10 @@ def judge_relaxation(problem: Problem, inst: Instance, prep: Prepared, relax: Re
     blocks that can grow at no cost (``unbounded.rank_out_of_reach``)."""
     model, cons, config, scale = prep.model, prep.constraints, prep.config, relax.scale
     upper = best.cost
-    res, cert = dual_certificate(problem, inst, model, cons, relax.res, best, criteria)
+    if relax.certified is not None and best is prep.local.best:  # made by ``solve_relaxation`` at this point
+        res, cert = relax.certified
+    else:
+        res, cert = dual_certificate(problem, inst, model, cons, relax.res, best, criteria)
     verdict = judge(res, upper, criteria, cert, Q=model.Q, constraints=cons, scale=scale)
     attempts = ([] if relax.unscaled is None else [_attempt(relax.unscaled, None)]) + [_attempt(res, verdict)]
     tighter = replace(config, tol=max(config.tol / 100, 1e-13))
@@ -413,7 +425,7 @@ def solve_prepared(problem: Problem, inst: Instance, prep: Prepared, name: str, 
     """``solve_instance`` after its ``prepare`` step (``prep``; ``name``: the set's name in the result), for a
     caller that prepared the instance already (e.g. to try a certificate first)."""
     t2 = time.perf_counter()
-    relax = solve_relaxation(problem, inst, prep, raise_unbounded=raise_unbounded)
+    relax = solve_relaxation(problem, inst, prep, raise_unbounded=raise_unbounded, criteria=criteria)
     t3 = time.perf_counter()
     rec = recover_estimate(problem, inst, prep, relax.res, criteria)
     jd = judge_relaxation(problem, inst, prep, relax, rec.best, criteria)

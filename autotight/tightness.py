@@ -31,7 +31,8 @@ The reported ``rel_gap`` is (U − P)/max(|U|, cost_floor).
 
 ``accept`` says which verdict counts as ``tight``: "rank" (rank and cost, the paper's; a low rank
 counts as not tight only when the bracket is tight, acc ≤ tol and the solver reached its own tolerance
-(status Solved), else undecided), "cost" (the
+(status Solved), else undecided; a solve that gave no usable X is tight when the certificate proves the
+local solution optimal, since x̂x̂ᵀ is then a rank-d optimum of the SDP), "cost" (the
 bracket; with a certificate given, both the bracket and the certificate, and a certificate alone
 decides a bracket left undecided by the solver's accuracy, never an inconsistent solve), "certified"
 (the certificate of ``autotight.certificate`` alone).
@@ -247,6 +248,11 @@ def judge(res: SDPResult, upper: float, criteria: Criteria = Criteria(), certifi
     if criteria.accept == "rank":
         if cost_outcome == TIGHT and rank_tight:
             outcome = TIGHT
+        elif cert and not res.usable and not res.status.endswith("DualInfeasible"):
+            # no X to rank, but the certificate proves x̂x̂ᵀ (rank d) optimal for the SDP to its bound
+            outcome = TIGHT
+            reasons.append(f"certified: x̂x̂ᵀ is optimal for the SDP up to the certificate's bound; the rank of the "
+                           f"solver's X is not measured (status {res.status})")
         elif cost_outcome == NOT_TIGHT or (not rank_tight and cost_outcome == TIGHT and acc.acc <= tol and res.solved):
             outcome = NOT_TIGHT
         else:

@@ -148,3 +148,4 @@ def test_a_stalled_ipm_solve_is_retried_with_the_fixed_step_fraction(ra, monkeyp
     assert abs(r.primal_cost - ref) <= 1e-6 * ref
     fixed = SolverConfig(backend="ipm", ipm=IpmOptions(step_fraction=0.8))
     assert schur_ipm.IPMBackend().retries(fixed, True, 50) == []
+    assert schur_ipm.IPMBackend().retries(SolverConfig(backend="ipm"), True, schur_ipm.RETRY_MAX_N + 1) == []

@@ -107,3 +107,33 @@ def test_lowering_the_h_multiplier_drops_the_dual_cost_and_keeps_h_as_psd():
                               x, d=model.d)
         assert kept.dual_cost <= loc.cost + 1e-12 * max(1.0, abs(loc.cost)) and "y " in kept.message
         assert kept.dual_cost_raw == float(b @ y_up) and cert.dual_value == kept.dual_cost
+
+
+def test_a_stalled_solve_whose_multipliers_certify_is_not_solved_again(monkeypatch):
+    """Rotation averaging (M = 6, primary constraints: tight): the scaled solve is made to end unusable
+    (InsufficientProgress, no X) with its real multipliers; their polish certifies the local solution, so
+    the plain data is not solved again and the verdict is tight by the certificate.  With multipliers that
+    certify nothing (zeros) the plain data is solved, as before."""
+    import autotight.pipeline as pipeline
+
+    prob = load("rotation_averaging")
+    inst = prob.generate({"M": 6, "sigma": 0.1}, 0)
+    real, calls = pipeline.sdp.solve_model, []
+
+    def stalled(y_of):
+        def solve(model, cons, config, scale):
+            res = real(model, cons, config, scale)
+            calls.append(scale is not None)
+            if scale is not None:  # the scaled solve stalls
+                return replace(res, status="InsufficientProgress", X=None, y=y_of(res.y))
+            return res
+        return solve
+
+    monkeypatch.setattr(pipeline.sdp, "solve_model", stalled(lambda y: y))
+    out = solve_instance(prob, inst, "primary")
+    assert calls == [True] and out.tight and out.certificate.certified and out.certificate.rel_bound <= 1e-5
+    assert "not measured" in out.verdict.reason
+    calls.clear()
+    monkeypatch.setattr(pipeline.sdp, "solve_model", stalled(np.zeros_like))
+    out = solve_instance(prob, inst, "primary")
+    assert calls == [True, False] and out.sdp.usable and out.tight

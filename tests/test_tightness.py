@@ -61,6 +61,20 @@ def test_accept_certified_uses_the_certificate():
         Criteria(accept="sometimes")
 
 
+def test_an_unusable_solve_is_tight_by_a_certificate_and_undecided_without():
+    """accept="rank": a solve that gave no X (status InsufficientProgress) is undecided alone, tight with a
+    certificate of the local solution (x̂x̂ᵀ is then a rank-1 optimum) and still undecided with a failed one;
+    an unbounded relaxation stays not tight whatever certificate comes with it."""
+    cert = Certificate(True, 1e-12, 1e-12, 0.0, 0.0, 0.0, 0.0, 1.0, 1.0, 5.0, 0.0, "test")
+    stalled = SDPResult(status="InsufficientProgress", solver="test", d=1, X=None, y=np.zeros(1), primal_cost=np.nan,
+                        dual_cost=np.nan, solve_time_s=0.0)
+    assert judge(stalled, 1.0, Criteria()).outcome == "undecided"
+    v = judge(stalled, 1.0, Criteria(), cert)
+    assert v.outcome == "tight" and v.tight and v.certified and "rank of the solver's X is not measured" in v.reason
+    assert judge(stalled, 1.0, Criteria(), replace(cert, certified=False)).outcome == "undecided"
+    assert judge(replace(stalled, status="DualInfeasible"), 1.0, Criteria(), cert).outcome == "not tight"
+
+
 def _judged(name, params, seed, set_name="paper", options=None):
     p = load(name)
     inst = p.generate(params, seed=seed)

@@ -92,7 +92,8 @@ def cmd_solve(args: argparse.Namespace) -> int:
 
 
 def _failed(out) -> int:
-    """0, or SolverError when the SDP gave no usable solution (the result above says why)."""
-    if not out.sdp.usable:
+    """0, or SolverError when the SDP gave no usable solution and no certificate decided the verdict (the
+    result above says why)."""
+    if not out.sdp.usable and not out.tight:
         raise SolverError(f"the SDP solve failed: status {out.sdp.status} ({out.sdp.solver})")
     return 0

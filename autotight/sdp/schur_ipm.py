@@ -777,22 +777,25 @@ def solve_ipm(Q: sp.csr_array, As: Sequence[sp.csr_array], b: np.ndarray, d: int
     return finish(res)
 
 
-#: the fixed step fraction of the retry (``IPMBackend.retries``), and the statuses that get it
+#: the fixed step fraction of the retry (``IPMBackend.retries``), the statuses that get it, and the largest
+#: number of columns: above it a retry costs minutes (discrete trajectory K = 10 000, N = 240 000: 550 s, and
+#: it stalled at a relative gap of 1.8e-4 after 4.6e-4), and the pipeline certifies the local solution instead
 RETRY_STEP_FRACTION = 0.9
 RETRY_STATUSES = (Status.INSUFFICIENT_PROGRESS, Status.NUMERICAL_ERROR)
+RETRY_MAX_N = 20_000
 
 
 class IPMBackend:
     """Our IPM (this module) on the clique cover of policy "ipm"; an unusable result is solved again
     by Clarabel (``fallback``) on Clarabel's own cover.
 
-    Retry (``retries``): a solve with SDPT3's step lengths that stalls (``RETRY_STATUSES``) is solved again
-    with the fixed fraction ``RETRY_STEP_FRACTION``.  SDPT3's longer steps after a full one can leave the
-    iterate where every later step is ~1e-2 long: on low-noise instances (discrete trajectory K = 100,
-    σ = 0.001, the set learned at K = 5) the solve stalled at a relative gap of 1e-1 and Clarabel solved
-    again for minutes; the fixed fraction reaches AlmostSolved there.  Not the default: over the 49 block
-    programs of benchmarks/ipm_corpus.py it fails on 8 against 12 but takes 14 % longer, 20–40 % on the
-    discrete trajectory at K = 1000."""
+    Retry (``retries``): a solve with SDPT3's step lengths that stalls (``RETRY_STATUSES``) on at most
+    ``RETRY_MAX_N`` columns is solved again with the fixed fraction ``RETRY_STEP_FRACTION``. SDPT3's longer
+    steps after a full one can leave the iterate where every later step is ~1e-2 long: on low-noise instances
+    (discrete trajectory K = 100, σ = 0.001, the set learned at K = 5) the solve stalled at a relative gap of
+    1e-1 and Clarabel solved again for minutes; the fixed fraction reaches AlmostSolved there. Not the default:
+    over the 49 block programs of benchmarks/ipm_corpus.py it fails on 8 against 12 but takes 14 % longer,
+    20–40 % on the discrete trajectory at K = 1000."""
 
     name = "ipm"
     decompose_default = True
@@ -810,7 +813,7 @@ class IPMBackend:
         return solve_ipm(Q, As, b, d, cliques, config)
 
     def retries(self, config: SolverConfig, decomposed: bool, N: int) -> Retries:
-        if config.ipm.step_fraction is not None:
+        if config.ipm.step_fraction is not None or N > RETRY_MAX_N:
             return []
         fixed = replace(config, ipm=replace(config.ipm, step_fraction=RETRY_STEP_FRACTION))
         return [(f"the fixed step fraction {RETRY_STEP_FRACTION}", fixed, RETRY_STATUSES)]
