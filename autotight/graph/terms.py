@@ -105,12 +105,13 @@ class Term:
 
     def _fit_equations(self) -> list[tuple[str, np.ndarray]]:
         """The auxiliary's equations as (name, (n, n) matrix) on the local columns."""
-        assert self.aux is not None
+        aux = self.aux
+        assert aux is not None
 
         def call(v: np.ndarray) -> np.ndarray:
             theta = np.concatenate(([1.0], v))
             try:
-                e = np.asarray(self.aux.equations(*self._views(theta)), float)
+                e = np.asarray(aux.equations(*self._views(theta)), dtype=np.float64)
             except (ArithmeticError, ValueError, np.linalg.LinAlgError) as err:
                 raise ProblemDefinitionError(
                     f"{self.where}: the auxiliary's equations raised {type(err).__name__} ({err}) at entries off the "
