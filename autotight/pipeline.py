@@ -288,7 +288,7 @@ def solve_relaxation(problem: Problem, inst: Instance, prep: Prepared, *, raise_
     """The SDP of ``prep`` in the frame of ``block_scale_at`` at the best local solution, and once more on the
     plain data when that solve is not usable, unless its multipliers, polished at the best local solution,
     certify that solution (``dual_certificate``): the relaxation's optimum is then known to the certificate's
-    bound and another solve cannot change the verdict (discrete trajectory K = 10 000: each solve ~10 min).
+    bound and another solve cannot change the verdict.
     A ray of unboundedness in either solve raises ``UnboundedRelaxation`` (naming the unbounded blocks) when
     ``raise_unbounded``."""
     model, cons, config = prep.model, prep.constraints, prep.config

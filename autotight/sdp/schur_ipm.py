@@ -778,8 +778,8 @@ def solve_ipm(Q: sp.csr_array, As: Sequence[sp.csr_array], b: np.ndarray, d: int
 
 
 #: the fixed step fraction of the retry (``IPMBackend.retries``), the statuses that get it, and the largest
-#: number of columns: above it a retry costs minutes (discrete trajectory K = 10 000, N = 240 000: 550 s, and
-#: it stalled at a relative gap of 1.8e-4 after 4.6e-4), and the pipeline certifies the local solution instead
+#: number of columns that gets it: above, a retry costs as much as a long solve and the pipeline certifies the
+#: local solution with the stalled solve's multipliers instead (``pipeline.solve_relaxation``)
 RETRY_STEP_FRACTION = 0.9
 RETRY_STATUSES = (Status.INSUFFICIENT_PROGRESS, Status.NUMERICAL_ERROR)
 RETRY_MAX_N = 20_000
@@ -790,12 +790,9 @@ class IPMBackend:
     by Clarabel (``fallback``) on Clarabel's own cover.
 
     Retry (``retries``): a solve with SDPT3's step lengths that stalls (``RETRY_STATUSES``) on at most
-    ``RETRY_MAX_N`` columns is solved again with the fixed fraction ``RETRY_STEP_FRACTION``. SDPT3's longer
-    steps after a full one can leave the iterate where every later step is ~1e-2 long: on low-noise instances
-    (discrete trajectory K = 100, σ = 0.001, the set learned at K = 5) the solve stalled at a relative gap of
-    1e-1 and Clarabel solved again for minutes; the fixed fraction reaches AlmostSolved there. Not the default:
-    over the 49 block programs of benchmarks/ipm_corpus.py it fails on 8 against 12 but takes 14 % longer,
-    20–40 % on the discrete trajectory at K = 1000."""
+    ``RETRY_MAX_N`` columns is solved again with the fixed fraction ``RETRY_STEP_FRACTION``, whose shorter
+    steps do not jam where SDPT3's do after a full step (low-noise instances).  Not the default: it takes
+    more iterations where SDPT3's rule converges (benchmarks/README.md, "Step lengths and the retry")."""
 
     name = "ipm"
     decompose_default = True
