@@ -85,13 +85,10 @@ class LiftingFit:
         """c0_e h² + G_e v h + vᵀ S_e v − h·z_e = 0 on local columns [h, v (p), …, z at ``offset``, …]."""
         n = offset + self.size
         out = []
-        for e in range(self.size):
+        for e, form in enumerate(quadratic_forms(self.c0, self.G, self.S)):
             M = np.zeros((n, n))
+            M[:1 + p, :1 + p] = form
             M[0, offset + e] = M[offset + e, 0] = -0.5
-            M[0, 0] = self.c0[e]
-            M[0, 1:1 + p] += 0.5 * self.G[e]
-            M[1:1 + p, 0] += 0.5 * self.G[e]
-            M[1:1 + p, 1:1 + p] += self.S[e]
             out.append(M)
         return out
 

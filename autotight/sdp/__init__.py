@@ -55,7 +55,8 @@ import scipy.sparse as sp
 
 from ..model import Constraint, Model, fast_coo
 from ..threads import single_blas_thread
-from .config import AUTO, ClarabelOptions, IpmOptions, SolverConfig, SolverConfigError, SolverOptions
+from .config import (AUTO, FALLBACK_MAX_N, ClarabelOptions, IpmOptions, SolverConfig, SolverConfigError,
+                     SolverOptions)
 from .covers import IPM_MERGE_CAPS, MERGE_MAX_SIZE, CliqueCovers
 from .clarabel_direct import ClarabelBackend
 from .cvxpy_path import CvxpyBackend
@@ -69,11 +70,6 @@ __all__ = ["solve", "solve_model", "FALLBACK_MAX_N",
            "ClarabelOptions", "IpmOptions",
            "SDPResult", "BACKENDS", "CliqueCovers", "MERGE_MAX_SIZE", "IPM_MERGE_CAPS", "log_svr",
            "rank_d_factor"]
-
-#: above this many columns an unusable result is not solved again by the fallback: Clarabel's memory on the
-#: chordal cover grows faster than the data (discrete trajectory with the set learned at K = 5: K = 4000,
-#: N = 96 000, passed 21 GB before its first iteration, where the IPM had held 1.6 GB at K = 2000)
-FALLBACK_MAX_N = 20_000
 
 #: the shipped backends (``registry``)
 BACKENDS.update(clarabel=ClarabelBackend(), ipm=IPMBackend(), cvxpy=CvxpyBackend())

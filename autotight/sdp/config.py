@@ -19,6 +19,12 @@ from ..errors import SolverConfigError
 from .options import ClarabelOptions, IpmOptions
 from .registry import BACKENDS
 
+#: above this many columns an unusable result is not solved again, neither by a backend's retry nor by its
+#: fallback: a retry costs as much as the long solve it repeats, and Clarabel's memory on the chordal cover
+#: grows faster than the data (discrete trajectory with the set learned at K = 5: K = 4000, N = 96 000, passed
+#: 21 GB before its first iteration, where the IPM had held 1.6 GB at K = 2000)
+FALLBACK_MAX_N = 20_000
+
 __all__ = ["SolverConfig", "SolverConfigError", "ClarabelOptions", "IpmOptions", "AUTO", "AUTO_IPM_MIN_N",
            "SCALES", "Retries"]
 

@@ -59,7 +59,7 @@ from ..svec import SQRT2, triu_indices
 from .clique_program import clique_program, complete_auto
 from ..errors import SolverConfigError
 from ..threads import single_blas_thread
-from .config import Retries, SolverConfig
+from .config import FALLBACK_MAX_N, Retries, SolverConfig
 from .options import SEARCH_DIRECTIONS
 from .result import SDPResult, Status, finish
 from . import schur_kernel
@@ -778,11 +778,11 @@ def solve_ipm(Q: sp.csr_array, As: Sequence[sp.csr_array], b: np.ndarray, d: int
 
 
 #: the fixed step fraction of the retry (``IPMBackend.retries``), the statuses that get it, and the largest
-#: number of columns that gets it: above, a retry costs as much as a long solve and the pipeline certifies the
-#: local solution with the stalled solve's multipliers instead (``pipeline.solve_relaxation``)
+#: number of columns that gets it (the SDP layer's ``FALLBACK_MAX_N``: above, the pipeline certifies the local
+#: solution with the stalled solve's multipliers instead, ``pipeline.solve_relaxation``)
 RETRY_STEP_FRACTION = 0.9
 RETRY_STATUSES = (Status.INSUFFICIENT_PROGRESS, Status.NUMERICAL_ERROR)
-RETRY_MAX_N = 20_000
+RETRY_MAX_N = FALLBACK_MAX_N
 
 
 class IPMBackend:
