@@ -12,7 +12,7 @@ from autotight.constraint_set import resolve
 from autotight.discovery import compare
 from autotight.discovery.catalog import learn
 from autotight.discovery.engine import discover
-from autotight.discovery.heldout import solve_batch
+from autotight.discovery.heldout import hopeless, solve_batch
 from autotight.discovery.shortcut import certified_tight
 from autotight.pipeline import local_search, seeds, solve_instance
 from autotight.problem import load
@@ -62,6 +62,38 @@ def test_a_held_out_batch_has_the_same_outcomes_with_and_without_the_shortcut(po
         assert fast[name][0].outcomes == full[name][0].outcomes and fast[name][0].seeds == [11, 12]
     assert fast["paper"][0].statuses == ["certified"] * 2 and n_fast["paper"] == 0 < n_full["paper"]
     assert n_fast["primary"] == n_full["primary"]  # not tight: always the full SDP
+
+
+@pytest.mark.parametrize("outcomes, planned, fraction, expected", [
+    (["not tight"], 10, 0.9, False),  # 9 of 10 can still pass
+    (["tight", "not tight", "not tight"], 10, 0.9, True),  # at best 8 of 10
+    (["undecided", "not tight"], 10, 0.9, True),  # at best 8 of 9 decided
+    (["not tight"] * 5, 10, 0.5, False),  # 5 of 10 passes at 0.5
+    (["not tight"] * 6, 10, 0.5, True),
+    (["not tight"] * 3, 3, 0.0, False),  # a fraction of 0 always passes
+    (["undecided"] * 10, 10, 1.0, False),  # no failure: nothing is hopeless
+])
+def test_a_batch_is_hopeless_exactly_when_its_best_completion_fails_the_rule(outcomes, planned, fraction, expected):
+    assert hopeless(outcomes, planned, fraction) is expected
+    if expected:  # the best completion (every other instance tight) indeed fails check's rule
+        t, f = outcomes.count("tight") + planned - len(outcomes), outcomes.count("not tight")
+        assert t / (t + f) < fraction
+
+
+def test_a_hopeless_batch_stops_at_the_same_seed_in_process_and_in_workers(pose):
+    """σ = 1 with the primary constraints only: instances fail early and the batch stops at the instance that
+    makes the point hopeless, with jobs = 1 and 2 alike; the solved prefix has the outcomes of the full batch."""
+    points = [(pose.parse_params({"M": 3, "sigma": 1.0}), {})]
+    kw = dict(min_fraction=0.9, criteria=Criteria(), config=SolverConfig())
+    seeds_ = list(range(40, 48))
+    full, _ = solve_batch(pose, {"s": "primary"}, points, [seeds_], **kw)
+    one, n_one = solve_batch(pose, {"s": "primary"}, points, [seeds_], stop_hopeless=True, **kw)
+    two, n_two = solve_batch(pose, {"s": "primary"}, points, [seeds_], stop_hopeless=True, jobs=2, **kw)
+    got = one["s"][0].outcomes
+    assert hopeless(full["s"][0].outcomes, 8, 0.9)  # the full batch fails, so the stopped one must stop
+    assert hopeless(got, 8, 0.9) and not hopeless(got[:-1], 8, 0.9) and len(got) < len(seeds_)
+    assert got == full["s"][0].outcomes[:len(got)] and one["s"][0].seeds == seeds_[:len(got)]
+    assert two["s"][0].outcomes == got and two["s"][0].seeds == one["s"][0].seeds and n_two == n_one
 
 
 @pytest.mark.slow  # two discoveries (~1 min); the held-out outcomes themselves: the test above

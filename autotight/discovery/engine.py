@@ -15,7 +15,8 @@ those sizes as well.
    ``autotight.pipeline.solve_instance``: the function ``solve`` and ``check`` use.
 4. **Validate**: ``n_heldout`` fresh held-out instances at every point (and validation point), solved with
    the set in parallel (``heldout``: ``jobs``/``scheduler``).  A point passes as in ``check``: tight /
-   (instances − undecided) ≥ ``min_fraction``.
+   (instances − undecided) ≥ ``min_fraction``.  A point's batch stops at the instance after which it cannot
+   pass any more (``heldout.hopeless``; the rest of its seeds are not solved).
 5. **Close the loop**: every held-out instance the set fails becomes a training instance; the set is
    tightened from where it is on them, one at a time (``select.tighten_each``; its pairs stay: dropping
    them to fit the new instances would lose what the earlier batches showed; the added pairs are reduced
@@ -194,14 +195,15 @@ def discover(problem: Problem | str, params: Mapping[str, Any] | None = None, se
         next_t = [n + len(b) for n, b in zip(next_t, batch)]
         held, n = timed("heldout_s", solve_batch, prob, {"set": ConstraintSet(ds)}, check_points, batch,
                         min_fraction=float(min_fraction), criteria=criteria, config=config, n_random=1, jobs=jobs,
-                        scheduler=scheduler, shortcut=shortcut)
+                        scheduler=scheduler, shortcut=shortcut, stop_hopeless=True)
         run.count("heldout", n["set"])
         for i in todo:
             last[i] = held["set"][i]
             kept[i] = batch[i]
         failing = [(i, s) for i in todo for s, _, _ in last[i].with_outcome("not tight")]
         passed = all(pr.passed for pr in last)
-        rounds.append(round_record(len(rounds), [last[i] for i in todo], len(pairs), passed))
+        rounds.append(round_record(len(rounds), [last[i] for i in todo], len(pairs), passed,
+                                   [len(batch[i]) for i in todo]))
         say("validate", f"round {len(rounds)}: {'passed' if passed else 'not passed'}, {len(failing)} not tight")
         if not failing:  # every point's latest batch without a failure (or only undecided ones left)
             validated = passed

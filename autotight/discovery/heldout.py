@@ -12,11 +12,16 @@ With ``shortcut`` an instance whose local solution's certificate proves the set 
 (``shortcut.certified_tight``: cost and rank, by exact tests) is counted tight without the full SDP;
 every other instance is solved as above, so an instance that fails is always one the full SDP judged.
 The set's constraints are checked on the instance's feasible points (``validity.check_valid``) either way.
+
+With ``stop_hopeless`` (one set) a point's batch ends at the first instance, in seed order, after which the
+point cannot pass any more whatever the rest would give (``hopeless``): its later instances are not solved,
+and results that a parallel worker finished beyond that instance are dropped, so the batch is the same prefix
+of seeds wherever it ran.
 """
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -61,23 +66,55 @@ def _indexed(key: tuple[int, int], ref: Any, params: dict[str, Any], seed: int, 
     return key, solve_one(ref, params, seed, sets, criteria, config, n_random, shortcut)
 
 
+def hopeless(outcomes: Sequence[str], planned: int, min_fraction: float) -> bool:
+    """True when a batch of ``planned`` instances whose first ones ended with ``outcomes`` cannot pass at
+    ``min_fraction`` (``check``'s rule: tight / (instances − undecided)) whatever the others end with: the best
+    case, every other instance tight, (T + R) / (T + F + R) is below ``min_fraction``."""
+    tight, failed = outcomes.count("tight"), outcomes.count("not tight")
+    rest = planned - len(outcomes)
+    best = tight + rest
+    return failed > 0 and best < (min_fraction - 1e-12) * (best + failed)
+
+
 def solve_batch(prob: Problem, sets: Mapping[str, ConstraintsLike], points: Sequence[tuple[dict, dict]],
                 batch: Sequence[Sequence[int]], *, min_fraction: float, criteria: Criteria, config: SolverConfig,
-                n_random: int = 1, jobs: int = 1, scheduler: Any = None,
-                shortcut: bool = False) -> tuple[dict[str, list[PointResult]], dict[str, int]]:
-    """Solve the seeds ``batch[i]`` at point i with every set (``shortcut``: the module docstring); the sets of
-    one instance share its generation, model and local search.  Returns {set name: [PointResult per point]}
-    (instances in seed order) and {set name: SDP solver calls}."""
+                n_random: int = 1, jobs: int = 1, scheduler: Any = None, shortcut: bool = False,
+                stop_hopeless: bool = False) -> tuple[dict[str, list[PointResult]], dict[str, int]]:
+    """Solve the seeds ``batch[i]`` at point i with every set (``shortcut``, ``stop_hopeless``: the module
+    docstring); the sets of one instance share its generation, model and local search.  Returns {set name:
+    [PointResult per point]} (instances in seed order) and {set name: SDP solver calls}."""
     from ..parallel import execute
 
+    if stop_hopeless and len(sets) != 1:
+        raise ParameterError("stop_hopeless needs exactly one set")
     local = jobs == 1 and scheduler is None
     ref = problem_ref(prob, local)
     calls = [((i, t), ref, points[i][0], s, dict(sets), criteria, config, n_random, shortcut)
              for i, seeds_ in enumerate(batch) for t, s in enumerate(seeds_)]
-    done = dict(execute(_indexed, calls, jobs=jobs, scheduler=scheduler))
+    done: dict[tuple[int, int], dict[str, dict[str, Any]]] = {}
+    end = [len(b) for b in batch]  # per point: the instances that count (a prefix of its seeds)
+
+    def wanted() -> Iterator[tuple]:  # read lazily (in process, joblib): a hopeless point's rest is skipped
+        return (c for c in calls if c[0][1] < end[c[0][0]])
+
+    for key, rows in execute(_indexed, wanted() if stop_hopeless else calls, jobs=jobs, scheduler=scheduler):
+        done[key] = rows
+        i = key[0]
+        if not stop_hopeless or key[1] >= end[i]:
+            continue
+        outcomes: list[str] = []
+        for t in range(end[i]):  # the known prefix of point i, in seed order
+            if (i, t) not in done:
+                break
+            outcomes.append(next(iter(done[(i, t)].values()))["outcome"])
+            if hopeless(outcomes, len(batch[i]), min_fraction):
+                end[i] = t + 1
+                break
     out = {name: [PointResult(full, varied, min_fraction) for full, varied in points] for name in sets}
     n = {name: 0 for name in sets}
     for key, _, _, s, *_ in calls:
+        if key[1] >= end[key[0]]:
+            continue
         for name, row in done[key].items():
             pr = out[name][key[0]]
             pr.add(s, row)

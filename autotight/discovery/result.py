@@ -36,10 +36,12 @@ def _evidence(pr: PointResult | None) -> dict[str, Any] | None:
             "n_constraints": sorted(set(pr.n_constraints))}
 
 
-def round_record(index: int, points: list[PointResult], n_pairs: int, passed: bool) -> dict[str, Any]:
-    """One held-out round: the set's size and every point's evidence."""
+def round_record(index: int, points: list[PointResult], n_pairs: int, passed: bool,
+                 planned: list[int]) -> dict[str, Any]:
+    """One held-out round: the set's size and every point's evidence; ``planned``: per point the seeds of its
+    batch (its ``instances`` are fewer when the batch stopped once the point could not pass)."""
     return {"round": index + 1, "n_pairs": n_pairs, "passed": passed,
-            "points": [{"varied": p.varied} | (_evidence(p) or {}) for p in points],
+            "points": [{"varied": p.varied, "planned": k} | (_evidence(p) or {}) for p, k in zip(points, planned)],
             "taken_in": 0, "n_pairs_after": n_pairs}
 
 
