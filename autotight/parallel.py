@@ -14,7 +14,7 @@ import contextlib
 import os
 import threading
 import time
-from typing import Any, Callable, Iterator, Sequence
+from typing import Any, Callable, Iterable, Iterator
 
 from .errors import AutotightError
 
@@ -35,9 +35,10 @@ def _exit_with_parent(parent: int, interval: float = WATCH_INTERVAL_S) -> None:
     threading.Thread(target=watch, name="autotight-parent-watchdog", daemon=True).start()
 
 
-def execute(fn: Callable[..., Any], calls: Sequence[tuple], *, jobs: int = 1,
+def execute(fn: Callable[..., Any], calls: Iterable[tuple], *, jobs: int = 1,
             scheduler: Any = None) -> Iterator[Any]:
-    """``fn(*args)`` for every args in ``calls``, yielded in completion order.
+    """``fn(*args)`` for every args in ``calls``, yielded in completion order.  ``calls`` is read lazily in
+    process and by joblib (as workers free up), all at once by Dask.
 
     ``scheduler``: a Dask scheduler address (or a ``distributed.Client``); else ``jobs`` > 1 uses
     joblib's loky processes and ``jobs`` = 1 runs in this process.
@@ -51,7 +52,7 @@ def execute(fn: Callable[..., Any], calls: Sequence[tuple], *, jobs: int = 1,
     return _joblib(fn, calls, jobs)
 
 
-def _joblib(fn: Callable[..., Any], calls: Sequence[tuple], jobs: int) -> Iterator[Any]:
+def _joblib(fn: Callable[..., Any], calls: Iterable[tuple], jobs: int) -> Iterator[Any]:
     from joblib import Parallel, delayed, parallel_config
     from joblib.externals.loky.process_executor import TerminatedWorkerError
 
@@ -92,9 +93,10 @@ def connect(scheduler: Any) -> Iterator[Any]:
         client.close()
 
 
-def _dask(fn: Callable[..., Any], calls: Sequence[tuple], scheduler: Any) -> Iterator[Any]:
+def _dask(fn: Callable[..., Any], calls: Iterable[tuple], scheduler: Any) -> Iterator[Any]:
     from distributed import as_completed
 
+    calls = list(calls)
     with connect(scheduler) as client:
         futures: list[Any] = []
         try:
