@@ -65,14 +65,11 @@ class Projection:
     stationarity: float
 
 
-def stationarity_rows(prog, Th: np.ndarray, blocks) -> tuple[sp.csr_array, np.ndarray, np.ndarray]:
+def stationarity_rows(prog, Th: np.ndarray, blocks, Gv: sp.csr_array, cv: np.ndarray
+                      ) -> tuple[sp.csr_array, np.ndarray, np.ndarray]:
     """(L, l, UU): S_k(w) Θ̂_kᵀ = 0 for every clique as L w = l (rows scaled to unit norm; vec row-major
-    blocks, ``schur_ipm._Blocks``), and vec(U_kU_kᵀ) stacked (U_k: orthonormal basis of Θ̂_k's rows)."""
-    from .sdp.schur_ipm import svec_to_vec
-
-    P = svec_to_vec(prog.sizes)
-    Gv = sp.csr_array(P @ prog.F)
-    cv = P @ prog.c
+    blocks, ``schur_ipm._Blocks``), and vec(U_kU_kᵀ) stacked (U_k: orthonormal basis of Θ̂_k's rows).
+    Gv, cv: the program's F and c on those vec blocks (S(w) = cv − Gv w)."""
     d = Th.shape[0]
     UU = np.zeros(blocks.voff[-1])
     first = np.concatenate([[0], np.cumsum(prog.sizes)])  # Σ_{k' < k} n_k'
@@ -106,18 +103,19 @@ def project_multipliers(prog, Th: np.ndarray, *, clips: tuple[float, ...] = CLIP
     P = svec_to_vec(prog.sizes)
     Gv = sp.csr_array(P @ prog.F)
     base = P @ prog.c
-    DL, dl, UU = stationarity_rows(prog, Th, blocks)
+    DL, dl, UU = stationarity_rows(prog, Th, blocks, Gv, base)
     base = base + alpha * UU
     M = Gv.shape[1]
-    GtG = sp.csc_array(Gv.T @ Gv)
+    GvT = sp.csr_array(Gv.T)
+    GtG = sp.csc_array(GvT @ Gv)
     scale = float(np.mean(GtG.diagonal())) or 1.0
-    N = sp.csc_matrix(GtG + (PENALTY * scale) * sp.csc_array(DL.T @ DL) + (RIDGE * scale) * sp.identity(M))
+    root = sp.csr_array(DL * np.sqrt(PENALTY * scale))  # β LᵀD²L as (√β DL)ᵀ(√β DL): no scaled copy of the product
+    N = sp.csc_matrix(GtG + sp.csc_array(root.T @ root) + (RIDGE * scale) * sp.identity(M))
     try:
         lu = spla.splu(N, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options=dict(SymmetricMode=True))
     except RuntimeError as e:
         return Projection(np.zeros(M), -np.inf, f"breakdown: {e}", 0, np.inf)
     pen = (PENALTY * scale) * (DL.T @ dl)
-    GvT = sp.csr_array(Gv.T)
 
     def onto_affine(Z: np.ndarray) -> np.ndarray:
         rhs = GvT @ (base - Z) + pen

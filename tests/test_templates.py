@@ -307,3 +307,46 @@ def test_a_range_sets_templates_are_fitted_over_its_points():
     assert len(pts) == 4 and {p["K"] for p in pts} == {5}
     assert {(p["sigma"], p["speed"]) for p in pts} == {(0.001, 1.0), (0.001, 4.0), (0.1, 1.0), (0.1, 4.0)}
     assert DiscoveredSet("discrete_trajectory", {"K": 5}, 0, [], {}, {}).template_points(prob) == [{"K": 5}]
+
+
+@pytest.mark.parametrize("kind", ["polynomial", "transport"])
+def test_applied_constraints_equal_those_built_factor_by_factor(learned, transported, kind, monkeypatch):
+    """Each constraint ``apply_template`` makes equals the one built from its factor's coefficients entry by
+    entry (``canonical_coo``), zero coefficients dropped, also when two of a factor's columns coincide (summed
+    duplicates)."""
+    from autotight.discovery.templates import apply_template, factor_columns
+    from autotight.model import canonical_coo
+    from autotight.svec import triu_indices
+
+    prob, params, ts = (learned[0], learned[1], learned[2]) if kind == "polynomial" else transported
+    tpl = next(iter(ts.templates.values()))
+    size = "K" if "K" in params else "M"
+    inst = prob.generate(prob.parse_params({size: 9}), np.random.default_rng(5))
+    model = prob.build(inst)
+    fs, cols, D = factor_columns(model, tpl)
+    coeffs = tpl.coefficients(D, prob).copy()
+    coeffs[1, ::3] = 0.0  # some zero coefficients, as a transport template has per factor
+    got = apply_template(model, tpl, coeffs)
+    ii, jj = triu_indices(tpl.n_cols)
+    q, mono = tpl.support // tpl.n_monomials, tpl.support % tpl.n_monomials
+    N = model.variables.N
+    n = 0
+    for a in range(len(tpl.identities)):
+        sel = np.flatnonzero(q == a)
+        for r in range(len(fs)):
+            p, gi, gj = coeffs[r, sel], cols[r, ii[mono[sel]]], cols[r, jj[mono[sel]]]
+            want = canonical_coo(np.concatenate([gi, gj]), np.concatenate([gj, gi]), np.concatenate([p, p]) / 2, N)
+            A = got[n].A
+            assert np.array_equal(A.row, want.row) and np.array_equal(A.col, want.col)
+            assert np.allclose(A.data, want.data, rtol=1e-15, atol=0) and got[n].factor == fs[r].name
+            n += 1
+    assert n == len(got)
+    # a factor whose columns repeat: its entries are summed as canonical_coo sums them
+    twice = cols.copy()
+    twice[0, 1] = twice[0, 0]
+    monkeypatch.setattr("autotight.discovery.templates.factor_columns", lambda model, tpl: (fs, twice, D))
+    dup = apply_template(model, tpl, coeffs)[0].A
+    sel = np.flatnonzero(q == 0)
+    p, gi, gj = coeffs[0, sel], twice[0, ii[mono[sel]]], twice[0, jj[mono[sel]]]
+    want = canonical_coo(np.concatenate([gi, gj]), np.concatenate([gj, gi]), np.concatenate([p, p]) / 2, N)
+    assert np.array_equal(dup.row, want.row) and np.allclose(dup.data, want.data, rtol=1e-15, atol=0)
