@@ -94,6 +94,13 @@ FALLBACK_MAX_N = 4000
 PROJECTION_MIN_N = 1000
 #: the ways ``certify`` finds y
 METHODS = ("auto", "barrier", "projection")
+#: μ of Douglas–Rachford in the unscaled frame once the scaled frame did not certify (``_certify_projected``):
+#: a set with few redundant constraints leaves a thin feasible set of multipliers, whose margin is small
+#: (discrete trajectory K = 200, the 5-pair set of ``discover discrete_trajectory``: 2e-4 … 9e-4 of max|Q|
+#: unscaled, 34 rounds at μ = 0.003, where the scaled frame stalls at −0.01 for every μ tried)
+THIN_CLIPS = (0.003,)
+#: … and its rounds at most (34 there; at K = 500 and 1000 that set stalls in both frames, the SDP being tight)
+THIN_ROUNDS = 60
 #: LSQR iterations that refine the stationarity of the polished y on large programs (discrete K = 1000: 64)
 LSQR_REFINE_ITER = 1000
 #: fraction of the distance to the cone's boundary a damped step may cover
@@ -346,26 +353,40 @@ def _certify_projected(Q, As, constraints, prog, Th, *, d, tol, floor, trace,
     K = 3000: positions of magnitude 150 beside rotations of 1; margin 5.8e-2 in 3 rounds instead of
     no feasible point in 144).  The polish then weighs the rows of H(y)Θ̂ᵀ = 0 by D, as the bound
     f(x̂) − bᵀy = Σ_j x̂_j (H x̂)_j does, in the metric of the system's column norms (K = 3000: residual
-    3.8e-7 of ‖g‖ = 12, where the plain metric and the LSQR refinement stopped at 1.8e-3)."""
+    3.8e-7 of ‖g‖ = 12, where the plain metric and the LSQR refinement stopped at 1.8e-3).  Where that does not
+    certify, the unscaled frame is tried once more with a small μ (``THIN_CLIPS``): a set with few redundant
+    constraints leaves the cone and the affine set barely intersecting, and there the scaled frame does not
+    find the intersection; the better of the two certificates is returned."""
     from .certificate import stationarity_system
-    from .dual_projection import project_multipliers
+    from .dual_projection import CLIPS, MAX_ITER as MAX_DR_ROUNDS, project_multipliers
 
     G, g = stationarity_system(Q, As, Th)
-    if scale is None:
-        pr = project_multipliers(prog, Th)
+
+    def judged(pr, y: np.ndarray, frame: str) -> Certificate:
+        return certificate(Q, constraints, y, Th, d=d, tol=tol, floor=floor, trace=trace, estimate_lambda=False,
+                           method=f"clique Douglas–Rachford ({frame}{pr.status}, {pr.iterations} rounds, margin "
+                                  f"{pr.margin:.2e} of max|Q|, {len(prog.cliques)} cliques ≤ {max(prog.sizes)})")
+
+    def unscaled(clips: tuple[float, ...], frame: str, rounds: int = MAX_DR_ROUNDS) -> Certificate:
+        pr = project_multipliers(prog, Th, clips=clips, max_iter=rounds)
         y = polish_dual(Q, As, pr.w[:prog.m] / prog.scale, Th, system=(G, g))
         y = y + spla.lsqr(G, g - G @ y, atol=1e-14, btol=1e-14, iter_lim=LSQR_REFINE_ITER)[0]
-    else:
-        D = np.asarray(scale, dtype=float)
-        prog = prog.congruence(D)
-        pr = project_multipliers(prog, Th / D[None, :])
-        weights = np.ones(G.shape[0])
-        weights[:Th.size] = np.repeat(D, d)  # row (j, a) of H Θ̂ᵀ: j·d + a (``stationarity_system``)
-        G, g = sp.csr_array(sp.diags_array(weights) @ G), weights * g
-        y = polish_dual(Q, As, pr.w[:prog.m] / prog.scale, Th, system=(G, g), equilibrate=True)
-    return certificate(Q, constraints, y, Th, d=d, tol=tol, floor=floor, trace=trace, estimate_lambda=False,
-                       method=f"clique Douglas–Rachford ({pr.status}, {pr.iterations} rounds, margin {pr.margin:.2e} "
-                              f"of max|Q|, {len(prog.cliques)} cliques ≤ {max(prog.sizes)})")
+        return judged(pr, y, frame)
+
+    if scale is None:
+        return unscaled(CLIPS, "")
+    D = np.asarray(scale, dtype=float)
+    congruent = prog.congruence(D)
+    pr = project_multipliers(congruent, Th / D[None, :])
+    weights = np.ones(G.shape[0])
+    weights[:Th.size] = np.repeat(D, d)  # row (j, a) of H Θ̂ᵀ: j·d + a (``stationarity_system``)
+    Gw, gw = sp.csr_array(sp.diags_array(weights) @ G), weights * g
+    y = polish_dual(Q, As, pr.w[:congruent.m] / congruent.scale, Th, system=(Gw, gw), equilibrate=True)
+    cert = judged(pr, y, "scaled frame: ")
+    if cert.certified:
+        return cert
+    plain = unscaled(THIN_CLIPS, "unscaled frame after the scaled one did not certify: ", THIN_ROUNDS)
+    return plain if plain.certified or plain.bound < cert.bound else cert
 
 
 def model_cliques(model: Model, As: Sequence[sp.sparray]) -> list[np.ndarray]:

@@ -128,3 +128,38 @@ def test_certificate_without_a_lambda_estimate_states_a_valid_bound():
     assert quick.bound == pytest.approx(full.bound, rel=1e-6, abs=1e-9 * abs(full.cost))
     lam = np.linalg.eigvalsh(dual_matrix(model.Q, As, y).toarray())[0]
     assert quick.lambda_lower <= lam + 1e-12 * abs(model.Q).max()
+
+
+def test_a_thin_set_is_certified_in_the_unscaled_frame_where_the_full_sdp_says_tight():
+    """The 5-pair set ``discover discrete_trajectory`` hands back (benchmarks/results/discrete_carry_set.json)
+    leaves few multipliers: at K = 50 Douglas–Rachford in the scaled frame does not reach the cone, the unscaled
+    frame with a small μ does, and the certificate agrees with the full SDP's verdict and bound."""
+    from pathlib import Path
+
+    from autotight.certificate import stack
+    from autotight.certifier import model_cliques
+    from autotight.constraint_set import ConstraintSet, resolve
+    from autotight.dual_projection import project_multipliers
+    from autotight.pipeline import seeds
+    from autotight.sdp.clique_program import clique_program
+    from autotight.sdp.scaling import block_scale
+
+    p = load("discrete_trajectory")
+    inst = p.generate(p.parse_params({"K": 50}), 3)
+    model = p.build(inst)
+    path = Path(__file__).resolve().parents[1] / "benchmarks" / "results" / "discrete_carry_set.json"
+    cons = resolve(ConstraintSet.load(path), p, inst, model, seeds(3).constraints())
+    loc = p.local_solve(inst, inst.truth)
+    theta = p.lift(inst, loc.state)
+    cert = certify_model(model, cons, theta, method="projection")
+    assert cert.certified and cert.rel_bound <= 1e-6 and "unscaled frame" in cert.method
+    res = solve_model(model, cons)
+    verdict = judge(res, loc.cost, Criteria(), Q=model.Q, constraints=cons)
+    assert verdict.outcome == "tight"
+    assert cert.cost - cert.bound <= res.primal_cost + 1e-6 * abs(res.primal_cost)
+    # the scaled frame alone does not reach the cone with this set (which is why the unscaled one is tried)
+    Th = np.asarray(theta, float).reshape(model.d, -1)
+    D = block_scale(model.variables, [Th])
+    As, b = stack(cons)
+    prog = clique_program(model.Q, As, b, [np.asarray(c) for c in model_cliques(model, As)])
+    assert project_multipliers(prog.congruence(D), Th / D[None, :]).margin < 0
