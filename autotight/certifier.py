@@ -344,8 +344,15 @@ def certify(Q: sp.sparray, constraints: Sequence[Constraint], theta_hat: np.ndar
 
 def _certify_projected(Q, As, constraints, prog, Th, *, d, tol, floor, trace,
                        scale: np.ndarray | None) -> Certificate:
+    """``projected_dual``'s certificate."""
+    return projected_dual(Q, As, constraints, prog, Th, d=d, tol=tol, floor=floor, trace=trace, scale=scale)[0]
+
+
+def projected_dual(Q, As, constraints, prog, Th, *, d: int, tol: float, floor: float, trace: float | None,
+                   scale: np.ndarray | None, rounds: int | None = None, clips: tuple[float, ...] | None = None,
+                   thin_rounds: int = THIN_ROUNDS) -> tuple[Certificate, np.ndarray]:
     """The certificate of the y that Douglas–Rachford proposes (``dual_projection``), polished onto
-    stationarity (module docstring, Scope).
+    stationarity (module docstring, Scope), and that y.
 
     scale: D (N,) positive, or None.  With D, the rounds run on the congruent data D Q D, D Aᵢ D and
     Θ̂ D⁻¹ (``CliqueProgram.congruence``): the same multipliers y, and H(y) ⪰ 0 iff D H(y) D ⪰ 0,
@@ -354,39 +361,43 @@ def _certify_projected(Q, As, constraints, prog, Th, *, d, tol, floor, trace,
     no feasible point in 144).  The polish then weighs the rows of H(y)Θ̂ᵀ = 0 by D, as the bound
     f(x̂) − bᵀy = Σ_j x̂_j (H x̂)_j does, in the metric of the system's column norms (K = 3000: residual
     3.8e-7 of ‖g‖ = 12, where the plain metric and the LSQR refinement stopped at 1.8e-3).  Where that does not
-    certify, the unscaled frame is tried once more with a small μ (``THIN_CLIPS``): a set with few redundant
-    constraints leaves the cone and the affine set barely intersecting, and there the scaled frame does not
-    find the intersection; the better of the two certificates is returned."""
+    certify, the unscaled frame is tried once more with a small μ (``THIN_CLIPS``, at most ``thin_rounds``
+    rounds): a set with few redundant constraints leaves the cone and the affine set barely intersecting, and
+    there the scaled frame does not find the intersection; the better of the two certificates is returned.
+    rounds, clips: Douglas–Rachford's rounds per μ and its μ in the first frame (None: ``dual_projection.MAX_ITER``,
+    ``dual_projection.CLIPS``)."""
     from .certificate import stationarity_system
-    from .dual_projection import CLIPS, MAX_ITER as MAX_DR_ROUNDS, project_multipliers
+    from .dual_projection import CLIPS, MAX_ITER, project_multipliers
 
     G, g = stationarity_system(Q, As, Th)
+    first = MAX_ITER if rounds is None else rounds
+    mus = CLIPS if clips is None else clips
 
-    def judged(pr, y: np.ndarray, frame: str) -> Certificate:
+    def judged(pr, y: np.ndarray, frame: str) -> tuple[Certificate, np.ndarray]:
         return certificate(Q, constraints, y, Th, d=d, tol=tol, floor=floor, trace=trace, estimate_lambda=False,
                            method=f"clique Douglas–Rachford ({frame}{pr.status}, {pr.iterations} rounds, margin "
-                                  f"{pr.margin:.2e} of max|Q|, {len(prog.cliques)} cliques ≤ {max(prog.sizes)})")
+                                  f"{pr.margin:.2e} of max|Q|, {len(prog.cliques)} cliques ≤ {max(prog.sizes)})"), y
 
-    def unscaled(clips: tuple[float, ...], frame: str, rounds: int = MAX_DR_ROUNDS) -> Certificate:
-        pr = project_multipliers(prog, Th, clips=clips, max_iter=rounds)
+    def unscaled(clips: tuple[float, ...], frame: str, max_rounds: int) -> tuple[Certificate, np.ndarray]:
+        pr = project_multipliers(prog, Th, clips=clips, max_iter=max_rounds)
         y = polish_dual(Q, As, pr.w[:prog.m] / prog.scale, Th, system=(G, g))
         y = y + spla.lsqr(G, g - G @ y, atol=1e-14, btol=1e-14, iter_lim=LSQR_REFINE_ITER)[0]
         return judged(pr, y, frame)
 
     if scale is None:
-        return unscaled(CLIPS, "")
+        return unscaled(mus, "", first)
     D = np.asarray(scale, dtype=float)
     congruent = prog.congruence(D)
-    pr = project_multipliers(congruent, Th / D[None, :])
+    pr = project_multipliers(congruent, Th / D[None, :], clips=mus, max_iter=first)
     weights = np.ones(G.shape[0])
     weights[:Th.size] = np.repeat(D, d)  # row (j, a) of H Θ̂ᵀ: j·d + a (``stationarity_system``)
     Gw, gw = sp.csr_array(sp.diags_array(weights) @ G), weights * g
     y = polish_dual(Q, As, pr.w[:congruent.m] / congruent.scale, Th, system=(Gw, gw), equilibrate=True)
-    cert = judged(pr, y, "scaled frame: ")
-    if cert.certified:
-        return cert
-    plain = unscaled(THIN_CLIPS, "unscaled frame after the scaled one did not certify: ", THIN_ROUNDS)
-    return plain if plain.certified or plain.bound < cert.bound else cert
+    scaled = judged(pr, y, "scaled frame: ")
+    if scaled[0].certified:
+        return scaled
+    plain = unscaled(THIN_CLIPS, "unscaled frame after the scaled one did not certify: ", thin_rounds)
+    return plain if plain[0].certified or plain[0].bound < scaled[0].bound else scaled
 
 
 def model_cliques(model: Model, As: Sequence[sp.sparray]) -> list[np.ndarray]:

@@ -52,6 +52,24 @@ def test_the_certificate_never_decides_a_loose_relaxation(pose):
         assert solve_instance(pose, inst, "primary", model=model, local=loc, raise_unbounded=False).outcome != "tight"
 
 
+def test_above_the_barriers_size_douglas_rachford_decides_only_where_the_full_sdp_says_tight(monkeypatch):
+    """Above ``shortcut.MAX_N`` columns y comes from Douglas–Rachford: a chain with the paper's set is proved tight
+    (as the full SDP finds it), the primary constraints alone never are."""
+    import autotight.discovery.shortcut as shortcut
+
+    prob = load("discrete_trajectory")
+    monkeypatch.setattr(shortcut, "MAX_N", 100)
+    for seed in (3, 4):
+        inst, model, loc, cons = _case(prob, {"K": 15}, seed, "paper")
+        assert model.variables.N > shortcut.MAX_N
+        proof = certified_tight(model, cons, prob.lift(inst, loc.best.state), Criteria())
+        full = solve_instance(prob, inst, "paper", model=model, local=loc)
+        assert proof is not None and 0 <= proof.rel_bound <= Criteria().gap_tol and proof.margin > 0
+        assert full.outcome == "tight"
+        inst, model, loc, cons = _case(prob, {"K": 15}, seed, "primary")
+        assert certified_tight(model, cons, prob.lift(inst, loc.best.state), Criteria()) is None
+
+
 def test_a_held_out_batch_has_the_same_outcomes_with_and_without_the_shortcut(pose):
     points = [(pose.parse_params({"M": 4}), {})]
     kw = dict(min_fraction=0.9, criteria=Criteria(), config=SolverConfig())

@@ -3,7 +3,9 @@
 x̂ = the best local solution (lifted: Θ̂, d × N, cost f̂ = ⟨Q, Θ̂ᵀΘ̂⟩).  The relaxation is tight at x̂,
 with Θ̂ᵀΘ̂ its only solution, when some multipliers y give H(y) = Q − Σ yᵢAᵢ ⪰ 0 with H Θ̂ᵀ = 0 (cost
 tight) and λ_{d+1}(H) > 0 (strict complementarity).  ``certified_tight`` proposes y by the clique barrier
-of ``autotight.certifier`` (its phase one) and then decides by exact tests only:
+of ``autotight.certifier`` (its phase one) up to ``MAX_N`` columns, above by its Douglas–Rachford splitting
+(``certifier.projected_dual``, with ``ROUNDS`` and ``THIN_ROUNDS`` rounds at most: beyond those the full SDP is
+cheaper), and then decides by exact tests only:
 
 1. cost: ``autotight.certificate.certificate`` certifies f̂ − p* ≤ gap_tol·|f̂| (the tolerance and absolute
    floor of the full SDP's bracket, ``Criteria``);
@@ -14,7 +16,7 @@ of ``autotight.certifier`` (its phase one) and then decides by exact tests only:
    the full SDP, solved to g, is rank d with log SVR above ``Criteria.min_log_svr`` + ``SPARE``.
 
 Only "tight" is ever decided here.  Anything else (not certified, a smaller λ_{d+1}, recession columns,
-more than ``MAX_N`` columns or a Newton matrix too large) returns None, and
+a Newton matrix too large) returns None, and
 the caller solves the full SDP, so an instance that fails validation is always one the full SDP judged.
 """
 
@@ -28,7 +30,8 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..certificate import certificate, dual_matrix, negative_pivots, polish_dual, stack
-from ..certifier import NEWTON_MAX_ENTRIES, default_cliques, newton_size, phase_one
+from ..certifier import NEWTON_MAX_ENTRIES, default_cliques, model_cliques, newton_size, phase_one, projected_dual
+from ..sdp.scaling import block_scale
 from ..model import Constraint, Model
 from ..tightness import Criteria
 
@@ -36,10 +39,16 @@ from ..tightness import Criteria
 #: is conservative by orders: discrete trajectory K = 20 (seed 500, paper set) has λ₂(H) = 2.6e-5·max|Q|, a
 #: bound of log SVR ≥ 4.8 at g = 1e-8, and its full SDP gives log SVR 9.0
 SPARE = 0.0
-#: columns above which no shortcut is tried: the barrier's steps then cost more than the full SDP they would
-#: save (discrete trajectory K = 200, N = 4795: 272 s without a decision against 76 s for the IPM's tight
-#: solve; K = 20, N = 475: 4 s against 30 s)
+#: columns above which y comes from Douglas–Rachford instead of the barrier, whose steps then cost more than the
+#: full SDP they would save (discrete trajectory K = 200, N = 4795: 272 s without a decision against 76 s for the
+#: IPM's tight solve; K = 20, N = 475: 4 s against 30 s)
 MAX_N = 1000
+#: Douglas–Rachford's μ and rounds in the scaled frame, then its rounds in the unscaled one
+#: (``certifier.projected_dual``): discrete trajectory K = 200, the paper's set 6 rounds (scaled, μ = 0.3), a
+#: 5-pair learned set 34 (unscaled); a round there costs about 1 % of the full SDP
+CLIPS = (0.3,)
+ROUNDS = 15
+THIN_ROUNDS = 45
 #: Newton steps of the barrier at most (it stops once the margin μ is reached: 1–7 steps at tight instances)
 MAX_ITER = 12
 
@@ -66,8 +75,6 @@ def certified_tight(model: Model, constraints: Sequence[Constraint], theta_hat: 
     from ..sdp.clique_program import clique_program
 
     t0 = time.perf_counter()
-    if model.variables.N > MAX_N:
-        return None
     Q = sp.csr_array(model.Q)
     d = model.d
     Th = np.asarray(theta_hat, dtype=float).reshape(d, -1)
@@ -78,17 +85,27 @@ def certified_tight(model: Model, constraints: Sequence[Constraint], theta_hat: 
         return None
     f_hat = float(np.sum(Th.T * (Q @ Th.T)))
     mu = 10 ** (criteria.min_log_svr + SPARE) * gap * max(abs(f_hat), criteria.cost_atol * scale * trace) / trace
-    try:
-        prog = clique_program(Q, As, b, [np.asarray(C) for C in default_cliques(Q, As, d)])
-    except ValueError:  # no clique tree of the data's pattern
-        return None
-    if newton_size(prog) > NEWTON_MAX_ENTRIES:
-        return None
-    # the barrier's own margin is clique-wise and pessimistic (discrete K = 100: −1e-3 after 12 steps, where
-    # the exact tests below pass): whatever it ends with, its y is polished and tested
-    ph = phase_one(prog, Th, target=min(max(2 * mu / scale, 1e-6), 0.1), max_iter=MAX_ITER)
-    y = polish_dual(Q, As, ph.w[:prog.m] / prog.scale, Th)
-    cert = certificate(Q, constraints, y, Th, d=d, tol=criteria.gap_tol, floor=criteria.cost_atol / criteria.gap_tol)
+    floor = criteria.cost_atol / criteria.gap_tol
+    if model.variables.N > MAX_N:
+        try:
+            prog = clique_program(Q, As, b, [np.asarray(C) for C in model_cliques(model, As)])
+        except ValueError:
+            return None
+        cert, y = projected_dual(Q, As, constraints, prog, Th, d=d, tol=criteria.gap_tol, floor=floor, trace=None,
+                                 scale=block_scale(model.variables, [Th]), rounds=ROUNDS, clips=CLIPS,
+                                 thin_rounds=THIN_ROUNDS)
+    else:
+        try:
+            prog = clique_program(Q, As, b, [np.asarray(C) for C in default_cliques(Q, As, d)])
+        except ValueError:  # no clique tree of the data's pattern
+            return None
+        if newton_size(prog) > NEWTON_MAX_ENTRIES:
+            return None
+        # the barrier's own margin is clique-wise and pessimistic (discrete K = 100: −1e-3 after 12 steps, where
+        # the exact tests below pass): whatever it ends with, its y is polished and tested
+        ph = phase_one(prog, Th, target=min(max(2 * mu / scale, 1e-6), 0.1), max_iter=MAX_ITER)
+        y = polish_dual(Q, As, ph.w[:prog.m] / prog.scale, Th)
+        cert = certificate(Q, constraints, y, Th, d=d, tol=criteria.gap_tol, floor=floor)
     if not cert.certified or cert.recession:
         return None
     if negative_pivots(dual_matrix(Q, As, y), mu) != d:  # exactly the d directions of Θ̂ below μ
