@@ -6,8 +6,8 @@ constraints, data), then ``build, lift, cost, sample, local_solve, recover = der
 See ``docs/factor_graph.md`` and the worked example ``docs/range_only_2d.md``.
 """
 
-from .declare import Auxiliary, Factor, Variable, View
+from .declare import Auxiliary, Factor, Family, Variable, View
 from .derive import Parts, derive
 from .manifolds import Euclidean, Manifold, Rotation
 
-__all__ = ["Auxiliary", "Euclidean", "Factor", "Manifold", "Parts", "Rotation", "Variable", "View", "derive"]
+__all__ = ["Auxiliary", "Euclidean", "Factor", "Family", "Manifold", "Parts", "Rotation", "Variable", "View", "derive"]
