@@ -2,7 +2,8 @@
 
 A module on this layer writes ``PARAMS``, ``generate``, ``VARIABLES`` (``Variable``: a manifold and its
 lifting blocks) and ``factors(instance)`` (``Factor``: residual, optional Jacobian, lifted cost and
-constraints, data), then ``build, lift, cost, sample, local_solve, recover = derive(VARIABLES, factors)``.
+constraints, data; or ``Family``: many factors of one type at once, on stacks), then
+``build, lift, cost, sample, local_solve, recover = derive(VARIABLES, factors)``.
 See ``docs/factor_graph.md`` and the worked example ``docs/range_only_2d.md``.
 """
 

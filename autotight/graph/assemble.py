@@ -10,12 +10,17 @@ The model's factors (``autotight.model.Factor``), which discovery learns on, are
 - one per (type, variables) of the other declared factors without constraints of their own (their costs
   summed), named ``type:variables``;
 - one per declared factor with constraints or auxiliary blocks of its own (named ``Factor.name``, default
-  ``type_i``, with its ``data``).
+  ``type_i``, with its ``data``), and one per factor of a ``Family`` with auxiliary blocks or paper rows
+  (``family.FamilyTerm``; the family's other factors' costs go where a ``Factor``'s would);
+- no factor for a variable with neither primary constraints nor a cost of its own.
+
+The families' paper rows make ``Model.paper``, their clique hints ``Model.cliques``.
 
 Roles of a variable's blocks inside a factor: its main block's names without the index and its lifting
 blocks' names, suffixed ``_k`` (k its position in the factor) when a variable of the same name appears twice;
 then the factor's auxiliary blocks' names.  The auxiliary blocks of the factors, after every variable's
-blocks in factor order: block ``b`` of the j-th factor declaring a block ``b`` is named ``b_j``.
+blocks in factor order (a family's factors in their order): block ``b`` of the j-th factor declaring a block
+``b`` is named ``b_j``.
 """
 
 from __future__ import annotations

@@ -31,6 +31,10 @@ polynomial of degree ≤ 2 in the local entries (``aux.<block>`` the blocks' ent
 fitted into k primary constraints of the factor (``terms``).  ``jacobian(*views, aux) -> (Σ sizes, Σ dof)``:
 ∂value/∂ε for the local solver (default central differences).  The residual then gets ``aux`` after the
 views, e.g. ``lambda C, aux: aux.phi``, so a cost on the blocks is an affine residual.
+
+``Family(variables, residual, data, type, …)``: F factors of one type at once, their data stacked (F, *shape)
+and every function called on stacks with the data last (``family``); their auxiliary's equations and their
+``paper`` rows (the paper's redundant constraints) fitted once per family, their blocks optionally clique hints.
 """
 
 from __future__ import annotations
