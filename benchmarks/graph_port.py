@@ -4,7 +4,8 @@ Problems: rotation_averaging (its measurement factors one by one, with auxiliary
 (one factor family).  Each side runs in a fresh process with its own checkout first on sys.path, interleaved
 (before, after, before, …) so that the load of this shared machine falls on both alike: ``build`` on a fresh
 instance (seed 0; the layer caches its graph per instance object, so a fresh one is built each time), then
-``local_solve`` from the truth and from one random state (seed 1).  Reported per M: the medians over
+``local_solve`` from the truth and from one random state (seed 1), and the layer's derived solver
+(``layer_local_solve``) likewise when the module keeps its own.  Reported per M: the medians over
 repeats of each time, the costs and iterations (the two sides must agree: relative cost difference), and
 the ratio after / before of each median.
 
@@ -42,6 +43,10 @@ out = {"where": ra.__file__, "build_s": build}
 for name, init in (("truth", dict(inst.truth)), ("random", start)):
     t = time.perf_counter(); r = ra.local_solve(inst, init); out[f"local_{name}_s"] = time.perf_counter() - t
     out[f"cost_{name}"], out[f"iterations_{name}"] = float(r.cost), int(r.iterations)
+    if hasattr(ra, "layer_local_solve"):  # a module that keeps its own solver: the layer's derived one too
+        t = time.perf_counter(); r = ra.layer_local_solve(inst, init)
+        out[f"layer_local_{name}_s"] = time.perf_counter() - t
+        out[f"layer_cost_{name}"], out[f"layer_iterations_{name}"] = float(r.cost), int(r.iterations)
 print(json.dumps(out))
 """
 
@@ -78,6 +83,14 @@ def main() -> None:
                 "rel_cost_diff": {k: abs(f[f"cost_{k}"] - b[f"cost_{k}"]) / abs(b[f"cost_{k}"])
                                   for k in ("truth", "random")},
                 "runs": runs}
+        layer = [k for k in runs["after"][0] if k.startswith("layer_local_")]
+        if layer:  # the derived solver against the hand-written module's
+            lmed = {k: float(np.median([r[k] for r in runs["after"]])) for k in layer}
+            case["layer_local_solve"] = {
+                "median_s": lmed, "ratio_to_before": {k: lmed[k] / med["before"][k[len("layer_"):]] for k in layer},
+                "iterations": [f["layer_iterations_truth"], f["layer_iterations_random"]],
+                "rel_cost_diff": {k: abs(f[f"layer_cost_{k}"] - b[f"cost_{k}"]) / abs(b[f"cost_{k}"])
+                                  for k in ("truth", "random")}}
         cases.append(case)
         print(json.dumps({k: v for k, v in case.items() if k != "runs"}))
     saved = json.loads(a.out.read_text()) if a.out.exists() else {}

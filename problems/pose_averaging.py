@@ -16,7 +16,9 @@ Written on the factor-graph layer (``autotight.graph``):
   (blocks ρ_m, φ_m), defined by the 12 Cayley rows ``cayley`` (its primary constraints); residual ξ_m, weight
   W_m; ``Factor.data`` [C̃_m r̃_m] (12 entries, row-major);
 - paper families: R1 (3 per m) and R2 (1 per m), ``r1`` and ``r2``;
-- cliques: each "pose_meas" factor's blocks (size 19), used when the SDP is decomposed (large M).
+- cliques: each "pose_meas" factor's blocks (size 19), used when the SDP is decomposed (large M);
+- local solver: the paper's Gauss-Newton on SE(3) (``local_solve``); the layer's derived one is
+  ``layer_local_solve``.
 """
 
 from __future__ import annotations
@@ -24,8 +26,9 @@ from __future__ import annotations
 import numpy as np
 
 from autotight import lie
+from autotight.gauss_newton import block_weight, gauss_newton
 from autotight.graph import Auxiliary, Euclidean, Family, Rotation, Variable, View, derive
-from autotight.problem import Instance, Meta, Param
+from autotight.problem import Instance, LocalResult, Meta, Param
 
 from ._pose import MEASURED_POSE_NAMES, unary_transport
 
@@ -63,6 +66,13 @@ def generate(params: dict, rng: np.random.Generator) -> Instance:
 VARIABLES = [Variable("C", Rotation(3), type="so3", block=("c1", "c2", "c3")), Variable("r", Euclidean(3))]
 
 
+def _poses(C: np.ndarray, r: np.ndarray) -> np.ndarray:
+    """[[C, r], [0ᵀ, 1]] of stacks C (R, 3, 3), r (R, 3): (R, 4, 4)."""
+    T = np.zeros((len(C), 4, 4))
+    T[:, :3, :3], T[:, :3, 3], T[:, 3, 3] = C, r, 1.0
+    return T
+
+
 def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Row-wise aᵀb of stacks (R, 3, …) and (R, 3), over the second axis: (R, …)."""
     return np.einsum("ri...,ri->r...", a, b)
@@ -90,13 +100,8 @@ def r2(C: View, r: View, xi: View, Tm: np.ndarray) -> np.ndarray:
 
 
 def residual(C: View, r: View, Tm: np.ndarray) -> np.ndarray:
-    """ξ = cay⁻¹(T T̃⁻¹)^∨ = [ρ; φ] of each measurement at states (R, 6), T T̃⁻¹ = [[C C̃ᵀ, r − C C̃ᵀ r̃]];
-    CayleySingularityError at rotation angle π."""
-    D = np.zeros((len(Tm), 4, 4))
-    D[:, :3, :3] = C.x @ Tm[:, :, :3].swapaxes(1, 2)
-    D[:, :3, 3] = r.x - (D[:, :3, :3] @ Tm[:, :, 3, None])[:, :, 0]
-    D[:, 3, 3] = 1.0
-    return lie.cay_inv_se3_batch(D)
+    """ξ = cay⁻¹(T T̃⁻¹)^∨ = [ρ; φ] of each measurement at states (R, 6); CayleySingularityError at angle π."""
+    return lie.cay_inv_se3_batch(_poses(C.x, r.x) @ lie.inv_se3_batch(_poses(Tm[:, :, :3], Tm[:, :, 3])))
 
 
 def residual_jacobian(C: View, r: View, xi: View, Tm: np.ndarray) -> np.ndarray:
@@ -116,7 +121,24 @@ def factors(inst: Instance):
                  names=[f"meas_{m}" for m in range(len(T_meas))], clique=True)
 
 
-build, lift, cost, sample, local_solve, recover = derive(VARIABLES, factors)
+build, lift, cost, sample, layer_local_solve, recover = derive(VARIABLES, factors)
+
+
+def local_solve(inst: Instance, init: dict, max_iter: int = 200, rel_tol: float = 1e-12) -> LocalResult:
+    """The paper's Gauss-Newton (App. A.3, LM-damped) on SE(3): (Σ 𝒥⁻ᵀ W 𝒥⁻¹) ε = −Σ 𝒥⁻ᵀ W ξ_m with 𝒥⁻¹ = 𝒥_c(ξ_m)⁻¹,
+    T ← cay(ε^∧) T (paper (74)).  The layer's derived solver (``layer_local_solve``: C ← exp(ψ^∧) C, r ← r + δ)
+    reaches the same optima as fast, by another path: this one keeps the committed results' last bits, on which
+    the SDP's frame and, at a large M, the interior-point solver's final status depend."""
+    Tm, W = np.asarray(inst.measurements["T_meas"]), block_weight(np.asarray(inst.measurements["W"]))
+
+    def linearize(T: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        xi, J = lie.residuals_se3(np.broadcast_to(T, Tm.shape), Tm)  # all M measurements in one pass
+        return xi.ravel(), J.reshape(-1, 6), W
+
+    res = gauss_newton(linearize, lambda T, eps: lie.cay_se3(eps) @ T, lie.make_pose(init["C"], init["r"]),
+                       max_iter=max_iter, rel_tol=rel_tol)
+    res.state = {"C": res.state[:3, :3], "r": res.state[:3, 3]}
+    return res
 
 
 def random_state(inst: Instance, rng: np.random.Generator) -> dict:

@@ -155,39 +155,27 @@ def test_the_model_is_the_hand_written_one(params, seed):
 REL_TOL = 1e-14
 
 
-def _hand_written_local_solve(inst, start: dict):
-    """The hand-written Gauss-Newton (App. A.3): residuals ξ_m, Jacobians 𝒥_c(ξ_m)⁻¹, T ← cay(ε^∧) T."""
-    from autotight.gauss_newton import block_weight, gauss_newton
-
-    Tm = np.asarray(inst.measurements["T_meas"])
-
-    def linearize(T):
-        xi, J = lie.residuals_se3(np.broadcast_to(T, Tm.shape), Tm)
-        return xi.ravel(), J.reshape(-1, 6), block_weight(np.asarray(inst.measurements["W"]))
-
-    return gauss_newton(linearize, lambda T, eps: lie.cay_se3(eps) @ T, lie.make_pose(start["C"], start["r"]),
-                        rel_tol=REL_TOL)
-
-
-def test_the_derived_local_solver_reaches_the_hand_written_ones_optima():
-    """From the truth and from random starts, the layer's Gauss-Newton (C ← exp(ψ^∧) C, r ← r + δ) ends at the
-    hand-written solver's (T ← cay(ε^∧) T) cost (relative 1e-9) and pose (1e-3°, 1e-5 of the scale), at σ up to 1,
-    both stopped at a relative decrease of 1e-14 (at the default 1e-12, slow linear convergence at σ = 1 stops
-    them about 1e-9 of the cost short of the minimum, at different points)."""
+def test_the_derived_local_solver_reaches_the_papers_optima():
+    """From the truth and from random starts, the layer's derived Gauss-Newton (``layer_local_solve``:
+    C ← exp(ψ^∧) C, r ← r + δ) ends at the module's (the paper's: T ← cay(ε^∧) T) cost (relative 1e-9) and pose
+    (1e-3°, 1e-5 of the scale), at σ up to 1, both stopped at a relative decrease of 1e-14 (at the default
+    1e-12, slow linear convergence at σ = 1 stops them about 1e-9 of the cost short of the minimum, at different
+    points)."""
     rng = np.random.default_rng(12)
     compared = 0
     for sigma in (0.1, 1.0):
         for seed in range(3):
             inst = PROB.generate({"M": 10, "sigma": sigma, "scale": 3.0}, seed)
             for start in [inst.truth] + [PROB.random_state(inst, rng) for _ in range(2)]:
-                new, old = PROB.local_solve(inst, start, rel_tol=REL_TOL), _hand_written_local_solve(inst, start)
+                new = pa.layer_local_solve(inst, start, rel_tol=REL_TOL)
+                old = PROB.local_solve(inst, start, rel_tol=REL_TOL)
                 assert new.converged == old.converged
                 if not old.converged:
                     continue
                 compared += 1
                 assert abs(new.cost - old.cost) <= 1e-9 * old.cost, (sigma, seed, new.cost, old.cost)
-                assert lie.rotation_error_deg(new.state["C"], old.state[:3, :3]) <= 1e-3
-                assert np.linalg.norm(new.state["r"] - old.state[:3, 3]) <= 1e-5 * 3.0
+                assert lie.rotation_error_deg(new.state["C"], old.state["C"]) <= 1e-3
+                assert np.linalg.norm(new.state["r"] - old.state["r"]) <= 1e-5 * 3.0
     assert compared >= 15
 
 
@@ -238,13 +226,11 @@ def test_bad_parameters_are_refused():
 
 def test_recomputed_trials_have_the_committed_reports_verdicts(tmp_path):
     """The first trial at every σ of reports/pose_averaging, recomputed now (same seeds) with the primary, paper
-    and committed discovered sets: the same outcomes, certificates, traps and constraint counts everywhere; the
-    local and global costs to 1e-6; where the committed relaxation is tight (paper, discovered), the same verdict,
-    status and SDP cost (1e-6).  The primary relaxation is unbounded along r (its verdict says so); its SDP is
-    solved in the frame of the local optimum's lifting, so its cost and the numbers in its verdict move with the
-    last bits of that optimum, which the derived solver (another retraction) reaches by another path (the
-    hand-written model with the derived solver moves them alike): a loose relaxation's SDP cost is only checked
-    to stay a lower bound of the global cost."""
+    and committed discovered sets, has its verdict, outcome, status and certificate, and its SDP and local costs
+    to 1e-6 relative (the SDP's accuracy; they agree to the last digit here).  The local solver is the paper's, as
+    before: the primary relaxation is unbounded along r and solved in the frame of the local optimum's lifting,
+    so its numbers move with that optimum's last bits (the derived solver's, equal to 1e-13, move its SDP cost
+    by up to 0.6 % at σ = 1, where the solver stops AlmostSolved)."""
     pd = pytest.importorskip("pandas")  # the report extra
     pytest.importorskip("matplotlib")
     from autotight.cli import main
@@ -258,15 +244,10 @@ def test_recomputed_trials_have_the_committed_reports_verdicts(tmp_path):
     new, old = pd.read_csv(out / "trials.csv"), pd.read_csv(committed / "trials.csv")
     new["constraint_set"] = new["constraint_set"].replace({"pose_discovered": "discovered"})
     both = new.merge(old, on=["sigma_index", "trial", "constraint_set"], suffixes=("", "_committed"))
-    assert len(both) == len(new) == 21
-    for col in ("seed", "outcome", "tight", "certified", "trapped", "n_constraints"):
+    assert len(both) == len(new) == 21 and set(both["constraint_set"]) == {"primary", "paper", "discovered"}
+    # the committed verdicts predate the wording "the recession columns set aside"
+    both["verdict"] = both["verdict"].str.replace("recession columns set aside", "recession columns")
+    for col in ("seed", "verdict", "outcome", "status", "tight", "certified", "trapped", "n_constraints"):
         assert (both[col] == both[col + "_committed"]).all(), col
-    for col in ("local_cost_truth", "local_cost_random", "global_cost"):
+    for col in ("sdp_cost", "local_cost_truth", "local_cost_random", "global_cost"):
         assert np.allclose(both[col], both[col + "_committed"], rtol=1e-6, atol=0), col
-    tight = both[both["tight_committed"]]
-    assert set(tight["constraint_set"]) == {"paper", "discovered"} and len(tight) >= 12
-    for col in ("verdict", "status"):
-        assert (tight[col] == tight[col + "_committed"]).all(), col
-    assert np.allclose(tight["sdp_cost"], tight["sdp_cost_committed"], rtol=1e-6, atol=0)
-    loose = both[~both["tight_committed"]]
-    assert (loose["sdp_cost"] <= loose["global_cost"] * (1 + 1e-6)).all()
