@@ -127,8 +127,9 @@ build, lift, cost, sample, layer_local_solve, recover = derive(VARIABLES, factor
 def local_solve(inst: Instance, init: dict, max_iter: int = 200, rel_tol: float = 1e-12) -> LocalResult:
     """The paper's Gauss-Newton (App. A.3, LM-damped) on SE(3): (Σ 𝒥⁻ᵀ W 𝒥⁻¹) ε = −Σ 𝒥⁻ᵀ W ξ_m with 𝒥⁻¹ = 𝒥_c(ξ_m)⁻¹,
     T ← cay(ε^∧) T (paper (74)).  The layer's derived solver (``layer_local_solve``: C ← exp(ψ^∧) C, r ← r + δ)
-    reaches the same optima as fast, by another path: this one keeps the committed results' last bits, on which
-    the SDP's frame and, at a large M, the interior-point solver's final status depend."""
+    reaches the same optima as fast by another path, so not to the same last bits; the SDP is solved in the
+    frame of the local optimum's lifting, and a loose relaxation's numbers and, at a large M, the interior-point
+    solver's final status follow those bits: the module keeps the paper's solver, whose results it reports."""
     Tm, W = np.asarray(inst.measurements["T_meas"]), block_weight(np.asarray(inst.measurements["W"]))
 
     def linearize(T: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
