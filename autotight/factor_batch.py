@@ -54,17 +54,17 @@ def features(D: np.ndarray, degree: int) -> np.ndarray:
 
 
 def coefficients(values: np.ndarray, p: int, degree: int) -> np.ndarray:
-    """Coefficients of the monomials of ``features`` from the values at ``probe_points`` (n_probes, E), by
+    """Coefficients of the monomials of ``features`` from the values at ``probe_points`` (n_probes, …), by
     exact differences (no linear solve: an entry that is zero for every datum stays exactly zero)."""
     v0 = values[0]
     if degree == 1:
-        return np.vstack([v0, values[1:p + 1] - v0])
+        return np.concatenate([v0[None], values[1:p + 1] - v0])
     plus, minus, pair = values[1:p + 1], values[p + 1:2 * p + 1], values[2 * p + 1:]
     lin = (plus - minus) / 2
     sq = (plus + minus) / 2 - v0
     i, j = np.triu_indices(p, 1)
     cross = pair - v0 - lin[i] - lin[j] - sq[i] - sq[j]
-    return np.vstack([v0, lin, sq, cross])
+    return np.concatenate([v0[None], lin, sq, cross])
 
 
 @dataclass

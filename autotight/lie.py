@@ -410,6 +410,16 @@ def _jac_cay_se3_inv_batch(xi: np.ndarray) -> np.ndarray:
     return J
 
 
+def hat_batch(v: np.ndarray) -> np.ndarray:
+    """``hat`` on a stack: (…, 3) → (…, 3, 3) skew matrices."""
+    return _hat_batch(np.asarray(v, dtype=float))
+
+
+def jac_cay_se3_inv_batch(xi: np.ndarray) -> np.ndarray:
+    """``jac_cay_se3_inv`` on a stack: ξ = [ρ; φ] (B, 6) → 𝒥_c(ξ)⁻¹ (B, 6, 6)."""
+    return _jac_cay_se3_inv_batch(np.asarray(xi, dtype=float))
+
+
 def residuals_se3(T: np.ndarray, T_meas: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """``residual_se3`` on stacks: T, T_meas (B, 4, 4) → ξ (B, 6), 𝒥_c(ξ)⁻¹ (B, 6, 6)."""
     T, Tm = _poses(T, "T"), _poses(T_meas, "T_meas")

@@ -7,10 +7,18 @@ cost scaled by 1/σ² (same minimiser, same relaxation, same tightness), and W =
 So every cost here is σ² times the paper's.
 
 Lifting  x = [h, c₁, c₂, c₃, r, ρ₁, φ₁, …, ρ_M, φ_M]  (n = 13 + 6M),  cost  Σ ξ_mᵀ W_m ξ_m, ξ_m = [ρ_m; φ_m].
-Factors: "so3" (h, c₁, c₂, c₃) with c_iᵀc_j = δ_ij; per m "pose_meas" (h, c₁, c₂, c₃, r, ρ_m, φ_m) with
-the 12 Cayley rows of ξ_m = cay⁻¹(T T̃_m⁻¹); its ``Factor.data`` is [C̃_m r̃_m] (12 entries, row-major).  Paper
-families: R1 (3 per m), R2 (1 per m).
-Cliques: the "pose_meas" block sets (size 19), used when the SDP is decomposed (large M).
+
+Written on the factor-graph layer (``autotight.graph``):
+
+- variables: C ∈ SO(3) (blocks c₁, c₂, c₃; its factor "so3" holds c_iᵀc_j = δ_ij h²) and r ∈ R³ (no factor of
+  its own: neither a constraint nor a cost is on r alone);
+- factors: one family "pose_meas" of M factors "meas_m" on (C, r), each owning ξ_m = cay⁻¹(T T̃_m⁻¹)
+  (blocks ρ_m, φ_m), defined by the 12 Cayley rows ``cayley`` (its primary constraints); residual ξ_m, weight
+  W_m; ``Factor.data`` [C̃_m r̃_m] (12 entries, row-major);
+- paper families: R1 (3 per m) and R2 (1 per m), ``r1`` and ``r2``;
+- cliques: each "pose_meas" factor's blocks (size 19), used when the SDP is decomposed (large M);
+- local solver: the paper's Gauss-Newton on SE(3) (``local_solve``); the layer's derived one is
+  ``layer_local_solve``.
 """
 
 from __future__ import annotations
@@ -19,15 +27,10 @@ import numpy as np
 
 from autotight import lie
 from autotight.gauss_newton import block_weight, gauss_newton
-from autotight.model import Factor, Model, Variables
+from autotight.graph import Auxiliary, Euclidean, Family, Rotation, Variable, View, derive
 from autotight.problem import Instance, LocalResult, Meta, Param
 
-from . import _pose_batch as pb
-from ._cayley import draw_valid
-from ._pose import MEASURED_POSE_NAMES
-from ._pose import (POSE_ROLES, XI_ROLES, declare_pose, declare_xi, pose_blocks, pose_from_x, pose_orthonormality,
-                    pose_values, r1_unary, r2_unary, unary_cayley, unary_residuals, unary_transport, weighted_cost,
-                    xi_blocks, xi_values)
+from ._pose import MEASURED_POSE_NAMES, unary_transport
 
 NAME = "pose_averaging"
 DESCRIPTION = "Average M noisy SE(3) pose measurements (paper §3.2)."
@@ -59,121 +62,90 @@ def generate(params: dict, rng: np.random.Generator) -> Instance:
     return Instance(NAME, dict(params), {"T_meas": T_meas, "W": W}, {"C": T[:3, :3], "r": T[:3, 3]})
 
 
-def _variables(M: int) -> Variables:
-    return Variables(declare_pose() + [b for m in range(M) for b in declare_xi(str(m))])
+#: C ∈ SO(3) as its columns c₁, c₂, c₃, and the translation r
+VARIABLES = [Variable("C", Rotation(3), type="so3", block=("c1", "c2", "c3")), Variable("r", Euclidean(3))]
 
 
-#: from this many measurements on, ``build`` makes the measurement factors' constraints and costs all at once
-#: (``_pose_batch``; entries equal to rounding); below, one by one
-BATCH_MIN_MEASUREMENTS = 32
+def _poses(C: np.ndarray, r: np.ndarray) -> np.ndarray:
+    """[[C, r], [0ᵀ, 1]] of stacks C (R, 3, 3), r (R, 3): (R, 4, 4)."""
+    T = np.zeros((len(C), 4, 4))
+    T[:, :3, :3], T[:, :3, 3], T[:, 3, 3] = C, r, 1.0
+    return T
 
 
-def build(inst: Instance) -> Model:
-    T_meas, Ws = inst.measurements["T_meas"], inst.measurements["W"]
-    M = len(T_meas)
-    if M >= BATCH_MIN_MEASUREMENTS:
-        return _build_batched(inst)
-    V = _variables(M)
-    pose = pose_blocks()
-    factors = [Factor("rotation", "so3", ("h", *pose[:3]), constraints=pose_orthonormality(V, factor="rotation"))]
-    paper: dict[str, list] = {"R1": [], "R2": []}
-    for m in range(M):
-        name, s = f"meas_{m}", str(m)
-        factors.append(Factor(name, "pose_meas", ("h", *pose, *xi_blocks(s)), cost=weighted_cost(V, s, Ws[m]),
-                              constraints=unary_cayley(V, "", T_meas[m], s, name),
-                              roles=("h", *POSE_ROLES, *XI_ROLES), data=T_meas[m][:3, :]))
-        paper["R1"] += r1_unary(V, "", T_meas[m], s, name, factor=name)
-        paper["R2"] += r2_unary(V, "", T_meas[m], s, name, factor=name)
-    return Model(V, factors, paper=paper, cliques=cliques(M))
+def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Row-wise aᵀb of stacks (R, 3, …) and (R, 3), over the second axis: (R, …)."""
+    return np.einsum("ri...,ri->r...", a, b)
 
 
-def _build_batched(inst: Instance) -> Model:
-    """``build`` with the measurement factors made at once (``_pose_batch``): the same model up to rounding."""
-    T_meas, Ws = inst.measurements["T_meas"], inst.measurements["W"]
-    M = len(T_meas)
-    V = _variables(M)
-    pose = pose_blocks()
-    cols = np.array([V.index(("h", *pose, *xi_blocks(str(m)))) for m in range(M)])
-    names = [f"meas_{m}" for m in range(M)]
-    rename = pb.renamer([{pb.POSE1: "", pb.XI: str(m), pb.NAME: names[m]} for m in range(M)])
-    D, W = pb.pose_data(T_meas), np.asarray(Ws, float).reshape(M, 36)
-    cay = pb.unary_cayley_batch().constraints(D, cols, V.N, names, rename)
-    costs = pb.unary_cost_batch().matrices(W, cols, V.N)
-    factors = [Factor("rotation", "so3", ("h", *pose[:3]), constraints=pose_orthonormality(V, factor="rotation"))]
-    factors += [Factor(names[m], "pose_meas", ("h", *pose, *xi_blocks(str(m))), cost=costs[m][0], constraints=cay[m],
-                       roles=("h", *POSE_ROLES, *XI_ROLES), data=T_meas[m][:3, :]) for m in range(M)]
-    paper = {"R1": [c for cs in pb.r1_batch().constraints(D, cols, V.N, names, rename) for c in cs],
-             "R2": [c for cs in pb.r2_batch().constraints(D, cols, V.N, names, rename) for c in cs]}
-    return Model(V, factors, paper=paper, cliques=cliques(M))
+def cayley(C: View, r: View, xi: View, Tm: np.ndarray) -> np.ndarray:
+    """(I − ½ξ^∧) T − (I + ½ξ^∧) T̃ column by column (R, 12): c_i − c̃_i − ½ φ × (c_i + c̃_i) (9 rows), then
+    r − r̃ − ½ φ × (r + r̃) − ρ (3 rows); zero at ξ = cay⁻¹(T T̃⁻¹).  Tm (R, 3, 4) = [C̃ r̃]."""
+    Phi = lie.hat_batch(xi.phi)
+    rot = C.x - Tm[:, :, :3] - 0.5 * Phi @ (C.x + Tm[:, :, :3])
+    tr = r.x - Tm[:, :, 3] - 0.5 * (Phi @ (r.x + Tm[:, :, 3])[:, :, None])[:, :, 0] - xi.rho
+    return np.hstack([rot.swapaxes(1, 2).reshape(-1, 9), tr])
 
 
-def cliques(M: int) -> list[tuple[str, ...]]:
-    """{h, C, r, ξ_m} per m: a star-shaped clique tree (all share {h, C, r}), so the decomposition is exact."""
-    return [("h", *pose_blocks(), *xi_blocks(str(m))) for m in range(M)]
+def r1(C: View, r: View, xi: View, Tm: np.ndarray) -> np.ndarray:
+    """(R1, paper (35)) ½ (c_i + c̃_i)ᵀ ρ − c_iᵀ r + c̃_iᵀ r̃ = 0, i = 1, 2, 3."""
+    Cm, rm = Tm[:, :, :3], Tm[:, :, 3]
+    return 0.5 * _dot(C.x + Cm, xi.rho) - _dot(C.x, r.x) + _dot(Cm, rm)
 
 
-def _pose(state: dict) -> np.ndarray:
-    return lie.make_pose(state["C"], state["r"])
+def r2(C: View, r: View, xi: View, Tm: np.ndarray) -> np.ndarray:
+    """(R2, paper (32)) rᵀr − rᵀr̃ + ½ rᵀ r̃^∧ φ − rᵀρ = 0: rᵀ times the translation row, its cubic term dropped."""
+    rm = Tm[:, :, 3]
+    return (_dot(r.x, r.x) - _dot(r.x, rm) + 0.5 * _dot(r.x, np.cross(rm, xi.phi)) - _dot(r.x, xi.rho))[:, None]
 
 
-def residuals(inst: Instance, state: dict) -> np.ndarray:
-    """ξ_m = cay⁻¹(T T̃_m⁻¹)^∨, (M, 6)."""
-    return unary_residuals(_pose(state), inst.measurements["T_meas"])
+def residual(C: View, r: View, Tm: np.ndarray) -> np.ndarray:
+    """ξ = cay⁻¹(T T̃⁻¹)^∨ = [ρ; φ] of each measurement at states (R, 6); CayleySingularityError at angle π."""
+    return lie.cay_inv_se3_batch(_poses(C.x, r.x) @ lie.inv_se3_batch(_poses(Tm[:, :, :3], Tm[:, :, 3])))
 
 
-def lift(inst: Instance, state: dict) -> np.ndarray:
-    vals = pose_values(state["C"], state["r"])
-    for m, xi in enumerate(residuals(inst, state)):
-        vals |= xi_values(xi, str(m))
-    return _variables(len(inst.measurements["T_meas"])).assemble(vals)
+def residual_jacobian(C: View, r: View, xi: View, Tm: np.ndarray) -> np.ndarray:
+    """∂ξ/∂(ψ, δ) (R, 6, 6) for C ← exp(ψ^∧) C, r ← r + δ: 𝒥_c(ξ)⁻¹ times ∂ε/∂(ψ, δ) of the left perturbation
+    T ← exp(ε^∧) T it is to first order, ε = [ρ; φ] = [δ + r^∧ψ; ψ]."""
+    A = np.zeros((len(Tm), 6, 6))
+    A[:, :3, :3], A[:, :3, 3:], A[:, 3:, :3] = lie.hat_batch(r.x), np.eye(3), np.eye(3)
+    return lie.jac_cay_se3_inv_batch(np.hstack([xi.rho, xi.phi])) @ A
 
 
-def cost(inst: Instance, state: dict) -> float:
-    return float(sum(xi @ W @ xi for xi, W in zip(residuals(inst, state), inst.measurements["W"])))
+def factors(inst: Instance):
+    """The M measurement factors as one family: ξ_m by ``residual`` and ``cayley``; cost ξ_mᵀ W_m ξ_m; R1, R2."""
+    T_meas = np.asarray(inst.measurements["T_meas"], float)
+    xi = Auxiliary({"rho": 3, "phi": 3}, value=residual, equations=cayley, jacobian=residual_jacobian)
+    yield Family(("C", "r"), lambda C, r, xi, Tm: np.hstack([xi.rho, xi.phi]), data=T_meas[:, :3, :],
+                 type="pose_meas", weight=inst.measurements["W"], auxiliary=xi, paper={"R1": r1, "R2": r2},
+                 names=[f"meas_{m}" for m in range(len(T_meas))], clique=True)
 
 
-def sample(inst: Instance, rng: np.random.Generator, nominal: dict, spread: float) -> dict:
-    """T = exp((spread·ν)^∧) T_nominal, ν ~ N(0, I₆); redrawn if a residual hits the Cayley singularity."""
-    T0 = _pose(nominal)
-
-    def draw() -> dict:
-        T = lie.exp_se3(spread * rng.standard_normal(6)) @ T0
-        return {"C": T[:3, :3], "r": T[:3, 3]}
-
-    return draw_valid(draw, lambda state: residuals(inst, state))
+build, lift, cost, sample, layer_local_solve, recover = derive(VARIABLES, factors)
 
 
-def random_state(inst: Instance, rng: np.random.Generator) -> dict:
-    """Uniform rotation, translation ~ N(0, max(scale, 1)² I)."""
-    s = max(float(inst.params.get("scale", 1.0)), 1.0)
-    return sample(inst, rng, {"C": lie.random_rotation(rng), "r": s * rng.standard_normal(3)}, 0.0)
+def local_solve(inst: Instance, init: dict, max_iter: int = 200, rel_tol: float = 1e-12) -> LocalResult:
+    """The paper's Gauss-Newton (App. A.3, LM-damped) on SE(3): (Σ 𝒥⁻ᵀ W 𝒥⁻¹) ε = −Σ 𝒥⁻ᵀ W ξ_m with 𝒥⁻¹ = 𝒥_c(ξ_m)⁻¹,
+    T ← cay(ε^∧) T (paper (74)).  The layer's derived solver (``layer_local_solve``: C ← exp(ψ^∧) C, r ← r + δ)
+    reaches the same optima as fast by another path, so not to the same last bits; the SDP is solved in the
+    frame of the local optimum's lifting, and a loose relaxation's numbers and, at a large M, the interior-point
+    solver's final status follow those bits: the module keeps the paper's solver, whose results it reports."""
+    Tm, W = np.asarray(inst.measurements["T_meas"]), block_weight(np.asarray(inst.measurements["W"]))
 
+    def linearize(T: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        xi, J = lie.residuals_se3(np.broadcast_to(T, Tm.shape), Tm)  # all M measurements in one pass
+        return xi.ravel(), J.reshape(-1, 6), W
 
-def linearize(inst: Instance, T: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Stacked ξ_m (6M,), Jacobian 𝒥_c(ξ_m)⁻¹ (6M×6) w.r.t. ε for T = cay(ε^∧) T_op, block-diagonal W."""
-    Tm = np.asarray(inst.measurements["T_meas"])
-    xi, J = lie.residuals_se3(np.broadcast_to(T, Tm.shape), Tm)  # all M measurements in one pass
-    return xi.ravel(), J.reshape(-1, 6), block_weight(np.asarray(inst.measurements["W"]))
-
-
-def retract(T: np.ndarray, eps: np.ndarray) -> np.ndarray:
-    """T ← cay(ε^∧) T (paper (74))."""
-    return lie.cay_se3(eps) @ T
-
-
-def local_solve(inst: Instance, init: dict, max_iter: int = 200) -> LocalResult:
-    """Gauss-Newton (App. A.3, LM-damped): (Σ 𝒥⁻ᵀ W 𝒥⁻¹) ε = −Σ 𝒥⁻ᵀ W ξ_m, T ← cay(ε^∧) T."""
-    res = gauss_newton(lambda T: linearize(inst, T), retract, _pose(init), max_iter=max_iter)
+    res = gauss_newton(linearize, lambda T, eps: lie.cay_se3(eps) @ T, lie.make_pose(init["C"], init["r"]),
+                       max_iter=max_iter, rel_tol=rel_tol)
     res.state = {"C": res.state[:3, :3], "r": res.state[:3, 3]}
     return res
 
 
-def recover(inst: Instance, Theta: np.ndarray) -> dict:
-    """T from the rank-1 factor x: the raw rotation block (its det is reported) projected to SO(3)."""
-    x = np.asarray(Theta, dtype=float).reshape(-1)
-    x = x / x[0]
-    C_raw, r = pose_from_x(_variables(len(inst.measurements["T_meas"])), x)
-    return {"C": lie.project_to_so3(C_raw), "r": r, "det_raw": np.array(np.linalg.det(C_raw))}
+def random_state(inst: Instance, rng: np.random.Generator) -> dict:
+    """Uniform rotation, translation ~ N(0, max(scale, 1)² I) (drawn again at a Cayley singularity)."""
+    s = max(float(inst.params.get("scale", 1.0)), 1.0)
+    return sample(inst, rng, {"C": lie.random_rotation(rng), "r": s * rng.standard_normal(3)}, 0.0)
 
 
 def errors(inst: Instance, state: dict) -> dict:

@@ -2,12 +2,13 @@
 
 A module on this layer writes ``PARAMS``, ``generate``, ``VARIABLES`` (``Variable``: a manifold and its
 lifting blocks) and ``factors(instance)`` (``Factor``: residual, optional Jacobian, lifted cost and
-constraints, data), then ``build, lift, cost, sample, local_solve, recover = derive(VARIABLES, factors)``.
+constraints, data; or ``Family``: many factors of one type at once, on stacks), then
+``build, lift, cost, sample, local_solve, recover = derive(VARIABLES, factors)``.
 See ``docs/factor_graph.md`` and the worked example ``docs/range_only_2d.md``.
 """
 
-from .declare import Auxiliary, Factor, Variable, View
+from .declare import Auxiliary, Factor, Family, Variable, View
 from .derive import Parts, derive
 from .manifolds import Euclidean, Manifold, Rotation
 
-__all__ = ["Auxiliary", "Euclidean", "Factor", "Manifold", "Parts", "Rotation", "Variable", "View", "derive"]
+__all__ = ["Auxiliary", "Euclidean", "Factor", "Family", "Manifold", "Parts", "Rotation", "Variable", "View", "derive"]

@@ -10,12 +10,17 @@ The model's factors (``autotight.model.Factor``), which discovery learns on, are
 - one per (type, variables) of the other declared factors without constraints of their own (their costs
   summed), named ``type:variables``;
 - one per declared factor with constraints or auxiliary blocks of its own (named ``Factor.name``, default
-  ``type_i``, with its ``data``).
+  ``type_i``, with its ``data``), and one per factor of a ``Family`` with auxiliary blocks or paper rows
+  (``family.FamilyTerm``; the family's other factors' costs go where a ``Factor``'s would);
+- no factor for a variable with neither primary constraints nor a cost of its own.
+
+The families' paper rows make ``Model.paper``, their clique hints ``Model.cliques``.
 
 Roles of a variable's blocks inside a factor: its main block's names without the index and its lifting
 blocks' names, suffixed ``_k`` (k its position in the factor) when a variable of the same name appears twice;
 then the factor's auxiliary blocks' names.  The auxiliary blocks of the factors, after every variable's
-blocks in factor order: block ``b`` of the j-th factor declaring a block ``b`` is named ``b_j``.
+blocks in factor order (a family's factors in their order): block ``b`` of the j-th factor declaring a block
+``b`` is named ``b_j``.
 """
 
 from __future__ import annotations
@@ -28,7 +33,9 @@ import scipy.sparse as sp
 from ..errors import ProblemDefinitionError
 from ..model import Constraint, Factor, Model, canonical_coo
 from .declare import Factor as Declared
+from .declare import Family
 from .declare import Variable
+from .family import FamilyTerm
 from .layout import Element, Layout
 from .terms import Term
 
@@ -48,17 +55,37 @@ def _roles(elements: Sequence[Element]) -> tuple[str, ...]:
     return tuple(out)
 
 
-def _auxiliary_blocks(factors: Sequence[Declared]) -> list[list[str]]:
-    """Per factor, its auxiliary blocks' names in the lifted vector (``b_j``: the j-th factor declaring ``b``)."""
+def _auxiliary_blocks(items: Sequence[Declared | Family]) -> list[list[list[str]]]:
+    """Per declared item, per factor in it (one for a ``Factor``, F for a ``Family``), its auxiliary blocks' names
+    in the lifted vector (``b_j``: the j-th factor declaring ``b``)."""
     seen: dict[str, int] = {}
-    out: list[list[str]] = []
-    for f in factors:
-        names = []
-        for b in f.auxiliary.blocks if f.auxiliary is not None else ():
-            names.append(f"{b}_{seen.get(b, 0)}")
-            seen[b] = seen.get(b, 0) + 1
-        out.append(names)
+    out: list[list[list[str]]] = []
+    for f in items:
+        members = []
+        for _ in range(f.size if isinstance(f, Family) else 1):
+            names = []
+            for b in f.auxiliary.blocks if f.auxiliary is not None else ():
+                names.append(f"{b}_{seen.get(b, 0)}")
+                seen[b] = seen.get(b, 0) + 1
+            members.append(names)
+        out.append(members)
     return out
+
+
+class _Member:
+    """A factor of a family without auxiliary blocks or paper rows, whose cost joins a variable's factor or a
+    grouped one as a ``Term``'s does."""
+
+    def __init__(self, term: FamilyTerm, f: int, cost: sp.coo_array):
+        self.elements, self.type, self.columns, self._cost = term.elements[f], term.type, term.columns[f], cost
+
+    def global_cost(self) -> sp.coo_array:
+        return self._cost
+
+
+def _own(t: FamilyTerm) -> bool:
+    """Whether a family's factors are model factors of their own (auxiliary blocks or paper rows)."""
+    return t.aux is not None or bool(t.paper)
 
 
 def _own_factors(layout: Layout) -> dict[tuple[str, int | None], list[Element]]:
@@ -72,39 +99,63 @@ def _own_factors(layout: Layout) -> dict[tuple[str, int | None], list[Element]]:
 class Graph:
     """The declared variables and factors on one instance (see the module docstring)."""
 
-    def __init__(self, variables: Sequence[Variable], truth: Mapping[str, Any], factors: Iterable[Declared]):
+    def __init__(self, variables: Sequence[Variable], truth: Mapping[str, Any],
+                 factors: Iterable[Declared | Family]):
         declared = list(factors)
         for f in declared:
-            if not isinstance(f, Declared):
-                raise ProblemDefinitionError(f"factors must yield autotight.graph.Factor, got {type(f).__name__}")
+            if not isinstance(f, (Declared, Family)):
+                raise ProblemDefinitionError("factors must yield autotight.graph.Factor or Family, got "
+                                             f"{type(f).__name__}")
         aux = _auxiliary_blocks(declared)
-        sizes = [list(f.auxiliary.blocks.values()) if f.auxiliary is not None else [] for f in declared]
-        self.layout = layout = Layout(variables, truth, [(b, k) for bs, ks in zip(aux, sizes) for b, k in zip(bs, ks)])
+        blocks = [(b, k) for f, members in zip(declared, aux) if f.auxiliary is not None
+                  for bs in members for b, k in zip(bs, f.auxiliary.blocks.values())]
+        self.layout = layout = Layout(variables, truth, blocks)
         self.terms: list[Term] = []
-        for i, (f, bs) in enumerate(zip(declared, aux)):
-            self.terms.append(Term(f, layout, f.name or f"{f.type or 'factor'}_{i}", bs))
+        self.families: list[FamilyTerm] = []
+        #: the declared items in order, resolved
+        self.items: list[Term | FamilyTerm] = []
+        for i, (f, members) in enumerate(zip(declared, aux)):
+            if isinstance(f, Family):
+                names = f.names or [f"{f.type}_{j}" for j in range(f.size)]
+                self.families.append(FamilyTerm(f, layout, names, members))
+                self.items.append(self.families[-1])
+            else:
+                self.terms.append(Term(f, layout, f.name or f"{f.type or 'factor'}_{i}", members[0]))
+                self.items.append(self.terms[-1])
         self.aux_terms = [t for t in self.terms if t.aux is not None]
+        #: whether some factor has auxiliary blocks (whose values may be undefined at a state)
+        self.has_auxiliary = bool(self.aux_terms) or any(t.aux is not None for t in self.families)
         names = [t.name for t in self.terms if t.factor.constraints or t.aux is not None]
+        names += [n for t in self.families if _own(t) for n in t.names]
         if len(set(names)) != len(names):
             raise ProblemDefinitionError(f"factors with constraints or auxiliary blocks need distinct names, "
-                                         f"got {names}")
+                                         f"got {sorted(n for n in set(names) if names.count(n) > 1)}")
         self._stack: tuple[sp.csr_array, sp.csr_array, list[tuple[int, Term]]] | None = None
 
     def model(self) -> Model:
         L, N = self.layout, self.layout.V.N
         owners = _own_factors(L)
         home = {el.main: key for key, els in owners.items() for el in els}
-        costs: dict[tuple[str, int | None], list[Term]] = {key: [] for key in owners}
-        grouped: dict[tuple[str, tuple[str, ...]], list[Term]] = {}
-        own: list[Term] = []
-        for t in self.terms:
-            keys = {home[el.main] for el in t.elements}
-            if t.factor.constraints or t.aux is not None:
-                own.append(t)
-            elif len(keys) == 1:
-                costs[keys.pop()].append(t)
+        costs: dict[tuple[str, int | None], list[Term | _Member]] = {key: [] for key in owners}
+        grouped: dict[tuple[str, tuple[str, ...]], list[Term | _Member]] = {}
+        own: list[Term | FamilyTerm] = []
+        for item in self.items:
+            if isinstance(item, FamilyTerm):
+                if _own(item):
+                    own.append(item)
+                    continue
+                members: list[Term | _Member] = [_Member(item, f, C) for f, C in enumerate(item.costs(N))]
+            elif item.factor.constraints or item.aux is not None:
+                own.append(item)
+                continue
             else:
-                grouped.setdefault((t.type, tuple(el.main for el in t.elements)), []).append(t)
+                members = [item]
+            for t in members:
+                keys = {home[el.main] for el in t.elements}
+                if len(keys) == 1:
+                    costs[keys.pop()].append(t)
+                else:
+                    grouped.setdefault((t.type, tuple(el.main for el in t.elements)), []).append(t)
         factors = []
         for (typ, index), els in owners.items():
             name = typ if index is None else f"{typ}_{index}"
@@ -115,13 +166,21 @@ class Graph:
                 label = el.var.name + ("" if index is None else str(index)) if split else el.main
                 cons += [Constraint(_global(M, cols, N), 0.0, name=f"{name}:{label}:{nm}", factor=name)
                          for nm, M in el.var.local_constraints()]
-            factors.append(Factor(name, typ, ("h",) + tuple(b for el in els for b in el.blocks),
-                                  cost=self._cost(costs[(typ, index)], N), constraints=cons, roles=_roles(els)))
+            cost = self._cost(costs[(typ, index)], N)
+            if cons or cost is not None:  # a variable with neither (e.g. a free translation) has no factor
+                factors.append(Factor(name, typ, ("h",) + tuple(b for el in els for b in el.blocks), cost=cost,
+                                      constraints=cons, roles=_roles(els)))
         for (typ, mains), ts in grouped.items():
             els = ts[0].elements
             factors.append(Factor(f"{typ}:{'-'.join(mains)}", typ, ("h",) + tuple(b for el in els for b in el.blocks),
                                   cost=self._cost(ts, N), roles=_roles(els)))
-        for t in own:
+        paper: dict[str, list[Constraint]] = {}
+        cliques: list[tuple[str, ...]] = []
+        for item in own:
+            if isinstance(item, FamilyTerm):
+                factors += self._family_factors(item, N, paper, cliques)
+                continue
+            t = item
             cons = [Constraint(_global(M, t.columns, N), 0.0, name=f"{t.name}:{nm}", factor=t.name)
                     for nm, M in t.local_constraints()]
             roles = _roles(t.elements) + (tuple(t.aux.blocks) if t.aux is not None else ())
@@ -130,15 +189,48 @@ class Graph:
             blocks = ("h",) + tuple(b for el in t.elements for b in el.blocks) + t.aux_blocks
             factors.append(Factor(t.name, t.type, blocks, cost=self._cost([t], N), constraints=cons, roles=roles,
                                   data=t.factor.data))
-        return Model(L.V, factors)
+        self._stacked()  # the local solver's residual map, made with the model (the solver follows the build)
+        return Model(L.V, factors, paper=paper, cliques=cliques or None)
 
     @staticmethod
-    def _cost(terms: Sequence[Term], N: int) -> sp.coo_array | None:
+    def _family_factors(t: FamilyTerm, N: int, paper: dict[str, list[Constraint]],
+                        cliques: list[tuple[str, ...]]) -> list[Factor]:
+        """The family's model factors (each with its cost, its fitted equations, its data); its paper rows added
+        to ``paper`` (named ``name:family[k]``, k from 1, or ``name:family`` for one row) and its factors' blocks
+        to ``cliques`` when it declares them clique hints."""
+        roles = t.roles(_roles(t.elements[0]))
+        if len(set(roles)) != len(roles):
+            raise ProblemDefinitionError(f"{t.where}: its blocks' roles {roles} are not distinct")
+        eqs = t.equations.matrices(t.data, t.columns, N) if t.equations is not None else [[] for _ in t.names]
+        costs = t.costs(N)
+        rows = [f"aux[{k}]" for k in range(t.equations.k)] if t.equations is not None else []
+        out = []
+        for f, name in enumerate(t.names):
+            blocks = ("h",) + tuple(b for el in t.elements[f] for b in el.blocks) + t.aux_blocks[f]
+            cons = [Constraint(A, 0.0, name=f"{name}:{r}", factor=name) for A, r in zip(eqs[f], rows)]
+            out.append(Factor(name, t.type, blocks, cost=costs[f], constraints=cons, roles=roles, data=t.data[f]))
+            if t.family.clique:
+                cliques.append(blocks)
+        for fam, fit in t.paper.items():
+            labels = [fam] if fit.k == 1 else [f"{fam}[{k + 1}]" for k in range(fit.k)]
+            paper.setdefault(fam, []).extend(
+                Constraint(A, 0.0, name=f"{name}:{lab}", family=fam, factor=name)
+                for name, mats in zip(t.names, fit.matrices(t.data, t.columns, N)) for A, lab in zip(mats, labels))
+        return out
+
+    @staticmethod
+    def _cost(terms: Sequence[Term | _Member], N: int) -> sp.coo_array | None:
         """The sum of the terms' lifted costs on the model's columns (one COO assembly)."""
         if not terms:
             return None
         rows, cols, vals = [], [], []
         for t in terms:
+            if isinstance(t, _Member):
+                G = t.global_cost()
+                rows.append(G.row)
+                cols.append(G.col)
+                vals.append(G.data)
+                continue
             C = t.cost_matrix()
             i, j = np.nonzero(C)
             rows.append(t.columns[i])
@@ -153,22 +245,36 @@ class Graph:
         x = self.layout.lift(values)
         for t in self.aux_terms:
             x[t.aux_columns] = t.aux_value(t.own(values))
+        for ft in self.families:
+            if ft.aux is not None:
+                x[ft.aux_columns] = ft.aux_value(ft.stacks(values))
         return x
 
     # ------------------------------------------------------------------ the local solver's view
+    @property
+    def all_affine(self) -> bool:
+        """Whether every residual is affine in the lifted vector (stacked in one map, ``_stacked``)."""
+        return not self._stacked()[2]
+
     def cost(self, values: Sequence[np.ndarray]) -> float:
         """Σ eᵀWe of the declared residuals at the values."""
         total = 0.0
         for t in self.terms:
             e = t.residual(values)
             total += float(e @ t.W @ e)
+        if self.families:
+            x = self.lift(values)
+            for ft in self.families:
+                E = ft.residuals(x[ft.columns])
+                total += float(np.einsum("fa,fab,fb->", E, ft.W, E))
         return total
 
     def _stacked(self) -> tuple[sp.csr_array, sp.csr_array, list[tuple[int, Term]]]:
-        """(M (m, N): every affine residual's map on the lifted vector, rows in term order; W (m, m) block
-        diagonal; the other terms with their first row), made once."""
+        """(M (m, N): every affine residual's map on the lifted vector, rows in term order, then the families'
+        factor by factor; W (m, m) block diagonal; the other terms with their first row), made once."""
         if self._stack is None:
             rows, cols, vals, others = [], [], [], []
+            wr, wc, wv = [], [], []
             r0 = 0
             for t in self.terms:
                 if t.M is not None:
@@ -178,17 +284,37 @@ class Graph:
                     vals.append(t.M[i, j])
                 else:
                     others.append((r0, t))
+                i, j = np.nonzero(t.W)
+                wr.append(r0 + i)
+                wc.append(r0 + j)
+                wv.append(t.W[i, j])
                 r0 += t.m
-            M = sp.csr_array((np.concatenate(vals or [np.zeros(0)]), (np.concatenate(rows or [np.zeros(0, int)]),
-                                                                      np.concatenate(cols or [np.zeros(0, int)]))),
-                             shape=(r0, self.layout.V.N))
-            self._stack = (M, sp.csr_array(sp.block_diag([t.W for t in self.terms])), others)
+            for ft in self.families:
+                F, m, n = ft.M.shape
+                base = r0 + m * np.arange(F)[:, None, None]
+                f, i, j = np.nonzero(ft.M)
+                rows.append((base[:, :, 0] + np.arange(m))[f, i])
+                cols.append(ft.columns[f, j])
+                vals.append(ft.M[f, i, j])
+                f, i, j = np.nonzero(ft.W)
+                wr.append(r0 + m * f + i)
+                wc.append(r0 + m * f + j)
+                wv.append(ft.W[f, i, j])
+                r0 += F * m
+
+            def csr(r: list, c: list, v: list, shape: tuple[int, int]) -> sp.csr_array:
+                return sp.csr_array((np.concatenate(v or [np.zeros(0)]), (np.concatenate(r or [np.zeros(0, int)]),
+                                                                         np.concatenate(c or [np.zeros(0, int)]))),
+                                    shape=shape)
+
+            self._stack = (csr(rows, cols, vals, (r0, self.layout.V.N)), csr(wr, wc, wv, (r0, r0)), others)
         return self._stack
 
-    def linearize(self, values: Sequence[np.ndarray]) -> tuple[np.ndarray, sp.csr_array, sp.csr_array]:
-        """Stacked (e, J, W) for ``gauss_newton``: J (m, n_tangent) sparse, W block diagonal.  The affine
-        residuals in two sparse products, e = M x and J = M ∂x/∂ε (x and ∂x/∂ε: the variables' by their
-        polynomials, the auxiliary blocks' term by term); the others term by term."""
+    def linearize(self, values: Sequence[np.ndarray], dense: bool = False) -> tuple[np.ndarray, Any, sp.csr_array]:
+        """Stacked (e, J, W) for ``gauss_newton``: J (m, n_tangent) sparse (``dense``: an array, for few tangent
+        directions and affine residuals only), W block diagonal.  The affine residuals in two products, e = M x
+        and J = M ∂x/∂ε (x and ∂x/∂ε: the variables' by their polynomials, the auxiliary blocks' term by term
+        and family by family); the others term by term."""
         M, W, others = self._stacked()
         rows, cols, vals, aux = [], [], [], []
         for t in self.aux_terms:
@@ -198,10 +324,19 @@ class Graph:
             rows.append(t.aux_columns[i])
             cols.append(t.tangent[j])
             vals.append(Ja[i, j])
-        x, dx = self.layout.lift_polynomial(values, (rows, cols, vals))
+        for ft in self.families:
+            if ft.aux is not None:
+                a, Ja = ft.aux_linearize(values)
+                aux.append((ft.aux_columns, a))
+                rows.append(np.broadcast_to(ft.aux_columns[:, :, None], Ja.shape).ravel())
+                cols.append(np.broadcast_to(ft.tangent[:, None, :], Ja.shape).ravel())
+                vals.append(Ja.ravel())
+        x, dx = self.layout.lift_polynomial(values, (rows, cols, vals), dense=dense)
         for columns, a in aux:
             x[columns] = a
         e, J = M @ x, M @ dx
+        if dense:
+            return e, J, W
         if others:
             rows, cols, vals = [], [], []
             for r0, t in others:

@@ -31,6 +31,10 @@ polynomial of degree ≤ 2 in the local entries (``aux.<block>`` the blocks' ent
 fitted into k primary constraints of the factor (``terms``).  ``jacobian(*views, aux) -> (Σ sizes, Σ dof)``:
 ∂value/∂ε for the local solver (default central differences).  The residual then gets ``aux`` after the
 views, e.g. ``lambda C, aux: aux.phi``, so a cost on the blocks is an affine residual.
+
+``Family(variables, residual, data, type, …)``: F factors of one type at once, their data stacked (F, *shape)
+and every function called on stacks with the data last (``family``); their auxiliary's equations and their
+``paper`` rows (the paper's redundant constraints) fitted once per family, their blocks optionally clique hints.
 """
 
 from __future__ import annotations
@@ -278,3 +282,76 @@ class Factor:
             raise ProblemDefinitionError(f"factor on {self.variables}: auxiliary must be an autotight.graph.Auxiliary")
         if self.name is not None and (not isinstance(self.name, str) or not self.name):
             raise ProblemDefinitionError(f"factor on {self.variables}: name must be a non-empty string")
+
+
+@dataclass
+class Family:
+    """F factors of one type declared at once, their functions evaluated on stacks (see ``family``).
+
+    ``variables``: the variables of every factor (one name or a sequence of names), or F such sequences (the
+    k-th variables of all factors the same ``Variable``, e.g. ``[("p0", "p1"), ("p1", "p2")]``).  ``data``:
+    the factors' measurements stacked, (F, *shape); each factor's model ``Factor.data`` is its row, raveled.
+    ``residual(*views, [aux,] data) -> (F, m)``: views of stacks (``view.x`` (F, *shape), ``view.<block>``
+    (F, size)), the auxiliary's view when there is one, the data stack; affine in the views' entries (the
+    lifted cost is derived).  ``weight``: a number, an (m, m) or an (F, m, m) stack of symmetric matrices.
+    ``auxiliary``: an ``Auxiliary`` whose functions take the same stacks and the data (``value(*views,
+    data) -> (F, Σ sizes)``, ``equations(*views, aux, data) -> (F, k)``, ``jacobian(*views, aux, data) ->
+    (F, Σ sizes, Σ dof)``).  ``paper``: redundant constraints {family: rows(*views, [aux,] data) -> (F, k)},
+    valid at every state, each row a polynomial of degree ≤ 2 in the local entries (as the equations), kept
+    in ``Model.paper[family]``.  The equations' and paper rows' coefficients must be polynomials of degree
+    ≤ ``degree`` (1 or 2) in the data: they are fitted once per family.  ``names``: the factors' model
+    names (default ``type_i``).  ``clique``: each factor's blocks are a clique hint (``Model.cliques``).
+    """
+
+    variables: str | Sequence[str] | Sequence[Sequence[str]]
+    residual: Callable[..., Any]
+    data: np.ndarray
+    type: str
+    weight: float | np.ndarray | None = None
+    auxiliary: Auxiliary | None = None
+    paper: Mapping[str, Callable[..., Any]] = field(default_factory=dict)
+    names: Sequence[str] | None = None
+    clique: bool = False
+    degree: int = 2
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.type, str) or not self.type:
+            raise ProblemDefinitionError(f"a factor family needs a type (a non-empty string), got {self.type!r}")
+        where = f"factor family {self.type!r}"
+        self.data = np.asarray(self.data, dtype=float)
+        if self.data.ndim < 1 or not len(self.data):
+            raise ProblemDefinitionError(f"{where}: data must be a non-empty (F, …) stack, got shape "
+                                         f"{self.data.shape}")
+        F = len(self.data)
+        v = self.variables
+        members: list[tuple[str, ...]]
+        if isinstance(v, str):
+            members = [(v,)] * F
+        elif v and all(isinstance(x, str) for x in v):
+            members = [tuple(str(x) for x in v)] * F
+        else:
+            members = [(x,) if isinstance(x, str) else tuple(x) for x in v]
+        if len(members) != F or any(not m or len(set(m)) != len(m) or len(m) != len(members[0]) for m in members):
+            raise ProblemDefinitionError(f"{where}: variables must be one sequence of distinct names or {F} of them, "
+                                         "each as long")
+        #: each factor's variables
+        self.members = members
+        if not callable(self.residual):
+            raise ProblemDefinitionError(f"{where}: residual must be a function")
+        if self.auxiliary is not None and not isinstance(self.auxiliary, Auxiliary):
+            raise ProblemDefinitionError(f"{where}: auxiliary must be an autotight.graph.Auxiliary")
+        self.paper = dict(self.paper)
+        if any(not isinstance(k, str) or not k or not callable(fn) for k, fn in self.paper.items()):
+            raise ProblemDefinitionError(f"{where}: paper must map family names to functions")
+        if self.names is not None:
+            self.names = list(self.names)
+            if len(self.names) != F or len(set(self.names)) != F or not all(isinstance(n, str) and n
+                                                                            for n in self.names):
+                raise ProblemDefinitionError(f"{where}: names must be {F} distinct non-empty strings")
+        if self.degree not in (1, 2):
+            raise ProblemDefinitionError(f"{where}: degree must be 1 or 2, got {self.degree!r}")
+
+    @property
+    def size(self) -> int:
+        """F, the number of factors."""
+        return len(self.data)

@@ -143,12 +143,13 @@ class Layout:
             x[cols] = el.var.lifted(v)
         return x
 
-    def lift_polynomial(self, values: Sequence[np.ndarray],
-                        extra: tuple[list, list, list] | None = None) -> tuple[np.ndarray, sp.csr_array]:
+    def lift_polynomial(self, values: Sequence[np.ndarray], extra: tuple[list, list, list] | None = None,
+                        dense: bool = False) -> tuple[np.ndarray, Any]:
         """(x, ∂x/∂ε) at the values from the liftings' fitted polynomials, a variable's elements at once: x as
         ``lift`` (up to rounding), ∂x/∂ε (N, n_tangent) the embedding's tangent map T and each lifting block's
-        gradient times T (the h row zero), plus ``extra`` entries (rows, columns, values lists) of ∂x/∂ε.  For
-        the local solver, which evaluates them at every step."""
+        gradient times T (the h row zero), plus ``extra`` entries (rows, columns, values lists) of ∂x/∂ε (summed
+        where they meet); ∂x/∂ε sparse, or an array when ``dense``.  For the local solver, which evaluates them
+        at every step."""
         x = np.zeros(self.V.N)
         x[0] = 1.0
         rows, cols, vals = extra if extra is not None else ([], [], [])
@@ -163,6 +164,10 @@ class Layout:
             rows.append(columns[n, r])
             cols.append(offsets[n] + c)
             vals.append(D[n, r, c])
+        if dense:
+            flat = np.concatenate(rows).astype(np.int64) * self.n_tangent + np.concatenate(cols)
+            D = np.bincount(flat, weights=np.concatenate(vals), minlength=self.V.N * self.n_tangent)
+            return x, D.reshape(self.V.N, self.n_tangent)
         J = sp.csr_array((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
                          shape=(self.V.N, self.n_tangent))
         return x, J
