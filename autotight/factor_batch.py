@@ -67,6 +67,17 @@ def coefficients(values: np.ndarray, p: int, degree: int) -> np.ndarray:
     return np.concatenate([v0[None], lin, sq, cross])
 
 
+def relocated(r: np.ndarray, c: np.ndarray, v: np.ndarray, N: int) -> list[sp.coo_array]:
+    """One N×N canonical COO array per factor from its entries at rows r, columns c, values v (F, E each; a
+    factor's (row, col) pairs distinct): sorted by (row, col), its zero values dropped."""
+    order = np.argsort(r.astype(np.int64) * N + c, axis=1, kind="stable")
+    r, c, v = (np.take_along_axis(a, order, axis=1) for a in (r, c, v))
+    nz = v != 0
+    if nz.all():
+        return [fast_coo(v[f], r[f], c[f], N) for f in range(len(v))]
+    return [fast_coo(v[f][nz[f]], r[f][nz[f]], c[f][nz[f]], N) for f in range(len(v))]
+
+
 @dataclass
 class _Pattern:
     """The union of one matrix's local entries (upper and lower) over the probes."""
@@ -130,18 +141,9 @@ class FactorBatch:
         F = V.shape[0]
         out: list[list[sp.coo_array]] = [[] for _ in range(F)]
         for pat in self.patterns:
-            r, c = columns[:, pat.rows], columns[:, pat.cols]  # (F, E)
             v = V[:, pat.start:pat.start + pat.rows.size]
-            order = np.argsort(r.astype(np.int64) * N + c, axis=1, kind="stable")
-            r, c, v = (np.take_along_axis(a, order, axis=1) for a in (r, c, v))
-            nz = v != 0
-            every = nz.all()
-            for f in range(F):
-                if every:
-                    out[f].append(fast_coo(v[f], r[f], c[f], N))
-                else:
-                    m = nz[f]
-                    out[f].append(fast_coo(v[f][m], r[f][m], c[f][m], N))
+            for f, A in enumerate(relocated(columns[:, pat.rows], columns[:, pat.cols], v, N)):
+                out[f].append(A)
         return out
 
 

@@ -14,7 +14,7 @@ relative residuals, the objective, the solve time and the ratio after / before.
     git worktree add --detach /tmp/autotight-before <commit>
     python benchmarks/ipm_corpus.py --before /tmp/autotight-before [--large] [--only SUBSTRING]
 
-Prints and writes benchmarks/results/ipm_corpus.json.
+Prints and writes benchmarks/results/ipm_corpus.json (or ``--out``).
 """
 
 from __future__ import annotations
@@ -129,6 +129,8 @@ def main() -> None:
     ap.add_argument("--before", required=True, help="a checkout of the commit before the change")
     ap.add_argument("--large", action="store_true", help="also pose averaging M = 1000")
     ap.add_argument("--only", default=None, help="only the cases whose arguments contain this text")
+    ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "ipm_corpus.json"),
+                    help="the JSON file written (default benchmarks/results/ipm_corpus.json)")
     args = ap.parse_args()
     sides = {"before": Path(args.before).resolve(), "after": ROOT}
     rows = []
@@ -154,8 +156,9 @@ def main() -> None:
            "rows": rows, "total": total, "cpu_count": os.cpu_count(), "loadavg_end": list(os.getloadavg()),
            "date": time.strftime("%Y-%m-%d %H:%M"),
            "command": "python benchmarks/ipm_corpus.py --before BEFORE" + (" --large" if args.large else "")
-                      + (f" --only {args.only}" if args.only else "")}
-    out = ROOT / "benchmarks" / "results" / "ipm_corpus.json"
+                      + (f" --only {args.only}" if args.only else "")
+                      + (f" --out {args.out}" if Path(args.out).name != "ipm_corpus.json" else "")}
+    out = Path(args.out)
     out.write_text(json.dumps(res, indent=1) + "\n")
     print(f"wrote {out}")
 

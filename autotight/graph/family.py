@@ -23,8 +23,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..errors import ProblemDefinitionError
-from ..factor_batch import coefficients, features, probe_points
-from ..model import fast_coo
+from ..factor_batch import coefficients, features, probe_points, relocated
 from .declare import ROUNDING, Auxiliary, Family, Variable, View
 from .layout import Element, Layout
 from .manifolds import Euclidean, Rotation
@@ -69,17 +68,8 @@ def scatter(values: np.ndarray, group: np.ndarray, rows: np.ndarray, cols: np.nd
     out: list[list[sp.coo_array]] = [[] for _ in range(F)]
     for g in range(ngroups):
         sel = np.flatnonzero(group == g)
-        r, c, v = columns[:, rows[sel]], columns[:, cols[sel]], values[:, sel]
-        order = np.argsort(r.astype(np.int64) * N + c, axis=1, kind="stable")
-        r, c, v = (np.take_along_axis(a, order, axis=1) for a in (r, c, v))
-        nz = v != 0
-        every = bool(nz.all())
-        for f in range(F):
-            if every:
-                out[f].append(fast_coo(v[f], r[f], c[f], N))
-            else:
-                m = nz[f]
-                out[f].append(fast_coo(v[f][m], r[f][m], c[f][m], N))
+        for f, A in enumerate(relocated(columns[:, rows[sel]], columns[:, cols[sel]], values[:, sel], N)):
+            out[f].append(A)
     return out
 
 
