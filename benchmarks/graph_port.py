@@ -1,13 +1,14 @@
 """A problem on the factor-graph layer against the hand-written module it replaced, in the same run.
 
-Problems: rotation_averaging (its measurement factors one by one, with auxiliary blocks) and pose_averaging
-(one factor family).  Each side runs in a fresh process with its own checkout first on sys.path, interleaved
+Problems: rotation_averaging (its measurement factors one by one, with auxiliary blocks), pose_averaging
+(one factor family) and discrete_trajectory (two families, the odometry's factors on consecutive poses; its size
+is K, the number of poses).  Each side runs in a fresh process with its own checkout first on sys.path, interleaved
 (before, after, before, …) so that the load of this shared machine falls on both alike: ``build`` on a fresh
 instance (seed 0; the layer caches its graph per instance object, so a fresh one is built each time), then
 ``local_solve`` from the truth and from one random state (seed 1), and the layer's derived solver
 (``layer_local_solve``) likewise when the module keeps its own.  Reported per M: the medians over
 repeats of each time, the costs and iterations (the two sides must agree: relative cost difference), and
-the ratio after / before of each median.
+the ratio after / before of each median.  The size (``--M``) is M, or K for discrete_trajectory.
 
     git worktree add --detach /tmp/autotight-before <commit before the port>
     python benchmarks/graph_port.py --problem pose_averaging --before /tmp/autotight-before [--repeats 3] \
@@ -35,7 +36,9 @@ sys.path.insert(0, sys.argv[1])
 import numpy as np
 ra = importlib.import_module("problems." + sys.argv[2])
 M = int(sys.argv[3])
-params = {"M": M, "sigma": 0.1} | ({"anisotropy": 1.0} if sys.argv[2] == "rotation_averaging" else {"scale": 1.0})
+params = {"rotation_averaging": {"M": M, "sigma": 0.1, "anisotropy": 1.0},
+          "pose_averaging": {"M": M, "sigma": 0.1, "scale": 1.0},
+          "discrete_trajectory": {"K": M, "sigma": 0.1, "speed": 1.0, "turn_rate": 0.3, "climb": 0.1}}[sys.argv[2]]
 inst = ra.generate(params, np.random.default_rng(0))
 t = time.perf_counter(); ra.build(inst); build = time.perf_counter() - t
 start = ra.random_state(inst, np.random.default_rng(1))
@@ -53,7 +56,7 @@ print(json.dumps(out))
 TIMES = ("build_s", "local_truth_s", "local_random_s")
 
 
-PROBLEMS = ("rotation_averaging", "pose_averaging")
+PROBLEMS = ("rotation_averaging", "pose_averaging", "discrete_trajectory")
 
 
 def run(checkout: Path, problem: str, M: int) -> dict:
@@ -67,7 +70,7 @@ def main() -> None:
     ap.add_argument("--problem", choices=PROBLEMS, default="rotation_averaging")
     ap.add_argument("--before", type=Path, required=True, help="checkout with the hand-written module")
     ap.add_argument("--repeats", type=int, default=3)
-    ap.add_argument("--M", default="10,100,1000", help="comma-separated numbers of measurements")
+    ap.add_argument("--M", default="10,100,1000", help="comma-separated sizes (measurements M, or poses K)")
     ap.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results" / "graph_port.json")
     a = ap.parse_args()
     cases = []

@@ -14,13 +14,25 @@ Lifting (0-based k)  x = [h, (c_{k,1}, c_{k,2}, c_{k,3}, r_k)_{k<K}, (ρ_k, φ_k
 n = 1 + 12K + 6K + 6(K − 1).  Block names: pose k is ``T{k}_c1 … T{k}_r``, ξ_k is ``rho_{k}, phi_{k}``,
 ξ_{k+1,k} is ``rho_{k+1}_{k}, phi_{k+1}_{k}``.
 Cost  Σ ξ_kᵀ W_k ξ_k + Σ ξ_{k+1,k}ᵀ W_{k+1,k} ξ_{k+1,k}.
-Factors: per k "so3" (orthonormality of C_k) and "pose_meas" {h, C_k, r_k, ξ_k} (12 Cayley rows);
-per k < K − 1 "odometry" {h, C_k, r_k, C_{k+1}, r_{k+1}, ξ_{k+1,k}} (12 Cayley rows).
-Factor data (``Factor.data``, for learned templates): the 12 entries [C̃ r̃] of the factor's measured
-pose (row-major 3×4), T̃_k for "pose_meas" and T̃_{k+1,k} for "odometry"; "so3" has none.
-Paper families: R1 (3 per k), R2 (1 per k), R3 (3 per k < K − 1).
-Cliques: the unary and odometry factors' block sets (sizes 19 and 31) form a clique tree, so the
-aggregate sparsity is chordal and the SDP decomposes into 2K − 1 small PSD blocks (see ``cliques``).
+
+Written on the factor-graph layer (``autotight.graph``), element by element (``derive(by_element=True)``):
+
+- variables: C_k ∈ SO(3) (blocks ``T{k}_c1, T{k}_c2, T{k}_c3``; its factor "so3" ``rotation_k`` holds
+  c_iᵀc_j = δ_ij h²) and r_k ∈ R³ (block ``T{k}_r``; no factor of its own);
+- factors: the family "pose_meas" of K factors ``meas_k`` on (C_k, r_k), each owning ξ_k = cay⁻¹(T_k T̃_k⁻¹)
+  (``unary_cayley``: 12 Cayley rows), and the family "odometry" of K − 1 factors ``odom_{k+1}_{k}`` on
+  (C_k, r_k, C_{k+1}, r_{k+1}), each owning ξ_{k+1,k} = cay⁻¹(T_{k+1} T_k⁻¹ T̃_{k+1,k}⁻¹) (``binary_cayley``:
+  12 Cayley rows; roles ``ODOMETRY_ROLES``); costs ξᵀWξ;
+- factor data (``Factor.data``, for learned templates): the 12 entries [C̃ r̃] of the factor's measured pose
+  (row-major 3×4), T̃_k for "pose_meas" and T̃_{k+1,k} for "odometry"; "so3" has none;
+- paper families: R1 (3 per k, ``r1``), R2 (1 per k, ``r2``), R3 (3 per k < K − 1, ``r3``);
+- cliques: the unary and odometry factors' block sets (sizes 19 and 31) form a clique tree, so the aggregate
+  sparsity is chordal and the SDP decomposes into 2K − 1 small PSD blocks (see ``cliques``);
+- local solver: the paper's banded Gauss-Newton (T_k ← cay(ε_k^∧) T_k, ``local_solve``) and sampler
+  (T_k ← exp(ν_k^∧) T_k, ``sample``), not the layer's: the SDP is solved in the frame of the local optimum's
+  lifting, whose last bits the results follow, and the layer's derived solver (``layer_local_solve``, with the
+  auxiliary blocks' Jacobians ``unary_jacobian``, ``binary_jacobian``) reaches the same optima by another path,
+  about 10× slower at K = 1000 (it retracts and embeds pose by pose in Python).
 """
 
 from __future__ import annotations
@@ -31,15 +43,12 @@ import scipy.sparse as sp
 from autotight import lie
 from autotight.errors import ParameterError
 from autotight.gauss_newton import BlockJacobian, BlockPattern, block_sparse, block_weight, gauss_newton
-from autotight.model import Factor, Model, Variables
+from autotight.graph import Auxiliary, Euclidean, Family, Rotation, Variable, View, derive
+from autotight.model import Model
 from autotight.problem import Instance, LocalResult, Meta, Param
 
-from . import _pose_batch as pb
 from ._cayley import draw_valid
-from ._pose import MEASURED_POSE_NAMES
-from ._pose import (POSE_ROLES, XI_ROLES, binary_cayley, binary_transport, declare_pose, declare_xi, pose_blocks,
-                    pose_from_x, pose_orthonormality, r1_unary, r2_unary, r3_binary, unary_cayley, unary_transport,
-                    weighted_cost, xi_blocks)
+from ._pose import MEASURED_POSE_NAMES, POSE_ROLES, XI_ROLES, binary_transport, pose_blocks, unary_transport, xi_blocks
 
 NAME = "discrete_trajectory"
 DESCRIPTION = "Estimate K poses from pose and relative-pose measurements (paper §4)."
@@ -132,11 +141,121 @@ def generate(params: dict, rng: np.random.Generator) -> Instance:
     return Instance(NAME, dict(params), meas, {"C": Ts[:, :3, :3].copy(), "r": Ts[:, :3, 3].copy()})
 
 
-def _variables(K: int) -> Variables:
-    blocks = [b for k in range(K) for b in declare_pose(pose_prefix(k))]
-    blocks += [b for k in range(K) for b in declare_xi(unary_name(k))]
-    blocks += [b for k in range(K - 1) for b in declare_xi(binary_name(k))]
-    return Variables(blocks)
+#: pose k: C_k ∈ SO(3) as its columns (blocks T{k}_c1, T{k}_c2, T{k}_c3) and r_k (block T{k}_r)
+VARIABLES = [Variable("C", Rotation(3), type="so3", block=("c1", "c2", "c3"), element="T{i}_{block}",
+                      factor="rotation"),
+             Variable("r", Euclidean(3), element="T{i}_{block}")]
+
+
+def _se3(C: np.ndarray, r: np.ndarray) -> np.ndarray:
+    """[[C, r], [0ᵀ, 1]] of stacks C (R, 3, 3), r (R, 3): (R, 4, 4)."""
+    T = np.repeat(np.eye(4)[None], len(C), axis=0)
+    T[:, :3, :3], T[:, :3, 3] = C, r
+    return T
+
+
+def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Row-wise aᵀb of stacks (R, 3, …) and (R, 3), over the second axis: (R, …)."""
+    return np.einsum("ri...,ri->r...", a, b)
+
+
+def _cayley(A: np.ndarray, a: np.ndarray, B: np.ndarray, b: np.ndarray, xi: View) -> np.ndarray:
+    """(I − ½ξ^∧) [A a] − (I + ½ξ^∧) [B b] column by column (R, 12): A_i − B_i − ½ φ × (A_i + B_i) (9 rows),
+    then a − b − ½ φ × (a + b) − ρ (3 rows), for stacks A, B (R, 3, 3) and a, b (R, 3)."""
+    Phi = lie.hat_batch(xi.phi)
+    rot = A - B - 0.5 * Phi @ (A + B)
+    tr = a - b - 0.5 * (Phi @ (a + b)[:, :, None])[:, :, 0] - xi.rho
+    return np.hstack([rot.swapaxes(1, 2).reshape(-1, 9), tr])
+
+
+def unary_cayley(C: View, r: View, xi: View, Tm: np.ndarray) -> np.ndarray:
+    """ξ_k = cay⁻¹(T_k T̃_k⁻¹): (I − ½ξ^∧) T_k = (I + ½ξ^∧) T̃_k (12 rows); Tm (R, 3, 4) = [C̃ r̃]."""
+    return _cayley(C.x, r.x, Tm[:, :, :3], Tm[:, :, 3], xi)
+
+
+def binary_cayley(C1: View, r1: View, C2: View, r2: View, xi: View, Tm: np.ndarray) -> np.ndarray:
+    """ξ_{k+1,k} = cay⁻¹(T_{k+1} T_k⁻¹ T̃⁻¹): (I − ½ξ^∧) T_{k+1} = (I + ½ξ^∧) T̃ T_k (12 rows)."""
+    Cm, rm = Tm[:, :, :3], Tm[:, :, 3]
+    return _cayley(C2.x, r2.x, Cm @ C1.x, (Cm @ r1.x[:, :, None])[:, :, 0] + rm, xi)
+
+
+def r1(C: View, r: View, xi: View, Tm: np.ndarray) -> np.ndarray:
+    """(R1, paper (35)) ½ (c_i + c̃_i)ᵀ ρ − c_iᵀ r + c̃_iᵀ r̃ = 0, i = 1, 2, 3."""
+    Cm, rm = Tm[:, :, :3], Tm[:, :, 3]
+    return 0.5 * _dot(C.x + Cm, xi.rho) - _dot(C.x, r.x) + _dot(Cm, rm)
+
+
+def r2(C: View, r: View, xi: View, Tm: np.ndarray) -> np.ndarray:
+    """(R2, paper (32)) rᵀr − rᵀr̃ + ½ rᵀ r̃^∧ φ − rᵀρ = 0: rᵀ times the translation row, its cubic term dropped."""
+    rm = Tm[:, :, 3]
+    return (_dot(r.x, r.x) - _dot(r.x, rm) + 0.5 * _dot(r.x, np.cross(rm, xi.phi)) - _dot(r.x, xi.rho))[:, None]
+
+
+def r3(C1: View, r1: View, C2: View, r2: View, xi: View, Tm: np.ndarray) -> np.ndarray:
+    """(R3, paper (44)) ½ (c₂,ᵢ + C̃ c₁,ᵢ)ᵀ ρ − c₂,ᵢᵀ r₂ + c₁,ᵢᵀ (r₁ + C̃ᵀ r̃) = 0, i = 1, 2, 3."""
+    Cm, rm = Tm[:, :, :3], Tm[:, :, 3]
+    shifted = r1.x + (Cm.swapaxes(1, 2) @ rm[:, :, None])[:, :, 0]
+    return 0.5 * _dot(C2.x + Cm @ C1.x, xi.rho) - _dot(C2.x, r2.x) + _dot(C1.x, shifted)
+
+
+def unary_value(C: View, r: View, Tm: np.ndarray) -> np.ndarray:
+    """ξ_k = cay⁻¹(T_k T̃_k⁻¹)^∨ (R, 6) (CayleySingularityError at rotation angle π)."""
+    return lie.cay_inv_se3_batch(_se3(C.x, r.x) @ lie.inv_se3_batch(_se3(Tm[:, :, :3], Tm[:, :, 3])))
+
+
+def binary_value(C1: View, r1: View, C2: View, r2: View, Tm: np.ndarray) -> np.ndarray:
+    """ξ_{k+1,k} = cay⁻¹(T_{k+1} T_k⁻¹ T̃⁻¹)^∨ (R, 6)."""
+    T1, T2 = _se3(C1.x, r1.x), _se3(C2.x, r2.x)
+    return lie.cay_inv_se3_batch(T2 @ lie.inv_se3_batch(T1) @ lie.inv_se3_batch(_se3(Tm[:, :, :3], Tm[:, :, 3])))
+
+
+def _steps(r: View) -> np.ndarray:
+    """∂ε/∂(ψ, δ) (R, 6, 6) of the left perturbation T ← exp(ε^∧) T that the layer's steps C ← exp(ψ^∧) C,
+    r ← r + δ are to first order: ε = [ρ; φ] = [δ + r^∧ψ; ψ]."""
+    A = np.zeros((len(r.x), 6, 6))
+    A[:, :3, :3], A[:, :3, 3:], A[:, 3:, :3] = lie.hat_batch(r.x), np.eye(3), np.eye(3)
+    return A
+
+
+def unary_jacobian(C: View, r: View, xi: View, Tm: np.ndarray) -> np.ndarray:
+    """∂ξ_k/∂(ψ_k, δ_k) (R, 6, 6): 𝒥_c(ξ_k)⁻¹ ∂ε/∂(ψ, δ)."""
+    return lie.jac_cay_se3_inv_batch(np.hstack([xi.rho, xi.phi])) @ _steps(r)
+
+
+def binary_jacobian(C1: View, r1: View, C2: View, r2: View, xi: View, Tm: np.ndarray) -> np.ndarray:
+    """∂ξ_{k+1,k}/∂(ψ_k, δ_k, ψ_{k+1}, δ_{k+1}) (R, 6, 12): the left-perturbation Jacobians of
+    ``lie.residuals_se3_binary`` times ∂ε/∂(ψ, δ) of each pose."""
+    T1, T2 = _se3(C1.x, r1.x), _se3(C2.x, r2.x)
+    _, J1, J2 = lie.residuals_se3_binary(T1, T2, _se3(Tm[:, :, :3], Tm[:, :, 3]))
+    return np.concatenate([J1 @ _steps(r1), J2 @ _steps(r2)], axis=2)
+
+
+def _xi(*views: View) -> np.ndarray:
+    """The cost's residual ξ = [ρ; φ] of a factor (its auxiliary view, before the data)."""
+    return np.hstack([views[-2].rho, views[-2].phi])
+
+
+def factors(inst: Instance):
+    """The pose measurements and the odometry as two families (the paper's §4 factors, R1–R3)."""
+    K = _count(inst)
+    m = inst.measurements
+    T_meas, T_rel = np.asarray(m["T_meas"], float), np.asarray(m["T_rel"], float)
+    blocks = {"rho": 3, "phi": 3}
+    yield Family([(f"C{k}", f"r{k}") for k in range(K)], _xi, data=T_meas[:, :3, :], type="pose_meas",
+                 weight=m["W"],
+                 auxiliary=Auxiliary(blocks, value=unary_value, equations=unary_cayley, jacobian=unary_jacobian),
+                 paper={"R1": r1, "R2": r2}, names=[f"meas_{k}" for k in range(K)],
+                 aux_names=[unary_name(k) for k in range(K)], clique=True)
+    yield Family([(f"C{k}", f"r{k}", f"C{k + 1}", f"r{k + 1}") for k in range(K - 1)], _xi, data=T_rel[:, :3, :],
+                 type="odometry", weight=m["W_rel"],
+                 auxiliary=Auxiliary(blocks, value=binary_value, equations=binary_cayley, jacobian=binary_jacobian),
+                 paper={"R3": r3}, names=[f"odom_{binary_name(k)}" for k in range(K - 1)],
+                 aux_names=[binary_name(k) for k in range(K - 1)], roles=ODOMETRY_ROLES, clique=True)
+
+
+#: the layer's build, lift, cost and recover; the module keeps the paper's sampler and solver (module docstring),
+#: the layer's derived one is ``layer_local_solve`` (C_k ← exp(ψ_k^∧) C_k, r_k ← r_k + δ_k)
+_build, _lift, _cost, _, layer_local_solve, _recover = derive(VARIABLES, factors, by_element=True)
 
 
 def cliques(K: int) -> list[tuple[str, ...]]:
@@ -153,78 +272,9 @@ def cliques(K: int) -> list[tuple[str, ...]]:
     return out
 
 
-#: from this many poses on, ``build`` makes each factor type's constraints and costs for all factors at once
-#: (``_pose_batch``; entries equal to rounding); below, factor by factor
-BATCH_MIN_POSES = 32
-
-
 def build(inst: Instance) -> Model:
-    K = _count(inst)
-    if K >= BATCH_MIN_POSES:
-        return _build_batched(inst)
-    m = inst.measurements
-    V = _variables(K)
-    factors: list[Factor] = []
-    paper: dict[str, list] = {"R1": [], "R2": [], "R3": []}
-    for k in range(K):
-        p, s, name = pose_prefix(k), unary_name(k), f"meas_{k}"
-        pose = pose_blocks(p)
-        factors.append(Factor(f"rotation_{k}", "so3", ("h", *pose[:3]),
-                              constraints=pose_orthonormality(V, p, factor=f"rotation_{k}"),
-                              roles=("h", "c1", "c2", "c3")))
-        factors.append(Factor(name, "pose_meas", ("h", *pose, *xi_blocks(s)), cost=weighted_cost(V, s, m["W"][k]),
-                              constraints=unary_cayley(V, p, m["T_meas"][k], s, name),
-                              roles=("h", *POSE_ROLES, *XI_ROLES), data=m["T_meas"][k][:3, :]))
-        paper["R1"] += r1_unary(V, p, m["T_meas"][k], s, name, factor=name)
-        paper["R2"] += r2_unary(V, p, m["T_meas"][k], s, name, factor=name)
-    for k in range(K - 1):
-        p1, p2, s, name = pose_prefix(k), pose_prefix(k + 1), binary_name(k), f"odom_{k + 1}_{k}"
-        factors.append(Factor(name, "odometry", ("h", *pose_blocks(p1), *pose_blocks(p2), *xi_blocks(s)),
-                              cost=weighted_cost(V, s, m["W_rel"][k]),
-                              constraints=binary_cayley(V, p1, p2, m["T_rel"][k], s, name), roles=ODOMETRY_ROLES,
-                              data=m["T_rel"][k][:3, :]))
-        paper["R3"] += r3_binary(V, p1, p2, m["T_rel"][k], s, name, factor=name)
-    return Model(V, factors, paper=paper, cliques=cliques(K))
-
-
-def _build_batched(inst: Instance) -> Model:
-    """``build`` with every factor type made at once (``_pose_batch``): the same model up to rounding."""
-    K = _count(inst)
-    m = inst.measurements
-    V = _variables(K)
-    N = V.N
-    poses = [pose_blocks(pose_prefix(k)) for k in range(K)]
-    un_cols = np.array([V.index(("h", *poses[k], *xi_blocks(unary_name(k)))) for k in range(K)])
-    bi_cols = np.array([V.index(("h", *poses[k], *poses[k + 1], *xi_blocks(binary_name(k)))) for k in range(K - 1)])
-    rot_cols = un_cols[:, :10]
-    D_un, D_bi = pb.pose_data(m["T_meas"]), pb.pose_data(m["T_rel"])
-    W_un, W_bi = np.asarray(m["W"], float).reshape(K, 36), np.asarray(m["W_rel"], float).reshape(K - 1, 36)
-    rot_names, un_names = [f"rotation_{k}" for k in range(K)], [f"meas_{k}" for k in range(K)]
-    bi_names = [f"odom_{binary_name(k)}" for k in range(K - 1)]
-    un_subs = [{pb.POSE1: pose_prefix(k), pb.XI: unary_name(k), pb.NAME: un_names[k]} for k in range(K)]
-    bi_subs = [{pb.POSE1: pose_prefix(k), pb.POSE2: pose_prefix(k + 1), pb.XI: binary_name(k), pb.NAME: bi_names[k]}
-               for k in range(K - 1)]
-    rot = pb.rotation_batch().constraints(np.zeros((K, 0)), rot_cols, N, rot_names, pb.renamer(un_subs))
-    un = pb.unary_cayley_batch().constraints(D_un, un_cols, N, un_names, pb.renamer(un_subs))
-    bi = pb.binary_cayley_batch().constraints(D_bi, bi_cols, N, bi_names, pb.renamer(bi_subs))
-    un_cost = pb.unary_cost_batch().matrices(W_un, un_cols, N)
-    bi_cost = pb.binary_cost_batch().matrices(W_bi, bi_cols, N)
-    factors: list[Factor] = []
-    for k in range(K):
-        factors.append(Factor(rot_names[k], "so3", ("h", *poses[k][:3]), constraints=rot[k],
-                              roles=("h", "c1", "c2", "c3")))
-        factors.append(Factor(un_names[k], "pose_meas", ("h", *poses[k], *xi_blocks(unary_name(k))),
-                              cost=un_cost[k][0], constraints=un[k], roles=("h", *POSE_ROLES, *XI_ROLES),
-                              data=m["T_meas"][k][:3, :]))
-    for k in range(K - 1):
-        factors.append(Factor(bi_names[k], "odometry", ("h", *poses[k], *poses[k + 1], *xi_blocks(binary_name(k))),
-                              cost=bi_cost[k][0], constraints=bi[k], roles=ODOMETRY_ROLES,
-                              data=m["T_rel"][k][:3, :]))
-    flat = lambda per: [c for cs in per for c in cs]  # noqa: E731
-    paper = {"R1": flat(pb.r1_batch().constraints(D_un, un_cols, N, un_names, pb.renamer(un_subs))),
-             "R2": flat(pb.r2_batch().constraints(D_un, un_cols, N, un_names, pb.renamer(un_subs))),
-             "R3": flat(pb.r3_batch().constraints(D_bi, bi_cols, N, bi_names, pb.renamer(bi_subs)))}
-    return Model(V, factors, paper=paper, cliques=cliques(K))
+    """The model (``factors``), its cliques the factors' own block sets (``cliques``)."""
+    return _build(inst)
 
 
 # ----------------------------------------------------------------------------- states and residuals
@@ -254,20 +304,23 @@ def residuals(inst: Instance, state: dict) -> tuple[np.ndarray, np.ndarray]:
     return un, bi.reshape(-1, 6)
 
 
-def lift(inst: Instance, state: dict) -> np.ndarray:
-    """x in the block order of the module docstring, all poses at once: per pose c1, c2, c3 (the columns
-    of C), r; then every ξ_k; then every ξ_{k+1,k}."""
+def _checked(inst: Instance, state: dict) -> dict:
+    """The state, refused in one line unless it holds C (K, 3, 3) and r (K, 3) for the instance's K."""
     K = _count(inst)
-    un, bi = residuals(inst, state)
-    C, r = np.asarray(state["C"], dtype=float), np.asarray(state["r"], dtype=float)
-    poses = np.concatenate([np.swapaxes(C, 1, 2).reshape(K, 9), r], axis=1)
-    return np.concatenate([[1.0], poses.ravel(), un.ravel(), bi.ravel()])[None, :]
+    if len(_poses(state)) != K:
+        raise ParameterError(f"a state of {len(state['C'])} poses for an instance of K = {K}")
+    return state
+
+
+def lift(inst: Instance, state: dict) -> np.ndarray:
+    """x (1, N) in the block order of the module docstring: per pose c1, c2, c3 (the columns of C), r; then
+    every ξ_k; then every ξ_{k+1,k} (the layer's lift)."""
+    return _lift(inst, _checked(inst, state))[None, :]
 
 
 def cost(inst: Instance, state: dict) -> float:
-    un, bi = residuals(inst, state)
-    m = inst.measurements
-    return float(sum(e @ W @ e for e, W in zip(un, m["W"])) + sum(e @ W @ e for e, W in zip(bi, m["W_rel"])))
+    """Σ ξ_kᵀ W_k ξ_k + Σ ξ_{k+1,k}ᵀ W_{k+1,k} ξ_{k+1,k} (the layer's cost of the declared residuals)."""
+    return _cost(inst, _checked(inst, state))
 
 
 def sample(inst: Instance, rng: np.random.Generator, nominal: dict, spread: float) -> dict:
@@ -351,14 +404,10 @@ def local_solve(inst: Instance, init: dict, max_iter: int = 200) -> LocalResult:
 
 
 def recover(inst: Instance, Theta: np.ndarray) -> dict:
-    """Poses from the rank-1 factor x: raw rotation blocks (dets reported as "det_raw" (K,)) projected to SO(3)."""
-    K = _count(inst)
-    x = np.asarray(Theta, dtype=float).reshape(-1)
-    x = x / x[0]
-    V = _variables(K)
-    raw = [pose_from_x(V, x, pose_prefix(k)) for k in range(K)]
-    return {"C": np.array([lie.project_to_so3(C) for C, _ in raw]), "r": np.array([r for _, r in raw]),
-            "det_raw": np.array([np.linalg.det(C) for C, _ in raw])}
+    """Poses from the rank-1 factor x (the layer's): raw rotation blocks (dets reported as "det_raw" (K,))
+    projected to SO(3), translations r_k."""
+    _count(inst)
+    return _recover(inst, Theta)
 
 
 def errors(inst: Instance, state: dict) -> dict:

@@ -11,7 +11,7 @@ import pytest
 
 from autotight import lie
 from autotight.errors import ProblemDefinitionError
-from autotight.graph import Auxiliary, Euclidean, Factor, Family, Variable, derive
+from autotight.graph import Auxiliary, Euclidean, Factor, Family, Rotation, Variable, derive
 from autotight.graph.assemble import Graph
 from autotight.problem import Instance, Param, load
 
@@ -180,3 +180,83 @@ def test_the_family_example_on_the_layer_page_is_the_shipped_module():
     module = {line.rstrip() for line in (root / "problems" / "pose_averaging.py").read_text().splitlines()}
     lines = [line.rstrip() for line in snippet.splitlines() if line.strip()]
     assert len(lines) >= 7 and [line for line in lines if line not in module] == []
+
+
+# ----------------------------------------------------------------------------- a chain written element by element
+
+
+def _chain(params, rng):
+    K = params["M"]
+    C = np.array([lie.exp_so3(np.array([0.0, 0.0, a]))[:2, :2] for a in rng.uniform(-1, 1, K)])
+    p = rng.standard_normal((K, 2))
+    meas = {"d": rng.standard_normal((K, 2)), "u": rng.standard_normal((K - 1, 2))}
+    return Instance("family_toy", dict(params), meas, {"C": C, "p": p})
+
+
+CHAIN = [Variable("C", Rotation(2), block="c", element="P{i}_{block}", factor="rot"),
+         Variable("p", Euclidean(2), element="P{i}_{block}")]
+
+
+def _chain_factors(aux_names: bool = True, roles=("h", "c", "p", "c'", "p'", "w")):
+    def factors(inst):
+        K = len(inst.truth["C"])
+        rotated = lambda C, D: np.einsum("rij,rj->ri", C.x, D)  # noqa: E731
+        yield Family([(f"C{k}", f"p{k}") for k in range(K)], lambda C, p, z, D: z.z - p.x, data=inst.measurements["d"],
+                     type="meas", auxiliary=Auxiliary({"z": 2}, value=lambda C, p, D: rotated(C, D),
+                                                      equations=lambda C, p, z, D: z.z - rotated(C, D)),
+                     names=[f"meas_{k}" for k in range(K)], aux_names=[str(k) for k in range(K)] if aux_names else None,
+                     clique=True)
+        yield Family([(f"C{k}", f"p{k}", f"C{k + 1}", f"p{k + 1}") for k in range(K - 1)],
+                     lambda C1, p1, C2, p2, w, D: w.w, data=inst.measurements["u"], type="step",
+                     auxiliary=Auxiliary({"w": 2}, value=lambda C1, p1, C2, p2, D: p2.x - p1.x - D,
+                                         equations=lambda C1, p1, C2, p2, w, D: w.w - p2.x + p1.x + D),
+                     names=[f"step_{k + 1}_{k}" for k in range(K - 1)],
+                     aux_names=[f"{k + 1}_{k}" for k in range(K - 1)] if aux_names else None, roles=roles)
+    return factors
+
+
+def test_a_chain_by_element_is_the_same_model_in_the_papers_order():
+    """``derive(by_element=True)`` with ``Variable.element``/``factor`` and ``Family.aux_names``/``roles``: pose k's
+    blocks and rotation factor before pose k + 1's, each rotation factor right before its measurement factor, the
+    named auxiliary blocks and the declared roles; the same model as declared variable by variable, up to the order
+    of the blocks (the same cost and constraint values at a lifted sample, constraint by constraint)."""
+    K = 4
+    inst = _chain({"M": K}, np.random.default_rng(0))
+    parts = derive(CHAIN, _chain_factors(), by_element=True)
+    plain = derive(CHAIN, _chain_factors())
+    a, b = parts.build(inst), plain.build(inst)
+    assert a.variables.names[:5] == ["h", "P0_c", "P0_p", "P1_c", "P1_p"]
+    assert a.variables.names[1 + 2 * K:] == [f"z_{k}" for k in range(K)] + [f"w_{k + 1}_{k}" for k in range(K - 1)]
+    assert b.variables.names[:3] == ["h", "P0_c", "P1_c"]
+    assert sorted(a.variables.names) == sorted(b.variables.names)
+    assert [f.name for f in a.factors] == [n for k in range(K) for n in (f"rot_{k}", f"meas_{k}")] + \
+        [f"step_{k + 1}_{k}" for k in range(K - 1)]
+    assert [f.name for f in b.factors] == [f"rot_{k}" for k in range(K)] + [f"meas_{k}" for k in range(K)] + \
+        [f"step_{k + 1}_{k}" for k in range(K - 1)]
+    assert {f.roles for f in a.factors if f.type == "step"} == {("h", "c", "p", "c'", "p'", "w")}
+    assert a.factor("step_1_0").blocks == ("h", "P0_c", "P0_p", "P1_c", "P1_p", "w_1_0")
+    assert a.cliques == [("h", f"P{k}_c", f"P{k}_p", f"z_{k}") for k in range(K)]
+    state = parts.sample(inst, np.random.default_rng(1), inst.truth, 0.7)
+    xa, xb = parts.lift(inst, state), plain.lift(inst, state)
+    va, vb = a.variables, b.variables
+    assert all(np.array_equal(xa[va.slice(n)], xb[vb.slice(n)]) for n in va.names if n != "h")
+    assert xa @ (a.Q @ xa) == pytest.approx(xb @ (b.Q @ xb), rel=1e-14) and xa @ (a.Q @ xa) > 0
+    assert parts.cost(inst, state) == pytest.approx(xa @ (a.Q @ xa), rel=1e-12)
+    ca = {c.name: c.value(np.outer(xa, xa)) for c in a.primary()}
+    cb = {c.name: c.value(np.outer(xb, xb)) for c in b.primary()}
+    assert ca.keys() == cb.keys() and max(abs(ca[k] - cb[k]) for k in ca) <= 1e-12
+    assert max(abs(v) for k, v in ca.items()) <= 1e-12  # a lifted sample meets every primary constraint
+    assert parts.recover(inst, xa)["C"] == pytest.approx(state["C"], abs=1e-12)
+
+
+@pytest.mark.parametrize("make, message", [
+    (lambda: Variable("C", Rotation(2), element="P_{block}"), r"element must be a format of \{block\} and \{i\}"),
+    (lambda: Variable("C", Rotation(2), element="{i}{block}"), r"giving identifiers"),
+    (lambda: _chain_factors(roles=("h", "c", "p"))(_chain({"M": 3}, np.random.default_rng(0))),
+     r"roles must name its factors' 6 blocks"),
+])
+def test_element_names_and_roles_that_cannot_be_used_are_one_line_errors(make, message):
+    with pytest.raises(ProblemDefinitionError, match=message):
+        out = make()
+        if not isinstance(out, Variable):
+            Graph(CHAIN, _chain({"M": 3}, np.random.default_rng(0)).truth, out)

@@ -35,7 +35,7 @@ from ..model import Constraint, Factor, Model, canonical_coo
 from .declare import Factor as Declared
 from .declare import Family
 from .declare import Variable
-from .family import FamilyTerm
+from .family import FamilyTerm, scatter
 from .layout import Element, Layout
 from .terms import Term
 
@@ -62,10 +62,11 @@ def _auxiliary_blocks(items: Sequence[Declared | Family]) -> list[list[list[str]
     out: list[list[list[str]]] = []
     for f in items:
         members = []
-        for _ in range(f.size if isinstance(f, Family) else 1):
+        for j in range(f.size if isinstance(f, Family) else 1):
             names = []
             for b in f.auxiliary.blocks if f.auxiliary is not None else ():
-                names.append(f"{b}_{seen.get(b, 0)}")
+                given = f.aux_names if isinstance(f, Family) else None
+                names.append(f"{b}_{seen.get(b, 0) if given is None else given[j]}")
                 seen[b] = seen.get(b, 0) + 1
             members.append(names)
         out.append(members)
@@ -100,7 +101,7 @@ class Graph:
     """The declared variables and factors on one instance (see the module docstring)."""
 
     def __init__(self, variables: Sequence[Variable], truth: Mapping[str, Any],
-                 factors: Iterable[Declared | Family]):
+                 factors: Iterable[Declared | Family], by_element: bool = False):
         declared = list(factors)
         for f in declared:
             if not isinstance(f, (Declared, Family)):
@@ -109,7 +110,7 @@ class Graph:
         aux = _auxiliary_blocks(declared)
         blocks = [(b, k) for f, members in zip(declared, aux) if f.auxiliary is not None
                   for bs in members for b, k in zip(bs, f.auxiliary.blocks.values())]
-        self.layout = layout = Layout(variables, truth, blocks)
+        self.layout = layout = Layout(variables, truth, blocks, by_element)
         self.terms: list[Term] = []
         self.families: list[FamilyTerm] = []
         #: the declared items in order, resolved
@@ -156,29 +157,32 @@ class Graph:
                     costs[keys.pop()].append(t)
                 else:
                     grouped.setdefault((t.type, tuple(el.main for el in t.elements)), []).append(t)
-        factors = []
+        names, mats = self._variable_constraints()
+        var_factors: dict[tuple[str, int | None], Factor] = {}
         for (typ, index), els in owners.items():
-            name = typ if index is None else f"{typ}_{index}"
+            stem = els[0].var.factor or typ
+            name = stem if index is None else f"{stem}_{index}"
             cons = []
             for el in els:
-                cols = np.concatenate([[0], L.columns(el)])
                 split = len(el.var.main_blocks()) > 1  # named by the variable, not its first block
                 label = el.var.name + ("" if index is None else str(index)) if split else el.main
-                cons += [Constraint(_global(M, cols, N), 0.0, name=f"{name}:{label}:{nm}", factor=name)
-                         for nm, M in el.var.local_constraints()]
+                cons += [Constraint(A, 0.0, name=f"{name}:{label}:{nm}", factor=name)
+                         for nm, A in zip(names[id(el.var)], mats[L.position[el.main]])]
             cost = self._cost(costs[(typ, index)], N)
             if cons or cost is not None:  # a variable with neither (e.g. a free translation) has no factor
-                factors.append(Factor(name, typ, ("h",) + tuple(b for el in els for b in el.blocks), cost=cost,
-                                      constraints=cons, roles=_roles(els)))
+                var_factors[(typ, index)] = Factor(name, typ, ("h",) + tuple(b for el in els for b in el.blocks),
+                                                   cost=cost, constraints=cons, roles=_roles(els))
+        factors = []
         for (typ, mains), ts in grouped.items():
             els = ts[0].elements
             factors.append(Factor(f"{typ}:{'-'.join(mains)}", typ, ("h",) + tuple(b for el in els for b in el.blocks),
                                   cost=self._cost(ts, N), roles=_roles(els)))
         paper: dict[str, list[Constraint]] = {}
         cliques: list[tuple[str, ...]] = []
+        owned: list[tuple[list[Element], Factor]] = []  # the own model factors with their variables
         for item in own:
             if isinstance(item, FamilyTerm):
-                factors += self._family_factors(item, N, paper, cliques)
+                owned += list(zip(item.elements, self._family_factors(item, N, paper, cliques)))
                 continue
             t = item
             cons = [Constraint(_global(M, t.columns, N), 0.0, name=f"{t.name}:{nm}", factor=t.name)
@@ -187,10 +191,51 @@ class Graph:
             if len(set(roles)) != len(roles):
                 raise ProblemDefinitionError(f"factor {t.name!r}: its blocks' roles {roles} are not distinct")
             blocks = ("h",) + tuple(b for el in t.elements for b in el.blocks) + t.aux_blocks
-            factors.append(Factor(t.name, t.type, blocks, cost=self._cost([t], N), constraints=cons, roles=roles,
-                                  data=t.factor.data))
+            owned.append((t.elements, Factor(t.name, t.type, blocks, cost=self._cost([t], N), constraints=cons,
+                                             roles=roles, data=t.factor.data)))
+        factors = self._ordered(var_factors, factors, owned, home)
         self._stacked()  # the local solver's residual map, made with the model (the solver follows the build)
         return Model(L.V, factors, paper=paper, cliques=cliques or None)
+
+    def _variable_constraints(self) -> tuple[dict[int, list[str]], dict[int, list[sp.coo_array]]]:
+        """The manifolds' and liftings' constraints of every element, a variable's elements at once: (per
+        variable (by id), the constraints' names; per element position, their N×N matrices)."""
+        L, N = self.layout, self.layout.V.N
+        names: dict[int, list[str]] = {}
+        mats: dict[int, list[sp.coo_array]] = {}
+        for var, idx, columns in L.families:
+            local = var.local_constraints()
+            names[id(var)] = [nm for nm, _ in local]
+            if not local or not len(idx):
+                mats.update({int(k): [] for k in idx})
+                continue
+            entries = [np.nonzero(M) for _, M in local]
+            rows = np.concatenate([r for r, _ in entries])
+            cols = np.concatenate([c for _, c in entries])
+            group = np.repeat(np.arange(len(local)), [r.size for r, _ in entries])
+            vals = np.concatenate([M[r, c] for (_, M), (r, c) in zip(local, entries)])
+            cols_of = np.hstack([np.zeros((len(idx), 1), int), columns])
+            per = scatter(np.broadcast_to(vals, (len(idx), vals.size)), group, rows, cols, len(local), cols_of, N)
+            mats.update({int(k): m for k, m in zip(idx, per)})
+        return names, mats
+
+    def _ordered(self, var_factors: dict[tuple[str, int | None], Factor], grouped: list[Factor],
+                 owned: list[tuple[list[Element], Factor]], home: dict[str, tuple[str, int | None]]) -> list[Factor]:
+        """The model's factors in order: the variables' own, the grouped costs, the factors of their own; with
+        ``by_element``, each variable's own factor right before the first factor of its own on it (those on no
+        such factor first), as a factor graph is written pose by pose."""
+        if not self.layout.by_element:
+            return list(var_factors.values()) + grouped + [f for _, f in owned]
+        placed: set[tuple[str, int | None]] = set()
+        seq: list[Factor] = []
+        for els, fac in owned:
+            for el in els:
+                key = home[el.main]
+                if key in var_factors and key not in placed:
+                    placed.add(key)
+                    seq.append(var_factors[key])
+            seq.append(fac)
+        return [f for k, f in var_factors.items() if k not in placed] + grouped + seq
 
     @staticmethod
     def _family_factors(t: FamilyTerm, N: int, paper: dict[str, list[Constraint]],

@@ -158,8 +158,22 @@ class Variable:
     #: the name of its main block (default: its name), or a tuple of names splitting it into that many equal
     #: consecutive blocks (e.g. ("c1", "c2", "c3"): the columns of vec C)
     block: str | tuple[str, ...] | None = None
+    #: the block names of element i of a stack, a format of ``block`` and ``i`` (default "{block}{i}"; e.g.
+    #: "T{i}_{block}" names pose i's blocks T{i}_c1, …)
+    element: str = "{block}{i}"
+    #: the name stem of its own model factor (default: its type), suffixed ``_i`` for element i of a stack
+    factor: str | None = None
 
     def __post_init__(self) -> None:
+        try:
+            probe = self.element.format(block="b", i=7)
+        except (AttributeError, KeyError, IndexError, ValueError):
+            probe = ""
+        if "{block}" not in self.element or "{i}" not in self.element or not probe.isidentifier():
+            raise ProblemDefinitionError(f"variable {self.name!r}: element must be a format of {{block}} and {{i}} "
+                                         f"giving identifiers, got {self.element!r}")
+        if self.factor is not None and (not isinstance(self.factor, str) or not self.factor):
+            raise ProblemDefinitionError(f"variable {self.name!r}: factor must be a non-empty string")
         parts = self.block if isinstance(self.block, tuple) else ("x" if self.block is None else self.block,)
         for what, v in (("name", self.name),) + tuple(("block", b) for b in parts):
             if not isinstance(v, str) or not v.isidentifier() or v == "h":
@@ -172,6 +186,10 @@ class Variable:
             raise ProblemDefinitionError(f"variable {self.name!r}: lifting block names must be identifiers other "
                                          f"than 'x' and 'h', got {bad}")
         self._fits: list[LiftingFit] | None = None
+
+    def element_block(self, block: str, i: int | None) -> str:
+        """The name of a block of element i (None: a single variable, whose blocks keep their names)."""
+        return block if i is None else self.element.format(block=block, i=i)
 
     def main_blocks(self) -> tuple[str, ...]:
         """The names of its main block's parts (one, unless ``block`` splits it), without an element's index."""
@@ -301,6 +319,8 @@ class Family:
     in ``Model.paper[family]``.  The equations' and paper rows' coefficients must be polynomials of degree
     ≤ ``degree`` (1 or 2) in the data: they are fitted once per family.  ``names``: the factors' model
     names (default ``type_i``).  ``clique``: each factor's blocks are a clique hint (``Model.cliques``).
+    ``aux_names``: the suffixes of the factors' auxiliary block names; ``roles``: the roles of their blocks
+    (both optional).
     """
 
     variables: str | Sequence[str] | Sequence[Sequence[str]]
@@ -313,6 +333,12 @@ class Family:
     names: Sequence[str] | None = None
     clique: bool = False
     degree: int = 2
+    #: the suffixes of each factor's auxiliary block names, ``b_{suffix}`` (default: the factor's rank among the
+    #: factors declaring ``b``)
+    aux_names: Sequence[str] | None = None
+    #: the roles of its factors' blocks (h, the variables' blocks, the auxiliary blocks); default derived
+    #: (``assemble``: a variable appearing twice gets its roles suffixed ``_k``)
+    roles: Sequence[str] | None = None
 
     def __post_init__(self) -> None:
         if not isinstance(self.type, str) or not self.type:
@@ -350,6 +376,15 @@ class Family:
                 raise ProblemDefinitionError(f"{where}: names must be {F} distinct non-empty strings")
         if self.degree not in (1, 2):
             raise ProblemDefinitionError(f"{where}: degree must be 1 or 2, got {self.degree!r}")
+        if self.aux_names is not None:
+            self.aux_names = [str(a) for a in self.aux_names]
+            if self.auxiliary is None or len(self.aux_names) != F or len(set(self.aux_names)) != F:
+                raise ProblemDefinitionError(f"{where}: aux_names must be {F} distinct suffixes of a family with "
+                                             "auxiliary blocks")
+        if self.roles is not None:
+            self.roles = tuple(self.roles)
+            if not all(isinstance(r, str) and r for r in self.roles) or len(set(self.roles)) != len(self.roles):
+                raise ProblemDefinitionError(f"{where}: roles must be distinct non-empty strings, got {self.roles}")
 
     @property
     def size(self) -> int:

@@ -55,8 +55,11 @@ class Parts(NamedTuple):
 
 
 def derive(variables: Sequence[Variable] | Callable[[Any], Sequence[Variable]],
-           factors: Callable[[Any], Iterable[Factor | Family]]) -> Parts:
-    """The contract's parts from the declarations (see the module docstring)."""
+           factors: Callable[[Any], Iterable[Factor | Family]], by_element: bool = False) -> Parts:
+    """The contract's parts from the declarations (see the module docstring).  ``by_element``: the lifted vector
+    and the model's factors ordered element by element (``layout.Layout``, ``assemble.Graph``): element i of
+    every stacked variable before element i + 1, and each variable's own factor right before the first factor of
+    its own on it (e.g. pose k's blocks and rotation factor, its measurement factor, then pose k + 1)."""
     if not callable(factors):
         raise ProblemDefinitionError("factors must be a function factors(instance) -> iterable of Factor")
     cache: dict[int, tuple[weakref.ref, Graph]] = {}
@@ -66,7 +69,7 @@ def derive(variables: Sequence[Variable] | Callable[[Any], Sequence[Variable]],
         if hit is not None and hit[0]() is inst:
             return hit[1]
         declared = variables(inst) if callable(variables) else variables
-        g = Graph(list(declared), inst.truth, factors(inst))
+        g = Graph(list(declared), inst.truth, factors(inst), by_element)
         for k in [k for k, (ref, _) in cache.items() if ref() is None]:
             del cache[k]
         cache[id(inst)] = (weakref.ref(inst), g)

@@ -161,6 +161,10 @@ class FamilyTerm:
         self.tangent = np.array([np.concatenate([np.arange(el.tangent_offset, el.tangent_offset + el.dof)
                                                  for el in els]) for els in self.elements])
         self.dof = int(sum(dofs))
+        nblocks = 1 + sum(len(el.blocks) for el in self.elements[0]) + len(self.aux_blocks[0])
+        if fam.roles is not None and len(fam.roles) != nblocks:
+            raise ProblemDefinitionError(f"{where}: roles must name its factors' {nblocks} blocks (h, the variables', "
+                                         f"the auxiliary's), got {len(fam.roles)}")
         self.M = self._affine_map()
         self.m = self.M.shape[1]
         self.W = self._weights()
@@ -241,11 +245,14 @@ class FamilyTerm:
     # ------------------------------------------------------------------ the model's matrices
     def costs(self, N: int) -> list[sp.coo_array]:
         """Each factor's lifted cost Mᵀ W M as an N×N matrix."""
-        C = np.einsum("fai,fab,fbj->fij", self.M, self.W, self.M)
+        C = self.M.transpose(0, 2, 1) @ (self.W @ self.M)
         r, c = np.nonzero((C != 0).any(axis=0))
         return [mats[0] for mats in scatter(C[:, r, c], np.zeros(r.size, int), r, c, 1, self.columns, N)]
 
     def roles(self, roles: tuple[str, ...]) -> tuple[str, ...]:
+        """The declared roles, else the variables' (``roles``) and the auxiliary blocks' names."""
+        if self.family.roles is not None:
+            return tuple(self.family.roles)
         return roles + (tuple(self.aux.blocks) if self.aux is not None else ())
 
     # ------------------------------------------------------------------ at a state

@@ -2,9 +2,11 @@
 
 The truth fixes the variables' multiplicity (``declare.Variable``).  Blocks, in order: per variable
 (declaration order), per element (index order), the main block ``name`` (one variable) or ``name{i}``
-(a stack; ``Variable.block`` for ``name`` when given, each of its parts when it splits the block), then its
-lifting blocks ``block`` or ``block{i}``; after every variable, the factors' auxiliary blocks
-(``assemble``).  A state is ``{name: value or (N, *shape) stack}`` with one entry per declared variable.
+(a stack; ``Variable.block`` for ``name`` when given, each of its parts when it splits the block; a stack's
+names by ``Variable.element``), then its lifting blocks ``block`` or ``block{i}``; with ``by_element``, the
+single variables' blocks, then element 0 of every stacked variable (declaration order), element 1, …; after
+every variable, the factors' auxiliary blocks (``assemble``).  A state is ``{name: value or (N, *shape) stack}``
+with one entry per declared variable.
 """
 
 from __future__ import annotations
@@ -48,7 +50,7 @@ class Layout:
     """The instance's elements and ``Variables`` (d = 1), with lift, recover and retraction."""
 
     def __init__(self, variables: Sequence[Variable], truth: Mapping[str, Any],
-                 auxiliary: Sequence[tuple[str, int]] = ()):
+                 auxiliary: Sequence[tuple[str, int]] = (), by_element: bool = False):
         if not variables or not all(isinstance(v, Variable) for v in variables):
             raise ProblemDefinitionError("VARIABLES must be a non-empty list of autotight.graph.Variable")
         names = [v.name for v in variables]
@@ -57,7 +59,9 @@ class Layout:
         self.variables = list(variables)
         self.elements: list[Element] = []
         self.counts: dict[str, int | None] = {}
-        blocks: list[tuple[str, int]] = []
+        #: whether the blocks are ordered element by element (``derive(by_element=True)``)
+        self.by_element = by_element
+        placed: list[tuple[int, list[tuple[str, int]]]] = []  # (element index, its blocks)
         offset = 0
         for var in self.variables:
             if var.name not in truth:
@@ -74,11 +78,14 @@ class Layout:
             fits, parts = var.fits(), var.main_blocks()
             sizes = [var.manifold.size // len(parts)] * len(parts) + [f.size for f in fits]
             for i in [None] if count is None else range(count):
-                sfx = "" if i is None else str(i)
-                el = Element(var, i, tuple(b + sfx for b in parts) + tuple(f.name + sfx for f in fits), offset)
+                own = tuple(var.element_block(b, i) for b in parts + tuple(f.name for f in fits))
+                el = Element(var, i, own, offset)
                 self.elements.append(el)
-                blocks += list(zip(el.blocks, sizes))
+                placed.append((-1 if i is None else i, list(zip(el.blocks, sizes))))
                 offset += el.dof
+        if by_element:  # element i of every variable (declaration order) before element i + 1; single ones first
+            placed.sort(key=lambda p: p[0])
+        blocks = [b for _, bs in placed for b in bs]
         self.n_tangent = offset
         taken = {b for b, _ in blocks}
         clash = [b for b, _ in auxiliary if b in taken or b == "h"]
