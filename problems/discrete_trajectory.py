@@ -49,6 +49,7 @@ from autotight.problem import Instance, LocalResult, Meta, Param
 
 from ._cayley import draw_valid
 from ._pose import MEASURED_POSE_NAMES, POSE_ROLES, XI_ROLES, binary_transport, pose_blocks, unary_transport, xi_blocks
+from ._pose_rows import cayley_rows, dot, r1, r2, se3, unary_cayley
 
 NAME = "discrete_trajectory"
 DESCRIPTION = "Estimate K poses from pose and relative-pose measurements (paper §4)."
@@ -147,66 +148,28 @@ VARIABLES = [Variable("C", Rotation(3), type="so3", block=("c1", "c2", "c3"), el
              Variable("r", Euclidean(3), element="T{i}_{block}")]
 
 
-def _se3(C: np.ndarray, r: np.ndarray) -> np.ndarray:
-    """[[C, r], [0ᵀ, 1]] of stacks C (R, 3, 3), r (R, 3): (R, 4, 4)."""
-    T = np.repeat(np.eye(4)[None], len(C), axis=0)
-    T[:, :3, :3], T[:, :3, 3] = C, r
-    return T
-
-
-def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Row-wise aᵀb of stacks (R, 3, …) and (R, 3), over the second axis: (R, …)."""
-    return np.einsum("ri...,ri->r...", a, b)
-
-
-def _cayley(A: np.ndarray, a: np.ndarray, B: np.ndarray, b: np.ndarray, xi: View) -> np.ndarray:
-    """(I − ½ξ^∧) [A a] − (I + ½ξ^∧) [B b] column by column (R, 12): A_i − B_i − ½ φ × (A_i + B_i) (9 rows),
-    then a − b − ½ φ × (a + b) − ρ (3 rows), for stacks A, B (R, 3, 3) and a, b (R, 3)."""
-    Phi = lie.hat_batch(xi.phi)
-    rot = A - B - 0.5 * Phi @ (A + B)
-    tr = a - b - 0.5 * (Phi @ (a + b)[:, :, None])[:, :, 0] - xi.rho
-    return np.hstack([rot.swapaxes(1, 2).reshape(-1, 9), tr])
-
-
-def unary_cayley(C: View, r: View, xi: View, Tm: np.ndarray) -> np.ndarray:
-    """ξ_k = cay⁻¹(T_k T̃_k⁻¹): (I − ½ξ^∧) T_k = (I + ½ξ^∧) T̃_k (12 rows); Tm (R, 3, 4) = [C̃ r̃]."""
-    return _cayley(C.x, r.x, Tm[:, :, :3], Tm[:, :, 3], xi)
-
-
 def binary_cayley(C1: View, r1: View, C2: View, r2: View, xi: View, Tm: np.ndarray) -> np.ndarray:
     """ξ_{k+1,k} = cay⁻¹(T_{k+1} T_k⁻¹ T̃⁻¹): (I − ½ξ^∧) T_{k+1} = (I + ½ξ^∧) T̃ T_k (12 rows)."""
     Cm, rm = Tm[:, :, :3], Tm[:, :, 3]
-    return _cayley(C2.x, r2.x, Cm @ C1.x, (Cm @ r1.x[:, :, None])[:, :, 0] + rm, xi)
-
-
-def r1(C: View, r: View, xi: View, Tm: np.ndarray) -> np.ndarray:
-    """(R1, paper (35)) ½ (c_i + c̃_i)ᵀ ρ − c_iᵀ r + c̃_iᵀ r̃ = 0, i = 1, 2, 3."""
-    Cm, rm = Tm[:, :, :3], Tm[:, :, 3]
-    return 0.5 * _dot(C.x + Cm, xi.rho) - _dot(C.x, r.x) + _dot(Cm, rm)
-
-
-def r2(C: View, r: View, xi: View, Tm: np.ndarray) -> np.ndarray:
-    """(R2, paper (32)) rᵀr − rᵀr̃ + ½ rᵀ r̃^∧ φ − rᵀρ = 0: rᵀ times the translation row, its cubic term dropped."""
-    rm = Tm[:, :, 3]
-    return (_dot(r.x, r.x) - _dot(r.x, rm) + 0.5 * _dot(r.x, np.cross(rm, xi.phi)) - _dot(r.x, xi.rho))[:, None]
+    return cayley_rows(C2.x, r2.x, Cm @ C1.x, (Cm @ r1.x[:, :, None])[:, :, 0] + rm, xi)
 
 
 def r3(C1: View, r1: View, C2: View, r2: View, xi: View, Tm: np.ndarray) -> np.ndarray:
     """(R3, paper (44)) ½ (c₂,ᵢ + C̃ c₁,ᵢ)ᵀ ρ − c₂,ᵢᵀ r₂ + c₁,ᵢᵀ (r₁ + C̃ᵀ r̃) = 0, i = 1, 2, 3."""
     Cm, rm = Tm[:, :, :3], Tm[:, :, 3]
     shifted = r1.x + (Cm.swapaxes(1, 2) @ rm[:, :, None])[:, :, 0]
-    return 0.5 * _dot(C2.x + Cm @ C1.x, xi.rho) - _dot(C2.x, r2.x) + _dot(C1.x, shifted)
+    return 0.5 * dot(C2.x + Cm @ C1.x, xi.rho) - dot(C2.x, r2.x) + dot(C1.x, shifted)
 
 
 def unary_value(C: View, r: View, Tm: np.ndarray) -> np.ndarray:
     """ξ_k = cay⁻¹(T_k T̃_k⁻¹)^∨ (R, 6) (CayleySingularityError at rotation angle π)."""
-    return lie.cay_inv_se3_batch(_se3(C.x, r.x) @ lie.inv_se3_batch(_se3(Tm[:, :, :3], Tm[:, :, 3])))
+    return lie.cay_inv_se3_batch(se3(C.x, r.x) @ lie.inv_se3_batch(se3(Tm[:, :, :3], Tm[:, :, 3])))
 
 
 def binary_value(C1: View, r1: View, C2: View, r2: View, Tm: np.ndarray) -> np.ndarray:
     """ξ_{k+1,k} = cay⁻¹(T_{k+1} T_k⁻¹ T̃⁻¹)^∨ (R, 6)."""
-    T1, T2 = _se3(C1.x, r1.x), _se3(C2.x, r2.x)
-    return lie.cay_inv_se3_batch(T2 @ lie.inv_se3_batch(T1) @ lie.inv_se3_batch(_se3(Tm[:, :, :3], Tm[:, :, 3])))
+    T1, T2 = se3(C1.x, r1.x), se3(C2.x, r2.x)
+    return lie.cay_inv_se3_batch(T2 @ lie.inv_se3_batch(T1) @ lie.inv_se3_batch(se3(Tm[:, :, :3], Tm[:, :, 3])))
 
 
 def _steps(r: View) -> np.ndarray:
@@ -225,8 +188,8 @@ def unary_jacobian(C: View, r: View, xi: View, Tm: np.ndarray) -> np.ndarray:
 def binary_jacobian(C1: View, r1: View, C2: View, r2: View, xi: View, Tm: np.ndarray) -> np.ndarray:
     """∂ξ_{k+1,k}/∂(ψ_k, δ_k, ψ_{k+1}, δ_{k+1}) (R, 6, 12): the left-perturbation Jacobians of
     ``lie.residuals_se3_binary`` times ∂ε/∂(ψ, δ) of each pose."""
-    T1, T2 = _se3(C1.x, r1.x), _se3(C2.x, r2.x)
-    _, J1, J2 = lie.residuals_se3_binary(T1, T2, _se3(Tm[:, :, :3], Tm[:, :, 3]))
+    T1, T2 = se3(C1.x, r1.x), se3(C2.x, r2.x)
+    _, J1, J2 = lie.residuals_se3_binary(T1, T2, se3(Tm[:, :, :3], Tm[:, :, 3]))
     return np.concatenate([J1 @ _steps(r1), J2 @ _steps(r2)], axis=2)
 
 

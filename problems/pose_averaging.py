@@ -13,7 +13,7 @@ Written on the factor-graph layer (``autotight.graph``):
 - variables: C ∈ SO(3) (blocks c₁, c₂, c₃; its factor "so3" holds c_iᵀc_j = δ_ij h²) and r ∈ R³ (no factor of
   its own: neither a constraint nor a cost is on r alone);
 - factors: one family "pose_meas" of M factors "meas_m" on (C, r), each owning ξ_m = cay⁻¹(T T̃_m⁻¹)
-  (blocks ρ_m, φ_m), defined by the 12 Cayley rows ``cayley`` (its primary constraints); residual ξ_m, weight
+  (blocks ρ_m, φ_m), defined by the 12 Cayley rows ``unary_cayley`` (its primary constraints); residual ξ_m, weight
   W_m; ``Factor.data`` [C̃_m r̃_m] (12 entries, row-major);
 - paper families: R1 (3 per m) and R2 (1 per m), ``r1`` and ``r2``;
 - cliques: each "pose_meas" factor's blocks (size 19), used when the SDP is decomposed (large M);
@@ -31,6 +31,7 @@ from autotight.graph import Auxiliary, Euclidean, Family, Rotation, Variable, Vi
 from autotight.problem import Instance, LocalResult, Meta, Param
 
 from ._pose import MEASURED_POSE_NAMES, unary_transport
+from ._pose_rows import r1, r2, se3, unary_cayley
 
 NAME = "pose_averaging"
 DESCRIPTION = "Average M noisy SE(3) pose measurements (paper §3.2)."
@@ -66,42 +67,9 @@ def generate(params: dict, rng: np.random.Generator) -> Instance:
 VARIABLES = [Variable("C", Rotation(3), type="so3", block=("c1", "c2", "c3")), Variable("r", Euclidean(3))]
 
 
-def _poses(C: np.ndarray, r: np.ndarray) -> np.ndarray:
-    """[[C, r], [0ᵀ, 1]] of stacks C (R, 3, 3), r (R, 3): (R, 4, 4)."""
-    T = np.zeros((len(C), 4, 4))
-    T[:, :3, :3], T[:, :3, 3], T[:, 3, 3] = C, r, 1.0
-    return T
-
-
-def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Row-wise aᵀb of stacks (R, 3, …) and (R, 3), over the second axis: (R, …)."""
-    return np.einsum("ri...,ri->r...", a, b)
-
-
-def cayley(C: View, r: View, xi: View, Tm: np.ndarray) -> np.ndarray:
-    """(I − ½ξ^∧) T − (I + ½ξ^∧) T̃ column by column (R, 12): c_i − c̃_i − ½ φ × (c_i + c̃_i) (9 rows), then
-    r − r̃ − ½ φ × (r + r̃) − ρ (3 rows); zero at ξ = cay⁻¹(T T̃⁻¹).  Tm (R, 3, 4) = [C̃ r̃]."""
-    Phi = lie.hat_batch(xi.phi)
-    rot = C.x - Tm[:, :, :3] - 0.5 * Phi @ (C.x + Tm[:, :, :3])
-    tr = r.x - Tm[:, :, 3] - 0.5 * (Phi @ (r.x + Tm[:, :, 3])[:, :, None])[:, :, 0] - xi.rho
-    return np.hstack([rot.swapaxes(1, 2).reshape(-1, 9), tr])
-
-
-def r1(C: View, r: View, xi: View, Tm: np.ndarray) -> np.ndarray:
-    """(R1, paper (35)) ½ (c_i + c̃_i)ᵀ ρ − c_iᵀ r + c̃_iᵀ r̃ = 0, i = 1, 2, 3."""
-    Cm, rm = Tm[:, :, :3], Tm[:, :, 3]
-    return 0.5 * _dot(C.x + Cm, xi.rho) - _dot(C.x, r.x) + _dot(Cm, rm)
-
-
-def r2(C: View, r: View, xi: View, Tm: np.ndarray) -> np.ndarray:
-    """(R2, paper (32)) rᵀr − rᵀr̃ + ½ rᵀ r̃^∧ φ − rᵀρ = 0: rᵀ times the translation row, its cubic term dropped."""
-    rm = Tm[:, :, 3]
-    return (_dot(r.x, r.x) - _dot(r.x, rm) + 0.5 * _dot(r.x, np.cross(rm, xi.phi)) - _dot(r.x, xi.rho))[:, None]
-
-
 def residual(C: View, r: View, Tm: np.ndarray) -> np.ndarray:
     """ξ = cay⁻¹(T T̃⁻¹)^∨ = [ρ; φ] of each measurement at states (R, 6); CayleySingularityError at angle π."""
-    return lie.cay_inv_se3_batch(_poses(C.x, r.x) @ lie.inv_se3_batch(_poses(Tm[:, :, :3], Tm[:, :, 3])))
+    return lie.cay_inv_se3_batch(se3(C.x, r.x) @ lie.inv_se3_batch(se3(Tm[:, :, :3], Tm[:, :, 3])))
 
 
 def residual_jacobian(C: View, r: View, xi: View, Tm: np.ndarray) -> np.ndarray:
@@ -113,9 +81,9 @@ def residual_jacobian(C: View, r: View, xi: View, Tm: np.ndarray) -> np.ndarray:
 
 
 def factors(inst: Instance):
-    """The M measurement factors as one family: ξ_m by ``residual`` and ``cayley``; cost ξ_mᵀ W_m ξ_m; R1, R2."""
+    """The M measurement factors as one family: ξ_m by ``residual`` and ``unary_cayley``; cost ξ_mᵀ W_m ξ_m; R1, R2."""
     T_meas = np.asarray(inst.measurements["T_meas"], float)
-    xi = Auxiliary({"rho": 3, "phi": 3}, value=residual, equations=cayley, jacobian=residual_jacobian)
+    xi = Auxiliary({"rho": 3, "phi": 3}, value=residual, equations=unary_cayley, jacobian=residual_jacobian)
     yield Family(("C", "r"), lambda C, r, xi, Tm: np.hstack([xi.rho, xi.phi]), data=T_meas[:, :3, :],
                  type="pose_meas", weight=inst.measurements["W"], auxiliary=xi, paper={"R1": r1, "R2": r2},
                  names=[f"meas_{m}" for m in range(len(T_meas))], clique=True)

@@ -311,15 +311,10 @@ def test_recomputed_trials_have_the_hand_written_modules_results():
 
 def test_the_chain_example_on_the_layer_page_is_the_shipped_module():
     """Every line of docs/factor_graph.md's discrete-trajectory snippet is a line of the module."""
-    import re
-    from pathlib import Path
+    from doc_snippets import missing_lines
 
-    root = Path(__file__).resolve().parents[1]
-    page = (root / "docs" / "factor_graph.md").read_text()
-    [snippet] = [c for c in re.findall(r"```python\n(.*?)```", page, re.S) if "T{i}_{block}" in c]
-    module = {line.rstrip() for line in (root / "problems" / "discrete_trajectory.py").read_text().splitlines()}
-    lines = [line.rstrip() for line in snippet.splitlines() if line.strip()]
-    assert len(lines) >= 3 and [line for line in lines if line not in module] == []
+    lines, missing = missing_lines("T{i}_{block}", "discrete_trajectory")
+    assert len(lines) >= 3 and missing == []
 
 
 def test_the_layers_derived_solver_reaches_the_papers_optima():

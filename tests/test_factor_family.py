@@ -171,15 +171,10 @@ def test_what_a_family_cannot_declare_is_a_one_line_error(kw, message):
 
 def test_the_family_example_on_the_layer_page_is_the_shipped_module():
     """Every line of docs/factor_graph.md's pose-averaging snippet is a line of problems/pose_averaging.py."""
-    import re
-    from pathlib import Path
+    from doc_snippets import missing_lines
 
-    root = Path(__file__).resolve().parents[1]
-    page = (root / "docs" / "factor_graph.md").read_text()
-    [snippet] = [c for c in re.findall(r"```python\n(.*?)```", page, re.S) if "pose_meas" in c]
-    module = {line.rstrip() for line in (root / "problems" / "pose_averaging.py").read_text().splitlines()}
-    lines = [line.rstrip() for line in snippet.splitlines() if line.strip()]
-    assert len(lines) >= 7 and [line for line in lines if line not in module] == []
+    lines, missing = missing_lines("pose_meas", "pose_averaging")
+    assert len(lines) >= 7 and missing == []
 
 
 # ----------------------------------------------------------------------------- a chain written element by element
