@@ -541,7 +541,8 @@ def test_ipm_residuals_are_entrywise_and_do_not_grow_with_the_number_of_rows():
         assert sol.status in ("Solved", "AlmostSolved"), sol.message  # the residuals below are the property
         rp = prog.g - prog.F.T @ sol.z
         pinf = np.max(np.abs(rp)) / (1 + np.max(np.abs(prog.g)))
-        assert pinf == pytest.approx(sol.pinf, rel=1e-6, abs=1e-15)
+        # the same measure up to the rounding of A(X) in two evaluation orders (a 2-norm would differ by ~√rows)
+        assert pinf == pytest.approx(sol.pinf, rel=1e-3, abs=1e-15)
         assert sol.pinf <= 1e-7 and np.linalg.norm(rp) / (1 + np.linalg.norm(prog.g)) > sol.pinf
         its.append(sol.iterations)
     assert its[1] <= its[0] + 4, its
