@@ -107,6 +107,8 @@ def test_a_hopeless_batch_stops_at_the_same_seed_in_process_and_in_workers(pose)
     full, _ = solve_batch(pose, {"s": "primary"}, points, [seeds_], **kw)
     one, n_one = solve_batch(pose, {"s": "primary"}, points, [seeds_], stop_hopeless=True, **kw)
     two, n_two = solve_batch(pose, {"s": "primary"}, points, [seeds_], stop_hopeless=True, jobs=2, **kw)
+    kept, _ = solve_batch(pose, {"s": "primary"}, points, [seeds_], stop_hopeless=[False], **kw)
+    assert kept["s"][0].outcomes == full["s"][0].outcomes  # a point not marked to stop solves its whole batch
     got = one["s"][0].outcomes
     assert hopeless(full["s"][0].outcomes, 8, 0.9)  # the full batch fails, so the stopped one must stop
     assert hopeless(got, 8, 0.9) and not hopeless(got[:-1], 8, 0.9) and len(got) < len(seeds_)

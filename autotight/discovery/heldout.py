@@ -13,10 +13,10 @@ With ``shortcut`` an instance whose local solution's certificate proves the set 
 every other instance is solved as above, so an instance that fails is always one the full SDP judged.
 The set's constraints are checked on the instance's feasible points (``validity.check_valid``) either way.
 
-With ``stop_hopeless`` (one set) a point's batch ends at the first instance, in seed order, after which the
-point cannot pass any more whatever the rest would give (``hopeless``): its later instances are not solved,
-and results that a parallel worker finished beyond that instance are dropped, so the batch is the same prefix
-of seeds wherever it ran.
+With ``stop_hopeless`` (one set; True, or per point) a point's batch ends at the first instance, in seed
+order, after which the point cannot pass any more whatever the rest would give (``hopeless``): its later
+instances are not solved, and results that a parallel worker finished beyond that instance are dropped, so
+the batch is the same prefix of seeds wherever it ran.
 """
 
 from __future__ import annotations
@@ -79,13 +79,16 @@ def hopeless(outcomes: Sequence[str], planned: int, min_fraction: float) -> bool
 def solve_batch(prob: Problem, sets: Mapping[str, ConstraintsLike], points: Sequence[tuple[dict, dict]],
                 batch: Sequence[Sequence[int]], *, min_fraction: float, criteria: Criteria, config: SolverConfig,
                 n_random: int = 1, jobs: int = 1, scheduler: Any = None, shortcut: bool = False,
-                stop_hopeless: bool = False) -> tuple[dict[str, list[PointResult]], dict[str, int]]:
+                stop_hopeless: bool | Sequence[bool] = False) -> tuple[dict[str, list[PointResult]], dict[str, int]]:
     """Solve the seeds ``batch[i]`` at point i with every set (``shortcut``, ``stop_hopeless``: the module
     docstring); the sets of one instance share its generation, model and local search.  Returns {set name:
     [PointResult per point]} (instances in seed order) and {set name: SDP solver calls}."""
     from ..parallel import execute
 
-    if stop_hopeless and len(sets) != 1:
+    stops = [bool(stop_hopeless)] * len(batch) if isinstance(stop_hopeless, bool) else [bool(b) for b in stop_hopeless]
+    if len(stops) != len(batch):
+        raise ParameterError(f"stop_hopeless has {len(stops)} entries for {len(batch)} points")
+    if any(stops) and len(sets) != 1:
         raise ParameterError("stop_hopeless needs exactly one set")
     local = jobs == 1 and scheduler is None
     ref = problem_ref(prob, local)
@@ -97,10 +100,10 @@ def solve_batch(prob: Problem, sets: Mapping[str, ConstraintsLike], points: Sequ
     def wanted() -> Iterator[tuple]:  # read lazily (in process, joblib): a hopeless point's rest is skipped
         return (c for c in calls if c[0][1] < end[c[0][0]])
 
-    for key, rows in execute(_indexed, wanted() if stop_hopeless else calls, jobs=jobs, scheduler=scheduler):
+    for key, rows in execute(_indexed, wanted() if any(stops) else calls, jobs=jobs, scheduler=scheduler):
         done[key] = rows
         i = key[0]
-        if not stop_hopeless or key[1] >= end[i]:
+        if not stops[i] or key[1] >= end[i]:
             continue
         outcomes: list[str] = []
         for t in range(end[i]):  # the known prefix of point i, in seed order
