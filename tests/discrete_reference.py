@@ -1,12 +1,12 @@
 """Discrete trajectory's model as it was written by hand before it moved onto the factor-graph layer: factor by
-factor (``_pose``) or every factor type at once (``_pose_batch``), for the tests that compare against it."""
+factor (``_pose``) or every factor type at once (``pose_batch``), for the tests that compare against it."""
 
 from __future__ import annotations
 
 import numpy as np
 
 from autotight.model import Factor, Model, Variables
-from problems import _pose_batch as pb
+import pose_batch as pb
 from problems._pose import (POSE_ROLES, XI_ROLES, binary_cayley, declare_pose, declare_xi, pose_blocks,
                             pose_orthonormality, r1_unary, r2_unary, r3_binary, unary_cayley, weighted_cost, xi_blocks)
 from problems.discrete_trajectory import ODOMETRY_ROLES, binary_name, cliques, pose_prefix, unary_name
@@ -22,7 +22,7 @@ def _variables(K: int) -> Variables:
 def hand_written_model(inst, batched: bool = False) -> Model:
     """Blocks [h, (T{k}_c1, T{k}_c2, T{k}_c3, T{k}_r)_k, (rho_k, phi_k)_k, (rho_{k+1}_k, phi_{k+1}_k)_k]; per k the
     factors "rotation_k" (so3) and "meas_k" (pose_meas), then per k < K − 1 "odom_{k+1}_k" (odometry); paper
-    families R1, R2, R3; the factors' cliques.  ``batched``: every factor type made at once (``_pose_batch``),
+    families R1, R2, R3; the factors' cliques.  ``batched``: every factor type made at once (``pose_batch``),
     as the hand-written module did from 32 poses on."""
     m = inst.measurements
     K = len(m["T_meas"])

@@ -1,12 +1,12 @@
 """Pose averaging's model as it was written by hand before it moved onto the factor-graph layer: factor by factor
-(``_pose``) or all measurement factors at once (``_pose_batch``), for the tests that compare against it."""
+(``_pose``) or all measurement factors at once (``pose_batch``), for the tests that compare against it."""
 
 from __future__ import annotations
 
 import numpy as np
 
 from autotight.model import Factor, Model, Variables
-from problems import _pose_batch as pb
+import pose_batch as pb
 from problems._pose import (POSE_ROLES, XI_ROLES, declare_pose, declare_xi, pose_blocks, pose_orthonormality, r1_unary,
                             r2_unary, unary_cayley, weighted_cost, xi_blocks)
 

@@ -45,7 +45,7 @@ def test_non_polynomial_builder_is_refused():
 
 
 def test_batched_discrete_build_equals_direct():
-    """Discrete trajectory's factors made at once by ``_pose_batch`` equal those made one by one by ``_pose``
+    """Discrete trajectory's factors made at once by ``pose_batch`` equal those made one by one by ``_pose``
     (the hand-written builds, ``discrete_reference``), constraint by constraint, to rounding."""
     from discrete_reference import hand_written_model
 
@@ -70,7 +70,7 @@ def test_batched_discrete_build_equals_direct():
 
 
 def test_batched_pose_averaging_build_equals_direct():
-    """Pose averaging's measurement factors made at once by ``_pose_batch`` (as discrete_trajectory makes them)
+    """Pose averaging's measurement factors made at once by ``pose_batch`` (as discrete_trajectory makes them)
     equal those made one by one by ``_pose``, constraint by constraint, to rounding."""
     from pose_reference import hand_written_model
 

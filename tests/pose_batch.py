@@ -1,4 +1,5 @@
-"""The pose factors of ``_pose`` for many factors at once (``autotight.factor_batch``).
+"""The pose factors of ``problems._pose`` for many factors at once (``autotight.factor_batch``): the batched
+build of the hand-written pose modules, kept as the reference the layer-written modules are compared with.
 
 Each builder here writes one factor's matrices on the factor's own columns: h, then its blocks in the
 order of ``BLOCKS_*`` (pose blocks c1, c2, c3, r of 3 columns each; ρ, φ of a residual).  Block names
@@ -17,7 +18,7 @@ import numpy as np
 from autotight.factor_batch import FactorBatch
 from autotight.model import Variables
 
-from ._pose import (binary_cayley, declare_pose, declare_xi, pose_orthonormality, r1_unary, r2_unary, r3_binary,
+from problems._pose import (binary_cayley, declare_pose, declare_xi, pose_orthonormality, r1_unary, r2_unary, r3_binary,
                     unary_cayley, weighted_cost)
 
 POSE1, POSE2, XI, NAME = "\x01", "\x02", "\x03", "\x04"
