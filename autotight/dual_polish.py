@@ -54,6 +54,14 @@ from .model import Constraint
 from .sdp.result import SDPResult
 
 
+def closes(cert: Certificate, Q, Th: np.ndarray, tol: float, floor: float) -> bool:
+    """Whether f(x̂) − bᵀy is within the certificate's tolerance (``certificate.certificate``): only then
+    can some frame's certificate of this bᵀy succeed."""
+    scale = float(abs(Q).max()) if Q.nnz else 1.0
+    denom = max(abs(cert.cost), floor * scale * float(np.sum(Th * Th)))
+    return bool(np.isfinite(cert.dual_value) and cert.cost - cert.dual_value <= tol * denom)
+
+
 def lower_bound(cert: Certificate, trace_X: float) -> float:
     """L = bᵀy − max(−λ⁻(H(y)), 0)·tr X for the y that ``cert`` was made from (module docstring)."""
     return float(cert.dual_value - max(-cert.lambda_lower, 0.0) * trace_X)
@@ -91,11 +99,15 @@ def allowed_excess(res: SDPResult, Q, constraints: Sequence[Constraint], lambda_
 
 
 def polished(Q, constraints: Sequence[Constraint], res: SDPResult, theta_hat: np.ndarray, *, d: int = 1,
-             tol: float = 1e-6, floor: float = 1e-12) -> tuple[SDPResult, Certificate | None]:
+             tol: float = 1e-6, floor: float = 1e-12,
+             names: Sequence[str] | None = None) -> tuple[SDPResult, Certificate | None]:
     """``res`` with its multipliers polished by the rules of the module docstring at the best feasible
     point x̂ (Θ̂ = ``theta_hat``, (N,) or (d, N)), and the certificate of x̂ from the y kept
     (``certificate.certificate`` with ``tol`` and ``floor``).  (res, None) when the solve returned no
-    finite y; its own y and certificate when X is unusable (no tr X to weigh two multipliers by)."""
+    finite y; its own y and certificate when X is unusable (no tr X to weigh two multipliers by).
+    Where neither y nor a face of columns certifies but bᵀy closes the bracket, the frame of the
+    relaxation's recession directions is tried (``autotight.recession``); the certificate is then that
+    frame's (same y, same bound).  names: the columns' names, for the certificate's description."""
     if res.y is None or not np.all(np.isfinite(res.y)):
         return res, None
     Th = np.asarray(theta_hat, dtype=float).reshape(d, -1)
@@ -126,6 +138,15 @@ def polished(Q, constraints: Sequence[Constraint], res: SDPResult, theta_hat: np
         y, cert, note, free = face_certificate(Q, constraints, y, Th, cert, d=d, tol=tol, floor=floor,
                                                trace=cert.trace)
         steps += [note] if note else []
+    judged = (Q, constraints, Th)  # the data the certificate is made in (a recession frame's, below)
+    if not cert.certified and closes(cert, Q, Th, tol, floor):
+        from .recession import frame_certificate
+
+        got = frame_certificate(Q, constraints, y, Th, cert, d=d, tol=tol, floor=floor, names=names,
+                                more=[res.y] if y is not res.y else [])
+        if got is not None:
+            y, cert, note, free, judged = got
+            steps.append(note)
     excess = cert.dual_value - cert.cost
     allowed = allowed_excess(res, Q, constraints, y0_lambda_lower, cert.cost, tol, floor) if excess > 0 else 0.0
     y3 = lower_to_cost(constraints, y, excess) if 0 < excess <= allowed else None
@@ -134,7 +155,8 @@ def polished(Q, constraints: Sequence[Constraint], res: SDPResult, theta_hat: np
                      "(an inconsistent solve)")
     if y3 is not None:
         face = cert.face
-        cert = certificate(Q, constraints, y3, Th, d=d, tol=tol, floor=floor, trace=cert.trace,
+        Qj, cons_j, Th_j = judged
+        cert = certificate(Qj, cons_j, y3, Th_j, d=d, tol=tol, floor=floor, trace=cert.trace,
                            method=cert.method.split(";")[0] + ", lowered to f(x̂)", free=free)
         cert.face = face if free is not None else cert.face
         steps.append(f"h² multiplier lowered by {excess:.1e}")

@@ -314,7 +314,7 @@ def face_certificate(Q: sp.sparray, constraints, y: np.ndarray, theta_hat: np.nd
         cf = certificate(Q, constraints, yf, Th, d=d, tol=tol, floor=floor, trace=trace, free=F,
                          method=how + ", on the face of the forced columns")
         if cf.certified and not cert.certified:
-            cf.face = _forced_why(Q, As, F, cf)
+            cf.face = forced_why(Q, As, F, cf)
             return yf, cf, f"set on the face of the bounded columns ({F.size} free, H vanishes there)", F
     for _ in range(MAX_ROUNDS if forced is not None else 0):  # the face's own dual (facial reduction)
         got = face_dual(Q, constraints, F, d=d)
@@ -325,7 +325,7 @@ def face_certificate(Q: sp.sparray, constraints, y: np.ndarray, theta_hat: np.nd
         cf = certificate(Q, constraints, yd, Th, d=d, tol=tol, floor=floor, trace=trace, free=F,
                          method=how + f", from {got[1]}")
         if cf.certified and not cert.certified:
-            cf.face = _forced_why(Q, As, F, cf)
+            cf.face = forced_why(Q, As, F, cf)
             return yd, cf, f"solved on the face of the bounded columns ({F.size} free, H vanishes there)", F
         grown = np.union1d(F, zero_diagonal(dual_matrix(Q, As, yd)))
         if grown.size == F.size:
@@ -348,7 +348,7 @@ def face_certificate(Q: sp.sparray, constraints, y: np.ndarray, theta_hat: np.nd
     return yf, cf, note, face.free
 
 
-def _forced_why(Q: sp.sparray, As: Sequence[sp.sparray], F: np.ndarray, cert) -> str:
+def forced_why(Q: sp.sparray, As: Sequence[sp.sparray], F: np.ndarray, cert) -> str:
     """The certificate's ``face`` text for a face of ``forced_face``."""
     n_rec = recession_columns(Q, entries(As)).size
     return (f"{F.size} column(s) set aside: {n_rec} on which neither the cost nor any constraint has a diagonal "

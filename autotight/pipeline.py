@@ -34,6 +34,7 @@ from .dual_polish import polished
 from .errors import ProblemModuleError
 from .unbounded import rank_out_of_reach
 from .model import Constraint, Model
+from .pretty import column_names
 from .problem import Instance, LocalResult, Problem
 import autotight.sdp as sdp
 from .sdp.config import SolverConfig
@@ -197,7 +198,8 @@ def dual_certificate(problem: Problem, inst: Instance, model: Model, cons: list,
     (``autotight.dual_polish``), and what the kept y proves about that point
     (``autotight.certificate``; None when the solve returned no y)."""
     return polished(model.Q, cons, res, problem.lift(inst, best.state), d=model.d, tol=criteria.gap_tol,
-                    floor=criteria.cost_atol / criteria.gap_tol)  # the bracket's absolute tolerance
+                    floor=criteria.cost_atol / criteria.gap_tol,  # the bracket's absolute tolerance
+                    names=column_names(model.variables))
 
 
 #: fresh feasible states (the module's sampler around the truth) on which every constraint is checked

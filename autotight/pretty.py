@@ -44,6 +44,11 @@ def _elem(block: str, k: int, size: int) -> str:
     return s if size == 1 else f"{s}.{AXES[k] if size <= 3 else k}"
 
 
+def column_names(V: Variables) -> list[str]:
+    """Each column's printed name, in column order (e.g. 't.x', 'z0.10', 'h')."""
+    return [_elem(b, k, V.sizes[b]) for b in V.names for k in range(V.sizes[b])]
+
+
 def _num(c: float, first: bool) -> str:
     """Sign and coefficient in front of a term; a coefficient that prints as 1 is left out."""
     txt = "" if _mag(c) == "1" else f"{_mag(c)} "
