@@ -69,6 +69,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from .certificate import Certificate, certificate, entries, polish_dual, stack
+from .dual_polish import closes
 from .model import Constraint, Model
 from .threads import single_blas_thread
 
@@ -282,7 +283,7 @@ def phase_one(prog, Th: np.ndarray, *, alpha: float = 1.0, target: float = 1e-6,
 def certify(Q: sp.sparray, constraints: Sequence[Constraint], theta_hat: np.ndarray, *, d: int = 1,
             cliques: Sequence[np.ndarray] | None = None, tol: float = 1e-5, floor: float = 1e-12,
             max_iter: int = 50, trace: float | None = None, scale: np.ndarray | None = None,
-            method: str = "auto") -> Certificate:
+            method: str = "auto", names: Sequence[str] | None = None) -> Certificate:
     """Certify x̂ (Θ̂ = ``theta_hat``) for min ⟨Q,X⟩ s.t. ``constraints``, X ⪰ 0 (module docstring).
 
     certified: the certified suboptimality bound f(x̂) − p* is ≤ tol relative to f(x̂)
@@ -293,7 +294,9 @@ def certify(Q: sp.sparray, constraints: Sequence[Constraint], theta_hat: np.ndar
     steps of the barrier method.  trace: a known bound on tr(X) (default: derived from the constraints).
     scale: the diagonal scaling D of the full SDP's fallback (``sdp.solve``; None: unscaled).  method: how y
     is found: "barrier" (step 2), "projection" (Douglas–Rachford, module docstring, Scope), or "auto" (the
-    order of the module docstring, Scope).
+    order of the module docstring, Scope).  Where the barrier's y does not certify but closes the bracket,
+    the frame of the relaxation's recession directions is tried (``recession.frame_certificate``); names:
+    the columns' names for its description.
     """
     from .sdp.clique_program import clique_program
 
@@ -339,6 +342,12 @@ def certify(Q: sp.sparray, constraints: Sequence[Constraint], theta_hat: np.ndar
     cert = certificate(Q, constraints, y, Th, d=d, tol=tol, floor=floor, trace=trace,
                        method=f"{tried}clique barrier ({ph.status}, {how}, {ph.iterations} Newton steps, margin "
                               f"{ph.margin:.2e} of max|Q|, {len(prog.cliques)} cliques ≤ {max(prog.sizes)})")
+    if not cert.certified and closes(cert, Q, Th, tol, floor):  # directions along which X grows at no cost
+        from .recession import frame_certificate
+
+        got = frame_certificate(Q, constraints, y, Th, cert, d=d, tol=tol, floor=floor, names=names)
+        if got is not None:
+            cert = got[1]
     return replace(cert, time_s=time.perf_counter() - t0)
 
 
@@ -425,7 +434,10 @@ def certify_model(model: Model, constraints: Sequence[Constraint], theta_hat: np
     blocks were 100× slower on a busy machine."""
     from .sdp.scaling import block_scale
 
+    from .pretty import column_names
+
     kw.setdefault("scale", block_scale(model.variables, [np.asarray(theta_hat, dtype=float).reshape(model.d, -1)]))
+    kw.setdefault("names", column_names(model.variables))
     if kw.get("cliques") is None and model.variables.N >= PROJECTION_MIN_N:  # below: ``default_cliques``
         kw["cliques"] = model_cliques(model, stack(constraints)[0])
     return certify(model.Q, constraints, theta_hat, d=model.d, **kw)

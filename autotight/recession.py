@@ -266,13 +266,14 @@ def frame_certificate(Q: sp.sparray, constraints: Sequence[Constraint], y: np.nd
                       cert, *, d: int = 1, tol: float = 1e-6, floor: float = 1e-12,
                       names: Sequence[str] | None = None, more: Sequence[np.ndarray] = ()):
     """(y, its Certificate, a note, the columns set aside, (Q′, constraints′, Θ̂′)) from the certificate on the
-    face of the forced columns (``face.forced_face``: a least-change polish, no SDP) in the frame of the
-    recession directions, where it certifies and ``cert`` does not; None otherwise.  The certificate is that
-    frame's: the same y and bᵀy, so the same bound on the QCQP (module docstring); its ``face`` names the
-    directions.  more: other multipliers whose H's null space may show the directions where y's does not
-    (the solver's own, before a polish)."""
+    face of the forced columns in the frame of the recession directions, with y polished onto that face
+    (``face.forced_face``, no SDP) or, where that does not certify, from the face's own dual
+    (``face.face_dual``, one SDP on the other columns); None where it does not certify or ``cert`` does.
+    The certificate is that frame's: the same y and bᵀy, so the same bound on the QCQP (module
+    docstring); its ``face`` names the directions.  more: other multipliers whose H's null space may show
+    the directions where y's does not (the solver's own, before a polish)."""
     from .certificate import certificate
-    from .face import forced_face, forced_why
+    from .face import face_dual, forced_face, forced_why
 
     got = None
     for yd in (y, *more):  # the directions from y's null space, else from the others'
@@ -283,15 +284,23 @@ def frame_certificate(Q: sp.sparray, constraints: Sequence[Constraint], y: np.nd
         return None
     frame, Qf, cons_f = got
     Th_f = frame.point(theta_hat)
-    forced = forced_face(Qf, stack(cons_f)[0], y, Th_f)
+    As_f = stack(cons_f)[0]
+    forced = forced_face(Qf, As_f, y, Th_f)
     if forced is None or cert.certified:
         return None
     yf, free = forced
+    how = cert.method.split(";")[0]
     cf = certificate(Qf, cons_f, yf, Th_f, d=d, tol=tol, floor=floor, free=free,
-                     method=cert.method.split(";")[0] + ", on the face of the forced columns")
-    if not cf.certified:
-        return None
-    cf.face = forced_why(Qf, stack(cons_f)[0], free, cf)
+                     method=how + ", on the face of the forced columns")
+    if not cf.certified:  # the face's own dual, once (one SDP on the other columns)
+        dual = face_dual(Qf, cons_f, free, d=d)
+        if dual is None:
+            return None
+        yf = dual[0]
+        cf = certificate(Qf, cons_f, yf, Th_f, d=d, tol=tol, floor=floor, free=free, method=f"{how}, from {dual[1]}")
+        if not cf.certified:
+            return None
+    cf.face = forced_why(Qf, As_f, free, cf)
     r = frame.pivots.size
     cf.face = (f"{r} recession direction(s) set aside, combinations of columns along which X grows at no cost "
                f"({frame.describe(names)}); certified in the frame x = T x′ whose columns they are"

@@ -118,3 +118,18 @@ def test_robust_wahba_is_certified_in_the_frame_of_its_free_translation():
                         in c.face)
             certified += 1
     assert certified >= 4
+
+
+def test_certify_without_the_sdp_uses_the_frame_too():
+    """``autotight certify`` (local solve, multipliers from the clique barrier, no full SDP) on the same set:
+    the barrier's y certifies nothing in the given frame; in the frame of the two directions it does, and
+    the lower bound it proves, f(x̂) − bound, is below the global optimum (the labellings enumerated)."""
+    cs = ConstraintSet.load(ROBUST_SET)
+    params = {"dim": 2, "n_points": 3}
+    cert = api.certify("robust_wahba", params, 1, constraints=cs)
+    assert cert.certified and cert.rel_bound <= COST.gap_tol and "recession direction" in cert.face
+    prob = api.load_problem("robust_wahba")
+    inst = prob.generate(prob.parse_params(params), 1)
+    global_cost = prob.local_solve(inst, inst.truth).cost
+    assert abs(cert.cost - global_cost) <= 1e-9 * global_cost  # x̂ is the global optimum …
+    assert cert.cost - cert.bound <= global_cost  # … and the bound proved is below it
