@@ -432,9 +432,8 @@ def certify_model(model: Model, constraints: Sequence[Constraint], theta_hat: np
     fallback is scaled by blocks from x̂ (``sdp.scaling.block_scale``, as the pipeline scales its solves).
     One BLAS thread (``threads``): the blocks are small, and threaded eigendecompositions of 31 × 31
     blocks were 100× slower on a busy machine."""
-    from .sdp.scaling import block_scale
-
     from .pretty import column_names
+    from .sdp.scaling import block_scale
 
     kw.setdefault("scale", block_scale(model.variables, [np.asarray(theta_hat, dtype=float).reshape(model.d, -1)]))
     kw.setdefault("names", column_names(model.variables))
