@@ -99,8 +99,9 @@ def add_accept_arg(p: argparse.ArgumentParser) -> None:
     p.add_argument("--accept", default="rank", choices=["rank", "cost", "certified"],
                    help="what counts as tight: rank d and cost (default); cost: the cost bracket closed to "
                         "tolerance and a dual certificate of the best local solution (on the face of the bounded "
-                        "columns where some columns are free; a certificate alone also decides a bracket the "
-                        "solver's accuracy leaves open); certified: the dual certificate alone")
+                        "columns where some columns, or combinations of them, are free; a certificate alone "
+                        "also decides a bracket the solver's accuracy leaves open); certified: the dual "
+                        "certificate alone")
 
 
 def solver_config(args: argparse.Namespace, default_backend: str = "auto", **fields: Any):
