@@ -353,6 +353,12 @@ def polish_dual(Q: sp.sparray, As: Sequence[sp.sparray], y: np.ndarray, theta_ha
     return y
 
 
+def tolerance_scale(f_hat: float, q_max: float, trace_hat: float, floor: float) -> float:
+    """What ``tol`` is relative to: max(|f̂|, floor·max|Q|·tr X̂) (``floor`` states the absolute tolerance of a
+    zero-cost candidate relative to the cost's scale)."""
+    return max(abs(f_hat), floor * q_max * trace_hat)
+
+
 def certificate(Q: sp.sparray, constraints: Sequence[Constraint], y: np.ndarray, theta_hat: np.ndarray, *,
                 d: int = 1, tol: float = 1e-6, floor: float = 1e-12, trace: float | None = None,
                 method: str = "given y", free: np.ndarray | None = None,
@@ -411,7 +417,7 @@ def certificate(Q: sp.sparray, constraints: Sequence[Constraint], y: np.ndarray,
     assumptions = roundoff
     dual_value = float(b @ y)
     excess = float(np.sum(Th.T * HT) + y @ res_A)  # f(x̂) − bᵀy (exact identity)
-    denom = max(abs(f_hat), floor * scale * Xhat_tr)
+    denom = tolerance_scale(f_hat, scale, Xhat_tr, floor)
     budget = tol * denom - excess  # the largest correction that can still certify
     if free_res > FREE_ATOL:
         msg = (f"H does not vanish on the {J.size} {'recession ' if J.size == n_recession else ''}columns set aside "

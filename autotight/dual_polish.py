@@ -49,7 +49,7 @@ from typing import Sequence
 
 import numpy as np
 
-from .certificate import Certificate, certificate, polish_dual, stack
+from .certificate import Certificate, certificate, polish_dual, stack, tolerance_scale
 from .model import Constraint
 from .sdp.result import SDPResult
 
@@ -57,8 +57,7 @@ from .sdp.result import SDPResult
 def closes(cert: Certificate, Q, Th: np.ndarray, tol: float, floor: float) -> bool:
     """Whether f(x̂) − bᵀy is within the certificate's tolerance (``certificate.certificate``): only then
     can some frame's certificate of this bᵀy succeed."""
-    scale = float(abs(Q).max()) if Q.nnz else 1.0
-    denom = max(abs(cert.cost), floor * scale * float(np.sum(Th * Th)))
+    denom = tolerance_scale(cert.cost, float(abs(Q).max()) if Q.nnz else 1.0, float(np.sum(Th * Th)), floor)
     return bool(np.isfinite(cert.dual_value) and cert.cost - cert.dual_value <= tol * denom)
 
 

@@ -104,7 +104,7 @@ class Frame:
 
     @classmethod
     def of(cls, directions: np.ndarray, pivots: np.ndarray) -> "Frame":
-        r, n = directions.shape
+        n = directions.shape[1]
         pivots = np.asarray(pivots, dtype=np.int64)
         off = sp.coo_array(directions.T)  # (n, r): column a is v_a …
         keep = off.row != pivots[off.col]  # … minus e_{p_a} (v_a[p_a] = 1)
@@ -115,6 +115,11 @@ class Frame:
     def congruent(self, A: sp.sparray) -> sp.coo_array:
         """TᵀAT with the entries that cancel to roundoff set to 0 (module docstring)."""
         return self.constraints([Constraint(sp.coo_array(A), 0.0)])[0].A
+
+    def relaxation(self, Q: sp.sparray, constraints: Sequence[Constraint]) -> tuple[sp.coo_array, list[Constraint]]:
+        """(TᵀQT, the constraints with TᵀAᵢT), in one ``constraints`` pass."""
+        out = self.constraints([Constraint(sp.coo_array(Q), 0.0), *constraints])
+        return out[0].A, out[1:]
 
     def constraints(self, constraints: Sequence[Constraint]) -> list[Constraint]:
         """Each constraint with A replaced by TᵀAT (``congruent``), all in one sparse product:
@@ -249,7 +254,7 @@ def recession_frame(Q: sp.sparray, constraints: Sequence[Constraint], y: np.ndar
     for V, piv in recession_directions(Q, constraints, y, max_n=max_n):
         for _ in range(2):  # the second pass only without the directions the first found inexact
             frame = Frame.of(V, piv)
-            Qf, cons_f = frame.congruent(Q), frame.constraints(constraints)
+            Qf, cons_f = frame.relaxation(Q, constraints)
             J = recession_columns(Qf, entries(stack(cons_f)[0]))
             ok = np.isin(piv, J) & (np.count_nonzero(V, axis=1) > 1)  # single columns: recession columns already
             if not ok.any():
