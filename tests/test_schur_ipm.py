@@ -8,6 +8,8 @@ stubbed IPM result, or an iteration limit), never left to a numerical accident.
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 import scipy.sparse as sp
@@ -388,18 +390,54 @@ def test_compiled_kernels_leave_the_iterates_unchanged(monkeypatch):
         assert abs(a.dual_cost - b.dual_cost) <= 1e-9 * abs(b.dual_cost)
 
 
-def test_block_loads_count_the_constraints_each_block_receives():
-    """On a chain whose constraints each fit in one clique, ``chordal.block_loads`` (home
-    constraints plus the transfers to the parent and from the children) sums to exactly the rows of
-    the blocks' parts of the Schur complement, and each block is within 3 of its own part."""
-    from autotight.sdp.chordal import block_loads, column_support
+def test_block_incidence_counts_the_constraints_each_block_receives():
+    """On a chain whose constraints each fit in one clique, ``chordal.block_incidence`` (home
+    constraints plus the transfers to the parent and from the children) counts exactly the rows of
+    the Schur complement, and each block is within 3 of its own part."""
+    from autotight.sdp.chordal import block_incidence, column_support
 
     Q, cons, prog, _, schur = _chain_schur(np.random.default_rng(0), 7, 6)
     actual = np.array([G.shape[0] for G in schur.per_block], float)
-    est = block_loads(prog.cliques, column_support([c.A for c in cons], Q.shape[0]))
+    inc, M = block_incidence(prog.cliques, column_support([c.A for c in cons], Q.shape[0]))
+    est = np.array([i.size for i in inc], float)
     # a diagonal constraint X_ii = 1 on a shared column may be placed in either clique holding it
-    assert est.sum() == actual.sum(), (est, actual)
+    assert M == schur.M and est.sum() == actual.sum(), (est, actual)
     assert np.abs(est - actual).max() <= 3, (est, actual)
+
+
+def test_block_incidence_follows_constraints_that_spill_across_the_tree():
+    """Pose averaging (M = 40, with a set learned at M = 5) on its block cover merged to 32 columns, which puts
+    ρ_m and φ_m in different cliques, so most constraints reach outside their home clique: the estimated Schur
+    complement has the IPM's number of rows and a half bandwidth within 10 % of the one the IPM's own
+    structure gives, and the estimated cost ranks the model's own cover, merged to 48 columns (a chain
+    of the factors' cliques), below it, as its band is narrower."""
+    from autotight.constraint_set import ConstraintSet
+    from autotight.sdp.chordal import block_incidence, merged_covers
+
+    prob = load("pose_averaging")
+    inst = prob.generate({"M": 40}, 0)
+    model = prob.build(inst)
+    learned = ConstraintSet.load(Path(__file__).parent / "data" / "pose_averaging_M5.json")
+    cons = model.primary() + learned.apply(prob, inst, model, np.random.default_rng(0))
+    covers = _covers(model, cons)
+    block_cover = covers.blocks[32]
+    inc, M = block_incidence(block_cover, covers.support)
+    prog = clique_program(sp.csr_array(model.Q), [sp.csr_array(c.A) for c in cons],
+                          np.array([c.b for c in cons]), block_cover)
+    Gv = sp.csr_array(schur_ipm.svec_to_vec(prog.sizes) @ prog.F)
+    _, _, actual = schur_ipm.block_data(Gv, schur_ipm._Blocks(prog.sizes))
+    assert M == Gv.shape[1]
+    b_est, b_actual = schur_ipm.band_order(inc, M)[1], schur_ipm.band_order(actual, M)[1]
+    assert abs(b_est - b_actual) <= 0.1 * b_actual, (b_est, b_actual)
+    own = merged_covers(model.clique_indices(), (48,))[48]
+    inc_own, M_own = block_incidence(own, covers.support)
+    assert schur_ipm.band_order(inc_own, M_own)[1] < b_est
+
+    def cost(cover):
+        return schur_ipm.iteration_cost([len(c) for c in cover], *block_incidence(cover, covers.support))
+
+    assert cost(own) < cost(block_cover)
+    assert cost(covers.choose("ipm")) <= cost(own)
 
 
 def _holds_every_nonzero(cover: list[np.ndarray], matrices: list) -> bool:
@@ -414,7 +452,7 @@ def test_ipm_cover_minimises_the_estimated_iteration_cost():
     """CliqueCovers.choose("ipm") on the discrete trajectory: a clique tree that holds every nonzero
     (i, j) of Q and of the constraints in some clique, whose estimated cost is no larger than that of
     Clarabel's cover or of the model's own cliques (both are among its candidates)."""
-    from autotight.sdp.chordal import block_loads, column_support, has_running_intersection
+    from autotight.sdp.chordal import block_incidence, column_support, has_running_intersection
 
     prob = load("discrete_trajectory")
     model = prob.build(prob.generate({"K": 12}, 0))
@@ -422,7 +460,7 @@ def test_ipm_cover_minimises_the_estimated_iteration_cost():
     support = column_support([c.A for c in cons], model.variables.N)
 
     def cost(cl):
-        return schur_ipm.iteration_cost([len(c) for c in cl], block_loads(cl, support))
+        return schur_ipm.iteration_cost([len(c) for c in cl], *block_incidence(cl, support))
 
     covers = _covers(model, cons)
     chosen = covers.choose("ipm")
@@ -457,7 +495,7 @@ def test_block_cover_keeps_blocks_whole_and_finds_the_small_separators():
     the IPM's chosen cover (that cover merged) has separators of at most 13 columns
     ({h, ξ_{k+1,k}, ϖ_{k+1}}) where the model's chain has 19 ({h, pose k+1, ϖ_{k+1}}), and is
     estimated cheaper than the model's."""
-    from autotight.sdp.chordal import block_loads, clique_tree, has_running_intersection
+    from autotight.sdp.chordal import block_incidence, clique_tree, has_running_intersection
 
     model, cons = _continuous_kept(7, 0)
     V = model.variables
@@ -479,7 +517,7 @@ def test_block_cover_keeps_blocks_whole_and_finds_the_small_separators():
     assert max(separators(chosen)) <= 13 < max(separators(model.clique_indices())) == 19
 
     def cost(cover):
-        return schur_ipm.iteration_cost([len(c) for c in cover], block_loads(cover, covers.support))
+        return schur_ipm.iteration_cost([len(c) for c in cover], *block_incidence(cover, covers.support))
 
     assert cost(chosen) < cost(model.clique_indices())
 

@@ -295,17 +295,48 @@ def home_cliques(cliques: Sequence[np.ndarray], support: sp.csr_array) -> np.nda
     return home
 
 
-def block_loads(cliques: Sequence[np.ndarray], support: sp.csr_array) -> np.ndarray:
-    """(p,) the number of constraints that touch each clique block of the decomposed SDP, estimated:
-    each constraint (a column of ``support``) in its ``home_cliques`` block, plus the
-    svec(|C_k ∩ C_parent|) transfer constraints of each clique-tree edge, counted at both ends."""
-    p = len(cliques)
-    B = incidence(cliques, support.shape[0])
-    load = np.bincount(home_cliques(cliques, support), minlength=p).astype(float)
-    parent = clique_tree(cliques)
+def block_incidence(cliques: Sequence[np.ndarray], support: sp.csr_array) -> tuple[list[np.ndarray], int]:
+    """(inc, M): the constraints of the decomposed SDP that touch each clique block, estimated, and their
+    number.  Constraint i (a column of ``support``) touches its ``home_cliques`` block and the top clique
+    (the one nearest the tree's root) of each of its columns that the home block lacks: where
+    ``clique_program`` places such entries, so that a constraint that spills couples its blocks in the
+    Schur complement.  Each clique-tree edge adds svec(|C_k ∩ C_parent|) transfer constraints, ids from m
+    on, touching both of its ends.  Columns in every clique (h) are left out."""
+    p, m = len(cliques), support.shape[1]
+    B = sp.csr_array(incidence(cliques, support.shape[0]))
+    home = home_cliques(cliques, support)
+    parent, order, ok = _tree(cliques)
+    if not ok:
+        clique_tree(cliques)  # raises: no clique tree
+    pairs = [np.arange(m) * p + home]
+    if p > 1:
+        pairs.append(_spills(B, order, home, support))
     child = np.flatnonzero(parent >= 0)
-    overlap = np.asarray(B[child].multiply(B[parent[child]]).sum(axis=1)).ravel()
-    transfers = overlap * (overlap + 1) / 2
-    np.add.at(load, child, transfers)
-    np.add.at(load, parent[child], transfers)
-    return load
+    overlap = np.asarray(B[child].multiply(B[parent[child]]).sum(axis=1)).ravel().astype(np.int64)
+    count = overlap * (overlap + 1) // 2
+    ids = m + np.arange(int(count.sum()))
+    edge = np.repeat(np.arange(child.size), count)
+    pairs += [ids * p + child[edge], ids * p + parent[child][edge]]
+    key = np.unique(np.concatenate(pairs))
+    block, cid = key % p, key // p
+    order_b = np.argsort(block, kind="stable")
+    inc = np.split(cid[order_b], np.cumsum(np.bincount(block, minlength=p))[:-1])
+    return inc, m + int(count.sum())
+
+
+def _spills(B: sp.csr_array, order: np.ndarray, home: np.ndarray, support: sp.csr_array) -> np.ndarray:
+    """Keys i·p + k: constraint i spills into block k, the top clique of a column of i outside its home
+    clique (columns in every clique excluded)."""
+    p, N = B.shape
+    rank = np.empty(p, np.int64)
+    rank[order] = np.arange(p)  # BFS rank: a parent before its children
+    Bc = sp.csc_array(B)
+    top = np.full(N, -1, np.int64)
+    held = np.flatnonzero(np.diff(Bc.indptr))
+    best = np.minimum.reduceat(rank[Bc.indices], Bc.indptr[held])
+    top[held] = order[best]
+    every = np.diff(Bc.indptr) == p
+    coo = sp.coo_array(support)  # (column c, constraint i)
+    c, i = coo.row, coo.col
+    out = (np.asarray(B[home[i], c]).ravel() == 0) & ~every[c]
+    return np.unique(i[out] * p + top[c[out]])

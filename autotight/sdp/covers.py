@@ -13,7 +13,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..svec import svec_dim
-from .chordal import (block_cliques, block_loads, clique_tree, entry_cliques, incidence, merged_covers,
+from .chordal import (block_cliques, block_incidence, clique_tree, entry_cliques, incidence, merged_covers,
                       nonzeros, support_matrix)
 
 #: largest clique that small neighbouring cliques are merged into for Clarabel (see ``chordal.merge_small``)
@@ -33,8 +33,9 @@ class CliqueCovers:
     sizes are known), each with small neighbours merged, and the model's own cover (``hint``) when
     it gives one.  For "clarabel" both covers merged up to ``MERGE_MAX_SIZE`` columns and the hint
     are compared by the interior-point cost estimate Σ_k svec(|C_k|)³; for "ipm" the block cover
-    (the column cover when the block sizes are not known) at every cap in ``IPM_MERGE_CAPS`` and
-    unmerged, with the model's cover, are the candidates, compared by ``schur_ipm.iteration_cost``.
+    (the column cover when the block sizes are not known) and the model's cover, each unmerged and merged
+    at every cap in ``IPM_MERGE_CAPS``, are the candidates, compared by ``schur_ipm.iteration_cost`` on
+    the Schur complement each would give (``chordal.block_incidence``).
     The block cover keeps blocks whole, so its separators are unions of blocks: on continuous time
     (ϖ kept) {h, ξ_{k+1,k}, ϖ_{k+1}} rather than a whole pose.
 
@@ -50,10 +51,13 @@ class CliqueCovers:
         #: {cap: cover} for each base cover (cap 0: unmerged), on one clique tree per base
         self.blocks = merged_covers(block_cliques(block_sizes, rows, cols), (0,) + caps) if block_sizes else {}
         self.own: list[list[np.ndarray]] = []
+        #: {cap: cover} of the model's own cover merged (cap 0: as given), for the "ipm" policy
+        self.own_merged: dict[int, list[np.ndarray]] = {}
         if hint is not None:
             own = [np.asarray(c, np.int64) for c in hint]
             _check_cover(own, N, rows, cols)
             self.own = [own]
+            self.own_merged = merged_covers(own, (0,) + IPM_MERGE_CAPS)
         con = owner > 0  # (N × m) the columns of each constraint (owner 0 is Q)
         self.support = support_matrix(rows[con], cols[con], owner[con] - 1, N, len(As))
 
@@ -73,16 +77,16 @@ class CliqueCovers:
         if policy != "ipm":
             raise ValueError(f"unknown cover policy {policy!r}; use one of {POLICIES}")
         # the block covers when the variable blocks are known: a column cover splits blocks, so most
-        # constraints spill out of their home clique and couple blocks that block_loads does not count
+        # constraints spill out of their home clique and couple blocks far apart in the tree
         # (pose averaging M = 200: 3197 of 3207 constraints at cap 16, estimated cheapest and 6× slower
         # per iteration than the block cover at cap 32; 268 spill from the block cover at cap 24)
         candidates = ([self.blocks[c] for c in (0,) + IPM_MERGE_CAPS] if self.blocks
-                      else [self.columns[c] for c in IPM_MERGE_CAPS])
+                      else [self.columns[c] for c in IPM_MERGE_CAPS]) + list(self.own_merged.values())
         unique: dict[tuple, list[np.ndarray]] = {}  # equal covers (caps that merge nothing more) once
         for cl in candidates:
             unique.setdefault(tuple(tuple(c.tolist()) for c in cl), cl)
-        return min(list(unique.values()) + self.own,
-                   key=lambda cl: iteration_cost([len(c) for c in cl], block_loads(cl, self.support).tolist()))
+        return min(list(unique.values()),
+                   key=lambda cl: iteration_cost([len(c) for c in cl], *block_incidence(cl, self.support)))
 
 
 def _check_cover(cover: list[np.ndarray], N: int, rows: np.ndarray, cols: np.ndarray) -> None:

@@ -741,23 +741,24 @@ def solve_blocks(F: sp.csc_matrix, c: np.ndarray, g: np.ndarray, sizes: list[int
     return IPMSolution(status, z, yb, pobj, dobj, gap, pinf, dinf, it, time.perf_counter() - t0, message)
 
 
-#: weight of the dense per-block terms of ``iteration_cost`` (BLAS-3 products) against the sparse
-#: factorisation's m_k³ (qdldl, not supernodal), and the per-block overhead in the same units
+#: weight of the dense per-block terms of ``iteration_cost`` (BLAS-3 products) against the factorisation of
+#: S, and the per-block overhead in the same units
 DENSE_WEIGHT = 0.1
 BLOCK_OVERHEAD = 1e6
 
 
-def iteration_cost(sizes: Sequence[int], loads: Sequence[float]) -> float:
-    """Estimated cost of one iteration on blocks of n_k columns touched by m_k constraints
-    (``chordal.block_loads``): Σ_k DENSE_WEIGHT·(n_k⁴ + m_k² n_k²) (the kernel P_k ⊗ Q_k and the
-    block's part of S, bounds) + m_k³ (its share of the factorisation) + BLOCK_OVERHEAD (the
-    per-block work in Python).  A ranking, not a prediction.  Measured per iteration (the first 6
-    to 8, fresh processes): pose averaging M = 200 (paper set) on the block covers merged up to
-    20 … 48 columns, 0.45 … 0.19 s, and discrete trajectory K = 100 on the block covers unmerged and
-    merged up to 24 … 48, 1.54 … 0.11 s: it orders both as measured up to near-ties (within 10 %);
-    the unweighted sum Σ n⁴ + m²n² + m³ put pose averaging's slowest merged cover first."""
-    n, m = np.asarray(sizes, float), np.asarray(loads, float)
-    return float(np.sum(DENSE_WEIGHT * (n ** 4 + m ** 2 * n ** 2) + m ** 3 + BLOCK_OVERHEAD))
+def iteration_cost(sizes: Sequence[int], inc: Sequence[np.ndarray], M: int) -> float:
+    """Estimated cost of one iteration on blocks of n_k columns touched by the m_k = |inc[k]| constraints
+    (of M in all; ``chordal.block_incidence``): Σ_k DENSE_WEIGHT·(n_k⁴ + m_k² n_k²) (the kernel P_k ⊗ Q_k
+    and the block's part of S) + M b² (factorising S, whose half bandwidth in ``band_order`` is b: the
+    band's Cholesky, and a bound on the sparse LDLᵀ's fill) + BLOCK_OVERHEAD per block (the per-block work in
+    Python).  A ranking, not a prediction.  A block-separable Σ_k m_k³ in place of M b² ranked pose
+    averaging's block cover first at M = 1000, where constraints spill across blocks far apart in the tree
+    (b = 787, 36 s) while the model's own cover merged to 48 columns has b = 246 (8.4 s)."""
+    n = np.asarray(sizes, float)
+    m = np.array([i.size for i in inc], float)
+    _, b = band_order(inc, M)
+    return float(np.sum(DENSE_WEIGHT * (n ** 4 + m ** 2 * n ** 2) + BLOCK_OVERHEAD) + float(M) * b * b)
 
 
 #: the IPM's tolerance is max(SolverConfig.tol, IPM_MIN_TOL): on tight, primal-degenerate SDPs the
