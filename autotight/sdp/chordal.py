@@ -317,11 +317,11 @@ def block_incidence(cliques: Sequence[np.ndarray], support: sp.csr_array) -> tup
     ids = m + np.arange(int(count.sum()))
     edge = np.repeat(np.arange(child.size), count)
     pairs += [ids * p + child[edge], ids * p + parent[child][edge]]
-    key = np.unique(np.concatenate(pairs))
-    block, cid = key % p, key // p
-    order_b = np.argsort(block, kind="stable")
-    inc = np.split(cid[order_b], np.cumsum(np.bincount(block, minlength=p))[:-1])
-    return inc, m + int(count.sum())
+    # no pair twice: a spill goes to a clique other than the home one, transfers are new ids
+    key = np.concatenate(pairs)
+    total = m + int(count.sum())
+    by_block = sp.csr_array((np.ones(key.size, np.int8), (key % p, key // p)), shape=(p, total))  # grouped in C
+    return np.split(by_block.indices.astype(np.int64), by_block.indptr[1:-1]), total
 
 
 def _spills(B: sp.csr_array, order: np.ndarray, home: np.ndarray, support: sp.csr_array) -> np.ndarray:

@@ -459,8 +459,12 @@ def band_order(inc: Sequence[np.ndarray], M: int) -> tuple[np.ndarray, int]:
     order = np.lexsort((np.arange(M), first))
     pos = np.empty(M, np.int64)
     pos[order] = np.arange(M)
-    spread = [int(np.ptp(pos[i])) for i in inc if i.size]
-    return pos, max(spread, default=0)
+    filled = counts > 0
+    if not filled.any():
+        return pos, 0
+    at = pos[np.concatenate(inc)]
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])[filled]
+    return pos, int(np.max(np.maximum.reduceat(at, starts) - np.minimum.reduceat(at, starts)))
 
 
 class _BandSchur:
