@@ -219,7 +219,8 @@ def test_failing_heldout_instances_become_training_instances_the_set_is_then_tig
     failing = [s for r in rounds if r["taken_in"] for p in r["points"] for s in p["failing_seeds"]]
     taken = [tr.seed for tr in res.trainers if tr.origin == "held-out"]
     assert failing and taken == failing  # every failing held-out instance of a round that takes them in
-    assert all(r["taken_in"] for r in rounds[:-1])  # every round but the last
+    # every round with a failing instance but the last takes it in (a clean round asks for a confirming one)
+    assert all(r["taken_in"] for r in rounds[:-1] if any(p["failing_seeds"] for p in r["points"]))
     assert sum(r["taken_in"] for r in rounds) == len(taken)
     seen = [s for r in rounds for s in [heldout_seed(0, 0, 6 * (r["round"] - 1) + t) for t in range(6)]]
     assert len(seen) == len(set(seen))  # every round is a fresh batch
@@ -229,6 +230,24 @@ def test_failing_heldout_instances_become_training_instances_the_set_is_then_tig
         assert rounds[-1]["passed"] and res.points[0].heldout.passed
     else:
         assert len(rounds) == 3 and "FAILED" in res.validation["message"]
+
+
+def test_a_clean_first_batch_is_confirmed_by_a_second_fresh_one():
+    """Pose averaging M = 3 (tight on every instance at σ = 0.1): the first fresh batch of 4 has no failing
+    instance, yet the point holds 4 < 2·4 tight held-out instances, so a second fresh batch confirms it; with one
+    round allowed the set is validated with a message that says the confirmation is short."""
+    from autotight.discovery.engine import CONFIRM_BATCHES
+
+    prob = at.load_problem("pose_averaging")
+    res = discover(prob, {"M": 3}, 0, n_heldout=4, compare=False)
+    rounds = res.validation["rounds"]
+    assert res.validated and len(rounds) == CONFIRM_BATCHES
+    assert [r["tight_since_last_failure"][0] for r in rounds] == [4 * (k + 1) for k in range(CONFIRM_BATCHES)]
+    seen = [heldout_seed(0, 0, t) for t in range(4 * len(rounds))]
+    assert len(set(seen)) == len(seen) and "at least 8 tight" in res.validation["message"]
+    short = discover(prob, {"M": 3}, 0, n_heldout=4, max_rounds=1, compare=False)
+    assert short.validated and len(short.validation["rounds"]) == 1
+    assert "short of the 8" in short.validation["message"]
 
 
 def test_a_spent_budget_exits_1_records_the_failure_and_solve_warns(tmp_path, capsys):

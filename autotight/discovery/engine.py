@@ -24,11 +24,16 @@ those sizes as well.
    tightened from where it is on them, one at a time (``select.tighten_each``; its pairs stay: dropping
    them to fit the new instances would lose what the earlier batches showed; the added pairs are reduced
    over all training instances), and the points with a failing instance get a fresh batch (the set only
-   grows and tightness is monotone in the set, so a batch without failures stays tight).  It stops when
-   every point's latest batch has no failing instance, or when ``max_rounds`` rounds or ``max_solves`` SDP
-   solver calls are spent.  The set is validated when every point's latest batch passes at
-   ``min_fraction`` (a passing batch's failing instances are still taken in); otherwise the result
-   records that validation failed.
+   grows and tightness is monotone in the set, so a batch without failures stays tight).
+   **Confirm**: a point is done once it holds ``CONFIRM_BATCHES``·``n_heldout`` tight held-out instances
+   since its last failing one (its batches without a failure, solved with the set or a smaller one: by
+   monotonicity they are tight with the set), so a point whose first fresh batch is clean gets a second one.
+   One clean batch of 10 let a set that fails one instance in 5 through with probability 0.11 (robust
+   Wahba: it then failed ``check``); 20 clean instances, with probability 0.012.  It stops when every point
+   is done, or when ``max_rounds`` rounds or ``max_solves`` SDP solver calls are spent.  The set is
+   validated when every point's latest batch passes at ``min_fraction`` (a passing batch's failing
+   instances are still taken in); otherwise the result records that validation failed.  Validated with a
+   point short of its confirmation (the budget spent, or its instances undecided), the message says so.
 6. The set (``DiscoveredSet``) is saved with the evidence of every round (``DiscoveryResult.record``).
 
 Seeds (``trainers``): training ``seed`` for the first instance at the first point, else
@@ -61,6 +66,9 @@ from .learn import LearnOptions
 from .result import DiscoveryResult, PointRecord, round_record
 from .select import reduce, tighten, tighten_each
 from .trainers import Solves, Trainer, candidates, heldout_seed, learned_source, make_trainer, training_seed
+
+#: held-out batches' worth of tight instances a point needs since its last failing one (module docstring)
+CONFIRM_BATCHES = 2
 
 
 def default_groups(problem: Problem, groups: Any) -> Any:
@@ -189,10 +197,13 @@ def discover(problem: Problem | str, params: Mapping[str, Any] | None = None, se
     with_paper = bool(compare and trainers[0].model.paper)
     paper: list[Any] = [None] * len(check_points)
     kept: list[list[int]] = [[] for _ in check_points]  # the seeds of each point's latest batch
+    need = CONFIRM_BATCHES * n_heldout
+    clean = [0] * len(check_points)  # per point: tight held-out instances since its last failing one
     while n_heldout and not unreached:
-        # a point whose latest batch had no failing instance is done: the set only grows from here on, and
-        # tightness is monotone in the set, so that batch stays tight
-        todo = [i for i, pr in enumerate(last) if pr is None or pr.count("not tight") or not pr.passed]
+        # a point whose latest batch had no failing instance and that holds ``need`` tight instances since its
+        # last failing one is done: the set only grows from here on, and tightness is monotone in the set
+        todo = [i for i, pr in enumerate(last)
+                if pr is None or pr.count("not tight") or not pr.passed or clean[i] < need]
         batch = [[heldout_seed(seed, i, next_t[i] + t) for t in range(n_heldout)] if i in todo else []
                  for i in range(len(check_points))]
         next_t = [n + len(b) for n, b in zip(next_t, batch)]
@@ -204,21 +215,26 @@ def discover(problem: Problem | str, params: Mapping[str, Any] | None = None, se
         for i in todo:
             last[i] = held["set"][i]
             kept[i] = batch[i]
+            clean[i] = 0 if last[i].count("not tight") else clean[i] + last[i].count("tight")
         failing = [(i, s) for i in todo for s, _, _ in last[i].with_outcome("not tight")]
         passed = all(pr.passed for pr in last)
         rounds.append(round_record(len(rounds), [last[i] for i in todo], len(pairs), passed,
                                    [len(batch[i]) for i in todo]))
+        rounds[-1]["tight_since_last_failure"] = list(clean)
         say("validate", f"round {len(rounds)}: {'passed' if passed else 'not passed'}, {len(failing)} not tight")
-        if not failing:  # every point's latest batch without a failure (or only undecided ones left)
-            validated = passed
-            if not passed:
-                stop = "held-out instances undecided by the solver's accuracy; none failed"
-            break
         spent = ""
         if len(rounds) >= max_rounds:
             spent = f"{max_rounds} held-out rounds spent (max_rounds)"
         elif max_solves is not None and run.n_solves >= max_solves:
             spent = f"{run.n_solves} SDP solver calls spent (max_solves {max_solves})"
+        if not failing:  # every point's latest batch without a failure (or only undecided ones left)
+            if not passed:
+                validated, stop = False, "held-out instances undecided by the solver's accuracy; none failed"
+                break
+            if all(c >= need for c in clean) or spent:
+                validated = True
+                break
+            continue  # confirm: a fresh batch at the points short of ``need``
         if spent and not passed:
             validated, stop = False, spent
             break
@@ -245,8 +261,9 @@ def discover(problem: Problem | str, params: Mapping[str, Any] | None = None, se
         paper = held["paper"]
         run.count("paper", n["paper"])
     validation = {"passed": validated, "min_fraction": float(min_fraction), "n_heldout": n_heldout,
-                  "max_rounds": max_rounds, "max_solves": max_solves, "rounds": rounds,
-                  "message": _validation_message(validated, stop, rounds, n_heldout, unreached)}
+                  "max_rounds": max_rounds, "max_solves": max_solves, "confirm": need,
+                  "tight_since_last_failure": list(clean), "rounds": rounds,
+                  "message": _validation_message(validated, stop, rounds, n_heldout, unreached, clean, need)}
     ds.info["validation"] = validation
     precs = []
     for i, (full, varied) in enumerate(check_points):
@@ -270,15 +287,20 @@ def discover(problem: Problem | str, params: Mapping[str, Any] | None = None, se
 
 
 def _validation_message(validated: bool | None, stop: str, rounds: list[dict], n_heldout: int,
-                        unreached: list[Trainer]) -> str:
+                        unreached: list[Trainer], clean: list[int], need: int) -> str:
     if unreached:
         return "not validated: the set is not tight on every training instance"
     if not n_heldout:
         return "not validated (no held-out instances)"
     if validated:
         taken = sum(r.get("taken_in", 0) for r in rounds)
-        return (f"validated: every point's latest fresh held-out batch passed ({len(rounds)} round(s), {taken} "
-                "failing held-out instance(s) taken in)")
+        short = min(clean, default=need)
+        confirmed = (f"at least {need} tight held-out instances since the last failing one at every point"
+                     if short >= need else
+                     f"but a point holds only {short} tight held-out instances since its last failing one, short "
+                     f"of the {need} that confirm it (the budget was spent)")
+        return (f"validated: every point's latest fresh held-out batch passed, {confirmed} ({len(rounds)} "
+                f"round(s), {taken} failing held-out instance(s) taken in)")
     worst = min(((p["fraction"], p) for p in rounds[-1]["points"] if not p["passed"]),
                 key=lambda x: float("inf") if x[0] != x[0] else x[0], default=(None, None))[1]
     where = f" (worst {worst['varied'] or 'point'}: {worst['tight']} tight of {worst['instances']})" if worst else ""
