@@ -51,13 +51,10 @@ class CliqueCovers:
         #: {cap: cover} for each base cover (cap 0: unmerged), on one clique tree per base
         self.blocks = merged_covers(block_cliques(block_sizes, rows, cols), (0,) + caps) if block_sizes else {}
         self.own: list[list[np.ndarray]] = []
-        #: {cap: cover} of the model's own cover merged (cap 0: as given), for the "ipm" policy
-        self.own_merged: dict[int, list[np.ndarray]] = {}
         if hint is not None:
             own = [np.asarray(c, np.int64) for c in hint]
             _check_cover(own, N, rows, cols)
             self.own = [own]
-            self.own_merged = merged_covers(own, (0,) + IPM_MERGE_CAPS)
         con = owner > 0  # (N × m) the columns of each constraint (owner 0 is Q)
         self.support = support_matrix(rows[con], cols[con], owner[con] - 1, N, len(As))
 
@@ -67,6 +64,11 @@ class CliqueCovers:
         the IPM does without it when the block sizes are known (discrete K = 1000: 6 s of min-fill)."""
         N, rows, cols, d, caps = self._entries
         return merged_covers(entry_cliques(N, rows, cols, always=range(d)), caps)
+
+    @cached_property
+    def own_merged(self) -> dict[int, list[np.ndarray]]:
+        """{cap: cover} of the model's own cover, merged at every cap of ``IPM_MERGE_CAPS`` (cap 0: as given)."""
+        return merged_covers(self.own[0], (0,) + IPM_MERGE_CAPS) if self.own else {}
 
     def choose(self, policy: str = "clarabel") -> list[np.ndarray]:
         from .schur_ipm import iteration_cost
