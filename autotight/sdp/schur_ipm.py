@@ -771,10 +771,11 @@ IPM_MIN_TOL = 1e-7
 
 
 def solve_ipm(Q: sp.csr_array, As: Sequence[sp.csr_array], b: np.ndarray, d: int,
-              cliques: Sequence[np.ndarray] | None, opts: SolverConfig) -> SDPResult:
+              cliques: Sequence[np.ndarray] | None, opts: SolverConfig, finished: bool = True) -> SDPResult:
     """The Shor SDP by our IPM on the clique blocks of ``clique_program`` (one block of all N
     columns when ``cliques`` is None), with ``opts.ipm``'s search direction.  X is completed from the
-    blocks' rank-d factors."""
+    blocks' rank-d factors.  ``finished``: with X's eigenvalues, log SVR and Θ (``result.finish``); False
+    leaves them to the caller (the SDP layer, which finishes once, after undoing its scaling)."""
     t0 = time.perf_counter()
     prog = clique_program(Q, As, b, cliques if cliques is not None else [np.arange(Q.shape[0])])
     t1 = time.perf_counter()
@@ -790,7 +791,7 @@ def solve_ipm(Q: sp.csr_array, As: Sequence[sp.csr_array], b: np.ndarray, d: int
                     completion=completion,
                     message=(f"{sol.message}; " if sol.message else "")
                     + f"relative gap {sol.gap:.1e}, pinf {sol.pinf:.1e}, dinf {sol.dinf:.1e}")
-    return finish(res)
+    return finish(res) if finished else res
 
 
 #: the fixed step fraction of the retry (``IPMBackend.retries``), the statuses that get it, and the largest
@@ -823,7 +824,7 @@ class IPMBackend:
 
     def solve(self, Q: sp.csr_array, As: Sequence[sp.csr_array], b: np.ndarray, d: int,
               cliques: Sequence[np.ndarray] | None, config: SolverConfig) -> SDPResult:
-        return solve_ipm(Q, As, b, d, cliques, config)
+        return solve_ipm(Q, As, b, d, cliques, config, finished=False)  # the layer finishes (``sdp._solve``)
 
     def retries(self, config: SolverConfig, decomposed: bool, N: int) -> Retries:
         if config.ipm.step_fraction is not None or N > RETRY_MAX_N:
