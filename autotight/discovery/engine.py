@@ -28,8 +28,8 @@ those sizes as well.
    **Confirm**: a point is done once it holds ``CONFIRM_BATCHES``·``n_heldout`` tight held-out instances
    since its last failing one (its batches without a failure, solved with the set or a smaller one: by
    monotonicity they are tight with the set), so a point whose first fresh batch is clean gets a second one.
-   One clean batch of 10 let a set that fails one instance in 5 through with probability 0.11 (robust
-   Wahba: it then failed ``check``); 20 clean instances, with probability 0.012.  It stops when every point
+   One clean batch of 10 lets a set that fails one instance in 5 through with probability 0.8¹⁰ = 0.11;
+   20 clean instances, with probability 0.012.  It stops when every point
    is done, or when ``max_rounds`` rounds or ``max_solves`` SDP solver calls are spent.  The set is
    validated when every point's latest batch passes at ``min_fraction`` (a passing batch's failing
    instances are still taken in); otherwise the result records that validation failed.  Validated with a
