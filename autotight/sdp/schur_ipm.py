@@ -756,9 +756,9 @@ def iteration_cost(sizes: Sequence[int], inc: Sequence[np.ndarray], M: int) -> f
     (of M in all; ``chordal.block_incidence``): Σ_k DENSE_WEIGHT·(n_k⁴ + m_k² n_k²) (the kernel P_k ⊗ Q_k
     and the block's part of S) + M b² (factorising S, whose half bandwidth in ``band_order`` is b: the
     band's Cholesky, and a bound on the sparse LDLᵀ's fill) + BLOCK_OVERHEAD per block (the per-block work in
-    Python).  A ranking, not a prediction.  A block-separable Σ_k m_k³ in place of M b² ranked pose
-    averaging's block cover first at M = 1000, where constraints spill across blocks far apart in the tree
-    (b = 787, 36 s) while the model's own cover merged to 48 columns has b = 246 (8.4 s)."""
+    Python).  A ranking, not a prediction.  A block-separable Σ_k m_k³ in place of M b² would miss the
+    constraints that spill across blocks far apart in the clique tree, which widen S's band
+    (benchmarks/README.md, "Cover choice")."""
     n = np.asarray(sizes, float)
     m = np.array([i.size for i in inc], float)
     _, b = band_order(inc, M)
