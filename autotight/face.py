@@ -46,6 +46,7 @@ from dataclasses import dataclass
 from typing import Sequence
 
 import numpy as np
+import scipy.linalg
 import scipy.sparse as sp
 
 from .certificate import (FREE_ATOL, dual_matrix, entries, polish_dual, recession_columns,
@@ -202,9 +203,9 @@ def face_dual(Q: sp.sparray, constraints, F: np.ndarray, *, d: int = 1,
     (module docstring, facial reduction); y₀ is the least-norm y with H(y₀)_F· = 0 (not the SDP's
     own y, whose multipliers grow without bound along the face where no dual point is strictly
     feasible: stereo-2D, pairs of multipliers near ±10 cancelling on F to 1e-10).  The reduced
-    constraints are an orthonormal basis (Frobenius, singular values above ``DEPENDENT_RTOL`` of the
-    largest) of the span of the (Ãⱼ)_KK, so near-dependent learned constraints give the solver no
-    ill-posed rows; the final y is put back onto H_F· = 0 along GF's range.
+    constraints are the (Ãⱼ)_KK of a well-separated subset spanning them (``independent_rows``, each
+    scaled to unit Frobenius norm), so near-dependent learned constraints give the solver no ill-posed
+    rows and the solve keeps their sparsity; the final y is put back onto H_F· = 0 along GF's range.
     scale: the SDP's diagonal scaling D on all N columns (restricted to K here).  None when the dense work would exceed
     ``FACE_DUAL_MAX_TOUCHING`` or ``FACE_DUAL_MAX_ENTRIES``, no y makes H vanish on F, or the solve
     returns no finite multipliers."""
@@ -235,13 +236,13 @@ def face_dual(Q: sp.sparray, constraints, F: np.ndarray, *, d: int = 1,
     Kpos[K] = np.arange(K.size)
     sel = (Kpos[r] >= 0) & (Kpos[c] >= 0)
     A_K = sp.csr_array((v[sel], (owner[sel], Kpos[r[sel]] * K.size + Kpos[c[sel]])), shape=(m, K.size ** 2))
-    R = np.asarray((P.T @ A_K).todense())  # (p, |K|²): each direction's entries on K
-    Ur, Sr, Vr = np.linalg.svd(R, full_matrices=False)
-    kr = int(np.sum(Sr > DEPENDENT_RTOL * Sr[0])) if Sr.size else 0
-    W = P @ (Ur[:, :kr] / Sr[:kr])  # (m, kr): y = y₀ + W z moves H by −Σ zⱼ (row j of Vr)
+    R = sp.csr_array(P.T @ A_K)  # (p, |K|²): each direction's entries on K
+    sel, norms = independent_rows(R)
+    W = P[:, sel] / norms  # (m, kr): y = y₀ + W z moves H by −Σ zⱼ (row sel[j] of R, unit norm)
     bw = np.asarray(W.T @ b).ravel()
-    reduced = [Constraint(sp.coo_array(Vr[j].reshape(K.size, K.size)), float(bw[j]), name=f"face direction {j}",
-                          family="learned") for j in range(kr)]
+    rows = sp.csr_array(R[sel] / norms[:, None])
+    reduced = [Constraint(sp.coo_array(rows[[j]].reshape((K.size, K.size))), float(bw[j]),
+                          name=f"face direction {j}", family="learned") for j in range(sel.size)]
     Qr = sp.csr_array(dual_matrix(Q, As, y0))[K][:, K]
     res = sdp.solve(Qr, reduced, d=d, config=config, scale=None if scale is None else scale[K])
     if res.y is None or not np.all(np.isfinite(res.y)):
@@ -253,6 +254,24 @@ def face_dual(Q: sp.sparray, constraints, F: np.ndarray, *, d: int = 1,
         # stereo-2D: λ_min(H_KK) to −9e-4)
         out[T] = system.onto(out[T])
     return out, f"the SDP on the {K.size} columns off the {F.size} set aside ({res.solver} {res.status})"
+
+
+def independent_rows(R: sp.csr_array) -> tuple[np.ndarray, np.ndarray]:
+    """(rows, their Frobenius norms): a subset of R's nonzero rows spanning its row space, chosen by a QR
+    with column pivoting of the normalised rows (a pivot counts while |R_kk| > ``DEPENDENT_RTOL``·|R_00|).
+    Selected rows keep the constraints' sparsity, where an orthonormal basis of the span is dense and
+    makes the solve an order of magnitude slower; the pivoting keeps them far from dependent, so the
+    solver gets no ill-posed rows.  R must fit densely (``face_dual`` checks its size first)."""
+    norms = np.sqrt(np.asarray(R.multiply(R).sum(axis=1)).ravel())
+    nz = np.flatnonzero(norms > 0)
+    if nz.size == 0:
+        return nz, norms[nz]
+    G = np.asarray((R[nz] / norms[nz][:, None]).T.todense())  # (|K|², rows): the rows as columns
+    _, Rq, piv = scipy.linalg.qr(G, mode="economic", pivoting=True)
+    d = np.abs(np.diag(Rq))
+    k = int(np.sum(d > DEPENDENT_RTOL * d[0])) if d[0] > 0 else 0
+    sel = np.sort(nz[piv[:k]])
+    return sel, norms[sel]
 
 
 def free_columns(Q: sp.sparray, As: Sequence[sp.sparray]) -> Face:

@@ -56,6 +56,9 @@ from .svec import smat, svec
 RECESSION_MAX_N = 2000
 #: H(y)'s null space ends at a gap of at least this ratio between consecutive eigenvalue magnitudes
 NULL_GAP = 100.0
+#: … and holds only eigenvalues of |wᵢ| at most this fraction of the largest (a dual point accurate to a solve's
+#: tolerance has its null eigenvalues near that tolerance, far below this)
+NULL_RTOL = 1e-4
 #: a reduced relation counts above this fraction of the largest singular value (below: Nₕ's own error)
 RELATION_RTOL = 1e-3
 #: … or at a gap of at least MIN_GAP between consecutive singular values; at most MAX_TRIES counts are tried
@@ -179,12 +182,14 @@ def _reduced(Nh: np.ndarray, As: Sequence[sp.sparray]) -> np.ndarray:
 def null_dimension(w: np.ndarray) -> int:
     """The dimension of H's near-null space from its eigenvalues w: the count r < N of smallest |wᵢ| at
     the largest ratio |w|₍r₎/|w|₍r−1₎ (sorted ascending, both raised to the roundoff floor N·ε·max|w|), when
-    that ratio is at least ``NULL_GAP``; else 0."""
+    that ratio is at least ``NULL_GAP``, among the counts whose |wᵢ| are all at most ``NULL_RTOL``·max|w|
+    (a gap between larger ones separates two parts of H's range, not its null space); else 0."""
     a = np.sort(np.abs(w))
     if a.size < 2:
         return 0
     floor = a.size * np.finfo(float).eps * max(a[-1], 1e-300)  # roundoff: gaps below it are not gaps
     ratio = np.maximum(a[1:], floor) / np.maximum(a[:-1], floor)
+    ratio[a[:-1] > NULL_RTOL * a[-1]] = 0.0
     i = int(np.argmax(ratio))
     return i + 1 if ratio[i] >= NULL_GAP else 0
 
