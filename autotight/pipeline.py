@@ -38,7 +38,7 @@ from .pretty import column_names
 from .problem import Instance, LocalResult, Problem
 import autotight.sdp as sdp
 from .sdp.config import SolverConfig
-from .sdp.result import SDPResult
+from .sdp.result import SDPResult, Status
 from .sdp.scaling import block_scale
 from .threads import single_blas_thread
 from .tightness import Criteria, Verdict, judge
@@ -363,8 +363,11 @@ class Judgement:
 def judge_relaxation(problem: Problem, inst: Instance, prep: Prepared, relax: Relaxation, best: LocalResult,
                      criteria: Criteria) -> Judgement:
     """Polish the multipliers at ``best`` and certify it (``dual_certificate``), judge against U = best.cost
-    (``tightness.judge``); an undecided verdict is solved once more at a 100× tighter tolerance where the
-    backend can go tighter (kept when that solve is usable).  A verdict neither rank nor cost tight notes
+    (``tightness.judge``); an undecided verdict of a solve that reached its tolerance (Solved) is solved
+    once more at a 100× tighter tolerance where the backend can go tighter (kept when that solve is
+    usable).  A solve that stopped short of its tolerance is not: it would stop short of a tighter one
+    too (Clarabel's steps do not depend on its stopping tolerances: it retraces the same path to the same
+    stop).  A verdict neither rank nor cost tight notes
     blocks that can grow at no cost (``unbounded.rank_out_of_reach``)."""
     model, cons, config, scale = prep.model, prep.constraints, prep.config, relax.scale
     upper = best.cost
@@ -375,9 +378,10 @@ def judge_relaxation(problem: Problem, inst: Instance, prep: Prepared, relax: Re
     verdict = judge(res, upper, criteria, cert, Q=model.Q, constraints=cons, scale=scale)
     attempts = ([] if relax.unscaled is None else [_attempt(relax.unscaled, None)]) + [_attempt(res, verdict)]
     tighter = replace(config, tol=max(config.tol / 100, 1e-13))
-    # once more at a tighter tolerance, unless the backend cannot go tighter (the IPM's floor): the
-    # same solve again (discrete K = 1000, IPM: 41 s for an identical result)
-    if getattr(verdict, "undecided", False) and sdp.effective_tol(tighter) < sdp.effective_tol(config):
+    # once more at a tighter tolerance, unless the solve stopped short of its own, or the backend cannot
+    # go tighter (the IPM's floor): either way the same solve again
+    if (getattr(verdict, "undecided", False) and res.status == Status.SOLVED
+            and sdp.effective_tol(tighter) < sdp.effective_tol(config)):
         res2 = sdp.solve_model(model, cons, tighter, scale)
         res2, cert2 = dual_certificate(problem, inst, model, cons, res2, best, criteria)
         verdict2 = judge(res2, upper, criteria, cert2, Q=model.Q, constraints=cons, scale=scale)
@@ -405,8 +409,8 @@ def solve_instance(problem: Problem, inst: Instance, constraints: ConstraintsLik
     solved in the variables X' of X = D X' D with D from the best local solution's lifting
     (``block_scale_at``): every block of X' is then O(1), which the solver's relative accuracy needs
     when residual blocks are O(σ); the verdict may take its bracket's dual correction in that frame
-    (``tightness.judge``'s ``scale``).  A verdict left undecided by the solver's accuracy is solved once
-    more at a 100× tighter tolerance; ``attempts`` records both.  An unbounded SDP (DualInfeasible:
+    (``tightness.judge``'s ``scale``).  A verdict left undecided by a Solved solve's accuracy is solved once
+    more at a 100× tighter tolerance (``judge_relaxation``); ``attempts`` records both.  An unbounded SDP (DualInfeasible:
     nothing bounds some blocks) raises ``UnboundedRelaxation`` naming those blocks in one line, unless
     ``raise_unbounded`` is False (then it is judged not tight, as discovery's held-out check needs for
     the primary constraints of a problem such as robust pose averaging).

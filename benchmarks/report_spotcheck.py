@@ -6,6 +6,9 @@ check of whether a change moves any of its results.  It re-runs ``--per-sigma`` 
 deterministic numbers (costs, bounds: relative 1e-6), writing one JSON with every difference found.
 
     python benchmarks/report_spotcheck.py reports/pose_averaging --per-sigma 2
+
+``--retried`` re-runs instead every trial with a row that made more than one SDP attempt (``sdp_attempts``):
+the trials a change of the re-solve policy can move.
 """
 
 from __future__ import annotations
@@ -64,6 +67,8 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("folder", type=Path)
     ap.add_argument("--per-sigma", type=int, default=2)
+    ap.add_argument("--retried", action="store_true",
+                    help="re-run every trial with a row of more than one SDP attempt instead of the first ones")
     ap.add_argument("--json", type=Path, default=None, help="where to write the result (default: print only)")
     a = ap.parse_args()
     spec = spec_of(a.folder)
@@ -76,14 +81,19 @@ def main() -> None:
         sets["discovered"] = ConstraintSet.load(spec.discovered)
     t0 = time.perf_counter()
     diffs, n = [], 0
-    for t in range(a.per_sigma):
-        for i in range(len(spec.sigmas)):
-            rows = run_trial(spec, i, t, sets).rows
-            n += len(rows)
-            d = compare(saved, rows)
-            diffs += d
-            print(f"σ = {spec.sigmas[i]:g}, trial {t}: {len(rows)} rows, {len(d)} differences", flush=True)
-    result = {"report": str(a.folder), "rows_compared": n, "differences": diffs,
+    if a.retried:
+        picked = saved[saved.sdp_attempts > 1][["sigma_index", "trial"]].drop_duplicates()
+        trials = sorted((int(i), int(t)) for i, t in picked.itertuples(index=False))
+    else:
+        trials = [(i, t) for t in range(a.per_sigma) for i in range(len(spec.sigmas))]
+    for i, t in trials:
+        rows = run_trial(spec, i, t, sets).rows
+        n += len(rows)
+        d = compare(saved, rows)
+        diffs += d
+        print(f"σ = {spec.sigmas[i]:g}, trial {t}: {len(rows)} rows, {len(d)} differences", flush=True)
+    result = {"report": str(a.folder), "trials": "retried" if a.retried else f"first {a.per_sigma} per σ",
+              "rows_compared": n, "differences": diffs,
               "elapsed_s": time.perf_counter() - t0}
     print(json.dumps(result, indent=1, default=str))
     if a.json:

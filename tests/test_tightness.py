@@ -10,9 +10,9 @@ from autotight.problem import load
 from autotight.constraint_set import named as constraint_set
 from autotight.pipeline import local_search
 from autotight.sdp import solve_model
-from autotight.sdp.config import SolverOptions
+from autotight.sdp.config import SolverConfig, SolverOptions
 from autotight.sdp.result import SDPResult
-from autotight.tightness import Criteria, judge
+from autotight.tightness import Criteria, Verdict, judge
 
 
 def _res(P: float, D: float, log_svr: float = 10.0, status: str = "Solved") -> SDPResult:
@@ -160,3 +160,25 @@ def test_scaled_frame_bound_is_a_lower_bound_on_a_real_relaxation():
         for a in both:
             assert pert.dual_cost - a.dual_correction <= p_star + 1e-9 * abs(p_star)
         assert both[1].frame == "scaled"
+
+
+@pytest.mark.parametrize("status, solves", [("Solved", 2), ("AlmostSolved", 1), ("InsufficientProgress", 1)])
+def test_an_undecided_verdict_is_solved_again_only_after_a_solve_that_reached_its_tolerance(monkeypatch, status,
+                                                                                           solves):
+    """The retry at a 100× tighter tolerance: a solve that stopped short of its tolerance would stop at the same
+    point again, so only a Solved one is solved again (the verdict is stubbed undecided; the SDPs are real)."""
+    import autotight.pipeline as pl
+
+    prob = load("pose_averaging")
+    inst = prob.generate(prob.parse_params({"M": 3}), 0)
+    prep = pl.prepare(prob, inst, "primary", config=SolverConfig(backend="clarabel"))
+    relax = pl.solve_relaxation(prob, inst, prep)
+    relax = replace(relax, res=replace(relax.res, status=status), certified=None)
+    calls = []
+    real_solve = pl.sdp.solve_model
+    monkeypatch.setattr(pl.sdp, "solve_model", lambda *a, **k: calls.append(a[2].tol) or real_solve(*a, **k))
+    undecided = Verdict(False, False, False, 0.0, 1e-3, "stub", undecided=True, outcome="undecided")
+    monkeypatch.setattr(pl, "judge", lambda *a, **k: undecided)
+    jd = pl.judge_relaxation(prob, inst, prep, relax, prep.local.best, Criteria())
+    assert len(jd.attempts) == solves
+    assert calls == ([prep.config.tol / 100] if solves == 2 else [])
