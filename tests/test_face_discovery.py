@@ -10,10 +10,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import scipy.sparse as sp
 
 from autotight import api
 from autotight.certificate import dual_matrix, stack
-from autotight.face import face_dual, forced_face
+from autotight.face import DEPENDENT_RTOL, face_dual, forced_face, independent_rows
 from autotight.pipeline import solve_instance
 from autotight.problem import load
 from autotight.sdp import solve_model
@@ -84,3 +85,18 @@ def test_discover_validates_on_held_out_instances():
     assert rec["tight"] is True and rec["validated"] is True
     held = rec["points"][0]["heldout"]
     assert held["instances"] >= 10 and held["fraction"] >= 0.9 and held["tight"] >= held["instances"] // 2
+
+
+def test_independent_rows_span_the_rows_and_leave_out_the_dependent_ones():
+    """Rows a, 2a, b, a + b·(1 + 1e-9) and a zero row: two rows are kept (a + b·(1 + 1e-9) is dependent to
+    far below DEPENDENT_RTOL), the zero row never, and every row is a combination of the kept ones."""
+    rng = np.random.default_rng(3)
+    a = sp.random_array((1, 400), density=0.02, rng=rng).toarray()[0]
+    b = sp.random_array((1, 400), density=0.02, rng=rng).toarray()[0]
+    R = sp.csr_array(np.vstack([a, 2 * a, b, a + b * (1 + 1e-9), np.zeros(400)]))
+    sel, norms = independent_rows(R)
+    assert sel.size == 2 and 4 not in sel
+    assert np.allclose(norms, np.linalg.norm(R.toarray()[sel], axis=1))
+    basis = R.toarray()[sel]
+    coef, *_ = np.linalg.lstsq(basis.T, R.toarray().T, rcond=None)
+    assert np.abs(basis.T @ coef - R.toarray().T).max() <= DEPENDENT_RTOL * np.abs(R.toarray()).max()

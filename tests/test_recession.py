@@ -20,7 +20,7 @@ from autotight import api, sdp
 from autotight.certificate import certificate
 from autotight.constraint_set import ConstraintSet
 from autotight.model import Constraint
-from autotight.recession import Frame, echelon, frame_certificate, recession_frame
+from autotight.recession import NULL_RTOL, Frame, echelon, frame_certificate, null_dimension, recession_frame
 from autotight.tightness import Criteria
 
 COST = Criteria(accept="cost")
@@ -133,3 +133,16 @@ def test_certify_without_the_sdp_uses_the_frame_too():
     global_cost = prob.local_solve(inst, inst.truth).cost
     assert abs(cert.cost - global_cost) <= 1e-9 * global_cost  # x̂ is the global optimum …
     assert cert.cost - cert.bound <= global_cost  # … and the bound proved is below it
+
+
+def test_a_null_space_holds_only_eigenvalues_far_below_the_largest():
+    """H's near-null space ends at its largest gap among eigenvalues ≤ NULL_RTOL·max|w|: a larger gap between two
+    parts of the range (0.36 → 300 here; 0.36 → 39 on robust Wahba) is not a null space."""
+    rng = np.random.default_rng(0)
+    null = np.array([1e-7, 1.5e-7, 2e-7, 3e-7])  # x̂ and three directions
+    smeared = np.geomspace(5e-5, 0.36, 49)  # consecutive ratios ≈ 1.2: no gap inside
+    big = np.array([300.0, 400.0, 500.0, 700.0, 800.0, 900.0, 1000.0])
+    assert 300 / 0.36 > 5e-5 / 3e-7 > 100 and 0.36 > NULL_RTOL * 1000  # the largest gap lies beyond NULL_RTOL
+    w = rng.permutation(np.concatenate([null, smeared, big])) * rng.choice([-1.0, 1.0], 60)
+    assert null_dimension(w) == null.size
+    assert null_dimension(np.concatenate([smeared, big])) == 0  # nothing near null at all
