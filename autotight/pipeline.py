@@ -410,10 +410,10 @@ def solve_instance(problem: Problem, inst: Instance, constraints: ConstraintsLik
     (``block_scale_at``): every block of X' is then O(1), which the solver's relative accuracy needs
     when residual blocks are O(σ); the verdict may take its bracket's dual correction in that frame
     (``tightness.judge``'s ``scale``).  A verdict left undecided by a Solved solve's accuracy is solved once
-    more at a 100× tighter tolerance (``judge_relaxation``); ``attempts`` records both.  An unbounded SDP (DualInfeasible:
-    nothing bounds some blocks) raises ``UnboundedRelaxation`` naming those blocks in one line, unless
-    ``raise_unbounded`` is False (then it is judged not tight, as discovery's held-out check needs for
-    the primary constraints of a problem such as robust pose averaging).
+    more at a 100× tighter tolerance (``judge_relaxation``); ``attempts`` records both.  An unbounded SDP
+    (DualInfeasible: nothing bounds some blocks) raises ``UnboundedRelaxation`` naming those blocks in one
+    line, unless ``raise_unbounded`` is False (then it is judged not tight, as discovery's held-out check
+    needs for the primary constraints of a problem such as robust pose averaging).
 
     The steps, in order: ``prepare`` (model, constraints, local search, checks) → ``solve_relaxation`` (the
     SDP) → ``recover_estimate`` (estimate, refinement, U) → ``judge_relaxation`` (polish, certificate,
