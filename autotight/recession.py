@@ -12,7 +12,8 @@ Directions (``recession_directions``).  The zero-cost recession cone is
 R = {D ⪰ 0 : ⟨Aᵢ,D⟩ = 0 for all i, ⟨Q,D⟩ = 0}.  For D ∈ R and any y, ⟨H(y),D⟩ = ⟨Q,D⟩ − Σᵢ yᵢ⟨Aᵢ,D⟩ = 0,
 so every dual feasible H ⪰ 0 has range(D) in its null space.  Given multipliers y near the dual optimum,
 the near-null space Nₕ of H(y) (the eigenvectors of the smallest |eigenvalues| up to the largest gap
-among those at most ``NULL_RTOL`` of the largest, ``null_dimension``: x̂ and the recession directions) holds them, and D = Nₕ M Nₕᵀ with M from the small SDP
+among those at most ``NULL_RTOL`` of the largest, ``null_dimension``: x̂ and the recession directions)
+holds them, and D = Nₕ M Nₕᵀ with M from the small SDP
     min tr M / r  s.t.  ⟨NₕᵀAᵢNₕ, M⟩ = 0, ⟨NₕᵀQNₕ, M⟩ = 0, tr M = 1, M ⪰ 0
 (its relations an orthonormal basis of the span of the reduced ones, singular values above
 ``RELATION_RTOL`` of the largest, then the counts at the largest gaps, ``gap_counts``: H(y) is dual
