@@ -107,10 +107,11 @@ def project_multipliers(prog, Th: np.ndarray, *, clips: tuple[float, ...] = CLIP
     base = base + alpha * UU
     M = Gv.shape[1]
     GvT = sp.csr_array(Gv.T)
-    GtG = sp.csc_array(GvT @ Gv)
-    scale = float(np.mean(GtG.diagonal())) or 1.0
-    root = sp.csr_array(DL * np.sqrt(PENALTY * scale))  # β LᵀD²L as (√β DL)ᵀ(√β DL): no scaled copy of the product
-    N = sp.csc_matrix(GtG + sp.csc_array(root.T @ root) + (RIDGE * scale) * sp.identity(M))
+    scale = float(np.mean(np.asarray(Gv.multiply(Gv).sum(axis=0)))) or 1.0  # the mean diagonal of GvᵀGv
+    # N = GvᵀGv + β LᵀD²L + ridge·I as BᵀB of one stack B = [Gv; √β DL; √ridge I]: one sparse product and
+    # no sum of large sparse matrices
+    B = sp.vstack([Gv, DL * np.sqrt(PENALTY * scale), np.sqrt(RIDGE * scale) * sp.identity(M)], format="csr")
+    N = sp.csc_matrix(B.T @ B)
     try:
         lu = spla.splu(N, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options=dict(SymmetricMode=True))
     except RuntimeError as e:
