@@ -264,6 +264,19 @@ def test_a_spent_budget_exits_1_records_the_failure_and_solve_warns(tmp_path, ca
     assert "failed validation" in capsys.readouterr().err
 
 
+def test_a_set_not_tight_on_its_training_exits_1_with_the_reason_and_its_closed_forms(tmp_path, capsys):
+    """Stereo 1-D under the default --accept rank: rank 1 is out of reach (X_xx is free), so nothing is tight on
+    the training instance.  The table says to use --accept cost, the set is saved and its closed form printed
+    (a factor type without primary relations of its own), and the exit code is 1 with one line on stderr."""
+    out = tmp_path / "set.json"
+    code = main(["discover", "stereo_1d", "--out", str(out), "--no-progress"])
+    cap = capsys.readouterr()
+    assert code == 1 and cap.err.count("\n") == 1 and "not tight on every training instance" in cap.err
+    assert "use --accept cost" in cap.out and "closed forms" in cap.out
+    rec = json.loads(out.read_text(encoding="utf-8"))
+    assert rec["summary"]["tight"] is False and rec["summary"]["validated"] is None
+
+
 MODULE = textwrap.dedent("""
     from problems.pose_averaging import *  # noqa: F401,F403
     NAME = "my_pose"

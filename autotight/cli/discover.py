@@ -154,7 +154,7 @@ def cmd_discover(args: argparse.Namespace) -> int:
     if where is not None and where != Path(args.out):
         print(f"autotight: note: {args.out} appeared while discovery ran and is kept; the set is saved as {where}",
               file=sys.stderr)
-    if res.validated is False:
+    if res.validated is False or not res.tight:  # validation failed, or the set is not tight on its training
         print(f"error: {res.validation['message']}", file=sys.stderr)
         return 1
     return 0

@@ -126,6 +126,8 @@ class FactorSamples(Layout):
     def normal_form(self, V: np.ndarray) -> np.ndarray:
         """NF of relations V (S, …, m), one factor per leading index."""
         V = np.asarray(V, dtype=float)
+        if self.pivots.size == 0:  # no relation of the factor's own to reduce by: every v is its normal form
+            return V
         lead = V[..., self.pivots]  # (S, …, r)
         shape = V.shape
         Vf = V.reshape(shape[0], -1, shape[-1])
