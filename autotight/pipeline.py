@@ -367,8 +367,8 @@ def judge_relaxation(problem: Problem, inst: Instance, prep: Prepared, relax: Re
     once more at a 100× tighter tolerance where the backend can go tighter (kept when that solve is
     usable).  A solve that stopped short of its tolerance is not: it would stop short of a tighter one
     too (Clarabel's steps do not depend on its stopping tolerances: it retraces the same path to the same
-    stop).  A verdict neither rank nor cost tight notes
-    blocks that can grow at no cost (``unbounded.rank_out_of_reach``)."""
+    stop).  A verdict neither rank nor cost tight notes blocks that can grow at no cost
+    (``unbounded.rank_out_of_reach``)."""
     model, cons, config, scale = prep.model, prep.constraints, prep.config, relax.scale
     upper = best.cost
     if relax.certified is not None and best is prep.local.best:  # made by ``solve_relaxation`` at this point
