@@ -124,14 +124,13 @@ class _Blind(_Needs):
 
 def test_a_solve_without_usable_x_adds_every_candidate_and_the_reduction_prunes():
     """Discrete K = 20 at σ = 0.316 fails with the primary constraints (NumericalError): nothing ranks
-    the candidates, so they are added in their order, 1, 2, 4, … at a time, here until all are in (trainer 2
-    needs a pair that is not a candidate), and the reduction keeps only what is needed."""
+    the candidates, so all are added, and the reduction keeps only what is needed."""
     from autotight.discovery.select import tighten
 
     run = _Blind({1: [{"b", "d"}], 2: [{"z"}]})  # trainer 2 needs a pair that is not a candidate
     trainers = [_trainer(1), _trainer(2)]
     chosen = tighten(run, trainers, list("abcde"), lambda *a: None)
-    assert chosen == list("abcde") and trainers[0].reached
+    assert set(chosen) == set("abcde") and trainers[0].reached
     assert not trainers[1].reached and "NumericalError with every candidate added" in trainers[1].message
     pairs, _ = _reduce(run, [trainers[0]], chosen, lambda *a: None)
     assert set(pairs) == {"b", "d"}

@@ -9,10 +9,8 @@ An unbounded SDP (its X is a ray, not a solution, or has blocks far beyond X_hh:
 diagonal entries on those blocks.  A training instance that is not tight
 while no remaining pair cuts its solution cannot be made tight by the candidates: it is "not reached"
 and left out of the rest.  A solve without a usable X ranks nothing: the instances with a usable X
-rank the round, and the blind one is solved again with the larger set; when every loose instance is
-blind, the next 2^r remaining pairs in the candidates' order are added (the doubling goes on without a
-ranking: the set does not jump to every candidate, which the reduction would then have to remove one
-block at a time).
+rank the round, and the blind one is solved again with the larger set; only when every loose instance
+is blind is every remaining pair added at once (the reduction removes those not needed).
 
 ``tighten_each`` runs it on one instance at a time (the held-out instances a set failed, taken in together).
 
@@ -105,10 +103,11 @@ def tighten(run: Solves, trainers: list[Trainer], candidates: list[Pair], say: S
         ranked = sorted(score, key=lambda p: -score[p])
         if not loose or not (ranked or blind):
             break
-        if not ranked:  # only blind instances left: the doubling goes on in the candidates' order
-            ranked = remaining
-        chosen += ranked[: 2 ** r]  # a blind instance is solved again with the larger set
-        r += 1
+        if ranked:  # the instances with a usable X rank; a blind one is solved again with the larger set
+            chosen += ranked[: 2 ** r]
+            r += 1
+        else:  # only blind instances left: every remaining candidate; the reduction removes those not needed
+            chosen += remaining
         loose = [tr for tr in loose if not run.solve(tr, chosen, "tighten")]
         say("tighten", f"{len(chosen)} pairs, {len(loose)} not tight")
     return chosen
