@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import textwrap
+from pathlib import Path
 
 import pytest
 
@@ -187,10 +188,13 @@ def test_each_pair_is_needed_on_some_training_instance():
 
 
 def test_a_range_no_candidate_can_tighten_is_reported_point_by_point():
-    """Learning on the rotation blocks only: no candidate closes pose averaging's gap; nothing is validated."""
+    """Learning on the rotation blocks only: no candidate closes pose averaging's gap, on the training instance nor
+    on the fresh ones drawn in its place; nothing is validated."""
+    from autotight.discovery.engine import MAX_SET_ASIDE
+
     res = discover("pose_averaging", {"M": 2}, over={"sigma": [0.1]}, groups=[("c1", "c2", "c3")])
     assert not res.tight and res.pairs == [] and res.validated is None
-    assert res.points[0].reached == [False]
+    assert res.points[0].reached == [False] * (1 + MAX_SET_ASIDE)
     assert res.points[0].messages[0].startswith("not tight with 0 pairs")
     assert "not reached at sigma=0.1" in res.table()
 
@@ -244,7 +248,7 @@ def test_a_clean_first_batch_is_confirmed_by_a_second_fresh_one():
     assert res.validated and len(rounds) == CONFIRM_BATCHES
     assert [r["tight_since_last_failure"][0] for r in rounds] == [4 * (k + 1) for k in range(CONFIRM_BATCHES)]
     seen = [heldout_seed(0, 0, t) for t in range(4 * len(rounds))]
-    assert len(set(seen)) == len(seen) and "at least 8 tight" in res.validation["message"]
+    assert len(set(seen)) == len(seen) and "at least 8 decided" in res.validation["message"]
     short = discover(prob, {"M": 3}, 0, n_heldout=4, max_rounds=1, compare=False)
     assert short.validated and len(short.validation["rounds"]) == 1
     assert "short of the 8" in short.validation["message"]
@@ -275,6 +279,69 @@ def test_a_set_not_tight_on_its_training_exits_1_with_the_reason_and_its_closed_
     assert "use --accept cost" in cap.out and "closed forms" in cap.out
     rec = json.loads(out.read_text(encoding="utf-8"))
     assert rec["summary"]["tight"] is False and rec["summary"]["validated"] is None
+    # every instance shares the reason (X_xx is bounded by nothing): no replacement is drawn
+    assert len(rec["summary"]["points"][0]["train_seeds"]) == 1
+
+
+BINARY = str(Path(__file__).parent / "binary_quadratic_module.py")
+
+
+def _loose_seed(params: dict) -> tuple[int, float]:
+    """The first seed whose ±1 program (no quadratic relation but s_i² = h² holds on {±1}ⁿ) has a relaxation
+    below its optimum by more than 1e-3 relative, and that gap."""
+    for s in range(40):
+        r = at.solve(BINARY, params, s, constraints="primary")
+        if r.verdict.rel_gap > 1e-3:
+            return s, r.verdict.rel_gap
+    raise AssertionError("no loose instance in 40 seeds")
+
+
+def test_a_training_instance_no_candidate_makes_tight_is_set_aside_and_replaced():
+    """A ±1 quadratic program has no valid relation beyond s_i² = h², so an instance whose relaxation is loose stays
+    loose with every candidate.  Trained on such a seed, discovery sets it aside, draws a fresh instance in its
+    place and learns there: the set is tight on the replacement and the message names the seed set aside."""
+    s0, gap = _loose_seed({})
+    res = discover(BINARY, {}, s0, n_heldout=10, min_fraction=0.5, max_rounds=1, compare=False)
+    p = res.points[0]
+    assert gap > 1e-3 and p.train_seeds[0] == s0 and not p.reached[0] and p.origins[0] == "training"
+    assert "no remaining candidate cuts its SDP solution" in p.messages[0]
+    assert p.origins[1] == "replacement" and p.train_seeds[1] == training_seed(s0, 0, 1) and res.tight
+    first = next(tr for tr in res.trainers if tr.reached)
+    assert first.origin == "replacement"
+    assert solve_instance(at.load_problem(BINARY), first.inst, res.constraint_set).outcome == "tight"
+    assert f"training seed(s) {s0} set aside" in res.validation["message"]
+
+
+def test_failing_instances_no_candidate_makes_tight_count_against_the_fraction_without_restarting_it():
+    """±1 programs, loose on about a third of the instances whatever the set: at min_fraction 0.5 each batch's
+    loose instances are taken in, none is reached, the set stays as it was, and the point is confirmed after
+    CONFIRM_BATCHES batches instead of restarting its count at every failure."""
+    from autotight.discovery.engine import CONFIRM_BATCHES
+
+    s0 = next(s for s in range(40) if at.solve(BINARY, {}, s, constraints="primary").verdict.rel_gap < 1e-6)
+    res = discover(BINARY, {}, s0, n_heldout=10, min_fraction=0.5, compare=False)
+    rounds = res.validation["rounds"]
+    taken = [tr for tr in res.trainers if tr.origin == "held-out"]
+    assert res.validated and len(rounds) == CONFIRM_BATCHES and res.pairs == []
+    assert taken and not any(tr.reached for tr in taken)
+    loose = rounds[-1]["loose_since_last_failure"][0]
+    assert loose == len(taken) == sum(p["not_tight"] for r in rounds for p in r["points"])
+    assert rounds[-1]["tight_since_last_failure"][0] + loose == sum(p["tight"] + p["not_tight"]
+                                                                    for r in rounds for p in r["points"])
+    assert f"{loose} of them not tight with any candidate" in res.validation["message"]
+
+
+def test_training_instances_all_loose_end_after_the_replacements_budget():
+    """Frustrated ±1 programs (every coupling large and positive: no sign pattern of three spins satisfies
+    all three) are loose on every instance: discovery draws 1 + MAX_SET_ASIDE training instances, then stops."""
+    from autotight.discovery.engine import MAX_SET_ASIDE
+
+    res = discover(BINARY, {"frustration": 5.0}, 0, n_heldout=10, compare=False)
+    p = res.points[0]
+    assert not res.tight and res.validated is None and not any(p.reached)
+    assert len(p.train_seeds) == 1 + MAX_SET_ASIDE and p.origins[1:] == ["replacement"] * MAX_SET_ASIDE
+    assert "not tight on every training instance" in res.validation["message"]
+    assert res.validation["rounds"] == []
 
 
 MODULE = textwrap.dedent("""

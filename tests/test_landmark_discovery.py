@@ -120,10 +120,13 @@ def test_d2_matrix_discovered_set_on_heldout_instances(slam, slam2_matrix):
 
 
 def test_d3_matrix_not_tightenable(slam):
-    """The same instance the vector lifting tightens: nothing learned on the matrix lifting cuts it."""
+    """The same instance the vector lifting tightens: nothing learned on the matrix lifting cuts it, so discovery
+    sets it aside (and trains on fresh instances); no learned pair enters the set."""
     res = _discover(3, "matrix", 4)
+    p = res.points[0]
     assert res.log[0]["stage"] == "primary" and res.log[0]["outcome"] != "tight"
-    assert not res.tight and "no remaining candidate cuts its SDP solution" in res.points[0].messages[0]
+    assert p.train_seeds[0] == 4 and not p.reached[0] and p.origins[1:] == ["replacement"] * (len(p.origins) - 1)
+    assert "no remaining candidate cuts its SDP solution" in p.messages[0]
     assert res.discovered.pairs == []
 
 

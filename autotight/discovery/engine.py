@@ -12,7 +12,14 @@ those sizes as well.
 2. **Learn** the candidates per factor type on each training instance (with ``carry_to``: once, at the
    first point, with their templates, which carry every candidate to instances of any size).
 3. **Tighten and reduce** on the training instances (``select``), every solve through
-   ``autotight.pipeline.solve_instance``: the function ``solve`` and ``check`` use.
+   ``autotight.pipeline.solve_instance``: the function ``solve`` and ``check`` use.  A training instance
+   that no candidate makes tight for a reason of its own (its bound stays below its optimum with every
+   candidate, or its verdict stays undecided) is set aside and replaced by a fresh one, up to
+   ``MAX_SET_ASIDE`` per point: an instance whose relaxation is not tight with every valid relation the
+   groups can learn is a fact about that instance, which held-out validation then counts as ``check`` does.
+   Reasons every instance shares (``Trainer.structural``: rank 1 out of reach under ``accept="rank"``, an
+   unbounded block no candidate bounds) end the discovery at once.  The set is reduced over the instances
+   it is tight on.
 4. **Validate**: ``n_heldout`` fresh held-out instances at every point (and validation point), solved with
    the set in parallel (``heldout``: ``jobs``/``scheduler``).  A point passes as in ``check``: tight /
    (instances − undecided) ≥ ``min_fraction``.  At a validation point of ``carry_to`` (large, costly
@@ -25,15 +32,18 @@ those sizes as well.
    them to fit the new instances would lose what the earlier batches showed; the added pairs are reduced
    over all training instances), and the points with a failing instance get a fresh batch (the set only
    grows and tightness is monotone in the set, so a batch without failures stays tight).
-   **Confirm**: a point is done once it holds ``CONFIRM_BATCHES``·``n_heldout`` tight held-out instances
-   since its last failing one (its batches without a failure, solved with the set or a smaller one: by
-   monotonicity they are tight with the set), so a point whose first fresh batch is clean gets a second one.
-   One clean batch of 10 lets a set that fails one instance in 5 through with probability 0.8¹⁰ = 0.11;
-   20 clean instances, with probability 0.012.  It stops when every point
-   is done, or when ``max_rounds`` rounds or ``max_solves`` SDP solver calls are spent.  The set is
-   validated when every point's latest batch passes at ``min_fraction`` (a passing batch's failing
-   instances are still taken in); otherwise the result records that validation failed.  Validated with a
-   point short of its confirmation (the budget spent, or its instances undecided), the message says so.
+   **Confirm**: a point is done once it holds ``CONFIRM_BATCHES``·``n_heldout`` decided held-out instances
+   since the last failing one the set was grown to fix, tight at ``min_fraction`` or more (``done``; solved
+   with the set or a smaller one: by monotonicity those tight then are tight with the set), so a point whose
+   first fresh batch is clean gets a second one.  One clean batch of 10 lets a set that fails one instance in
+   5 through with probability 0.8¹⁰ = 0.11; 20 clean instances, with probability 0.012.  A failing instance
+   that no candidate makes tight (taken in, not reached: the lifting cannot make it tight) leaves the set as
+   it was: it counts against the fraction and does not restart the count, so a problem with such instances
+   below 1 − ``min_fraction`` is confirmed instead of spending its budget.  It stops when every point is done
+   (validated), or when ``max_rounds`` rounds or ``max_solves`` SDP solver calls are spent: validated then
+   when every point's latest batch passes at ``min_fraction`` (a passing batch's failing instances are still
+   taken in), else the result records that validation failed.  Validated with a point short of its
+   confirmation (the budget spent), the message says so.
 6. The set (``DiscoveredSet``) is saved with the evidence of every round (``DiscoveryResult.record``).
 
 Seeds (``trainers``): training ``seed`` for the first instance at the first point, else
@@ -69,6 +79,8 @@ from .trainers import Solves, Trainer, candidates, heldout_seed, learned_source,
 
 #: held-out batches' worth of tight instances a point needs since its last failing one (module docstring)
 CONFIRM_BATCHES = 2
+#: training instances a point may set aside and replace by fresh ones (module docstring, step 3)
+MAX_SET_ASIDE = 3
 
 
 def default_groups(problem: Problem, groups: Any) -> Any:
@@ -167,7 +179,27 @@ def discover(problem: Problem | str, params: Mapping[str, Any] | None = None, se
 
         tr = unreached[0]
         raise UnboundedRelaxation(tr.message, unbounded_blocks(tr.model, tr.last.sdp) if tr.last else [])
-    pairs, dropped = (timed("reduce_s", reduce, run, trainers, greedy, say) if greedy and not unreached
+    drawn = [n_train] * len(points)  # training instances drawn per point, replacements included
+    while True:  # replace the training instances that no candidate makes tight, where another one can be
+        short = [i for i in range(len(points)) if drawn[i] < n_train + MAX_SET_ASIDE
+                 and any(not tr.reached and not tr.structural for tr in trainers if tr.point == i)
+                 and sum(tr.reached for tr in trainers if tr.point == i) < n_train]
+        if not short:
+            break
+        new = []
+        for i in short:
+            new.append(timed("learn_s", make_trainer, prob, points[i][0], i, training_seed(seed, i, drawn[i]),
+                             groups, learn_options, n_random, source, "replacement"))
+            drawn[i] += 1
+        trainers += new
+        say("learn", f"{len(new)} replacement training instance(s)")
+        cands = candidates(trainers, source is not None)
+        start = greedy if any(tr.reached for tr in trainers if tr not in new) else []
+        greedy = timed("tighten_s", tighten, run, new, cands, say, start, "tighten")
+    tight_on = [tr for tr in trainers if tr.reached]
+    unreached = [tr for tr in trainers if not tr.reached
+                 and not any(k.point == tr.point for k in tight_on)]  # at a point no training instance reached
+    pairs, dropped = (timed("reduce_s", reduce, run, tight_on, greedy, say) if greedy and not unreached
                       else (list(greedy), []))
     info = {"range": {"over": over_, "n_train": n_train, "carry_to": carry,
                       "training_seeds": "SeedSequence((seed, point, t, 1))",
@@ -198,12 +230,18 @@ def discover(problem: Problem | str, params: Mapping[str, Any] | None = None, se
     paper: list[Any] = [None] * len(check_points)
     kept: list[list[int]] = [[] for _ in check_points]  # the seeds of each point's latest batch
     need = CONFIRM_BATCHES * n_heldout
-    clean = [0] * len(check_points)  # per point: tight held-out instances since its last failing one
+    # per point, the decided held-out instances since the last failing one the set was grown to fix (``clean``),
+    # and how many of them no candidate makes tight (``loose``: taken in, not reached)
+    clean = [0] * len(check_points)
+    loose = [0] * len(check_points)
+
+    def done(i: int) -> bool:
+        """``need`` decided instances since the last failure the set was grown to fix, tight at min_fraction."""
+        return clean[i] >= need and clean[i] - loose[i] >= float(min_fraction) * clean[i] - 1e-12
+
     while n_heldout and not unreached:
-        # a point whose latest batch had no failing instance and that holds ``need`` tight instances since its
-        # last failing one is done: the set only grows from here on, and tightness is monotone in the set
-        todo = [i for i, pr in enumerate(last)
-                if pr is None or pr.count("not tight") or not pr.passed or clean[i] < need]
+        # a point is done once ``done``: the set only grows from here on, and tightness is monotone in the set
+        todo = [i for i in range(len(check_points)) if not done(i)]
         batch = [[heldout_seed(seed, i, next_t[i] + t) for t in range(n_heldout)] if i in todo else []
                  for i in range(len(check_points))]
         next_t = [n + len(b) for n, b in zip(next_t, batch)]
@@ -215,44 +253,48 @@ def discover(problem: Problem | str, params: Mapping[str, Any] | None = None, se
         for i in todo:
             last[i] = held["set"][i]
             kept[i] = batch[i]
-            clean[i] = 0 if last[i].count("not tight") else clean[i] + last[i].count("tight")
         failing = [(i, s) for i in todo for s, _, _ in last[i].with_outcome("not tight")]
         passed = all(pr.passed for pr in last)
         rounds.append(round_record(len(rounds), [last[i] for i in todo], len(pairs), passed,
                                    [len(batch[i]) for i in todo]))
-        rounds[-1]["tight_since_last_failure"] = list(clean)
         say("validate", f"round {len(rounds)}: {'passed' if passed else 'not passed'}, {len(failing)} not tight")
         spent = ""
         if len(rounds) >= max_rounds:
             spent = f"{max_rounds} held-out rounds spent (max_rounds)"
         elif max_solves is not None and run.n_solves >= max_solves:
             spent = f"{run.n_solves} SDP solver calls spent (max_solves {max_solves})"
-        if not failing:  # every point's latest batch without a failure (or only undecided ones left)
-            if not passed:
-                validated, stop = False, "held-out instances undecided by the solver's accuracy; none failed"
-                break
-            if all(c >= need for c in clean) or spent:
-                validated = True
-                break
-            continue  # confirm: a fresh batch at the points short of ``need``
-        if spent and not passed:
-            validated, stop = False, spent
-            break
-        new = [timed("learn_s", make_trainer, prob, check_points[i][0], i, s, groups, learn_options, n_random,
-                     source, "held-out") for i, s in failing]
-        trainers += new
-        cands = candidates(trainers, source is not None)
-        more = timed("tighten_s", tighten_each, run, new, cands, say, pairs, "validate")
-        reached = [tr for tr in trainers if tr.reached]
-        rounds[-1]["taken_in"] = len(new)
-        rounds[-1]["not_reached"] = len(trainers) - len(reached)
-        if len(more) > len(pairs):  # the pairs added for the new instances, reduced; the set's own pairs stay
-            pairs, d2 = timed("reduce_s", reduce, run, reached, more, say, keep=pairs)
-            dropped += d2
-            rounds[-1]["n_pairs_after"] = len(pairs)
-            ds = timed("templates_s", make_set, pairs)
-        if spent:  # the last batch passed; its failing instances were taken in (the set only grew)
+        grown: set[int] = set()  # points with a failing instance the set was grown to fix
+        if failing and not (spent and not passed):
+            new = [timed("learn_s", make_trainer, prob, check_points[i][0], i, s, groups, learn_options, n_random,
+                         source, "held-out") for i, s in failing]
+            trainers += new
+            cands = candidates(trainers, source is not None)
+            more = timed("tighten_s", tighten_each, run, new, cands, say, pairs, "validate")
+            reached = [tr for tr in trainers if tr.reached]
+            grown = {tr.point for tr in new if tr.reached}
+            rounds[-1]["taken_in"] = len(new)
+            rounds[-1]["not_reached"] = len(trainers) - len(reached)
+            if len(more) > len(pairs):  # the pairs added for the new instances, reduced; the set's own pairs stay
+                pairs, d2 = timed("reduce_s", reduce, run, reached, more, say, keep=pairs)
+                dropped += d2
+                rounds[-1]["n_pairs_after"] = len(pairs)
+                ds = timed("templates_s", make_set, pairs)
+        for i in todo:
+            if i in grown:
+                clean[i] = loose[i] = 0
+            else:
+                clean[i] += last[i].n_decided
+                loose[i] += last[i].count("not tight")
+        rounds[-1]["tight_since_last_failure"] = [c - k for c, k in zip(clean, loose)]
+        rounds[-1]["loose_since_last_failure"] = list(loose)
+        if all(done(i) for i in range(len(check_points))):
             validated = True
+            break
+        if not failing and not passed:  # only undecided instances keep a batch from passing
+            validated, stop = False, "held-out instances undecided by the solver's accuracy; none failed"
+            break
+        if spent:  # a passing last batch's failing instances were taken in (the set only grew)
+            validated, stop = passed, spent
             break
     if with_paper and validated is not None:
         held, n = timed("heldout_s", solve_batch, prob, {"paper": "paper"}, check_points, kept,
@@ -262,8 +304,12 @@ def discover(problem: Problem | str, params: Mapping[str, Any] | None = None, se
         run.count("paper", n["paper"])
     validation = {"passed": validated, "min_fraction": float(min_fraction), "n_heldout": n_heldout,
                   "max_rounds": max_rounds, "max_solves": max_solves, "confirm": need,
-                  "tight_since_last_failure": list(clean), "rounds": rounds,
-                  "message": _validation_message(validated, stop, rounds, n_heldout, unreached, clean, need)}
+                  "tight_since_last_failure": [c - k for c, k in zip(clean, loose)],
+                  "loose_since_last_failure": list(loose), "rounds": rounds,
+                  "message": _validation_message(validated, stop, rounds, n_heldout, unreached, clean, loose, need,
+                                                 [tr.seed for tr in trainers if not tr.reached
+                                                  and tr.origin != "held-out" and tr not in unreached],
+                                                 all(done(i) for i in range(len(check_points))))}
     ds.info["validation"] = validation
     precs = []
     for i, (full, varied) in enumerate(check_points):
@@ -287,21 +333,29 @@ def discover(problem: Problem | str, params: Mapping[str, Any] | None = None, se
 
 
 def _validation_message(validated: bool | None, stop: str, rounds: list[dict], n_heldout: int,
-                        unreached: list[Trainer], clean: list[int], need: int) -> str:
+                        unreached: list[Trainer], clean: list[int], loose: list[int], need: int,
+                        set_aside: list[int], confirmed: bool) -> str:
     if unreached:
-        return "not validated: the set is not tight on every training instance"
+        drawn = max(sum(1 for t in unreached if t.point == tr.point) for tr in unreached)
+        why = f" (no candidate makes any of the {drawn} drawn at a point tight)" if drawn > 1 else ""
+        return f"not validated: the set is not tight on every training instance{why}"
+    aside = (f"; training seed(s) {', '.join(map(str, set_aside))} set aside and replaced: no candidate makes them "
+             "tight" if set_aside else "")
     if not n_heldout:
-        return "not validated (no held-out instances)"
+        return f"not validated (no held-out instances){aside}"
     if validated:
-        taken = sum(r.get("taken_in", 0) for r in rounds)
+        rounds_taken = f"({len(rounds)} round(s), {sum(r.get('taken_in', 0) for r in rounds)} failing held-out " \
+                       "instance(s) taken in)"
+        if confirmed:
+            n_loose = sum(loose)
+            with_loose = f", {n_loose} of them not tight with any candidate" if n_loose else ""
+            return (f"validated: every point holds at least {need} decided held-out instances since the last failure "
+                    f"the set was grown to fix, tight at the required fraction{with_loose} {rounds_taken}{aside}")
         short = min(clean, default=need)
-        confirmed = (f"at least {need} tight held-out instances since the last failing one at every point"
-                     if short >= need else
-                     f"but a point holds only {short} tight held-out instances since its last failing one, short "
-                     f"of the {need} that confirm it (the budget was spent)")
-        return (f"validated: every point's latest fresh held-out batch passed, {confirmed} ({len(rounds)} "
-                f"round(s), {taken} failing held-out instance(s) taken in)")
+        return (f"validated: every point's latest fresh held-out batch passed, but a point holds only {short} decided "
+                f"held-out instances since the last failure the set was grown to fix, short of the {need} that "
+                f"confirm it (the budget was spent) {rounds_taken}{aside}")
     worst = min(((p["fraction"], p) for p in rounds[-1]["points"] if not p["passed"]),
                 key=lambda x: float("inf") if x[0] != x[0] else x[0], default=(None, None))[1]
     where = f" (worst {worst['varied'] or 'point'}: {worst['tight']} tight of {worst['instances']})" if worst else ""
-    return f"validation FAILED: {stop}{where}"
+    return f"validation FAILED: {stop}{where}{aside}"

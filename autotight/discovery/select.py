@@ -63,6 +63,7 @@ def _scores(tr: Trainer, remaining: list[Pair], min_violation: float, accept: st
     if v:
         return v
     vd = tr.last.verdict
+    structural = bool(unb)
     if unb:
         why = f"the relaxation is unbounded in {compress(unb)} and no learned candidate bounds it"
     else:
@@ -70,10 +71,13 @@ def _scores(tr: Trainer, remaining: list[Pair], min_violation: float, accept: st
                else "no remaining candidate cuts its SDP solution")
         if not vd.rank_tight:
             cons = tr.model.all_constraints() + [c for p in chosen for c in tr.pairs[p]]
-            why = "; ".join(w for w in (why, rank_out_of_reach(tr.model, cons)) if w)
+            out_of_reach = rank_out_of_reach(tr.model, cons)
+            structural = bool(out_of_reach) and accept == "rank"
+            why = "; ".join(w for w in (why, out_of_reach) if w)
         if vd.cost_tight and accept == "rank":
             why += f"; the relaxation is cost-tight (relative gap {vd.rel_gap:.1e}): use --accept cost"
-    tr.reached, tr.message = False, f"not tight with {len(chosen)} pairs, log SVR {vd.log_svr:.2f}: {why}"
+    tr.reached, tr.structural = False, structural
+    tr.message = f"not tight with {len(chosen)} pairs, log SVR {vd.log_svr:.2f}: {why}"
     return None
 
 

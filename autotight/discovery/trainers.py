@@ -58,9 +58,14 @@ class Trainer:
     local: LocalSearch
     pairs: dict[Pair, list[Constraint]]
     catalog: Catalog | None = None  # what was learned on it (None: carried by templates)
-    origin: str = "training"  # "training", or "held-out" for a failing held-out instance taken in
+    #: "training", "replacement" (drawn for a training instance no candidate makes tight) or "held-out" (a failing
+    #: held-out instance taken in)
+    origin: str = "training"
     reached: bool = True
     message: str = ""
+    #: not reached for a reason another instance of the problem shares (``select``: an unbounded block no candidate
+    #: bounds, or rank 1 out of reach under ``accept="rank"``): replacing it by a fresh instance cannot help
+    structural: bool = False
     tight_sets: list[frozenset] = field(default_factory=list)
     loose_sets: list[frozenset] = field(default_factory=list)
     last: SolveResult | None = None
