@@ -109,12 +109,12 @@ class DiscoveryResult:
 
     @property
     def example(self) -> Trainer:
-        """The first training instance."""
-        return self.trainers[0]
+        """The first training instance the set is tight on (the first one when none is)."""
+        return next((tr for tr in self.trainers if tr.reached), self.trainers[0])
 
     @property
     def instance(self) -> Instance:
-        """The first training instance (``model``, ``constraints`` and ``catalog`` are its own)."""
+        """The instance of ``example`` (``model``, ``constraints`` and ``catalog`` are its own)."""
         return self.example.inst
 
     @property
@@ -127,7 +127,7 @@ class DiscoveryResult:
 
     @property
     def constraints(self) -> list[Constraint]:
-        """The set's constraints on the first training instance."""
+        """The set's constraints on ``example``."""
         return [c for p in self.pairs for c in self.example.pairs.get(p, [])]
 
     @property
@@ -166,7 +166,7 @@ class DiscoveryResult:
         lines = [f"problem {self.problem}  params {self.params}" + (f"  over {self.over}" if self.over else "")
                  + (f"  carry to {self.carry_to}" if self.carry_to else "") + f"  seed {self.seed}",
                  f"{len(self.candidates)} candidate pairs; greedy {len(self.greedy)} → {len(self.pairs)} pairs "
-                 f"({len(self.constraints)} constraints on the first training instance; paper "
+                 f"({len(self.constraints)} constraints on the first training instance it is tight on; paper "
                  f"{len(self.model.paper_constraints())}), "
                  f"{'irreducible over the training instances' if self.tight else 'NOT TIGHT on training'}; "
                  f"{sum(len(p.train_seeds) for p in self.points)} training instances "
