@@ -163,3 +163,24 @@ def test_a_thin_set_is_certified_in_the_unscaled_frame_where_the_full_sdp_says_t
     As, b = stack(cons)
     prog = clique_program(model.Q, As, b, [np.asarray(c) for c in model_cliques(model, As)])
     assert project_multipliers(prog.congruence(D), Th / D[None, :]).margin < 0
+
+
+def test_from_the_fallback_size_on_a_failed_projection_is_the_answer(monkeypatch):
+    """From ``FALLBACK_MAX_N`` columns on, a Douglas–Rachford that does not certify is certify's answer: neither the
+    barrier nor the full SDP follows (at K = 500 the barrier's 100 Newton steps took 8 min without certifying).
+    The point certified here is the truth, not a minimiser at σ = 0.1, so no certificate exists."""
+    import autotight.certifier as certifier
+
+    p, inst, model, cons = _chain(60)
+    monkeypatch.setattr(certifier, "FALLBACK_MAX_N", model.variables.N)
+
+    def forbidden(*args, **kwargs):
+        raise AssertionError("the barrier ran")
+
+    monkeypatch.setattr(certifier, "phase_one", forbidden)
+    monkeypatch.setattr("autotight.sdp.solve", forbidden)
+    Th = np.asarray(p.lift(inst, inst.truth))
+    cert = certify_model(model, cons, Th)
+    assert model.variables.N >= certifier.PROJECTION_MIN_N
+    assert not cert.certified and cert.bound > 1e-3 * abs(cert.cost)
+    assert "Douglas–Rachford" in cert.method and "`autotight solve` decides" in cert.method
