@@ -99,8 +99,9 @@ class DiscoveryResult:
 
     @property
     def validated(self) -> bool | None:
-        """True: every point's latest fresh held-out batch passed; False: the budget ran out first; None: no
-        validation (no held-out instances, or the set is not tight on its training instances)."""
+        """True: every point confirmed (``engine``, step 5), or the budget ran out with every point's latest fresh
+        held-out batch passing; False: the budget ran out first; None: no validation (no held-out instances, or
+        the set is not tight on its training instances)."""
         return self.validation["passed"]
 
     @property
