@@ -310,6 +310,7 @@ def test_a_training_instance_no_candidate_makes_tight_is_set_aside_and_replaced(
     assert first.origin == "replacement"
     assert solve_instance(at.load_problem(BINARY), first.inst, res.constraint_set).outcome == "tight"
     assert f"training seed(s) {s0} set aside" in res.validation["message"]
+    assert f"set aside at params (training seed {s0}): not tight with 0 pairs" in res.table()
 
 
 def test_failing_instances_no_candidate_makes_tight_count_against_the_fraction_without_restarting_it():

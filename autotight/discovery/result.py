@@ -179,9 +179,11 @@ class DiscoveryResult:
             lines.append(f"{_label(p.varied):<24}{tr:>9}{_frac(p.heldout):>30}{_frac(p.paper):>30}")
         lines.append("")
         for p in self.points:
-            for s, ok, msg in zip(p.train_seeds, p.reached, p.messages):
+            for s, ok, msg, origin in zip(p.train_seeds, p.reached, p.messages, p.origins):
                 if not ok:
-                    lines.append(f"not reached at {_label(p.varied)} (training seed {s}): {msg}")
+                    how = ("taken in from held-out, not reached" if origin == "held-out" else
+                           "set aside" if any(p.reached) else "not reached")
+                    lines.append(f"{how} at {_label(p.varied)} (training seed {s}): {msg}")
         lines.append("pairs: " + (", ".join(f"{t}:{i}" for t, i in self.pairs)
                                   or ("none (the primary constraints suffice)" if self.tight else "none")))
         lines.append(v["message"])
