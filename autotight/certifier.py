@@ -52,9 +52,8 @@ a margin of −0.04), certify solves the full SDP, polishes its y as the pipelin
 (``dual_polish.polished``) and certifies it the same way: the verdict stays right, without the
 speed-up.  Above FALLBACK_MAX_N neither the barrier nor a full SDP runs after Douglas–Rachford: certify
 stays sparse and linear in the chain's length, and "not certified" then says only that no certificate was
-found (``autotight solve`` decides).  (The barrier's steps there cost as much as the full SDP's iterations:
-discrete K = 500 with a 5-pair set, 100 Newton steps in 8 min, where Douglas–Rachford had stopped after 60
-rounds and the full SDP, 40 s, is undecided.)
+found (``autotight solve`` decides): at that size the barrier's Newton steps cost as much as the full SDP's
+iterations.
 
 A negative final margin means no certificate exists for x̂ (it is not a global minimiser of a tight
 relaxation); the returned Certificate then carries the bound that the best y found still proves.
