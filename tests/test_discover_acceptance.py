@@ -14,7 +14,7 @@ from autotight.problem import available
 
 
 #: problems whose lifting has columns no relation bounds: rank 1 is out of reach, cost-tight is the claim
-ACCEPT_COST = {"stereo_1d", "stereo_2d", "stereo_3d", "robust_wahba"}
+ACCEPT_COST = {"stereo_1d", "stereo_2d", "stereo_3d", "robust_wahba", "robust_pose_averaging"}
 
 
 @pytest.mark.slow
