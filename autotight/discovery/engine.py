@@ -181,16 +181,12 @@ def discover(problem: Problem | str, params: Mapping[str, Any] | None = None, se
         raise UnboundedRelaxation(tr.message, unbounded_blocks(tr.model, tr.last.sdp) if tr.last else [])
     drawn = [n_train] * len(points)  # training instances drawn per point, replacements included
     while True:  # replace the training instances that no candidate makes tight, where another one can be
-        short = [i for i in range(len(points)) if drawn[i] < n_train + MAX_SET_ASIDE
-                 and any(not tr.reached and not tr.structural for tr in trainers if tr.point == i)
-                 and sum(tr.reached for tr in trainers if tr.point == i) < n_train]
-        if not short:
+        new = [timed("learn_s", make_trainer, prob, points[i][0], i, training_seed(seed, i, drawn[i]), groups,
+                     learn_options, n_random, source, "replacement") for i in _short(trainers, drawn, n_train)]
+        if not new:
             break
-        new = []
-        for i in short:
-            new.append(timed("learn_s", make_trainer, prob, points[i][0], i, training_seed(seed, i, drawn[i]),
-                             groups, learn_options, n_random, source, "replacement"))
-            drawn[i] += 1
+        for tr in new:
+            drawn[tr.point] += 1
         trainers += new
         say("learn", f"{len(new)} replacement training instance(s)")
         cands = candidates(trainers, source is not None)
@@ -330,6 +326,15 @@ def discover(problem: Problem | str, params: Mapping[str, Any] | None = None, se
     return DiscoveryResult(prob, fixed, over_, carry, seed, n_train, precs, cands, greedy, list(pairs),
                            not unreached, dropped, ds, validation, run.n_solves, dict(run.by_stage), tm, run.log,
                            trainers, span, like, criteria.accept)
+
+
+def _short(trainers: list[Trainer], drawn: list[int], n_train: int) -> list[int]:
+    """The points that get a replacement training instance: fewer than ``n_train`` of their instances reached,
+    one not reached for a reason of its own (not ``Trainer.structural``), and fewer than ``MAX_SET_ASIDE``
+    replacements drawn."""
+    return [i for i in range(len(drawn)) if drawn[i] < n_train + MAX_SET_ASIDE
+            and any(not tr.reached and not tr.structural for tr in trainers if tr.point == i)
+            and sum(tr.reached for tr in trainers if tr.point == i) < n_train]
 
 
 def _validation_message(validated: bool | None, stop: str, rounds: list[dict], n_heldout: int,
