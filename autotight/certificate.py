@@ -439,7 +439,7 @@ def certificate(Q: sp.sparray, constraints: Sequence[Constraint], y: np.ndarray,
                 if not np.isfinite(lam_lo):  # not estimated: the bound that H + (δ/d)·E_h ⪰ 0 gives
                     on = np.unique(sp.coo_array(E).row)  # E_h lives on the h block (d × d)
                     e_max = float(np.linalg.eigvalsh(sp.csr_array(E)[on][:, on].toarray())[-1]) if on.size else 0.0
-                    lam = lam_lo = -(sd.delta / d) * max(e_max, 0.0)
+                    lam = lam_lo = -(sd.delta / d) * max(e_max, 0.0) if sd.delta > 0 else 0.0
                     how = "not estimated: H + (δ/d)·E_h ⪰ 0 (strict dual) bounds it" + where
             else:
                 msg = f"strict dual: {sd.message}"

@@ -137,3 +137,23 @@ def test_a_stalled_solve_whose_multipliers_certify_is_not_solved_again(monkeypat
     monkeypatch.setattr(pipeline.sdp, "solve_model", stalled(np.zeros_like))
     out = solve_instance(prob, inst, "primary")
     assert calls == [True, False] and out.sdp.usable and out.tight
+
+
+def test_large_relaxations_are_certified_by_the_strict_dual_without_estimating_lambda_min(monkeypatch):
+    """From ``NEAR_SHIFT_MIN_N`` columns on (lowered here to 0), ``polished`` tries the strict dual first: on a
+    tight instance it certifies with no Lanczos estimate of λ_min (seconds per call at discrete K = 10 000),
+    and the bound it reports is the one the estimate gives, to the certificate's tolerance."""
+    import autotight.certificate as certificate_module
+    import autotight.dual_polish as dual_polish
+
+    p, inst, model, loc, cons, res = _setup({"M": 10, "sigma": 0.001}, "paper")
+    x = p.lift(inst, loc.state)
+    _, estimated = polished(model.Q, cons, res, x)
+    calls = []
+    real = certificate_module.lambda_min
+    monkeypatch.setattr(certificate_module, "lambda_min", lambda *a, **k: calls.append(1) or real(*a, **k))
+    monkeypatch.setattr(dual_polish, "NEAR_SHIFT_MIN_N", 0)
+    _, cert = polished(model.Q, cons, res, x)
+    assert estimated.certified and cert.certified
+    assert calls == [] and "not estimated" in cert.method
+    assert cert.lambda_lower <= 0.0 and abs(cert.bound - estimated.bound) <= 1e-6 * abs(loc.cost)
