@@ -104,8 +104,8 @@ class Param:
                 if value.lower() not in ("1", "0", "true", "false", "yes", "no"):
                     raise ValueError
                 v: Any = value.lower() in ("1", "true", "yes")
-            elif isinstance(value, str) and kind is tuple:
-                v = tuple(float(s) for s in value.split(",") if s.strip())
+            elif isinstance(value, str) and kind is tuple:  # "1,2,3"; as a record prints it, "[1, 2]" or "()"
+                v = tuple(float(s) for s in value.strip().strip("[]()").split(",") if s.strip())
             elif kind is int and isinstance(value, float) and not value.is_integer():
                 raise ValueError
             elif kind in (int, float) and isinstance(value, (bool, np.bool_)):

@@ -96,13 +96,14 @@ META = Meta(paper_claim={
 
 @dataclass(frozen=True)
 class PresetParam(Param):
-    """A parameter whose default comes from the chosen ``preset`` (default None = "from the preset").
-    ``kind`` is its type; bounds and choices are checked as for ``Param`` when a value is given."""
+    """A parameter whose default comes from the chosen ``preset`` (default None = "from the preset"; given as
+    text, "None" is that too, as a record prints it).  ``kind`` is its type; bounds and choices are checked as for
+    ``Param`` when a value is given."""
 
     kind: type = float
 
     def parse(self, name: str, value: Any) -> Any:
-        if value is None:
+        if value is None or (isinstance(value, str) and value.strip() == "None"):
             return None
         return Param(self.kind(), self.help, self.low, self.high, self.low_open, self.choices).parse(name, value)
 

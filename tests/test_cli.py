@@ -297,3 +297,18 @@ def test_solve_accept_rule_is_applied_and_recorded(capsys, accept):
     assert main(["solve", "rotation_averaging", "-p", "M=5", "--accept", accept, "--json"]) == 0
     rec = json.loads(capsys.readouterr().out)
     assert rec["accept"] == accept and rec["tight"] and rec["certified"]
+
+
+def test_the_parameters_a_record_prints_are_taken_back_by_param(capsys, tmp_path):
+    """Every parameter of a discovery record's point, written ``-p name=value`` as Python prints it (None for a
+    preset parameter left to the preset, [] or [1.0, 2.0] for a tuple), parses to the same value."""
+    from autotight.problem import load
+
+    prob = load("continuous_trajectory")
+    full = prob.parse_params({"K": 5, "measured": (0, 4)})
+    assert full["dt"] is None and full["qc_diag"] == ()
+    record = json.loads(json.dumps(full))  # as a saved record holds them: tuples become lists
+    text = {k: str(v) for k, v in record.items()}  # as f"-p{k}={v}" writes them
+    assert text["dt"] == "None" and text["qc_diag"] == "[]" and text["measured"] == "[0, 4]"
+    assert prob.parse_params(text) == full
+    _expect_error(capsys, ["solve", "continuous_trajectory", "--param", "qc_diag=[1, x]"], "qc_diag", "expected tuple")
