@@ -236,6 +236,37 @@ def test_failing_heldout_instances_become_training_instances_the_set_is_then_tig
         assert len(rounds) == 3 and "FAILED" in res.validation["message"]
 
 
+def test_a_heldout_instance_taken_in_keeps_the_constraints_its_check_solved():
+    """The trainer made of a failing held-out instance holds, for the set's own pairs, exactly the constraints the
+    held-out check instantiated (``DiscoveredSet.apply`` with the instance's constraint generator), not a re-learned
+    copy; its other candidates are learned on it."""
+    import numpy as np
+
+    from autotight.discovery.learn import LearnOptions
+    from autotight.discovery.trainers import make_trainer
+    from autotight.evaluate import instantiate
+    from autotight.pipeline import seeds
+
+    prob = at.load_problem("stereo_3d")  # its landmark-pair relations are re-learned per factor by ``apply``
+    cs = ConstraintSet.load(Path(__file__).parents[1] / "reports" / "peer_benchmark" / "sets" / "stereo_3d.json")
+    params = prob.parse_params(dict(cs.discovered.params))
+    seed = heldout_seed(0, 0, 3)
+    checked = instantiate(prob, prob.generate(params, seed), prob.build(prob.generate(params, seed)), cs,
+                          seeds(seed).constraints())
+    plain = make_trainer(prob, params, 0, seed, "factors", LearnOptions(), 1, origin="held-out")
+    taken = make_trainer(prob, params, 0, seed, "factors", LearnOptions(), 1, origin="held-out", given=cs.discovered)
+    own = {(p["factor_type"], p["identity"]) if isinstance(p, dict) else tuple(p) for p in cs.discovered.pairs}
+    got = [c for pair in taken.pairs if pair in own for c in taken.pairs[pair]]
+    assert len(got) == len(checked) > 0
+    key = {c.name: c for c in checked}
+    assert all((abs(c.A - key[c.name].A)).max() == 0 for c in got)  # the very constraints check solved
+    relearned = [c for pair in plain.pairs if pair in own for c in plain.pairs[pair]]
+    assert len(relearned) == len(got)
+    assert max(float(abs(c.A - key[c.name].A).max()) if c.name in key else 1.0 for c in relearned) > 0  # not a copy
+    assert set(plain.pairs) - own and set(plain.pairs) - own == set(taken.pairs) - own  # the rest: learned
+    assert np.isclose(plain.local.best.cost, taken.local.best.cost)
+
+
 def test_a_clean_first_batch_is_confirmed_by_a_second_fresh_one():
     """Pose averaging M = 3 (tight on every instance at σ = 0.1): the first fresh batch of 4 has no failing
     instance, yet the point holds 4 < 2·4 tight held-out instances, so a second fresh batch confirms it; with one

@@ -262,7 +262,7 @@ def discover(problem: Problem | str, params: Mapping[str, Any] | None = None, se
         grown: set[int] = set()  # points with a failing instance the set was grown to fix
         if failing and not (spent and not passed):
             new = [timed("learn_s", make_trainer, prob, check_points[i][0], i, s, groups, learn_options, n_random,
-                         source, "held-out") for i, s in failing]
+                         source, "held-out", ds) for i, s in failing]
             trainers += new
             cands = candidates(trainers, source is not None)
             more = timed("tighten_s", tighten_each, run, new, cands, say, pairs, "validate")

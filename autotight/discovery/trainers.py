@@ -22,6 +22,7 @@ from typing import Any
 
 import numpy as np
 
+from ..errors import AutotightError
 from ..model import Constraint, Model, frobenius
 from ..pipeline import LocalSearch, SolveResult, local_search, seeds, solve_instance
 from ..problem import Instance, Problem
@@ -172,9 +173,14 @@ def on_every_factor(model: Model, pair: Pair, constraints: Sequence[Constraint])
 
 
 def make_trainer(prob: Problem, params: dict[str, Any], point: int, seed: int, groups: Any, opts: LearnOptions,
-                 n_random: int, source: DiscoveredSet | None = None, origin: str = "training") -> Trainer:
+                 n_random: int, source: DiscoveredSet | None = None, origin: str = "training",
+                 given: DiscoveredSet | None = None) -> Trainer:
     """The instance (params, seed) with its candidate pairs: learned on it, or (``source``) every pair of a set
-    learned elsewhere, its templates evaluated on this instance."""
+    learned elsewhere, its templates evaluated on this instance.  ``given``: the set a held-out check failed on
+    this instance; its pairs get the constraints that check solved (``DiscoveredSet.apply`` with the instance's
+    constraint generator, as ``evaluate`` instantiates it), so the trainer starts from the verdict that failed,
+    not from a re-learned copy whose numerics can judge the same set differently (stereo 3-D: not tight with
+    the set's constraints, undecided with the re-learned ones)."""
     inst = prob.generate(params, seed)
     model = prob.build(inst)
     loc = local_search(prob, inst, seeds(seed).local(), n_random)
@@ -183,11 +189,22 @@ def make_trainer(prob: Problem, params: dict[str, Any], point: int, seed: int, g
         cat = learn(prob, inst, model, seeds(seed).constraints(), groups, opts)
         pairs = cat.by_pair()
     else:
-        pairs = {}
-        for c in source.apply(prob, inst, model, seeds(seed).constraints(), skip_invalid=True):
-            ftype, _, ident = (c.identity or "").partition(":")
-            pairs.setdefault((ftype, ident), []).append(c)
+        pairs = _by_pair(source.apply(prob, inst, model, seeds(seed).constraints(), skip_invalid=True))
+    if given is not None:
+        try:
+            pairs.update(_by_pair(given.apply(prob, inst, model, seeds(seed).constraints())))
+        except AutotightError:  # check could not instantiate it either: the learned candidates stand
+            pass
     return Trainer(point, seed, inst, model, loc, pairs, cat, origin)
+
+
+def _by_pair(constraints: Sequence[Constraint]) -> dict[Pair, list[Constraint]]:
+    """Constraints grouped by their (factor type, identity)."""
+    pairs: dict[Pair, list[Constraint]] = {}
+    for c in constraints:
+        ftype, _, ident = (c.identity or "").partition(":")
+        pairs.setdefault((ftype, ident), []).append(c)
+    return pairs
 
 
 def learned_source(prob: Problem, params: dict[str, Any], seed: int, groups: Any, opts: LearnOptions,
