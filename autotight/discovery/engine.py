@@ -27,7 +27,8 @@ those sizes as well.
    (``heldout.hopeless``; the rest of its seeds are not solved).  At the points the set is learned at every
    instance of the batch is solved, so that every failing one is taken in: a set tightened on fewer of them
    passed a fresh batch and then failed ``check`` (pose averaging M = 5 over σ ∈ {0.01, 0.1, 1}, seed 1).
-5. **Close the loop**: every held-out instance the set fails becomes a training instance; the set is
+5. **Close the loop**: every held-out instance the set fails becomes a training instance (the set's own pairs
+   with the very constraints its check solved, ``trainers.make_trainer``'s ``given``); the set is
    tightened from where it is on them, one at a time (``select.tighten_each``; its pairs stay: dropping
    them to fit the new instances would lose what the earlier batches showed; the added pairs are reduced
    over all training instances), and the points with a failing instance get a fresh batch (the set only
