@@ -179,8 +179,8 @@ def make_trainer(prob: Problem, params: dict[str, Any], point: int, seed: int, g
     learned elsewhere, its templates evaluated on this instance.  ``given``: the set a held-out check failed on
     this instance; its pairs get the constraints that check solved (``DiscoveredSet.apply`` with the instance's
     constraint generator, as ``evaluate`` instantiates it), so the trainer starts from the verdict that failed,
-    not from a re-learned copy whose numerics can judge the same set differently (stereo 3-D: not tight with
-    the set's constraints, undecided with the re-learned ones)."""
+    not from a re-learned copy whose numerics can judge the same set differently (where no exact template
+    carries the pair, a re-learned relation differs in its last digits, and a borderline verdict with it)."""
     inst = prob.generate(params, seed)
     model = prob.build(inst)
     loc = local_search(prob, inst, seeds(seed).local(), n_random)

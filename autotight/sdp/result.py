@@ -158,8 +158,8 @@ def completed_top(X: sp.sparray, completion: np.ndarray, d: int) -> tuple[np.nda
     """Top d eigenvalues and the rank-d factor of the completed X (X on the pattern, ΘᵀΘ off it)
     by Lanczos on the operator v ↦ Xv + Θᵀ(Θv) − (ΘᵀΘ on the pattern)v: no N×N array.  λ_{d+1} is not
     computed: the log SVR of a decomposed solve is its cliques' (``finish``), and at a rank-d X λ_{d+1}
-    lies in a cluster of near-zero eigenvalues that Lanczos resolves slowly (discrete K = 1000: 0.45 s
-    for the top 2, 0.04 s for the top 1).  None when Lanczos does not converge."""
+    lies in a cluster of near-zero eigenvalues that Lanczos resolves slowly (ten times the top d's time).
+    None when Lanczos does not converge."""
     from scipy.sparse.linalg import ArpackNoConvergence, LinearOperator, eigsh
 
     X = sp.csr_array(X)
