@@ -1,6 +1,6 @@
 """Every shipped problem: ``discover`` with its defaults, then ``check`` on 10 fresh instances at the points
 the discovery validated, passes at the discovery's fraction (0.9).  Slow: minutes per problem (robust Wahba:
-about 25).  The liftings where rank 1 is out of reach (free columns: README's problem table) are discovered
+about 11).  The liftings where rank 1 is out of reach (free columns: README's problem table) are discovered
 and checked with ``--accept cost``, as the discovery's own message says to."""
 
 from __future__ import annotations
