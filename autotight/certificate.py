@@ -362,14 +362,15 @@ def tolerance_scale(f_hat: float, q_max: float, trace_hat: float, floor: float) 
 def certificate(Q: sp.sparray, constraints: Sequence[Constraint], y: np.ndarray, theta_hat: np.ndarray, *,
                 d: int = 1, tol: float = 1e-6, floor: float = 1e-12, trace: float | None = None,
                 method: str = "given y", free: np.ndarray | None = None,
-                estimate_lambda: bool = True) -> Certificate:
+                estimate_lambda: bool | None = None) -> Certificate:
     """What y proves about x̂ (Θ̂ = ``theta_hat``, (N,) or (d, N)): the bound of the module docstring.
 
     certified when the bound is finite and ≤ tol·max(|f̂|, floor·‖Q‖_max·tr X̂) (``floor`` states the
     absolute tolerance of a zero-cost candidate relative to the cost's scale).  ``trace``: a known
     bound on tr(X) (default: ``trace_bound``).  ``free``: columns to set aside besides the recession
     columns (a face, ``autotight.face``); H must vanish on their rows too, to ``FREE_ATOL``·max|H|.
-    estimate_lambda: False tries the strict dual before estimating λ_min(H); when it proves
+    estimate_lambda: False tries the strict dual before estimating λ_min(H) (None, the default: False from
+    ``NEAR_SHIFT_MIN_N`` columns on, where the estimate is a Lanczos run of seconds); when it proves
     H + (δ/d)·E_h ⪰ 0, λ_min is not estimated (a Lanczos run: 7 s at discrete K = 10 000) and both
     ``lambda_min`` and ``lambda_lower`` are its bound −(δ/d)·λ_max(E_h) (Weyl).  The verdict is the
     same either way: the strict dual is what proves the bound there.
@@ -377,6 +378,8 @@ def certificate(Q: sp.sparray, constraints: Sequence[Constraint], y: np.ndarray,
     t0 = time.perf_counter()
     As, b = stack(constraints)
     Q = sp.csr_array(Q)
+    if estimate_lambda is None:
+        estimate_lambda = Q.shape[0] < NEAR_SHIFT_MIN_N
     Th = np.asarray(theta_hat, dtype=float).reshape(d, -1)
     y = np.asarray(y, dtype=float)
     r, c, v, owner = stacked = entries(As)

@@ -49,7 +49,7 @@ from typing import Sequence
 
 import numpy as np
 
-from .certificate import NEAR_SHIFT_MIN_N, Certificate, certificate, polish_dual, stack, tolerance_scale
+from .certificate import Certificate, certificate, polish_dual, stack, tolerance_scale
 from .model import Constraint
 from .sdp.result import SDPResult
 
@@ -110,10 +110,7 @@ def polished(Q, constraints: Sequence[Constraint], res: SDPResult, theta_hat: np
     if res.y is None or not np.all(np.isfinite(res.y)):
         return res, None
     Th = np.asarray(theta_hat, dtype=float).reshape(d, -1)
-    # from NEAR_SHIFT_MIN_N columns on, the strict dual first: where it proves H + δ·E_h ⪰ 0, λ_min is not
-    # estimated (a Lanczos run of seconds per certificate at discrete K = 10 000; smaller problems keep it)
-    estimate = Q.shape[0] < NEAR_SHIFT_MIN_N
-    cert = certificate(Q, constraints, res.y, Th, d=d, tol=tol, floor=floor, estimate_lambda=estimate)
+    cert = certificate(Q, constraints, res.y, Th, d=d, tol=tol, floor=floor)
     if not res.usable or res.X is None:
         return res, cert
     As, _ = stack(constraints)
@@ -123,7 +120,7 @@ def polished(Q, constraints: Sequence[Constraint], res: SDPResult, theta_hat: np
     if np.all(np.isfinite(y2)):
         # the trace bound depends on the data and x̂ only, not on y: computed once (8 s at discrete K = 1000)
         cert2 = certificate(Q, constraints, y2, Th, d=d, tol=tol, floor=floor, trace=cert.trace,
-                            method="given y, polished", estimate_lambda=estimate)
+                            method="given y, polished")
         trX = float(res.X.trace())  # res.usable: X is there
         contradicts = cert.dual_value > cert.cost  # bᵀy above f(x̂): y is infeasible by at least that much
         better = (lower_bound(cert2, trX) > lower_bound(cert, trX)

@@ -144,7 +144,6 @@ def test_large_relaxations_are_certified_by_the_strict_dual_without_estimating_l
     tight instance it certifies with no Lanczos estimate of λ_min (seconds per call at discrete K = 10 000),
     and the bound it reports is the one the estimate gives, to the certificate's tolerance."""
     import autotight.certificate as certificate_module
-    import autotight.dual_polish as dual_polish
 
     p, inst, model, loc, cons, res = _setup({"M": 10, "sigma": 0.001}, "paper")
     x = p.lift(inst, loc.state)
@@ -152,7 +151,7 @@ def test_large_relaxations_are_certified_by_the_strict_dual_without_estimating_l
     calls = []
     real = certificate_module.lambda_min
     monkeypatch.setattr(certificate_module, "lambda_min", lambda *a, **k: calls.append(1) or real(*a, **k))
-    monkeypatch.setattr(dual_polish, "NEAR_SHIFT_MIN_N", 0)
+    monkeypatch.setattr(certificate_module, "NEAR_SHIFT_MIN_N", 0)
     _, cert = polished(model.Q, cons, res, x)
     assert estimated.certified and cert.certified
     assert calls == [] and "not estimated" in cert.method

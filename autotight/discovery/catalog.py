@@ -19,6 +19,15 @@ from .samples import SampleBank, check_feasible, draw
 Pair = tuple[str, str]  # (factor type, identity within the type)
 
 
+def by_pair(constraints: Iterable[Constraint]) -> dict[Pair, list[Constraint]]:
+    """Learned constraints grouped by their pair: a learned constraint's identity is "type:identity"."""
+    out: dict[Pair, list[Constraint]] = {}
+    for c in constraints:
+        t, _, ident = str(c.identity).partition(":")
+        out.setdefault((t, ident), []).append(c)
+    return out
+
+
 @dataclass
 class Catalog:
     """Learned groups of one instance; candidates are new relations that passed the held-out check."""
@@ -33,11 +42,7 @@ class Catalog:
         return [g.constraint(j, N) for g in self.groups for j in g.candidate_index()]
 
     def by_pair(self) -> dict[Pair, list[Constraint]]:
-        out: dict[Pair, list[Constraint]] = {}
-        for c in self.candidates():
-            t, ident = str(c.identity).split(":", 1)  # a learned constraint is always named "type:identity"
-            out.setdefault((t, ident), []).append(c)
-        return out
+        return by_pair(self.candidates())
 
     def basic(self, group: str) -> list[Constraint]:
         """Every basic solution of a group (spanned or not) that passed the held-out check."""

@@ -30,7 +30,7 @@ import autotight.sdp as sdp
 from ..sdp.config import SolverConfig
 from ..tightness import Criteria
 from ..unbounded import UNBOUNDED_STATUSES, is_unbounded, unbounded_blocks
-from .catalog import Catalog, Pair, learn
+from .catalog import Catalog, Pair, by_pair, learn
 from .discovered import DiscoveredSet
 from .learn import LearnOptions
 
@@ -189,22 +189,13 @@ def make_trainer(prob: Problem, params: dict[str, Any], point: int, seed: int, g
         cat = learn(prob, inst, model, seeds(seed).constraints(), groups, opts)
         pairs = cat.by_pair()
     else:
-        pairs = _by_pair(source.apply(prob, inst, model, seeds(seed).constraints(), skip_invalid=True))
+        pairs = by_pair(source.apply(prob, inst, model, seeds(seed).constraints(), skip_invalid=True))
     if given is not None:
         try:
-            pairs.update(_by_pair(given.apply(prob, inst, model, seeds(seed).constraints())))
+            pairs.update(by_pair(given.apply(prob, inst, model, seeds(seed).constraints())))
         except AutotightError:  # check could not instantiate it either: the learned candidates stand
             pass
     return Trainer(point, seed, inst, model, loc, pairs, cat, origin)
-
-
-def _by_pair(constraints: Sequence[Constraint]) -> dict[Pair, list[Constraint]]:
-    """Constraints grouped by their (factor type, identity)."""
-    pairs: dict[Pair, list[Constraint]] = {}
-    for c in constraints:
-        ftype, _, ident = (c.identity or "").partition(":")
-        pairs.setdefault((ftype, ident), []).append(c)
-    return pairs
 
 
 def learned_source(prob: Problem, params: dict[str, Any], seed: int, groups: Any, opts: LearnOptions,
