@@ -411,19 +411,25 @@ def factor_columns(model: Model, tpl: TypeTemplate | TransportTemplate) -> tuple
 def violations(tpl: TypeTemplate | TransportTemplate, cols: np.ndarray, coeffs: np.ndarray,
                thetas: np.ndarray) -> np.ndarray:
     """Largest relative violation |Σ p θ_iᵀθ_j| / Σ |p| ‖θ_i‖‖θ_j‖ over the samples, per (factor, identity)
-    → (n_f, k).  thetas: (S, d, N)."""
+    → (n_f, k).  thetas: (S, d, N).  The products θ_iᵀθ_j are formed once per factor and monomial of the
+    support (a transport template's support repeats every monomial once per identity)."""
     m = tpl.n_monomials
     q, mono = tpl.support // m, tpl.support % m
     ii, jj = triu_indices(tpl.n_cols)
-    gi, gj = cols[:, ii[mono]], cols[:, jj[mono]]  # (n_f, s)
+    used, at = np.unique(mono, return_inverse=True)
+    gi, gj = cols[:, ii[used]], cols[:, jj[used]]  # (n_f, u): the monomials the support uses
     k = len(tpl.identities)
+    entries = [np.flatnonzero(q == a) for a in range(k)]  # the support entries of each identity
     out = np.zeros((cols.shape[0], k))
     norms = np.linalg.norm(thetas, axis=1)  # (S, N)
-    owner = (q[:, None] == np.arange(k)[None, :]).astype(float)  # (s, k): the identity of each support entry
     for T, nr in zip(thetas, norms):
-        val = (np.einsum("dfs,dfs->fs", T[:, gi], T[:, gj]) * coeffs) @ owner
-        den = (nr[gi] * nr[gj] * np.abs(coeffs)) @ owner
-        out = np.maximum(out, np.abs(val) / np.maximum(den, 1e-300))
+        prod = np.einsum("dfs,dfs->fs", T[:, gi], T[:, gj])
+        mag = nr[gi] * nr[gj]
+        for a, e in enumerate(entries):
+            c = coeffs[:, e]
+            val = np.einsum("fs,fs->f", c, prod[:, at[e]])
+            den = np.einsum("fs,fs->f", np.abs(c), mag[:, at[e]])
+            out[:, a] = np.maximum(out[:, a], np.abs(val) / np.maximum(den, 1e-300))
     return out
 
 
