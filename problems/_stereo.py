@@ -18,28 +18,51 @@ Primary constraints: CᵀC = I (factor "rotation"), per landmark the d rows of q
 "urT", h·w_j = u_j ⊗ t (d² rows).  The lifted variety at N = 3, d = 2 has 35 (level "no") and 191
 (level "urT") independent quadratic relations, as the peer prints.
 
-Factors: "rotation" (h, c); per landmark "stereo" (h, t, c, u_j[, w_j]) with data p_j; at level "urT", per
-cyclically consecutive pair "stereo_pair" (h, u_i, w_i, u_j, w_j) with data (p_i, p_j), no cost or
-constraint: a learning group for the relations between two landmarks without the pose (the peer's
-cost-tight set at "urT" needs its [h, z_0, z_1] group).  At level "no" two landmarks' u have no quadratic
-relation, and their monomial data no clean spectral gap: no pair groups there.  At level
-"no" the factor's relations move with p_j by the change of variables t ↦ t + (p_jᵀ ⊗ I) vec C = q_j
-(``transport``), an exact template for any landmark.  At "urT" that map would need u ⊗ vec C
+Written on the factor-graph layer (``autotight.graph``):
+
+- variables: t ∈ R^d (no model factor of its own) and C ∈ SO(d) (block c = vec C; its factor "rotation" (h, c)
+  holds CᵀC = I, named orth(i,j)) (``variables``);
+- factors: per landmark "landmark_j" of type "stereo" (level "no") or "stereo_urT" on (t, C), owning
+  u_j = [q_{<d}, 1]/q_d (block ``u{j}``) and, at "urT", w_j = vec_row(u_j tᵀ) (block ``w{j}``) (``lifted``):
+  residual (y_j − M ū_j)/f, its lifted cost, the substitution rows subst(j:k) and the product rows urT(j:a,b)
+  its primary constraints, data p_j; blocks (h, t, c, u_j[, w_j]);
+- groups: at "urT", per cyclically consecutive pair "pair_i_j" of type "stereo_pair" (h, u_i, w_i, u_j, w_j),
+  data (p_i, p_j), no cost or constraint: a learning group for the relations between two landmarks without the
+  pose (the peer's cost-tight set at "urT" needs its [h, z_0, z_1] group).  At level "no" two landmarks' u have
+  no quadratic relation, and their monomial data no clean spectral gap: no pair groups there;
+- sampler: C = exp(spread·ν^∧) C̄ then t = t̄ + spread·n (the rotation's step drawn first), drawn again until
+  every landmark is at depth ≥ ``MIN_DEPTH`` (u = q/q_d is singular at q_d = 0; ``in_front``), up to
+  ``SAMPLE_TRIES`` times.
+
+At level "no" a landmark factor's relations move with p_j by the change of variables t ↦ t + (p_jᵀ ⊗ I) vec C
+= q_j (``transport``), an exact template for any landmark.  At "urT" that map would need u ⊗ vec C
 (w' = u (t + C p)ᵀ), which the lifting does not hold; there the pose is rotated and scaled instead,
 (C, t) ↦ (C R, t/‖p‖) with R e_1 = p/‖p‖, which takes q to q/‖p‖ and maps u and w = u tᵀ linearly
 (``transport_urT``).  Pairs have no such map (one rotation and scale cannot take two landmarks to a
 fixed reference pair): they are learned per factor.
+
+Hand-written parts, which keep the committed reports' numbers to the last bit: each landmark's lifted cost and
+primary constraints are declared as matrices on its local columns [h, t, c, u(, w)] (``landmark_cost``,
+``landmark_constraints``), since the layer's affine read-off and equation fit evaluate at h = 1 and round where
+a measurement or a landmark coordinate meets a constant; u_j is computed from every landmark's camera point
+at once (the rows of P Cᵀ + t and C p_j + t differ in the last bit); the random start (a uniform rotation,
+t uniform in [−1, 1]^d) and the local solver (``local_solve``: Gauss-Newton with the analytic Jacobian in
+[ψ, δ], ``_pose_vector.pose_gauss_newton``) are the module's, since the layer's derived solver (central
+differences here, the cost being declared) reaches the same optima in the same iterations but not the same
+bits (costs to 2e-13, liftings up to 1e-9 apart), and the SDP is solved in the frame of the local optimum's
+lifting.
 """
 
 from __future__ import annotations
 
-from typing import Callable
+from typing import Callable, Iterator
 
 import numpy as np
+import scipy.sparse as sp
 
-from autotight.constraints import (Affine, Constraint, Factor, Model, QuadForm, Variables, const, quad, sum_quads,
-                                   var)
+from autotight.constraints import Affine, QuadForm, Variables, const, quad, sum_quads, var
 from autotight.errors import ParameterError
+from autotight.graph import Auxiliary, Euclidean, Factor, Group, Rotation, Variable, View, derive
 from autotight.problem import Instance, LocalResult, Param
 
 from . import _landmark_terms as lt
@@ -47,6 +70,10 @@ from . import _pose_vector as pv
 
 LEVELS = ("no", "urT")
 FOCAL, CU, CV, BASELINE = 484.5, 322.0, 247.0, 0.24  # the peer's camera
+#: the least depth of every landmark in a sample (u = q/q_d is singular at q_d = 0)
+MIN_DEPTH = 0.2
+#: draws of ``sample`` before it gives up
+SAMPLE_TRIES = 200
 
 
 def params(n_landmarks: int, level: str) -> dict[str, Param]:
@@ -71,15 +98,6 @@ def u_block(j: int) -> str:
 
 def w_block(j: int) -> str:
     return f"w{j}"
-
-
-def variables(d: int, N: int, level: str) -> Variables:
-    blocks = pv.pose_blocks(d)
-    for j in range(N):
-        blocks.append((u_block(j), d))
-        if level == "urT":
-            blocks.append((w_block(j), d * d))
-    return Variables(blocks)
 
 
 def _level(inst: Instance) -> str:
@@ -113,54 +131,91 @@ def substitution(q: np.ndarray) -> np.ndarray:
     return np.hstack([q[:, :-1], np.ones((len(q), 1))]) / q[:, -1:]
 
 
-def _primary(V: Variables, j: int, p: np.ndarray, level: str, factor: str) -> list[Constraint]:
+def variables(inst: Instance) -> list[Variable]:
+    """t ∈ R^d (block t) and C ∈ SO(d) (block c = vec C, its own factor "rotation" holding orth(i,j))."""
+    d = inst.measurements["points"].shape[1]
+    return [Variable("t", Euclidean(d)),
+            Variable("C", Rotation(d), type="rotation", block=pv.C_BLOCK, constraint_names="{constraint}")]
+
+
+def local_blocks(d: int, level: str) -> Variables:
+    """A landmark factor's local columns [h, t, c, u(, w)]."""
+    return Variables(pv.pose_blocks(d) + [("u", d)] + ([("w", d * d)] if level == "urT" else []))
+
+
+def landmark_cost(L: Variables, y: np.ndarray) -> sp.coo_array:
+    """‖(y − M ū)/f‖² = ‖((y − m) h − M_u u)/f‖² on the local columns L (m: M's column of the constant 1, M_u
+    its columns acting on u = [q_{<d}/q_d, 1/q_d])."""
+    d = L.sizes["u"]
+    M = camera(d)
+    e = Affine({"h": ((y - M[:, d - 1]) / FOCAL)[:, None], "u": -M[:, list(range(d - 1)) + [d]] / FOCAL})
+    return sum_quads(L, [(e, e, None)])
+
+
+def landmark_constraints(L: Variables, j: int, p: np.ndarray, level: str) -> list[tuple[str, sp.coo_array]]:
+    """On the local columns L: q_d u = [q_{<d}; h] (subst(j:k), q = C p + t) and, at "urT", h·w = u ⊗ t
+    (urT(j:a,b))."""
     d = len(p)
     q = pv.point_map(p)
-    u = var(u_block(j), size=d)
+    u = var("u", size=d)
     out = []
     for k in range(d):
         rhs = q.row(k) if k < d - 1 else const(1.0)
-        qf = quad(V, q.row(d - 1), u.row(k))
-        quad(V, const(1.0), -1.0 * rhs, into=qf)
-        out.append(Constraint(qf.matrix(), 0.0, name=f"subst({j}:{k})", factor=factor))
+        qf = quad(L, q.row(d - 1), u.row(k))
+        quad(L, const(1.0), -1.0 * rhs, into=qf)
+        out.append((f"subst({j}:{k})", qf.matrix()))
     if level == "urT":
         for a in range(d):
             for b in range(d):
                 E = np.zeros((1, d * d))
                 E[0, a * d + b] = 1.0
-                qf = QuadForm(V).add("h", w_block(j), E)
+                qf = QuadForm(L).add("h", "w", E)
                 Eut = np.zeros((d, d))
                 Eut[a, b] = -1.0
-                qf.add(u_block(j), pv.T_BLOCK, Eut)
-                out.append(Constraint(qf.matrix(), 0.0, name=f"urT({j}:{a},{b})", factor=factor))
+                qf.add("u", pv.T_BLOCK, Eut)
+                out.append((f"urT({j}:{a},{b})", qf.matrix()))
     return out
 
 
-def build(inst: Instance) -> Model:
+def lifted(inst: Instance, t: np.ndarray, C: np.ndarray, j: int, level: str) -> np.ndarray:
+    """[u_j(, w_j = vec_row(u_j tᵀ))] at the pose, u_j from every landmark's camera point at once."""
+    u = substitution(inst.measurements["points"] @ C.T + t)[j]
+    return u if level == "no" else np.concatenate([u, np.outer(u, t).ravel()])
+
+
+def factors(inst: Instance) -> Iterator[Factor | Group]:
+    """Per landmark its substitution blocks and the residual (y_j − M ū_j)/f; at "urT" the pairs' groups."""
     P, Y = inst.measurements["points"], inst.measurements["y"]
     N, d = P.shape
     level = _level(inst)
-    V = variables(d, N, level)
+    L = local_blocks(d, level)
     M = camera(d)
-    Mt = M[:, list(range(d - 1)) + [d]]  # columns acting on u = [q_{<d}/q_d, 1/q_d]
-    m = M[:, d - 1]  # the column of the constant 1
-    factors = [Factor("rotation", "rotation", ("h", pv.C_BLOCK), constraints=pv.orthonormality(V, d, "rotation"))]
-    blocks = ("h", pv.T_BLOCK, pv.C_BLOCK)
-    roles = ("h", "t", "c", "u") + (("w",) if level == "urT" else ())
+    blocks = {"u": d} | ({"w": d * d} if level == "urT" else {})
     for j in range(N):
-        name = f"landmark_{j}"
-        e = Affine({"h": ((Y[j] - m) / FOCAL)[:, None], u_block(j): -Mt / FOCAL})
-        own = (u_block(j),) + ((w_block(j),) if level == "urT" else ())
-        factors.append(Factor(name, "stereo" if level == "no" else "stereo_urT", blocks + own,
-                              cost=sum_quads(V, [(e, e, None)]), constraints=_primary(V, j, P[j], level, name),
-                              roles=roles, data=P[j]))
+        aux = Auxiliary(blocks, value=lambda t, C, j=j: lifted(inst, t.x, C.x, j, level), element="{block}{i}")
+
+        def residual(t: View, C: View, a: View, y: np.ndarray = Y[j]) -> np.ndarray:
+            return (y - M @ np.concatenate([a.u[:d - 1], [1.0], a.u[d - 1:]])) / FOCAL
+
+        yield Factor(("t", "C"), residual, type="stereo" if level == "no" else "stereo_urT",
+                     cost=landmark_cost(L, Y[j]), constraints=landmark_constraints(L, j, P[j], level),
+                     constraint_names="{constraint}", data=P[j], auxiliary=aux, name=f"landmark_{j}")
     for i, j in pairs(N) if level == "urT" else []:
-        own_i = (u_block(i),) + ((w_block(i),) if level == "urT" else ())
-        own_j = (u_block(j),) + ((w_block(j),) if level == "urT" else ())
-        factors.append(Factor(f"pair_{i}_{j}", "stereo_pair", ("h",) + own_i + own_j,
-                              roles=("h",) + tuple(f"{r}_i" for r in roles[3:]) + tuple(f"{r}_j" for r in roles[3:]),
-                              data=np.concatenate([P[i], P[j]])))
-    return Model(V, factors)
+        yield Group((u_block(i), w_block(i), u_block(j), w_block(j)), "stereo_pair", roles=("u_i", "w_i", "u_j", "w_j"),
+                    data=np.concatenate([P[i], P[j]]), name=f"pair_{i}_{j}")
+
+
+def camera_points(inst: Instance, state: dict) -> np.ndarray:
+    return inst.measurements["points"] @ np.asarray(state["C"], float).T + np.asarray(state["t"], float)
+
+
+def in_front(inst: Instance, state: dict) -> bool:
+    """Whether every landmark is at depth ≥ MIN_DEPTH in the camera."""
+    return bool(np.min(camera_points(inst, state)[:, -1]) >= MIN_DEPTH)
+
+
+build, lift, cost, sample, _, recover = derive(variables, factors, tangent=("C", "t"), keep=in_front,
+                                               tries=SAMPLE_TRIES)
 
 
 def pairs(N: int) -> list[tuple[int, int]]:
@@ -213,23 +268,6 @@ def transport_urT(data: np.ndarray) -> np.ndarray:
     return M
 
 
-def camera_points(inst: Instance, state: dict) -> np.ndarray:
-    return inst.measurements["points"] @ np.asarray(state["C"], float).T + np.asarray(state["t"], float)
-
-
-def lift(inst: Instance, state: dict) -> np.ndarray:
-    P = inst.measurements["points"]
-    N, d = P.shape
-    level = _level(inst)
-    t = np.asarray(state["t"], float)
-    vals = pv.pose_values(state["C"], t)
-    for j, u in enumerate(substitution(camera_points(inst, state))):
-        vals[u_block(j)] = u
-        if level == "urT":
-            vals[w_block(j)] = np.outer(u, t).ravel()
-    return variables(d, N, level).assemble(vals)
-
-
 def residual(inst: Instance, state: dict) -> tuple[np.ndarray, np.ndarray]:
     """e_j = (y_j − M ū_j)/f stacked, and its Jacobian in [ψ, δ]."""
     P, Y = inst.measurements["points"], inst.measurements["y"]
@@ -249,22 +287,6 @@ def residual(inst: Instance, state: dict) -> tuple[np.ndarray, np.ndarray]:
     return np.concatenate(es), np.vstack(Js)
 
 
-def cost(inst: Instance, state: dict) -> float:
-    e, _ = residual(inst, state)
-    return float(e @ e)
-
-
-def sample(inst: Instance, rng: np.random.Generator, nominal: dict, spread: float, min_depth: float = 0.2,
-           tries: int = 200) -> dict:
-    """A pose near ``nominal`` (``_pose_vector.sample_pose``), redrawn until every landmark is at depth
-    ≥ min_depth (u = q/q_d is singular at q_d = 0)."""
-    for _ in range(tries):
-        s = pv.sample_pose(rng, nominal, spread)
-        if np.min(camera_points(inst, s)[:, -1]) >= min_depth:
-            return s
-    raise ParameterError(f"no pose within spread {spread} keeps every landmark at depth ≥ {min_depth}")
-
-
 def random_state(inst: Instance, rng: np.random.Generator) -> dict:
     d = inst.measurements["points"].shape[1]
     return {"C": lt.random_rotation(rng, d), "t": rng.uniform(-1.0, 1.0, d)}
@@ -272,13 +294,6 @@ def random_state(inst: Instance, rng: np.random.Generator) -> dict:
 
 def local_solve(inst: Instance, init: dict, max_iter: int = 200) -> LocalResult:
     return pv.pose_gauss_newton(lambda s: residual(inst, s), init, max_iter)
-
-
-def recover(inst: Instance, Theta: np.ndarray) -> dict:
-    P = inst.measurements["points"]
-    N, d = P.shape
-    C, t, C_raw = pv.pose_from_vector(Theta, variables(d, N, _level(inst)), d)
-    return {"C": C, "t": t, "det_raw": np.array(np.linalg.det(C_raw))}
 
 
 def errors(inst: Instance, state: dict) -> dict:

@@ -16,8 +16,9 @@ import pytest
 
 from autotight import cli
 from autotight.checks import check_problem
-from autotight.errors import ProblemDefinitionError, ProblemModuleError, SolverError
-from autotight.graph import Auxiliary, Euclidean, Factor, Rotation, Variable, derive
+from autotight.constraints import QuadForm, Variables
+from autotight.errors import ParameterError, ProblemDefinitionError, ProblemModuleError, SolverError
+from autotight.graph import Auxiliary, Euclidean, Factor, Group, Rotation, Variable, derive
 from autotight.problem import Instance, Param, load, registered
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -358,6 +359,106 @@ def test_sample_redraws_where_an_auxiliary_is_undefined_and_says_when_it_always_
     with pytest.raises(SolverError, match=r"no sample where every auxiliary block is defined in 100 draws \(the last: "
                                           r"never defined\); reduce the spread"):
         never.sample(inst, rng, inst.truth, 0.1)
+
+
+# ----------------------------------------------------------------------------- hand-written parts, groups, sampler
+
+
+LINE_COLUMNS = Variables([("x", 1), ("z", 1)])  # a factor's local columns [h, x, z]
+
+
+def _line(params, rng):
+    a = np.array([0.0, 0.5, 1.0])
+    return Instance("line", dict(params), {"a": a, "y": 1.0 / (0.3 - a)}, {"x": np.array([0.3])})
+
+
+def _line_factors(names="subst({j})", group=("z0", "z1")):
+    """z_j = 1/(x − a_j), defined by the declared x·z − a_j h·z − h² = 0 (no equations to fit); a pair group."""
+    def factors(inst):
+        a, y = inst.measurements["a"], inst.measurements["y"]
+        for j in range(len(a)):
+            subst = QuadForm(LINE_COLUMNS).add("x", "z", 1.0).add("h", "z", -a[j]).add("h", "h", -1.0).matrix()
+            z = Auxiliary({"z": 1}, value=lambda x, a=a[j]: 1.0 / (x.x - a), element="{block}{i}")
+            yield Factor("x", lambda x, z, y=y[j]: y - z.z, type="inv", constraints=[(names.format(j=j), subst)],
+                         constraint_names="{constraint}", auxiliary=z, name=f"inv_{j}")
+        yield Group(group, "pair", roles=("z_i", "z_j"), data=a[:2], name="pair_0_1")
+    return factors
+
+
+def _apart(inst, state):
+    return bool(np.min(np.abs(state["x"][0] - inst.measurements["a"])) >= 0.05)
+
+
+def _line_module(factors=None, **kw):
+    mod = types.ModuleType("line")
+    mod.PARAMS, mod.generate = {}, _line
+    mod.build, mod.lift, mod.cost, mod.sample, mod.local_solve, mod.recover = derive(
+        [Variable("x", Euclidean(1))], factors or _line_factors(), keep=_apart, **kw)
+    return load(mod)
+
+
+def test_declared_defining_constraints_bare_names_element_names_and_a_group():
+    prob = _line_module()
+    inst = prob.generate({}, 0)
+    model = prob.build(inst)
+    assert model.variables.names == ["h", "x", "z0", "z1", "z2"]
+    assert [(f.name, f.type, f.blocks, f.roles) for f in model.factors] == [
+        (f"inv_{j}", "inv", ("h", "x", f"z{j}"), ("h", "x", "z")) for j in range(3)] + [
+        ("pair_0_1", "pair", ("h", "z0", "z1"), ("h", "z_i", "z_j"))]
+    pair = model.factors[-1]
+    assert pair.cost is None and not pair.constraints and np.array_equal(pair.data, [0.0, 0.5])
+    for j, f in enumerate(model.factors[:3]):  # the declared matrix as given, under its own name
+        [c] = f.constraints
+        assert c.name == f"subst({j})" and c.factor == f"inv_{j}"
+        cols = model.variables.index(["h", "x", f"z{j}"])
+        declared = QuadForm(LINE_COLUMNS).add("x", "z", 1.0).add("h", "z", -inst.measurements["a"][j])
+        assert np.array_equal(c.A.toarray()[np.ix_(cols, cols)], declared.add("h", "h", -1.0).matrix().toarray())
+    assert check_problem(prob, seed=1).ok
+
+
+@pytest.mark.parametrize("factors, message", [
+    (_line_factors(names="subst"), r"two primary constraints are named 'subst'"),
+    (_line_factors(group=("z0", "z9")), r"group 'pair_0_1': unknown blocks \['z9'\]"),
+], ids=["duplicate-constraint-names", "unknown-group-block"])
+def test_bare_names_must_be_distinct_and_groups_name_known_blocks(factors, message):
+    prob = _line_module(factors)
+    with pytest.raises(ProblemDefinitionError, match=message):
+        prob.build(prob.generate({}, 0))
+
+
+def test_sample_draws_in_the_tangent_order_and_keeps_only_what_keep_accepts():
+    variables = [Variable("t", Euclidean(2)), Variable("C", Rotation(2))]
+    parts = derive(variables, _registration_factors, tangent=("C", "t"))
+    inst = _registration({"dim": 2, "n_points": 3}, np.random.default_rng(0))
+    s = parts.sample(inst, np.random.default_rng(5), inst.truth, 0.5)
+    nu = 0.5 * np.random.default_rng(5).standard_normal(3)  # the rotation's step first, then the translation's
+    assert list(s) == ["t", "C"]
+    assert np.array_equal(s["C"], Rotation(2).retract(inst.truth["C"], nu[:1]))
+    assert np.array_equal(s["t"], inst.truth["t"] + nu[1:])
+    with pytest.raises(ProblemDefinitionError, match="the tangent order must name every variable once"):
+        derive(variables, _registration_factors, tangent=("C",)).sample(inst, np.random.default_rng(5), inst.truth, 1)
+
+    prob = _line_module()  # keep: x at distance ≥ 0.05 from every landmark, up to 100 draws
+    inst, rng = prob.generate({}, 0), np.random.default_rng(2)
+    assert all(_apart(inst, prob.sample(inst, rng, inst.truth, 0.5)) for _ in range(50))
+
+    def never(inst, state):
+        return False
+
+    parts = derive([Variable("x", Euclidean(1))], _line_factors(), keep=never, tries=7)
+    rng = np.random.default_rng(3)
+    with pytest.raises(ParameterError, match=r"^no sample within spread 0.5 that never keeps in 7 draws; reduce"):
+        parts.sample(inst, rng, inst.truth, 0.5)
+    after = np.random.default_rng(3)
+    after.standard_normal(7)
+    assert rng.bit_generator.state == after.bit_generator.state  # 7 draws, one value each
+
+
+def test_the_stereo_snippet_is_the_shipped_module():
+    from doc_snippets import missing_lines
+
+    lines, missing = missing_lines("keep=in_front", "_stereo")
+    assert lines and not missing
 
 
 # ----------------------------------------------------------------------------- entry points

@@ -2,13 +2,15 @@
 
 A module on this layer writes ``PARAMS``, ``generate``, ``VARIABLES`` (``Variable``: a manifold and its
 lifting blocks) and ``factors(instance)`` (``Factor``: residual, optional Jacobian, lifted cost and
-constraints, data; or ``Family``: many factors of one type at once, on stacks), then
+constraints, data; ``Family``: many factors of one type at once, on stacks; ``Group``: a learning group of
+blocks with no cost), then
 ``build, lift, cost, sample, local_solve, recover = derive(VARIABLES, factors)``.
 See ``docs/factor_graph.md`` and the worked example ``docs/range_only_2d.md``.
 """
 
-from .declare import Auxiliary, Factor, Family, Variable, View
+from .declare import Auxiliary, Factor, Family, Group, Variable, View
 from .derive import Parts, derive
 from .manifolds import Euclidean, Manifold, Rotation
 
-__all__ = ["Auxiliary", "Euclidean", "Factor", "Family", "Manifold", "Parts", "Rotation", "Variable", "View", "derive"]
+__all__ = ["Auxiliary", "Euclidean", "Factor", "Family", "Group", "Manifold", "Parts", "Rotation", "Variable", "View",
+           "derive"]

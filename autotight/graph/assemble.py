@@ -12,15 +12,18 @@ The model's factors (``autotight.model.Factor``), which discovery learns on, are
 - one per declared factor with constraints or auxiliary blocks of its own (named ``Factor.name``, default
   ``type_i``, with its ``data``), and one per factor of a ``Family`` with auxiliary blocks or paper rows
   (``family.FamilyTerm``; the family's other factors' costs go where a ``Factor``'s would);
+- one per ``Group`` (blocks h and its blocks, no cost, no constraints), in declaration order among the
+  factors of their own;
 - no factor for a variable with neither primary constraints nor a cost of its own.
 
-The families' paper rows make ``Model.paper``, their clique hints ``Model.cliques``.
+The families' paper rows make ``Model.paper``, their clique hints ``Model.cliques``.  Primary constraints are
+named by the variables' and factors' ``constraint_names`` formats; the names must be distinct in the model.
 
 Roles of a variable's blocks inside a factor: its main block's names without the index and its lifting
 blocks' names, suffixed ``_k`` (k its position in the factor) when a variable of the same name appears twice;
 then the factor's auxiliary blocks' names.  The auxiliary blocks of the factors, after every variable's
 blocks in factor order (a family's factors in their order): block ``b`` of the j-th factor declaring a block
-``b`` is named ``b_j``.
+``b`` is named ``Auxiliary.element`` of b and j (default ``b_j``).
 """
 
 from __future__ import annotations
@@ -33,8 +36,7 @@ import scipy.sparse as sp
 from ..errors import ProblemDefinitionError
 from ..model import Constraint, Factor, Model, canonical_coo
 from .declare import Factor as Declared
-from .declare import Family
-from .declare import Variable
+from .declare import Family, Group, Variable
 from .family import FamilyTerm, scatter
 from .layout import Element, Layout
 from .terms import Term
@@ -55,18 +57,20 @@ def _roles(elements: Sequence[Element]) -> tuple[str, ...]:
     return tuple(out)
 
 
-def _auxiliary_blocks(items: Sequence[Declared | Family]) -> list[list[list[str]]]:
-    """Per declared item, per factor in it (one for a ``Factor``, F for a ``Family``), its auxiliary blocks' names
-    in the lifted vector (``b_j``: the j-th factor declaring ``b``)."""
+def _auxiliary_blocks(items: Sequence[Declared | Family | Group]) -> list[list[list[str]]]:
+    """Per declared item, per factor in it (one for a ``Factor`` or ``Group``, F for a ``Family``), its auxiliary
+    blocks' names in the lifted vector (``Auxiliary.element`` of ``b`` and j: the j-th factor declaring ``b``)."""
     seen: dict[str, int] = {}
     out: list[list[list[str]]] = []
     for f in items:
         members = []
+        aux = None if isinstance(f, Group) else f.auxiliary
+        blocks, element = (list(aux.blocks), aux.element) if aux is not None else ([], "")
+        given = f.aux_names if isinstance(f, Family) else None
         for j in range(f.size if isinstance(f, Family) else 1):
             names = []
-            for b in f.auxiliary.blocks if f.auxiliary is not None else ():
-                given = f.aux_names if isinstance(f, Family) else None
-                names.append(f"{b}_{seen.get(b, 0) if given is None else given[j]}")
+            for b in blocks:
+                names.append(element.format(block=b, i=seen.get(b, 0) if given is None else given[j]))
                 seen[b] = seen.get(b, 0) + 1
             members.append(names)
         out.append(members)
@@ -101,25 +105,32 @@ class Graph:
     """The declared variables and factors on one instance (see the module docstring)."""
 
     def __init__(self, variables: Sequence[Variable], truth: Mapping[str, Any],
-                 factors: Iterable[Declared | Family], by_element: bool = False):
+                 factors: Iterable[Declared | Family | Group], by_element: bool = False,
+                 tangent: Sequence[str] | None = None):
         declared = list(factors)
         for f in declared:
-            if not isinstance(f, (Declared, Family)):
-                raise ProblemDefinitionError("factors must yield autotight.graph.Factor or Family, got "
+            if not isinstance(f, (Declared, Family, Group)):
+                raise ProblemDefinitionError("factors must yield autotight.graph.Factor, Family or Group, got "
                                              f"{type(f).__name__}")
         aux = _auxiliary_blocks(declared)
-        blocks = [(b, k) for f, members in zip(declared, aux) if f.auxiliary is not None
+        blocks = [(b, k) for f, members in zip(declared, aux) if not isinstance(f, Group) and f.auxiliary is not None
                   for bs in members for b, k in zip(bs, f.auxiliary.blocks.values())]
-        self.layout = layout = Layout(variables, truth, blocks, by_element)
+        self.layout = layout = Layout(variables, truth, blocks, by_element, tangent)
         self.terms: list[Term] = []
         self.families: list[FamilyTerm] = []
-        #: the declared items in order, resolved
-        self.items: list[Term | FamilyTerm] = []
+        #: the declared items in order, resolved (a ``Group`` with its model factor's name)
+        self.items: list[Term | FamilyTerm | tuple[str, Group]] = []
         for i, (f, members) in enumerate(zip(declared, aux)):
             if isinstance(f, Family):
                 names = f.names or [f"{f.type}_{j}" for j in range(f.size)]
                 self.families.append(FamilyTerm(f, layout, names, members))
                 self.items.append(self.families[-1])
+            elif isinstance(f, Group):
+                unknown = [b for b in f.blocks if b not in layout.V]
+                if unknown:
+                    raise ProblemDefinitionError(f"group {f.name or f.type!r}: unknown blocks {unknown}; blocks are "
+                                                 f"{layout.V.names}")
+                self.items.append((f.name or f"{f.type}_{i}", f))
             else:
                 self.terms.append(Term(f, layout, f.name or f"{f.type or 'factor'}_{i}", members[0]))
                 self.items.append(self.terms[-1])
@@ -128,9 +139,10 @@ class Graph:
         self.has_auxiliary = bool(self.aux_terms) or any(t.aux is not None for t in self.families)
         names = [t.name for t in self.terms if t.factor.constraints or t.aux is not None]
         names += [n for t in self.families if _own(t) for n in t.names]
+        names += [item[0] for item in self.items if isinstance(item, tuple)]
         if len(set(names)) != len(names):
-            raise ProblemDefinitionError(f"factors with constraints or auxiliary blocks need distinct names, "
-                                         f"got {sorted(n for n in set(names) if names.count(n) > 1)}")
+            raise ProblemDefinitionError(f"factors with constraints or auxiliary blocks, and groups, need distinct "
+                                         f"names, got {sorted(n for n in set(names) if names.count(n) > 1)}")
         self._stack: tuple[sp.csr_array, sp.csr_array, list[tuple[int, Term]]] | None = None
 
     def model(self) -> Model:
@@ -139,8 +151,11 @@ class Graph:
         home = {el.main: key for key, els in owners.items() for el in els}
         costs: dict[tuple[str, int | None], list[Term | _Member]] = {key: [] for key in owners}
         grouped: dict[tuple[str, tuple[str, ...]], list[Term | _Member]] = {}
-        own: list[Term | FamilyTerm] = []
+        own: list[Term | FamilyTerm | tuple[str, Group]] = []
         for item in self.items:
+            if isinstance(item, tuple):
+                own.append(item)
+                continue
             if isinstance(item, FamilyTerm):
                 if _own(item):
                     own.append(item)
@@ -166,7 +181,8 @@ class Graph:
             for el in els:
                 split = len(el.var.main_blocks()) > 1  # named by the variable, not its first block
                 label = el.var.name + ("" if index is None else str(index)) if split else el.main
-                cons += [Constraint(A, 0.0, name=f"{name}:{label}:{nm}", factor=name)
+                fmt = el.var.constraint_names
+                cons += [Constraint(A, 0.0, name=fmt.format(factor=name, variable=label, constraint=nm), factor=name)
                          for nm, A in zip(names[id(el.var)], mats[L.position[el.main]])]
             cost = self._cost(costs[(typ, index)], N)
             if cons or cost is not None:  # a variable with neither (e.g. a free translation) has no factor
@@ -184,9 +200,15 @@ class Graph:
             if isinstance(item, FamilyTerm):
                 owned += list(zip(item.elements, self._family_factors(item, N, paper, cliques)))
                 continue
+            if isinstance(item, tuple):  # a group: blocks and roles, no cost, no constraints
+                gname, g = item
+                owned.append(([], Factor(gname, g.type, ("h",) + tuple(g.blocks), roles=("h",) + tuple(g.roles or ()),
+                                         data=g.data)))
+                continue
             t = item
-            cons = [Constraint(_global(M, t.columns, N), 0.0, name=f"{t.name}:{nm}", factor=t.name)
-                    for nm, M in t.local_constraints()]
+            fmt = t.factor.constraint_names
+            cons = [Constraint(_global(M, t.columns, N), 0.0, name=fmt.format(factor=t.name, constraint=nm),
+                               factor=t.name) for nm, M in t.local_constraints()]
             roles = _roles(t.elements) + (tuple(t.aux.blocks) if t.aux is not None else ())
             if len(set(roles)) != len(roles):
                 raise ProblemDefinitionError(f"factor {t.name!r}: its blocks' roles {roles} are not distinct")
@@ -194,6 +216,12 @@ class Graph:
             owned.append((t.elements, Factor(t.name, t.type, blocks, cost=self._cost([t], N), constraints=cons,
                                              roles=roles, data=t.factor.data)))
         factors = self._ordered(var_factors, factors, owned, home)
+        seen: set[str] = set()
+        for c in (c for f in factors for c in f.constraints):
+            if c.name in seen:
+                raise ProblemDefinitionError(f"two primary constraints are named {c.name!r}; give the variables' or "
+                                             "factors' constraint_names a {factor} or distinct constraint names")
+            seen.add(c.name)
         self._stacked()  # the local solver's residual map, made with the model (the solver follows the build)
         return Model(L.V, factors, paper=paper, cliques=cliques or None)
 

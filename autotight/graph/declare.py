@@ -9,6 +9,7 @@ and one block per ``lifting`` entry, ``fn(x) -> (E,)``, which must be a polynomi
 embedding's entries (e.g. vech(p pᵀ)); its primary constraints fn(x) − h·z = 0 are derived from it
 (``LiftingFit``).  ``type`` names the factor type of the variable's own model factor (default: ``name``):
 variables of one type share it, element by element (e.g. a pose's rotation and translation; ``assemble``).
+``constraint_names`` formats the model names of its constraints (default "{factor}:{variable}:{constraint}").
 
 ``Factor(variables, residual, …)``: a term eᵀWe of the cost, on one or more variables named by their
 main block or by name and index (``"p0"``, or ``"C"`` for a single variable).  ``residual(*views) ->
@@ -19,7 +20,9 @@ the factor's local columns [h, the variables' blocks in order]).  ``jacobian(*vi
 optional (the chain rule through the lifting when the residual is affine, central finite differences on
 the retraction otherwise).  ``constraints``: extra primary constraints [(name, (n, n) matrix)] on the same
 local columns (value 0); ``data``: the factor's measurement vector (``autotight.model.Factor.data``);
-``type``: its factor type; ``name``: its model factor's name.
+``type``: its factor type; ``name``: its model factor's name; ``constraint_names``: the format of its
+constraints' model names (default "{factor}:{constraint}").  ``cost`` and the constraints' matrices may be
+dense or scipy sparse.
 
 ``Factor(…, auxiliary=Auxiliary(blocks, value, equations, jacobian=None))``: lifted blocks the factor owns,
 which are not a polynomial lifting of one variable but functions of the factor's variables and data (e.g.
@@ -30,7 +33,12 @@ undefined: ``sample`` draws again).  ``equations(*views, aux) -> (k,)``: their d
 polynomial of degree ≤ 2 in the local entries (``aux.<block>`` the blocks' entries), zero at the value;
 fitted into k primary constraints of the factor (``terms``).  ``jacobian(*views, aux) -> (Σ sizes, Σ dof)``:
 ∂value/∂ε for the local solver (default central differences).  The residual then gets ``aux`` after the
-views, e.g. ``lambda C, aux: aux.phi``, so a cost on the blocks is an affine residual.
+views, e.g. ``lambda C, aux: aux.phi``, so a cost on the blocks is an affine residual.  ``equations`` may be
+None when the factor's declared ``constraints`` define the blocks (matrices used as given); ``element`` names
+the blocks in the lifted vector (default "{block}_{i}").
+
+``Group(blocks, type, roles, data, name)``: a model factor with no cost and no constraints on blocks of the
+lifted vector (by name, h prepended), a learning group for discovery.
 
 ``Family(variables, residual, data, type, …)``: F factors of one type at once, their data stacked (F, *shape)
 and every function called on stacks with the data last (``family``); their auxiliary's equations and their
@@ -163,6 +171,10 @@ class Variable:
     element: str = "{block}{i}"
     #: the name stem of its own model factor (default: its type), suffixed ``_i`` for element i of a stack
     factor: str | None = None
+    #: the names of its manifold's and lifting's constraints in the model, a format of {factor} (its model factor's
+    #: name), {variable} (its main block's name, or its name and index when ``block`` splits it) and {constraint}
+    #: (e.g. "orth(0,1)"); "{constraint}" keeps the bare names (then they must be distinct in the model)
+    constraint_names: str = "{factor}:{variable}:{constraint}"
 
     def __post_init__(self) -> None:
         try:
@@ -172,6 +184,7 @@ class Variable:
         if "{block}" not in self.element or "{i}" not in self.element or not probe.isidentifier():
             raise ProblemDefinitionError(f"variable {self.name!r}: element must be a format of {{block}} and {{i}} "
                                          f"giving identifiers, got {self.element!r}")
+        check_format(self.constraint_names, ("factor", "variable", "constraint"), f"variable {self.name!r}")
         if self.factor is not None and (not isinstance(self.factor, str) or not self.factor):
             raise ProblemDefinitionError(f"variable {self.name!r}: factor must be a non-empty string")
         parts = self.block if isinstance(self.block, tuple) else ("x" if self.block is None else self.block,)
@@ -237,17 +250,36 @@ def _pad(M: np.ndarray, n: int) -> np.ndarray:
     return out
 
 
+def check_format(fmt: object, fields: tuple[str, ...], where: str) -> None:
+    """Refuse a constraint name format that is not a string holding {constraint} and no field but ``fields``."""
+    probe = {f: "x" for f in fields}
+    try:
+        ok = isinstance(fmt, str) and "{constraint}" in fmt and bool(fmt.format(**probe))
+    except (AttributeError, KeyError, IndexError, ValueError):
+        ok = False
+    if not ok:
+        raise ProblemDefinitionError(f"{where}: constraint_names must be a format holding {{constraint}} and no field "
+                                     f"but {', '.join('{' + f + '}' for f in fields)}, got {fmt!r}")
+
+
 @dataclass
 class Auxiliary:
     """Lifted blocks owned by one factor, functions of its variables' values and its data (see the module
     docstring): ``blocks`` {name: size} in order, ``value(*views) -> (Σ sizes,)`` at states (ValueError where
     undefined), ``equations(*views, aux) -> (k,)`` their defining relations, each a polynomial of degree ≤ 2 in
-    the factor's local entries and zero at the value, ``jacobian(*views, aux) -> (Σ sizes, Σ dof)`` optional."""
+    the factor's local entries and zero at the value, ``jacobian(*views, aux) -> (Σ sizes, Σ dof)`` optional.
+
+    ``equations`` may be None on a ``Factor`` whose declared ``constraints`` (matrices on its local columns, used
+    as given) are the defining relations, e.g. to keep a hand-written model's matrices to the last bit (a fit
+    from evaluations at h = 1 rounds where a constant meets a data-dependent coefficient).  ``element``: the
+    blocks' names in the lifted vector, a format of {block} and {i} (i: the factor's rank among those declaring
+    the block, or its ``Family.aux_names`` suffix), e.g. "{block}{i}" for u0, u1, …"""
 
     blocks: Mapping[str, int]
     value: Callable[..., Any]
-    equations: Callable[..., Any]
+    equations: Callable[..., Any] | None = None
     jacobian: Callable[..., Any] | None = None
+    element: str = "{block}_{i}"
 
     def __post_init__(self) -> None:
         self.blocks = dict(self.blocks)
@@ -257,8 +289,15 @@ class Auxiliary:
             raise ProblemDefinitionError("auxiliary blocks must map identifiers other than 'x' and 'h' to positive "
                                          f"sizes, got {self.blocks}")
         for what, fn in (("value", self.value), ("equations", self.equations)):
-            if not callable(fn):
+            if not callable(fn) and not (what == "equations" and fn is None):
                 raise ProblemDefinitionError(f"auxiliary blocks {list(self.blocks)}: {what} must be a function")
+        try:
+            probe = self.element.format(block="b", i=7)
+        except (AttributeError, KeyError, IndexError, ValueError):
+            probe = ""
+        if "{block}" not in self.element or "{i}" not in self.element or not probe.isidentifier():
+            raise ProblemDefinitionError(f"auxiliary blocks {list(self.blocks)}: element must be a format of {{block}} "
+                                         f"and {{i}} giving identifiers, got {self.element!r}")
 
     @property
     def size(self) -> int:
@@ -289,6 +328,10 @@ class Factor:
     auxiliary: Auxiliary | None = None
     #: its model factor's name (default ``type_i``, i its position among the declared factors)
     name: str | None = None
+    #: the names of its constraints (declared, and its auxiliary's fitted ``aux[i]``) in the model, a format of
+    #: {factor} (its model factor's name) and {constraint}; "{constraint}" keeps the declared names (then they must
+    #: be distinct in the model)
+    constraint_names: str = "{factor}:{constraint}"
 
     def __post_init__(self) -> None:
         self.variables = (self.variables,) if isinstance(self.variables, str) else tuple(self.variables)
@@ -298,8 +341,12 @@ class Factor:
             raise ProblemDefinitionError(f"factor on {self.variables}: residual must be a function")
         if self.auxiliary is not None and not isinstance(self.auxiliary, Auxiliary):
             raise ProblemDefinitionError(f"factor on {self.variables}: auxiliary must be an autotight.graph.Auxiliary")
+        if self.auxiliary is not None and self.auxiliary.equations is None and not self.constraints:
+            raise ProblemDefinitionError(f"factor on {self.variables}: its auxiliary blocks need equations or the "
+                                         "factor's declared constraints to define them")
         if self.name is not None and (not isinstance(self.name, str) or not self.name):
             raise ProblemDefinitionError(f"factor on {self.variables}: name must be a non-empty string")
+        check_format(self.constraint_names, ("factor", "constraint"), f"factor on {self.variables}")
 
 
 @dataclass
@@ -333,8 +380,8 @@ class Family:
     names: Sequence[str] | None = None
     clique: bool = False
     degree: int = 2
-    #: the suffixes of each factor's auxiliary block names, ``b_{suffix}`` (default: the factor's rank among the
-    #: factors declaring ``b``)
+    #: the suffixes of each factor's auxiliary block names, ``b_{suffix}`` (``Auxiliary.element`` with i the suffix;
+    #: default: the factor's rank among the factors declaring ``b``)
     aux_names: Sequence[str] | None = None
     #: the roles of its factors' blocks (h, the variables' blocks, the auxiliary blocks); default derived
     #: (``assemble``: a variable appearing twice gets its roles suffixed ``_k``)
@@ -366,6 +413,9 @@ class Family:
             raise ProblemDefinitionError(f"{where}: residual must be a function")
         if self.auxiliary is not None and not isinstance(self.auxiliary, Auxiliary):
             raise ProblemDefinitionError(f"{where}: auxiliary must be an autotight.graph.Auxiliary")
+        if self.auxiliary is not None and self.auxiliary.equations is None:
+            raise ProblemDefinitionError(f"{where}: a family's auxiliary blocks need equations (a family declares no "
+                                         "constraints of its own)")
         self.paper = dict(self.paper)
         if any(not isinstance(k, str) or not k or not callable(fn) for k, fn in self.paper.items()):
             raise ProblemDefinitionError(f"{where}: paper must map family names to functions")
@@ -390,3 +440,40 @@ class Family:
     def size(self) -> int:
         """F, the number of factors."""
         return len(self.data)
+
+
+@dataclass
+class Group:
+    """A model factor with neither a cost nor constraints: a learning group for discovery, on blocks of the lifted
+    vector (variables' or factors' auxiliary blocks, by their names in it), e.g. two landmarks' substitution
+    blocks, whose relations no declared factor holds together.
+
+    ``blocks``: the block names after h (the model factor's blocks are h, then these); ``type``: its factor type;
+    ``roles``: their roles (default the block names; h's role is "h"); ``data``: its ``Factor.data``;
+    ``name``: its model factor's name (default ``type_i``, i its position among the declared factors).  Model
+    factors of one type list corresponding blocks in the same order.
+    """
+
+    blocks: Sequence[str]
+    type: str
+    roles: Sequence[str] | None = None
+    data: np.ndarray | None = None
+    name: str | None = None
+
+    def __post_init__(self) -> None:
+        self.blocks = (self.blocks,) if isinstance(self.blocks, str) else tuple(self.blocks)
+        where = f"group on {self.blocks}"
+        if not isinstance(self.type, str) or not self.type:
+            raise ProblemDefinitionError(f"{where}: type must be a non-empty string, got {self.type!r}")
+        if (not self.blocks or len(set(self.blocks)) != len(self.blocks)
+                or not all(isinstance(b, str) and b and b != "h" for b in self.blocks)):
+            raise ProblemDefinitionError(f"{where}: blocks must be distinct block names other than 'h'")
+        self.roles = self.blocks if self.roles is None else tuple(self.roles)
+        if (len(self.roles) != len(self.blocks) or len(set(self.roles) | {"h"}) != len(self.roles) + 1
+                or not all(isinstance(r, str) and r for r in self.roles)):
+            raise ProblemDefinitionError(f"{where}: roles must be {len(self.blocks)} distinct non-empty strings "
+                                         f"other than 'h', got {self.roles}")
+        if self.data is not None:
+            self.data = np.asarray(self.data, dtype=float).ravel()
+        if self.name is not None and (not isinstance(self.name, str) or not self.name):
+            raise ProblemDefinitionError(f"{where}: name must be a non-empty string")

@@ -8,18 +8,19 @@ the signature ``autotight.problem`` expects, so a module on the factor-graph lay
 
 - ``variables``: a list of ``Variable``, or ``variables(instance) -> list`` when they depend on the
   parameters (e.g. the dimension);
-- ``factors(instance) -> iterable of Factor or Family`` (``Family``: factors of one type at once).
+- ``factors(instance) -> iterable of Factor, Family or Group`` (``Family``: factors of one type at once;
+  ``Group``: a learning group of blocks, with no cost and no constraints).
 
 The derived parts: ``build`` (``assemble.Graph.model``); ``lift`` (h, each variable's embedding and lifting
 blocks); ``cost`` (Σ eᵀWe of the declared residuals; the lifted cost equals it when the residuals are
 affine in the lifting, so the check's ``cost`` test then checks the declarations' consistency, not an
 independent formula); ``sample`` (each variable retracted from the nominal by spread·ν, ν ~ N(0, I): a
 state on the manifolds, whose lifting meets every derived primary constraint; factors' own constraints must
-hold for every value of their variables; drawn again, up to ``SAMPLE_TRIES`` times, while an auxiliary
-value raises ValueError, e.g. at a singularity of its map); ``local_solve`` (``autotight.gauss_newton`` on
-the retractions, options ``max_iter``, ``rel_tol``); ``recover`` (each variable's main block, projected onto
-its manifold; the rotations' raw determinants as ``det_raw``, ``layout.Layout.recover``).  ``errors`` and
-``random_state`` are the contract's defaults (``autotight.problem``).
+hold for every value of their variables; drawn again, up to ``SAMPLE_TRIES`` times (``tries``), while an
+auxiliary value raises ValueError, e.g. at a singularity of its map, or the module's ``keep`` refuses it);
+``local_solve`` (``autotight.gauss_newton`` on the retractions, options ``max_iter``, ``rel_tol``); ``recover``
+(each variable's main block, projected onto its manifold; the rotations' raw determinants as ``det_raw``,
+``layout.Layout.recover``).  ``errors`` and ``random_state`` are the contract's defaults (``autotight.problem``).
 """
 
 from __future__ import annotations
@@ -29,11 +30,11 @@ from typing import Any, Callable, Iterable, NamedTuple, Sequence, cast
 
 import numpy as np
 
-from ..errors import ProblemDefinitionError, SolverError
+from ..errors import ParameterError, ProblemDefinitionError, SolverError
 from ..gauss_newton import gauss_newton
 from ..model import Model
 from .assemble import Graph
-from .declare import Factor, Family, Variable
+from .declare import Factor, Family, Group, Variable
 
 #: up to this many tangent directions the local solver's Jacobian is a dense array (m × n_tangent): its normal
 #: equations are cheaper than sparse products (pose averaging M = 1000: 6 directions, 6000 rows)
@@ -55,13 +56,26 @@ class Parts(NamedTuple):
 
 
 def derive(variables: Sequence[Variable] | Callable[[Any], Sequence[Variable]],
-           factors: Callable[[Any], Iterable[Factor | Family]], by_element: bool = False) -> Parts:
+           factors: Callable[[Any], Iterable[Factor | Family | Group]], by_element: bool = False,
+           tangent: Sequence[str] | None = None, keep: Callable[[Any, dict], bool] | None = None,
+           tries: int = SAMPLE_TRIES) -> Parts:
     """The contract's parts from the declarations (see the module docstring).  ``by_element``: the lifted vector
     and the model's factors ordered element by element (``layout.Layout``, ``assemble.Graph``): element i of
     every stacked variable before element i + 1, and each variable's own factor right before the first factor of
-    its own on it (e.g. pose k's blocks and rotation factor, its measurement factor, then pose k + 1)."""
+    its own on it (e.g. pose k's blocks and rotation factor, its measurement factor, then pose k + 1).
+
+    The sampler's policy: ``tangent``, the variables' names in the order of the stacked tangent vector (default
+    their declaration order), which orders ``sample``'s draws ν (and the local solver's steps), e.g. ("C", "t")
+    draws a pose's rotation step before its translation step; ``keep(instance, state) -> bool``, the states
+    ``sample`` may return (it draws again while False, e.g. a camera pose with every landmark at a least depth:
+    default every state); ``tries``, the draws ``sample`` makes before it gives up (ParameterError when the last
+    draw was refused by ``keep``, SolverError when an auxiliary value was undefined)."""
     if not callable(factors):
         raise ProblemDefinitionError("factors must be a function factors(instance) -> iterable of Factor")
+    if keep is not None and not callable(keep):
+        raise ProblemDefinitionError("keep must be a function keep(instance, state) -> bool")
+    if isinstance(tries, bool) or not isinstance(tries, int) or tries < 1:
+        raise ProblemDefinitionError(f"tries must be a positive integer, got {tries!r}")
     cache: dict[int, tuple[weakref.ref, Graph]] = {}
 
     def graph(inst: Any) -> Graph:
@@ -69,7 +83,7 @@ def derive(variables: Sequence[Variable] | Callable[[Any], Sequence[Variable]],
         if hit is not None and hit[0]() is inst:
             return hit[1]
         declared = variables(inst) if callable(variables) else variables
-        g = Graph(list(declared), inst.truth, factors(inst), by_element)
+        g = Graph(list(declared), inst.truth, factors(inst), by_element, tangent)
         for k in [k for k, (ref, _) in cache.items() if ref() is None]:
             del cache[k]
         cache[id(inst)] = (weakref.ref(inst), g)
@@ -90,8 +104,13 @@ def derive(variables: Sequence[Variable] | Callable[[Any], Sequence[Variable]],
         g = graph(inst)
         L = g.layout
         start = L.values(nominal)
-        for _ in range(SAMPLE_TRIES):
+        refused = False
+        for _ in range(tries):
             values = L.retract(start, spread * rng.standard_normal(L.n_tangent))
+            if keep is not None and not keep(inst, L.state(values)):
+                refused = True
+                continue
+            refused = False
             if not g.has_auxiliary:
                 break
             try:
@@ -100,7 +119,10 @@ def derive(variables: Sequence[Variable] | Callable[[Any], Sequence[Variable]],
             except ValueError as e:
                 undefined = e
         else:
-            raise SolverError(f"no sample where every auxiliary block is defined in {SAMPLE_TRIES} draws (the last: "
+            if refused:
+                raise ParameterError(f"no sample within spread {spread:g} that {getattr(keep, '__name__', 'keep')} "
+                                     f"keeps in {tries} draws; reduce the spread")
+            raise SolverError(f"no sample where every auxiliary block is defined in {tries} draws (the last: "
                               f"{undefined}); reduce the spread")
         return L.state(values)
 

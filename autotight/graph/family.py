@@ -168,7 +168,7 @@ class FamilyTerm:
         self.M = self._affine_map()
         self.m = self.M.shape[1]
         self.W = self._weights()
-        self.equations = None if self.aux is None else \
+        self.equations = None if self.aux is None or self.aux.equations is None else \
             Fit(self._caller(self.aux.equations), self.n - 1, self.data, fam.degree, where, "auxiliary's equations")
         self.paper = {name: Fit(self._caller(fn), self.n - 1, self.data, fam.degree, where, f"paper rows {name!r}")
                       for name, fn in fam.paper.items()}

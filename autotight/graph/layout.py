@@ -6,7 +6,8 @@ The truth fixes the variables' multiplicity (``declare.Variable``).  Blocks, in 
 names by ``Variable.element``), then its lifting blocks ``block`` or ``block{i}``; with ``by_element``, the
 single variables' blocks, then element 0 of every stacked variable (declaration order), element 1, …; after
 every variable, the factors' auxiliary blocks (``assemble``).  A state is ``{name: value or (N, *shape) stack}``
-with one entry per declared variable.
+with one entry per declared variable.  The stacked tangent vector (the retraction steps ε, the sampler's draws)
+holds each variable's elements in index order, the variables in declaration order or in the ``tangent`` order.
 """
 
 from __future__ import annotations
@@ -50,12 +51,16 @@ class Layout:
     """The instance's elements and ``Variables`` (d = 1), with lift, recover and retraction."""
 
     def __init__(self, variables: Sequence[Variable], truth: Mapping[str, Any],
-                 auxiliary: Sequence[tuple[str, int]] = (), by_element: bool = False):
+                 auxiliary: Sequence[tuple[str, int]] = (), by_element: bool = False,
+                 tangent: Sequence[str] | None = None):
         if not variables or not all(isinstance(v, Variable) for v in variables):
             raise ProblemDefinitionError("VARIABLES must be a non-empty list of autotight.graph.Variable")
         names = [v.name for v in variables]
         if len(set(names)) != len(names):
             raise ProblemDefinitionError(f"variable names must be unique, got {names}")
+        if tangent is not None and sorted(tangent) != sorted(names):
+            raise ProblemDefinitionError(f"the tangent order must name every variable once, got {list(tangent)} for "
+                                         f"variables {names}")
         self.variables = list(variables)
         self.elements: list[Element] = []
         self.counts: dict[str, int | None] = {}
@@ -86,6 +91,13 @@ class Layout:
         if by_element:  # element i of every variable (declaration order) before element i + 1; single ones first
             placed.sort(key=lambda p: p[0])
         blocks = [b for _, bs in placed for b in bs]
+        if tangent is not None:  # the stacked tangent vector in the given order of the variables
+            offset = 0
+            for name in tangent:
+                for el in self.elements:
+                    if el.var.name == name:
+                        el.tangent_offset = offset
+                        offset += el.dof
         self.n_tangent = offset
         taken = {b for b, _ in blocks}
         clash = [b for b, _ in auxiliary if b in taken or b == "h"]

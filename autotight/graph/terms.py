@@ -18,9 +18,10 @@ auxiliary's ``jacobian`` or central differences of its ``value`` (``aux_lineariz
 
 from __future__ import annotations
 
-from typing import Callable, Sequence
+from typing import Any, Callable, Sequence, cast
 
 import numpy as np
+import scipy.sparse as sp
 
 from ..errors import ProblemDefinitionError
 from .declare import Factor, View, fit_quadratic, quadratic_forms
@@ -65,7 +66,8 @@ class Term:
         self.tangent = np.concatenate([np.arange(el.tangent_offset, el.tangent_offset + el.dof)
                                        for el in self.elements])
         self.n = int(self.columns.size)
-        self._aux_constraints = self._fit_equations() if self.aux is not None else []
+        self._aux_constraints = self._fit_equations() if self.aux is not None and self.aux.equations is not None \
+            else []
         if factor.cost is None:
             M = self._affine_map()
             if M is None:
@@ -106,12 +108,13 @@ class Term:
     def _fit_equations(self) -> list[tuple[str, np.ndarray]]:
         """The auxiliary's equations as (name, (n, n) matrix) on the local columns."""
         aux = self.aux
-        assert aux is not None
+        assert aux is not None and aux.equations is not None
+        equations = aux.equations
 
         def call(v: np.ndarray) -> np.ndarray:
             theta = np.concatenate(([1.0], v))
             try:
-                e = np.asarray(aux.equations(*self._views(theta)), dtype=np.float64)
+                e = np.asarray(equations(*self._views(theta)), dtype=np.float64)
             except (ArithmeticError, ValueError, np.linalg.LinAlgError) as err:
                 raise ProblemDefinitionError(
                     f"{self.where}: the auxiliary's equations raised {type(err).__name__} ({err}) at entries off the "
@@ -198,7 +201,7 @@ class Term:
         return 0.5 * (W + W.T)  # symmetric to the last bit (eᵀWe is the same), so is the lifted cost
 
     def _local(self, C: object, what: str) -> np.ndarray:
-        A = np.asarray(C, float)
+        A = cast(Any, C).toarray() if sp.issparse(C) else np.asarray(C, float)
         if A.shape != (self.n, self.n) or not np.all(np.isfinite(A)):
             raise ProblemDefinitionError(f"{self.where}: {what} must be a finite ({self.n}, {self.n}) matrix on the "
                                          "factor's local columns [h, its variables' blocks]")
