@@ -9,28 +9,40 @@ Lifting (the peer's level "xwT"): x = [h, t, vec C, (w_i, z_i)_i] with z_i = w_i
 (n = 1 + (d + d²)(N + 1) + N).  With u_i = r_i (affine in h, t, c) and v_i = w_i r_i (affine in w_i,
 z_i), (1 + w_i)‖r_i‖² = u_iᵀu_i + u_iᵀv_i, so the cost is quadratic.
 
-Primary constraints: CᵀC = I; per point w_i² = h² and h·z_i = w_i·[t; vec C] (d + d² rows).
+Written on the factor-graph layer (``autotight.graph``):
 
-Factors: "rotation" (h, c); per point "tls_point" (h, t, c, w_i, z_i) with its cost and primary
-constraints; per pair i < j "tls_pair" (h, t, c, w_i, z_i, w_j, z_j), no cost or constraint: a learning
-group for the relations between two points (the peer learns on [h, t, c, z_0, z_1]).  None has data:
-the lifted variety does not depend on the measurements, so a learned set carries to any N.
+- variables: t ∈ R^d; C ∈ SO(d) (block c), whose factor "rotation" (h, c) holds CᵀC = I; per point a label
+  w_i ∈ {±1} (``Binary``: w_i² = h²) with the product block z_i = w_i [t; vec C] (primary constraints
+  h·z_i = w_i [t; vec C]), whose factor "point_i" of type "tls_point" is (h, t, c, w_i, z_i).  The primary
+  constraints keep the names saved sets carry: orth(j,k), w²(i), z(i:k) (``constraint_name``).
+- factors: per point the TLS term, its lifted cost given (``tls_cost``: it is not eᵀWe of a residual affine in
+  the lifting), which joins "point_i"; per pair i < j the learning group "pair_i_j" of type "tls_pair"
+  (h, t, c, w_i, z_i, w_j, z_j), without cost or constraint, for the relations between two points (the peer
+  learns on [h, t, c, z_0, z_1]).  None has data: the lifted variety does not depend on the measurements, so
+  a learned set carries to any N.
+
+The layer derives ``build``, ``lift``, ``recover`` and the pose's samples (its rotation step drawn first).
+Written by hand: ``cost``, the TLS formula above, by which the local solver compares labellings (the layer's
+Σ eᵀWe agrees to rounding only); the labels' draws in ``sample`` (a binary variable has no steps); and
+``local_solve``, the enumeration of the 2^N labellings (closed-form registration of each labelling's inliers),
+so N ≤ ``MAX_BRUTE_FORCE``.
 
 Outliers: the first ``n_outliers`` points are measured at a uniform random position in a box of
-half-width ``outlier_extent`` instead of C p_i + t (the peer's published run has none).  The local
-solver enumerates the 2^N labellings (closed-form registration of each labelling's inliers), so
-N ≤ ``MAX_BRUTE_FORCE``.  Lifted columns t and z_i's t part appear in no relation squared: rank 1 is not
-expected (the peer reports cost-tight with SVR 34); use ``--accept cost``.
+half-width ``outlier_extent`` instead of C p_i + t (the peer's published run has none).  Lifted columns t
+and z_i's t part appear in no relation squared: rank 1 is not expected (the peer reports cost-tight with
+SVR 34); use ``--accept cost``.
 """
 
 from __future__ import annotations
 
 import itertools
+from typing import Iterator
 
 import numpy as np
 
-from autotight.constraints import Affine, Constraint, Factor, Model, QuadForm, Variables, sum_quads
+from autotight.constraints import Affine, QuadForm, Variables, sum_quads
 from autotight.errors import ParameterError
+from autotight.graph import Binary, Euclidean, Factor, Group, Rotation, Variable, View, derive
 from autotight.problem import Instance, LocalResult, Meta, Param
 
 from . import _landmark_terms as lt
@@ -51,18 +63,6 @@ META = Meta(paper_claim={"source": "AutoTight _results_test/terminal_output.log,
 MAX_BRUTE_FORCE = 12
 
 
-def w_block(i: int) -> str:
-    return f"w{i}"
-
-
-def z_block(i: int) -> str:
-    return f"z{i}"
-
-
-def _variables(d: int, N: int) -> Variables:
-    return Variables(pv.pose_blocks(d) + [b for i in range(N) for b in ((w_block(i), 1), (z_block(i), d + d * d))])
-
-
 def generate(params: dict, rng: np.random.Generator) -> Instance:
     d = lt.check_dim(params["dim"])
     N, K = params["n_points"], params["n_outliers"]
@@ -78,42 +78,60 @@ def generate(params: dict, rng: np.random.Generator) -> Instance:
     return Instance(NAME, dict(params), meas, {"C": C, "t": t, "w": w})
 
 
+def constraint_name(equation: str, row: int | None, index: int | None, **_: object) -> str:
+    """A primary constraint's name (``Variable.constraint_names``): C's orth(j,k); point i's w²(i) and z(i:k), row k
+    of z_i."""
+    if index is None:
+        return equation
+    return f"{equation}({index})" if row is None else f"{equation}({index}:{row})"
+
+
+def variables(inst: Instance) -> list[Variable]:
+    """t ∈ R^d, C ∈ SO(d) (block c, factor "rotation") and the labels w ∈ {±1}^N, z_i = w_i [t; vec C]
+    (factor "point_i" of type "tls_point")."""
+    d = inst.measurements["points"].shape[1]
+    t = Variable("t", Euclidean(d))
+    C = Variable("C", Rotation(d), type="rotation", block=pv.C_BLOCK, constraint_names=constraint_name)
+    w = Variable("w", Binary(), products={"z": (t, C)}, type="tls_point", factor="point",
+                 constraint_names=constraint_name)
+    return [t, C, w]
+
+
 def _pose_map(p: np.ndarray) -> np.ndarray:
     """P with C p + t = P [t; vec C]."""
     d = len(p)
     return np.hstack([np.eye(d), np.kron(p[None, :], np.eye(d))])
 
 
-def build(inst: Instance) -> Model:
+def tls_cost(p: np.ndarray, y: np.ndarray, beta: float) -> np.ndarray:
+    """The point's lifted TLS cost on its local columns [h, t, c, w, z]: (uᵀu + uᵀv)/(2β²) + (h² − h w)/2 with
+    u = C p + t − h y and v = P z − w y = w u (P: ``_pose_map``)."""
+    d = len(p)
+    V = Variables(pv.pose_blocks(d) + [("w", 1), ("z", d + d * d)])
+    u = pv.point_map(p) - Affine({"h": y[:, None]})
+    v = Affine({"z": _pose_map(p), "w": -y[:, None]})
+    Q = sum_quads(V, [(u, u, np.eye(d) / (2 * beta ** 2)), (u, v, np.eye(d) / (2 * beta ** 2))])
+    return (Q + QuadForm(V).add("h", "h", 0.5).add("h", "w", -0.5).matrix()).toarray()
+
+
+def tls_residual(t: View, C: View, w: View, p: np.ndarray, y: np.ndarray, beta: float) -> np.ndarray:
+    """e = [(1 + w)/2 · r/β; (1 − w)/2] at states, so that eᵀe is the point's TLS term at w = ±1."""
+    return np.r_[(1 + w.x) / 2 * (C.x @ p + t.x - y) / beta, (1 - w.x) / 2]
+
+
+def factors(inst: Instance) -> Iterator[Factor | Group]:
+    """Per point its TLS term on (t, C, w_i); per pair i < j the learning group on t, c, w_i, z_i, w_j, z_j."""
     P, Y, beta = inst.measurements["points"], inst.measurements["y"], float(inst.measurements["beta"])
-    N, d = P.shape
-    V = _variables(d, N)
-    factors = [Factor("rotation", "rotation", ("h", pv.C_BLOCK), constraints=pv.orthonormality(V, d, "rotation"))]
-    for i in range(N):
-        name, w, z = f"point_{i}", w_block(i), z_block(i)
-        Pi = _pose_map(P[i])
-        u = pv.point_map(P[i]) - Affine({"h": Y[i][:, None]})
-        v = Affine({z: Pi, w: -Y[i][:, None]})
-        Q = sum_quads(V, [(u, u, np.eye(d) / (2 * beta ** 2)), (u, v, np.eye(d) / (2 * beta ** 2))])
-        Q = Q + QuadForm(V).add("h", "h", 0.5).add("h", w, -0.5).matrix()
-        cons = [Constraint(QuadForm(V).add(w, w, 1.0).add("h", "h", -1.0).matrix(), 0.0, name=f"w²({i})",
-                           factor=name)]
-        for k in range(d + d * d):
-            ek = np.zeros((1, d + d * d))
-            ek[0, k] = 1.0
-            qf = QuadForm(V).add("h", z, ek)
-            blk, pos = (pv.T_BLOCK, k) if k < d else (pv.C_BLOCK, k - d)
-            ew = np.zeros((1, V.sizes[blk]))
-            ew[0, pos] = -1.0
-            qf.add(w, blk, ew)
-            cons.append(Constraint(qf.matrix(), 0.0, name=f"z({i}:{k})", factor=name))
-        factors.append(Factor(name, "tls_point", ("h", pv.T_BLOCK, pv.C_BLOCK, w, z), cost=Q, constraints=cons,
-                              roles=("h", "t", "c", "w", "z")))
-    for i, j in itertools.combinations(range(N), 2):
-        factors.append(Factor(f"pair_{i}_{j}", "tls_pair",
-                              ("h", pv.T_BLOCK, pv.C_BLOCK, w_block(i), z_block(i), w_block(j), z_block(j)),
-                              roles=("h", "t", "c", "w_i", "z_i", "w_j", "z_j")))
-    return Model(V, factors)
+    for i, (p, y) in enumerate(zip(P, Y)):
+        yield Factor(("t", "C", f"w{i}"), lambda t, C, w, p=p, y=y: tls_residual(t, C, w, p, y, beta),
+                     type="tls_point", cost=tls_cost(p, y, beta))
+    for i, j in itertools.combinations(range(len(P)), 2):
+        yield Group(("t", "c", f"w{i}", f"z{i}", f"w{j}", f"z{j}"), "tls_pair", name=f"pair_{i}_{j}",
+                    roles=("t", "c", "w_i", "z_i", "w_j", "z_j"))
+
+
+_parts = derive(variables, factors, tangent=("C", "t", "w"))
+build = _parts.build
 
 
 def _labels(inst: Instance, state: dict) -> np.ndarray:
@@ -125,13 +143,15 @@ def _labels(inst: Instance, state: dict) -> np.ndarray:
 
 
 def lift(inst: Instance, state: dict) -> np.ndarray:
-    w = _labels(inst, state)
-    N, d = inst.measurements["points"].shape
-    vals = pv.pose_values(state["C"], state["t"])
-    xt = np.concatenate([vals[pv.T_BLOCK], vals[pv.C_BLOCK]])
-    for i in range(N):
-        vals |= {w_block(i): w[i:i + 1], z_block(i): w[i] * xt}
-    return _variables(d, N).assemble(vals)
+    """The layer's lift with the labels checked (N entries ±1; absent: every point an inlier)."""
+    return _parts.lift(inst, state | {"w": _labels(inst, state)})
+
+
+def recover(inst: Instance, Theta: np.ndarray) -> dict:
+    """The layer's recover (C projected on SO(d), t, each label the sign of w_i/h, det_raw), in the order of keys
+    that ``solve --json`` has printed for this problem."""
+    out = _parts.recover(inst, Theta)
+    return {k: out[k] for k in ("C", "t", "w", "det_raw")}
 
 
 def _sq_residuals(inst: Instance, C: np.ndarray, t: np.ndarray) -> np.ndarray:
@@ -146,9 +166,11 @@ def cost(inst: Instance, state: dict) -> float:
 
 
 def sample(inst: Instance, rng: np.random.Generator, nominal: dict, spread: float) -> dict:
-    """A pose near ``nominal`` (``_pose_vector.sample_pose``) and each w_i = ±1 with probability ½."""
+    """The layer's pose near ``nominal`` (C = exp(spread·ν^∧) C̄, then t = t̄ + spread·n) and each w_i = ±1 with
+    probability ½ (``nominal``'s labels are not used)."""
     N = len(inst.measurements["points"])
-    return pv.sample_pose(rng, nominal, spread) | {"w": rng.choice([-1.0, 1.0], size=N)}
+    pose = _parts.sample(inst, rng, {**nominal, "w": np.ones(N)}, spread)
+    return {"C": pose["C"], "t": pose["t"], "w": rng.choice([-1.0, 1.0], size=N)}
 
 
 def random_state(inst: Instance, rng: np.random.Generator) -> dict:
@@ -166,7 +188,8 @@ def register(P: np.ndarray, Y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 def local_solve(inst: Instance, init: dict, max_iter: int = 200) -> LocalResult:
     """The best of the 2^N labellings (``init``'s labels are ignored): each labelling's inliers are registered
     in closed form (with fewer than d inliers the registration is not unique: Gauss-Newton on them from
-    ``init``'s pose); the TLS cost of the result at that labelling.  A global solver over w for N ≤ 12."""
+    ``init``'s pose); the TLS cost of the result at that labelling.  A global solver over w for N ≤ 12,
+    written by hand (the layer's solver moves continuous variables only)."""
     P, Y = inst.measurements["points"], inst.measurements["y"]
     N, d = P.shape
     if N > MAX_BRUTE_FORCE:
@@ -196,16 +219,6 @@ def local_solve(inst: Instance, init: dict, max_iter: int = 200) -> LocalResult:
     assert best is not None
     best.iterations = iters
     return best
-
-
-def recover(inst: Instance, Theta: np.ndarray) -> dict:
-    N, d = inst.measurements["points"].shape
-    V = _variables(d, N)
-    x = np.asarray(Theta, float).reshape(-1)
-    x = x / x[0]
-    C, t, C_raw = pv.pose_from_vector(x, V, d)
-    w = np.array([1.0 if x[V.slice(w_block(i))][0] >= 0 else -1.0 for i in range(N)])
-    return {"C": C, "t": t, "w": w, "det_raw": np.array(np.linalg.det(C_raw))}
 
 
 def errors(inst: Instance, state: dict) -> dict:

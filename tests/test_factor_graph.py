@@ -18,7 +18,8 @@ from autotight import cli
 from autotight.checks import check_problem
 from autotight.constraints import QuadForm, Variables
 from autotight.errors import ParameterError, ProblemDefinitionError, ProblemModuleError, SolverError
-from autotight.graph import Auxiliary, Euclidean, Factor, Group, Rotation, Variable, derive
+from autotight.graph import Auxiliary, Binary, Euclidean, Factor, Group, Rotation, Variable, derive
+from autotight.graph.assemble import Graph
 from autotight.problem import Instance, Param, load, registered
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -459,6 +460,117 @@ def test_the_stereo_snippet_is_the_shipped_module():
 
     lines, missing = missing_lines("keep=in_front", "_stereo")
     assert lines and not missing
+
+
+# ----------------------------------------------------------------------------- labels and product blocks
+#
+# A toy: planar registration of three points with a label w_i ∈ {±1} each and the product block z_i = w_i [t; vec C]
+# (as robust_wahba).  The residual (u + v)/2, u = C p + t − y, v = w u = P z − w y, is affine in the lifting and is
+# u for an inlier, 0 for an outlier.
+
+
+def _labelled(params, rng):
+    C = Rotation(2).retract(np.eye(2), rng.uniform(-np.pi, np.pi, 1))
+    t, pts = rng.uniform(-1, 1, 2), rng.standard_normal((3, 2))
+    y = pts @ C.T + t + 0.01 * rng.standard_normal(pts.shape)
+    return Instance("labelled", {}, {"points": pts, "y": y}, {"t": t, "C": C, "w": np.array([1.0, -1.0, 1.0])})
+
+
+def _label_name(equation, row, index, **_):
+    return f"{equation}({index})" if row is None else f"{equation}({index}:{row})"
+
+
+def _labelled_variables(inst):
+    t, C = Variable("t", Euclidean(2)), Variable("C", Rotation(2), block="c")
+    return [t, C, Variable("w", Binary(), products={"z": (t, C)}, type="point", constraint_names=_label_name)]
+
+
+def _labelled_factors(inst):
+    for i, (p, y) in enumerate(zip(inst.measurements["points"], inst.measurements["y"])):
+        P = np.hstack([np.eye(2), np.kron(p[None, :], np.eye(2))])
+        yield Factor(("t", "C", f"w{i}"), lambda t, C, w, p=p, y=y, P=P: (C.x @ p + t.x - y + P @ w.z - w.x * y) / 2)
+    yield Group(("t", "c", "w0", "z0", "w2", "z2"), "pair", roles=("t", "c", "w_i", "z_i", "w_j", "z_j"))
+
+
+def _labelled_module():
+    return load(_module(_labelled_variables, _labelled_factors, _labelled))
+
+
+def test_binary_manifold_is_discrete_with_its_square_equation():
+    M = Binary()
+    assert (M.shape, M.size, M.dof) == ((), 1, 0)
+    assert M.embed(-1.0).tolist() == [-1.0] and M.unembed(np.array([1.0])).shape == ()
+    assert M.retract(np.array(-1.0), np.zeros(0)) == -1.0 and M.tangent(np.array(1.0)).shape == (1, 0)
+    assert [M.project(a) for a in (0.3, -2.0, 0.0)] == [1.0, -1.0, 1.0]
+    [(name, A)] = M.constraints()
+    assert name == "w²" and all(np.r_[1.0, w] @ A @ np.r_[1.0, w] == 0 for w in (-1.0, 1.0))
+
+
+def test_product_blocks_follow_their_label_and_its_factor_holds_their_variables():
+    prob = _labelled_module()
+    inst = prob.generate({}, 0)
+    model = prob.build(inst)
+    V = model.variables
+    assert [(b, V.sizes[b]) for b in V.names] == [("h", 1), ("t", 2), ("c", 4)] + [
+        (b, k) for i in range(3) for b, k in ((f"w{i}", 1), (f"z{i}", 6))]
+    # C has its own factor; t has none; each label's factor holds t, c first, its equations (named by the
+    # function) and its cost
+    assert [f.name for f in model.factors] == ["C", "point_0", "point_1", "point_2", "pair_3"]
+    point = model.factors[1]
+    assert point.blocks == ("h", "t", "c", "w0", "z0") and point.roles == ("h", "t", "c", "w", "z")
+    assert [c.name for c in point.constraints] == ["w²(0)"] + [f"z(0:{k})" for k in range(6)]
+    assert point.cost is not None and model.factors[0].constraints[0].name == "C:c:orth(0,0)"
+    # h·z = w [t; vec C] as the matrix of h z_k − w θ_k, and the lifted z_1 = −[t; vec C]
+    A = point.constraints[1].A.toarray()
+    i = {b: V.offsets[b] for b in V.names}
+    assert A[0, i["z0"]] == 0.5 and A[i["w0"], i["t"]] == -0.5 and np.count_nonzero(A) == 4
+    x = np.asarray(prob.lift(inst, inst.truth)).reshape(-1)
+    assert np.array_equal(x[V.slice("z1")], -np.r_[inst.truth["t"], inst.truth["C"].ravel(order="F")])
+    assert check_problem(prob, seed=1).ok
+
+
+def test_a_label_is_fixed_for_the_local_solver_which_registers_its_inliers():
+    from problems.robust_wahba import register
+
+    prob = _labelled_module()
+    inst = prob.generate({}, 2)
+    start = dict(prob.random_state(inst, np.random.default_rng(4)), w=inst.truth["w"])
+    res = prob.local_solve(inst, start)
+    assert np.array_equal(res.state["w"], inst.truth["w"])
+    inl = inst.truth["w"] > 0
+    C, t = register(inst.measurements["points"][inl], inst.measurements["y"][inl])
+    assert np.abs(res.state["C"] - C).max() <= 1e-8 and np.abs(res.state["t"] - t).max() <= 1e-8
+
+
+def test_the_product_blocks_derivative_is_the_lifts():
+    inst = _labelled({}, np.random.default_rng(1))
+    L = Graph(_labelled_variables(inst), inst.truth, _labelled_factors(inst)).layout
+    values = L.values(inst.truth)
+    x, D = L.lift_polynomial(values, dense=True)
+    assert np.abs(x - L.lift(values)).max() <= 1e-15
+    h = 1e-6
+    fd = np.stack([(L.lift(L.retract(values, h * e)) - L.lift(L.retract(values, -h * e))) / (2 * h)
+                   for e in np.eye(L.n_tangent)], 1)
+    assert L.n_tangent == 3 and np.abs(fd - D).max() <= 1e-8
+
+
+@pytest.mark.parametrize("variables, factors, message", [
+    (lambda inst: [Variable("w", Binary(), products={"z": (Variable("t", Euclidean(2)),)})], lambda inst: [],
+     r"^variable 'w': the variables of its product block 'z' must be declared single variables$"),
+    (_labelled_variables, lambda inst: [Factor("w0", lambda w: w.z)],
+     r"^factor 'factor_0': a factor on 'w0' must also be on the variables of its product blocks$"),
+], ids=["product-of-undeclared", "factor-without-product-variables"])
+def test_bad_products_are_one_line_errors(variables, factors, message):
+    prob = load(_module(variables, factors, _labelled))
+    with pytest.raises(ProblemDefinitionError, match=message):
+        prob.build(prob.generate({}, 0))
+
+
+def test_the_labels_snippet_is_the_shipped_module():
+    from doc_snippets import missing_lines
+
+    lines, missing = missing_lines("tls_pair", "robust_wahba")
+    assert len(lines) >= 10 and not missing
 
 
 # ----------------------------------------------------------------------------- entry points

@@ -10,7 +10,7 @@ See ``docs/factor_graph.md`` and the worked example ``docs/range_only_2d.md``.
 
 from .declare import Auxiliary, Factor, Family, Group, Variable, View
 from .derive import Parts, derive
-from .manifolds import Euclidean, Manifold, Rotation
+from .manifolds import Binary, Euclidean, Manifold, Rotation
 
-__all__ = ["Auxiliary", "Euclidean", "Factor", "Family", "Group", "Manifold", "Parts", "Rotation", "Variable", "View",
-           "derive"]
+__all__ = ["Auxiliary", "Binary", "Euclidean", "Factor", "Family", "Group", "Manifold", "Parts", "Rotation", "Variable",
+           "View", "derive"]

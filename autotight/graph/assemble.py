@@ -3,10 +3,11 @@
 The model's factors (``autotight.model.Factor``), which discovery learns on, are:
 
 - one per variable type and index (type: the variables' ``type``, default the name; name: the type,
-  suffixed ``_i`` for element i of a stack; blocks and roles: each variable's main block and lifting
-  blocks, in declaration order; variables of one type share it, e.g. a pose's t and C), holding the
-  manifold's and the lifting's primary constraints and the cost of every declared factor whose variables
-  all belong to it and that has no constraints of its own;
+  suffixed ``_i`` for element i of a stack; blocks and roles: the main blocks of the variables of its product
+  blocks, then each variable's main block, lifting and product blocks, in declaration order; variables of one
+  type share it, e.g. a pose's t and C), holding the manifold's, the lifting's and the products' primary
+  constraints and the cost of every declared factor whose variables all belong to it, or are one element and
+  the variables of its products, and that has no constraints of its own;
 - one per (type, variables) of the other declared factors without constraints of their own (their costs
   summed), named ``type:variables``;
 - one per declared factor with constraints or auxiliary blocks of its own (named ``Factor.name``, default
@@ -19,8 +20,8 @@ The model's factors (``autotight.model.Factor``), which discovery learns on, are
 The families' paper rows make ``Model.paper``, their clique hints ``Model.cliques``.  Primary constraints are
 named by the variables' and factors' ``constraint_names`` formats; the names must be distinct in the model.
 
-Roles of a variable's blocks inside a factor: its main block's names without the index and its lifting
-blocks' names, suffixed ``_k`` (k its position in the factor) when a variable of the same name appears twice;
+Roles of a variable's blocks inside a factor: its main block's names without the index and its lifting and
+product blocks' names, suffixed ``_k`` (k its position in the factor) when a variable of the same name appears twice;
 then the factor's auxiliary blocks' names.  The auxiliary blocks of the factors, after every variable's
 blocks in factor order (a family's factors in their order): block ``b`` of the j-th factor declaring a block
 ``b`` is named ``Auxiliary.element`` of b and j (default ``b_j``).
@@ -48,13 +49,38 @@ def _global(local: np.ndarray, columns: np.ndarray, N: int) -> sp.coo_array:
     return canonical_coo(columns[r], columns[c], local[r, c], N)
 
 
-def _roles(elements: Sequence[Element]) -> tuple[str, ...]:
+def _roles(elements: Sequence[Element], over: Sequence[Element] = ()) -> tuple[str, ...]:
+    """h, the main blocks' names of ``over`` (the variables of the elements' products), then each element's
+    main, lifting and product blocks' names (suffixed ``_k`` for a variable appearing twice)."""
     stems = [el.var.main_blocks() for el in elements]
-    out: list[str] = ["h"]
+    out: list[str] = ["h"] + [b for el in over for b in el.var.main_blocks()]
     for k, el in enumerate(elements):
         sfx = f"_{k}" if stems.count(el.var.main_blocks()) > 1 else ""
-        out += [b + sfx for b in el.var.main_blocks()] + [f.name + sfx for f in el.var.fits()]
+        out += [b + sfx for b in el.var.main_blocks()] + [f.name + sfx for f in el.var.fits()] + \
+            [b + sfx for b in el.var.products]
     return tuple(out)
+
+
+def _over(layout: Layout, elements: Sequence[Element]) -> list[Element]:
+    """The variables of the elements' products (single elements), in order, each once."""
+    out: list[Element] = []
+    for el in elements:
+        out += [o for src in layout.sources.get(id(el.var), []) for o in src if all(o is not p for p in out)]
+    return out
+
+
+def _holder(layout: Layout, elements: Sequence[Element], home: Mapping[str, tuple[str, int | None]]
+            ) -> tuple[str, int | None] | None:
+    """The variables' own factor that a cost on the elements joins: their common one, else that of the element
+    whose products' variables are all the others (e.g. w_i's, holding t and C); None if there is none."""
+    keys = {home[el.main] for el in elements}
+    if len(keys) == 1:
+        return keys.pop()
+    for el in elements:
+        over = _over(layout, [el])
+        if over and all(o is el or any(o is p for p in over) for o in elements):
+            return home[el.main]
+    return None
 
 
 def _auxiliary_blocks(items: Sequence[Declared | Family | Group]) -> list[list[list[str]]]:
@@ -167,9 +193,9 @@ class Graph:
             else:
                 members = [item]
             for t in members:
-                keys = {home[el.main] for el in t.elements}
-                if len(keys) == 1:
-                    costs[keys.pop()].append(t)
+                key = _holder(L, t.elements, home)
+                if key is not None:
+                    costs[key].append(t)
                 else:
                     grouped.setdefault((t.type, tuple(el.main for el in t.elements)), []).append(t)
         names, mats = self._variable_constraints()
@@ -182,12 +208,19 @@ class Graph:
                 split = len(el.var.main_blocks()) > 1  # named by the variable, not its first block
                 label = el.var.name + ("" if index is None else str(index)) if split else el.main
                 fmt = el.var.constraint_names
-                cons += [Constraint(A, 0.0, name=fmt.format(factor=name, variable=label, constraint=nm), factor=name)
-                         for nm, A in zip(names[id(el.var)], mats[L.position[el.main]])]
+                if callable(fmt):
+                    labels = [fmt(factor=name, variable=label, constraint=nm, equation=eq, row=row, index=index)
+                              for nm, (eq, row) in zip(names[id(el.var)], el.var.equations())]
+                else:
+                    labels = [fmt.format(factor=name, variable=label, constraint=nm) for nm in names[id(el.var)]]
+                cons += [Constraint(A, 0.0, name=lab, factor=name) for lab, A in zip(labels, mats[L.position[el.main]])]
             cost = self._cost(costs[(typ, index)], N)
             if cons or cost is not None:  # a variable with neither (e.g. a free translation) has no factor
-                var_factors[(typ, index)] = Factor(name, typ, ("h",) + tuple(b for el in els for b in el.blocks),
-                                                   cost=cost, constraints=cons, roles=_roles(els))
+                over = _over(L, els)
+                blocks = ("h",) + tuple(b for o in over for b in o.blocks[:len(o.var.main_blocks())]) + \
+                    tuple(b for el in els for b in el.blocks)
+                var_factors[(typ, index)] = Factor(name, typ, blocks, cost=cost, constraints=cons,
+                                                   roles=_roles(els, over))
         factors = []
         for (typ, mains), ts in grouped.items():
             els = ts[0].elements
@@ -226,7 +259,7 @@ class Graph:
         return Model(L.V, factors, paper=paper, cliques=cliques or None)
 
     def _variable_constraints(self) -> tuple[dict[int, list[str]], dict[int, list[sp.coo_array]]]:
-        """The manifolds' and liftings' constraints of every element, a variable's elements at once: (per
+        """The manifolds', liftings' and products' constraints of every element, a variable's elements at once: (per
         variable (by id), the constraints' names; per element position, their N×N matrices)."""
         L, N = self.layout, self.layout.V.N
         names: dict[int, list[str]] = {}
@@ -242,7 +275,8 @@ class Graph:
             cols = np.concatenate([c for _, c in entries])
             group = np.repeat(np.arange(len(local)), [r.size for r, _ in entries])
             vals = np.concatenate([M[r, c] for (_, M), (r, c) in zip(local, entries)])
-            cols_of = np.hstack([np.zeros((len(idx), 1), int), columns])
+            theta = L.product_columns(var)  # the products' θ, after the element's own columns
+            cols_of = np.hstack([np.zeros((len(idx), 1), int), columns, np.broadcast_to(theta, (len(idx), theta.size))])
             per = scatter(np.broadcast_to(vals, (len(idx), vals.size)), group, rows, cols, len(local), cols_of, N)
             mats.update({int(k): m for k, m in zip(idx, per)})
         return names, mats

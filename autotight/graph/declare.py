@@ -9,7 +9,8 @@ and one block per ``lifting`` entry, ``fn(x) -> (E,)``, which must be a polynomi
 embedding's entries (e.g. vech(p pᵀ)); its primary constraints fn(x) − h·z = 0 are derived from it
 (``LiftingFit``).  ``type`` names the factor type of the variable's own model factor (default: ``name``):
 variables of one type share it, element by element (e.g. a pose's rotation and translation; ``assemble``).
-``constraint_names`` formats the model names of its constraints (default "{factor}:{variable}:{constraint}").
+``constraint_names`` formats the model names of its constraints (default "{factor}:{variable}:{constraint}"),
+or is a function of them (``Variable.constraint_names``).
 
 ``Factor(variables, residual, …)``: a term eᵀWe of the cost, on one or more variables named by their
 main block or by name and index (``"p0"``, or ``"C"`` for a single variable).  ``residual(*views) ->
@@ -39,6 +40,12 @@ the blocks in the lifted vector (default "{block}_{i}").
 
 ``Group(blocks, type, roles, data, name)``: a model factor with no cost and no constraints on blocks of the
 lifted vector (by name, h prepended), a learning group for discovery.
+
+``Variable(…, products={block: variables})``: blocks z = x ⊗ θ, the variable's embedding x times θ, the
+embeddings of the given single ``Variable`` objects stacked (Kronecker, entry a·q + c = x_a θ_c; e.g. a label w
+with z = w [t; vec C]), after its lifting blocks; their primary constraints h·z = x ⊗ θ.  The element's own
+model factor then holds those variables' main blocks first (h, t, c, w_i, z_i), and the cost of a factor on the
+element and those variables joins it.  A factor on such a variable must also be on its products' variables.
 
 ``Family(variables, residual, data, type, …)``: F factors of one type at once, their data stacked (F, *shape)
 and every function called on stacks with the data last (``family``); their auxiliary's equations and their
@@ -173,8 +180,15 @@ class Variable:
     factor: str | None = None
     #: the names of its manifold's and lifting's constraints in the model, a format of {factor} (its model factor's
     #: name), {variable} (its main block's name, or its name and index when ``block`` splits it) and {constraint}
-    #: (e.g. "orth(0,1)"); "{constraint}" keeps the bare names (then they must be distinct in the model)
-    constraint_names: str = "{factor}:{variable}:{constraint}"
+    #: (e.g. "orth(0,1)"); "{constraint}" keeps the bare names (then they must be distinct in the model).  Or a
+    #: function of keyword arguments: those three, ``equation`` and ``row`` (a manifold's equation name and None,
+    #: or a lifting or product block's name and the row: "orth(0,1)", None; "z", 3) and ``index`` (the element's,
+    #: None for a single variable), e.g. for names a saved set carries, "w²(2)" and "z(2:3)"
+    constraint_names: str | Callable[..., str] = "{factor}:{variable}:{constraint}"
+    #: product blocks {block: variables}, z = x ⊗ θ: the variable's embedding times θ, the embeddings of the given
+    #: single variables stacked (Kronecker; e.g. {"z": (t, C)}: z = w [t; vec C]); primary constraints h·z = x ⊗ θ;
+    #: its own model factor holds those variables' main blocks first
+    products: Mapping[str, Sequence[Variable]] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         try:
@@ -184,7 +198,8 @@ class Variable:
         if "{block}" not in self.element or "{i}" not in self.element or not probe.isidentifier():
             raise ProblemDefinitionError(f"variable {self.name!r}: element must be a format of {{block}} and {{i}} "
                                          f"giving identifiers, got {self.element!r}")
-        check_format(self.constraint_names, ("factor", "variable", "constraint"), f"variable {self.name!r}")
+        if not callable(self.constraint_names):
+            check_format(self.constraint_names, ("factor", "variable", "constraint"), f"variable {self.name!r}")
         if self.factor is not None and (not isinstance(self.factor, str) or not self.factor):
             raise ProblemDefinitionError(f"variable {self.name!r}: factor must be a non-empty string")
         parts = self.block if isinstance(self.block, tuple) else ("x" if self.block is None else self.block,)
@@ -198,6 +213,12 @@ class Variable:
         if bad:
             raise ProblemDefinitionError(f"variable {self.name!r}: lifting block names must be identifiers other "
                                          f"than 'x' and 'h', got {bad}")
+        self.products = {b: tuple(vs) for b, vs in dict(self.products).items()}
+        bad = [b for b, vs in self.products.items() if not isinstance(b, str) or not b.isidentifier()
+               or b in ("x", "h") or b in self.lifting or not vs or not all(isinstance(v, Variable) for v in vs)]
+        if bad:
+            raise ProblemDefinitionError(f"variable {self.name!r}: product blocks must map identifiers other than 'x', "
+                                         f"'h' and the lifting blocks to non-empty sequences of Variable, got {bad}")
         self._fits: list[LiftingFit] | None = None
 
     def element_block(self, block: str, i: int | None) -> str:
@@ -215,10 +236,17 @@ class Variable:
             self._fits = [fit_lifting(b, fn, self.manifold, where) for b, fn in self.lifting.items()]
         return self._fits
 
-    def lifted(self, x: np.ndarray) -> np.ndarray:
-        """[embed(x), lifting blocks…] (the variable's columns of the lifted vector, h excluded)."""
-        parts = [self.manifold.embed(x)] + [np.asarray(f.fn(x), float).reshape(-1) for f in self.fits()]
-        return np.concatenate(parts)
+    def product_sizes(self) -> list[tuple[int, int]]:
+        """Per product block, (its size p·q, q the size of θ)."""
+        p = self.manifold.size
+        return [(p * q, q) for q in (sum(v.manifold.size for v in vs) for vs in self.products.values())]
+
+    def lifted(self, x: np.ndarray, thetas: Sequence[np.ndarray] = ()) -> np.ndarray:
+        """[embed(x), lifting blocks…, product blocks…] (the variable's columns of the lifted vector, h excluded);
+        ``thetas``: each product block's θ (its variables' embeddings stacked)."""
+        v = self.manifold.embed(x)
+        parts = [v] + [np.asarray(f.fn(x), float).reshape(-1) for f in self.fits()]
+        return np.concatenate(parts + [np.kron(v, th) for th in thetas])
 
     def view(self, theta: np.ndarray) -> View:
         """The ``View`` of the variable's columns θ (h excluded): x = unembed(main block), then each block."""
@@ -227,12 +255,24 @@ class Variable:
         for f in self.fits():
             out[f.name] = theta[o:o + f.size]
             o += f.size
+        for b, (k, _) in zip(self.products, self.product_sizes()):
+            out[b] = theta[o:o + k]
+            o += k
         return View(**out)
 
+    def equations(self) -> list[tuple[str, int | None]]:
+        """(equation, row) of each of ``local_constraints``, in order (see ``constraint_names``)."""
+        blocks = [(f.name, f.size) for f in self.fits()] + [(b, k) for b, (k, _) in zip(self.products,
+                                                                                      self.product_sizes())]
+        return [(name, None) for name, _ in self.manifold.constraints()] + [(b, e) for b, k in blocks for e in range(k)]
+
     def local_constraints(self) -> list[tuple[str, np.ndarray]]:
-        """The manifold's and the lifting's equations on [h, main, lifting blocks…] (matrices padded to it)."""
+        """The manifold's, the lifting's and the products' equations on [h, main, lifting blocks…, product
+        blocks…, then each product's θ] (matrices padded to it)."""
         p = self.manifold.size
-        n = 1 + p + sum(f.size for f in self.fits())
+        sizes = self.product_sizes()
+        start = 1 + p + sum(f.size for f in self.fits()) + sum(k for k, _ in sizes)  # the first θ's column
+        n = start + sum(q for _, q in sizes)
         out = []
         for name, M in self.manifold.constraints():
             out.append((name, _pad(M, n)))
@@ -241,6 +281,15 @@ class Variable:
             for e, M in enumerate(f.constraint_matrices(p, o)):
                 out.append((f"{f.name}[{e}]", _pad(M, n)))
             o += f.size
+        for b, (k, q) in zip(self.products, sizes):  # h·z_e − x_a θ_c = 0, e = a q + c
+            for e in range(k):
+                a, c = divmod(e, q)
+                M = np.zeros((n, n))
+                M[0, o + e] = M[o + e, 0] = 0.5
+                M[1 + a, start + c] = M[start + c, 1 + a] = -0.5
+                out.append((f"{b}[{e}]", M))
+            o += k
+            start += q
         return out
 
 

@@ -11,8 +11,8 @@ the signature ``autotight.problem`` expects, so a module on the factor-graph lay
 - ``factors(instance) -> iterable of Factor, Family or Group`` (``Family``: factors of one type at once;
   ``Group``: a learning group of blocks, with no cost and no constraints).
 
-The derived parts: ``build`` (``assemble.Graph.model``); ``lift`` (h, each variable's embedding and lifting
-blocks); ``cost`` (Σ eᵀWe of the declared residuals; the lifted cost equals it when the residuals are
+The derived parts: ``build`` (``assemble.Graph.model``); ``lift`` (h, each variable's embedding, lifting and
+product blocks); ``cost`` (Σ eᵀWe of the declared residuals; the lifted cost equals it when the residuals are
 affine in the lifting, so the check's ``cost`` test then checks the declarations' consistency, not an
 independent formula); ``sample`` (each variable retracted from the nominal by spread·ν, ν ~ N(0, I): a
 state on the manifolds, whose lifting meets every derived primary constraint; factors' own constraints must

@@ -143,6 +143,9 @@ class FamilyTerm:
         if any(el.var is not var for els in self.elements for el, var in zip(els, self.vars)):
             raise ProblemDefinitionError(f"{where}: the k-th variables of its factors must be the same declared "
                                          "variable")
+        if any(var.products for var in self.vars):
+            raise ProblemDefinitionError(f"{where}: a family's variables cannot have product blocks (declare its "
+                                         "factors one by one)")
         self.positions = np.array([[layout.position[el.main] for el in els] for els in self.elements])
         self.sizes = [layout.columns(el).size for el in self.elements[0]]
         var_cols = np.array([np.concatenate([layout.columns(el) for el in els]) for els in self.elements])

@@ -3,7 +3,7 @@
 The truth fixes the variables' multiplicity (``declare.Variable``).  Blocks, in order: per variable
 (declaration order), per element (index order), the main block ``name`` (one variable) or ``name{i}``
 (a stack; ``Variable.block`` for ``name`` when given, each of its parts when it splits the block; a stack's
-names by ``Variable.element``), then its lifting blocks ``block`` or ``block{i}``; with ``by_element``, the
+names by ``Variable.element``), then its lifting and product blocks ``block`` or ``block{i}``; with ``by_element``, the
 single variables' blocks, then element 0 of every stacked variable (declaration order), element 1, …; after
 every variable, the factors' auxiliary blocks (``assemble``).  A state is ``{name: value or (N, *shape) stack}``
 with one entry per declared variable.  The stacked tangent vector (the retraction steps ε, the sampler's draws)
@@ -81,9 +81,10 @@ class Layout:
                                              f"{shape}, expected {want} or (N, *{want})")
             self.counts[var.name] = count
             fits, parts = var.fits(), var.main_blocks()
-            sizes = [var.manifold.size // len(parts)] * len(parts) + [f.size for f in fits]
+            sizes = [var.manifold.size // len(parts)] * len(parts) + [f.size for f in fits] + \
+                [k for k, _ in var.product_sizes()]
             for i in [None] if count is None else range(count):
-                own = tuple(var.element_block(b, i) for b in parts + tuple(f.name for f in fits))
+                own = tuple(var.element_block(b, i) for b in parts + tuple(f.name for f in fits) + tuple(var.products))
                 el = Element(var, i, own, offset)
                 self.elements.append(el)
                 placed.append((-1 if i is None else i, list(zip(el.blocks, sizes))))
@@ -110,6 +111,15 @@ class Layout:
         #: an element's index in ``elements`` (and in a value list), by main block
         self.position = {el.main: k for k, el in enumerate(self.elements)}
         self._columns = [self.V.index(el.blocks) for el in self.elements]
+        single = {id(el.var): el for el in self.elements if el.index is None}
+        #: per variable with product blocks (by id): per product block, the elements of its variables
+        self.sources: dict[int, list[list[Element]]] = {}
+        for var in self.variables:
+            for b, over in var.products.items():
+                if not all(id(o) in single for o in over):
+                    raise ProblemDefinitionError(f"variable {var.name!r}: the variables of its product block {b!r} "
+                                                 "must be declared single variables")
+                self.sources.setdefault(id(var), []).append([single[id(o)] for o in over])
         #: per variable: its elements' positions (count,) and columns (count, k)
         self.families: list[tuple[Variable, np.ndarray, np.ndarray]] = []
         for var in self.variables:
@@ -126,6 +136,17 @@ class Layout:
     def columns(self, el: Element) -> np.ndarray:
         """The element's columns of the lifted vector, main block first."""
         return self._columns[self.position[el.main]]
+
+    def thetas(self, var: Variable, values: Sequence[np.ndarray]) -> list[np.ndarray]:
+        """Per product block of the variable, θ: its variables' embeddings at the values, stacked."""
+        return [np.concatenate([o.var.manifold.embed(values[self.position[o.main]]) for o in src])
+                for src in self.sources.get(id(var), [])]
+
+    def product_columns(self, var: Variable) -> np.ndarray:
+        """The columns of the variable's products' θ, in order (their variables' main blocks), (Σ q,)."""
+        cols = [self._columns[self.position[o.main]][:o.var.manifold.size]
+                for src in self.sources.get(id(var), []) for o in src]
+        return np.concatenate(cols) if cols else np.zeros(0, int)
 
     def values(self, state: Mapping[str, Any]) -> list[np.ndarray]:
         """The elements' values in order (checked against the manifold's shape)."""
@@ -159,7 +180,7 @@ class Layout:
         x = np.zeros(self.V.N)
         x[0] = 1.0
         for cols, el, v in zip(self._columns, self.elements, values):
-            x[cols] = el.var.lifted(v)
+            x[cols] = el.var.lifted(v, self.thetas(el.var, values))
         return x
 
     def lift_polynomial(self, values: Sequence[np.ndarray], extra: tuple[list, list, list] | None = None,
@@ -176,8 +197,29 @@ class Layout:
             man, fits = var.manifold, var.fits()
             E = np.array([man.embed(values[k]) for k in idx])  # (n, p)
             T = np.array([man.tangent(values[k]) for k in idx])  # (n, p, dof)
-            x[columns] = np.hstack([E] + [f.values(E) for f in fits])
-            D = np.concatenate([T] + [np.einsum("nep,npd->ned", f.gradients(E), T) for f in fits], axis=1)
+            X = [E] + [f.values(E) for f in fits]
+            Ds = [T] + [np.einsum("nep,npd->ned", f.gradients(E), T) for f in fits]
+            o = sum(a.shape[1] for a in X)
+            for src, th in zip(self.sources.get(id(var), []), self.thetas(var, values)):
+                # z = x ⊗ θ: ∂z = ∂x ⊗ θ along the element's steps, x ⊗ ∂θ along its variables' (sparse rows below)
+                k = E.shape[1] * th.size
+                X.append((E[:, :, None] * th).reshape(len(idx), k))
+                Ds.append((T[:, :, None, :] * th[:, None]).reshape(len(idx), k, T.shape[2]))
+                Tth = np.zeros((th.size, sum(el.dof for el in src)))
+                q = dof = 0
+                for el in src:
+                    Tth[q:q + el.var.manifold.size, dof:dof + el.dof] = el.var.manifold.tangent(
+                        values[self.position[el.main]])
+                    q, dof = q + el.var.manifold.size, dof + el.dof
+                steps = np.concatenate([np.arange(el.tangent_offset, el.tangent_offset + el.dof) for el in src])
+                G = (E[:, :, None, None] * Tth).reshape(len(idx), k, Tth.shape[1])
+                n, r, c = np.nonzero(G)
+                rows.append(columns[n, o + r])
+                cols.append(steps[c])
+                vals.append(G[n, r, c])
+                o += k
+            x[columns] = np.hstack(X)
+            D = np.concatenate(Ds, axis=1)
             offsets = np.array([self.elements[k].tangent_offset for k in idx])
             n, r, c = np.nonzero(D)
             rows.append(columns[n, r])

@@ -15,6 +15,8 @@ A manifold fixes, for one variable value x:
 ``Rotation(d)``: C ∈ SO(d), d ∈ {2, 3} (shape (d, d)), v = vec C (columns stacked), C ← exp(ε^∧) C (left
 perturbation; ε has 1 entry in 2-D, 3 in 3-D), equations c_iᵀc_j = δ_ij h² (i ≤ j; the determinant is
 dropped, as in the problems of the paper: O(d), and ``project`` returns det +1).
+``Binary()``: a label w ∈ {−1, +1} (shape ()), v = [w], equation w² = h² (named "w²"); discrete: no
+retraction (dof 0: the local solver and the sampler leave it where it is), ``project`` its sign (0 → +1).
 """
 
 from __future__ import annotations
@@ -137,3 +139,33 @@ class Rotation:
                     M[0, 0] = -1.0
                 out.append((f"orth({i},{j})", M))
         return out
+
+
+class Binary:
+    """{−1, +1}: a label w, embedded as itself; its only equation w² = h² ("w²").  A discrete variable has no
+    tangent directions (dof 0): ``retract`` returns it unchanged, so the layer's local solver optimises the
+    other variables at fixed labels and its sampler keeps the nominal's (a module draws labels itself)."""
+
+    shape: tuple[int, ...] = ()
+    size, dof = 1, 0
+
+    def __repr__(self) -> str:
+        return "Binary()"
+
+    def embed(self, x: np.ndarray) -> np.ndarray:
+        return np.asarray(x, float).reshape(1)
+
+    def unembed(self, v: np.ndarray) -> np.ndarray:
+        return np.asarray(v, float).reshape(())
+
+    def project(self, a: np.ndarray) -> np.ndarray:
+        return np.array(1.0 if float(np.asarray(a, float).reshape(())) >= 0 else -1.0)
+
+    def retract(self, x: np.ndarray, eps: np.ndarray) -> np.ndarray:
+        return np.asarray(x, float).reshape(())
+
+    def tangent(self, x: np.ndarray) -> np.ndarray:
+        return np.zeros((1, 0))
+
+    def constraints(self) -> list[tuple[str, np.ndarray]]:
+        return [("w²", np.diag([-1.0, 1.0]))]

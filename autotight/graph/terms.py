@@ -1,6 +1,6 @@
 """A declared factor resolved on one instance: its local columns, lifted residual map, cost and Jacobian.
 
-Local columns of a factor: [h, then each variable's columns (main block, lifting blocks)] in the order
+Local columns of a factor: [h, then each variable's columns (main, lifting and product blocks)] in the order
 the factor names its variables, then its auxiliary blocks (``declare.Auxiliary``), whose values at a state
 are ``value`` of its variables' views and whose ``equations`` are fitted into primary constraints on the
 local columns (``declare.fit_quadratic``, checked at a random point to ``EQUATION_RTOL``; the views then
@@ -57,6 +57,15 @@ class Term:
         self.where = f"factor {name!r}"
         self.elements: list[Element] = [layout.element(v, self.where) for v in factor.variables]
         self.positions = [layout.position[el.main] for el in self.elements]
+        #: per variable, per product block of it, the positions in the factor of the block's variables
+        self.sources: list[list[list[int]]] = []
+        for el in self.elements:
+            found = [[[j for j, e in enumerate(self.elements) if e is o] for o in src]
+                     for src in layout.sources.get(id(el.var), [])]
+            if any(not js for src in found for js in src):
+                raise ProblemDefinitionError(f"{self.where}: a factor on {el.main!r} must also be on the variables of "
+                                             "its product blocks")
+            self.sources.append([[js[0] for js in src] for src in found])
         #: the auxiliary blocks' names in the lifted vector and their columns
         self.aux_blocks = tuple(aux_blocks)
         self.aux_columns = layout.V.index(self.aux_blocks) if self.aux_blocks else np.zeros(0, int)
@@ -130,10 +139,18 @@ class Term:
                                          "≤ 2 in the factor's local entries (its variables' blocks and its own)")
         return [(f"aux[{k}]", M) for k, M in enumerate(quadratic_forms(c0, G, S))]
 
+    def _thetas(self, k: int, own: Sequence[np.ndarray]) -> list[np.ndarray]:
+        """Per product block of the factor's k-th variable, θ at the factor's variables' values."""
+        return [np.concatenate([self.elements[j].var.manifold.embed(own[j]) for j in src]) for src in self.sources[k]]
+
     def _state_views(self, own: Sequence[np.ndarray]) -> list[View]:
-        """The variables' views at their values (x and each lifting block)."""
-        return [View(x=np.asarray(v, float), **{f.name: np.asarray(f.fn(v), float).reshape(-1) for f in el.var.fits()})
-                for el, v in zip(self.elements, own)]
+        """The variables' views at their values (x, each lifting block and each product block)."""
+        out = []
+        for k, (el, v) in enumerate(zip(self.elements, own)):
+            blocks = {f.name: np.asarray(f.fn(v), float).reshape(-1) for f in el.var.fits()}
+            blocks |= {b: np.kron(el.var.manifold.embed(v), th) for b, th in zip(el.var.products, self._thetas(k, own))}
+            out.append(View(x=np.asarray(v, float), **blocks))
+        return out
 
     def aux_value(self, own: Sequence[np.ndarray]) -> np.ndarray:
         """The auxiliary blocks' values at the factor's variables' values (ValueError where undefined)."""
@@ -226,7 +243,7 @@ class Term:
 
     def lifted(self, own: Sequence[np.ndarray]) -> np.ndarray:
         """θ on the local columns (h = 1) at the factor's variables' values."""
-        parts = [[1.0]] + [el.var.lifted(v) for el, v in zip(self.elements, own)]
+        parts = [[1.0]] + [el.var.lifted(v, self._thetas(k, own)) for k, (el, v) in enumerate(zip(self.elements, own))]
         return np.concatenate(parts + ([self.aux_value(own)] if self.aux is not None else []))
 
     def residual(self, values: Sequence[np.ndarray]) -> np.ndarray:
