@@ -18,11 +18,39 @@ keeps the chain sparsity, so ``Model.cliques`` is the chain {h, pose k, pose k+1
 ϖ_{k+1}} when ϖ is kept (and the model advises the SDP layer to decompose, ``Model.decompose``) and
 None when marginalising.
 
-Factors: "so3" per pose (orthonormality), "pose_meas" {h, C_k, r_k, ξ_k} per measured k (the 12
-Cayley rows of (I − ½ξ_k^∧) T_k = (I + ½ξ_k^∧) T̃_k), "motion" {h, pose k, pose k+1, ξ_{k+1,k}}
-(the 12 rows of (I − ½ξ^∧) T_{k+1} = (I + ½ξ^∧) T_k, i.e. the discrete-time relation with C̃ = I,
-r̃ = 0).  Paper families (notes §4): R1, R2, R4, R5, R7 per measured k; R3, R6, R8 per k < K−1.
-R7 uses c_ℓ × c_m = c_n, so it holds on SO(3) only, not on O(3).
+Written on the factor-graph layer (``autotight.graph``), pose by pose (``derive(by_element=True)``); a state
+is {"T": (K, 4, 4), "w": (K, 6)}, which ``layer_state`` gives the layer as its variables:
+
+- variables: C_k ∈ SO(3) (blocks ``p{k}_c1, p{k}_c2, p{k}_c3``; its factor "so3" ``so3_k`` holds
+  c_iᵀc_j = δ_ij h², named ``orth(p{k}_c1,p{k}_c2)``, …), r_k ∈ R³ (block ``p{k}_r``; no factor of its own) and,
+  unless marginalised, the twists ϖ_k ∈ R⁶ (blocks ``w_k``, last in x; cost-only: in no model factor, so the
+  model's cost is explicit, ``Variable.cost_only``);
+- factor "pose_meas" ``meas_k`` per measured k (the family ``meas_family``) on (C_k, r_k), owning
+  ξ_k = [ρ_k; φ_k] (blocks ``rho_k, phi_k``): residual ξ_k, weight W_k; constraints the 12 Cayley rows
+  (I − ½ξ_k^∧) T_k = (I + ½ξ_k^∧) T̃_k (``meas_k:col1[0]`` … ``meas_k:r[2]``);
+- the twist prior on ϖ₀ (``twist_prior``): residual ϖ̌₀ − ϖ₀, weight Q₁⁻¹, its lifted cost declared (no model
+  factor: ϖ₀ is cost-only);
+- factor "motion" ``motion_{k+1}_{k}`` per k < K−1 (``motion_family``) on (C_k, r_k, C_{k+1}, r_{k+1}) and,
+  when kept, (ϖ_k, ϖ_{k+1}), owning ξ_{k+1,k} (blocks ``rho_{k+1}_{k}, phi_{k+1}_{k}``): residual e_{k+1,k},
+  weight Q_{k+1,k}⁻¹ (the WNOA prior; marginalised, no residual: the Schur complement is the cost); constraints
+  the 12 rows (I − ½ξ^∧) T_{k+1} = (I + ½ξ^∧) T_k (the discrete-time relation with C̃ = I, r̃ = 0); roles
+  ``MOTION_ROLES``; its model factor lists the poses and ξ only;
+- paper families (notes §4): R1, R2, R4, R5, R7 per measured k; R3, R6, R8 per k < K−1 (the families' ``paper``
+  rows). R7 uses c_ℓ × c_m = c_n, so it holds on SO(3) only, not on O(3);
+- the model factors carry no ``Factor.data`` (``record_data=False``), as the hand-written module's did: the sets
+  discovered on it were learned without.  The families' data are [C̃ r̃ | c̃ᵢᵀr̃] and Δt_k (``meas_data``).
+
+Hand-written, as in the module this one replaced, because the layer would not reproduce its results to the
+bit: the marginalised cost (``marginal``: the Schur complement of the ϖ-kept cost assembled block by block,
+``_full_cost``, which the optimal twists, ``random_state`` and the marginalised ``recover`` also use),
+``cost`` (the local solver's stacked residual, also for a state without twists), the paper's sampler
+(``sample``: T_k ← exp(ν_k^∧) T_k, ϖ_k ← ϖ_k + η_k) and local solver (``local_solve``: joint Gauss-Newton
+with T_k ← cay(ε_k^∧) T_k, App. A.5), ``marginal_log_svr``, ``block_scale``, the cliques (``_cliques_chain``),
+the presets and ``errors``; ``build`` puts the layer's model in the hand-written module's order (factors:
+rotations, measurements, motions; R1 … R8) and sets its cliques, ``decompose`` advice and, marginalised, S.
+The layer's matrices are the hand-written module's to the bit (cost, primary and paper constraints) with two
+details: the prior's lifted cost is declared (``twist_prior``) and R1's constants c̃ᵢᵀr̃ are data
+(``meas_data``), each computed as before.
 
 Settings (``preset``): the paper states K = 21, measurements at the start, middle and end, W_k = I/σ²
 and one trajectory geometry per noise level, but not Δt, Q_c, the trajectory or the prior on the
@@ -42,7 +70,7 @@ Why these choices, with the measurements behind them: ``docs/continuous_trajecto
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -51,33 +79,26 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from autotight import lie
-from autotight.affine import Affine, H, const, quad, sum_quads, var
+from autotight.affine import Affine, const, quad, var
 from autotight.errors import ParameterError, ProblemDefinitionError, SolverError
 from autotight.gauss_newton import gauss_newton
-from autotight.model import Constraint, Factor, Model, QuadForm, Variables
+from autotight.graph import Auxiliary, Euclidean, Factor, Family, Rotation, Variable, View, derive
+from autotight.model import Model, QuadForm, Variables
 from autotight.problem import Instance, LocalResult, Meta, Param
 from autotight.sdp.result import log_svr
 
-from ._pose import (
+from ._pose import (  # noqa: F401  (pose_values, xi_values, xi_blocks: the block helpers callers use with it)
     POSE_ROLES,
     XI_ROLES,
-    binary_cayley,
     declare_pose,
     declare_xi,
     pose_blocks,
-    pose_from_x,
-    pose_orthonormality,
     pose_values,
-    r1_unary,
-    r2_unary,
-    r3_binary,
-    rot_blocks,
     trans_block,
-    unary_cayley,
-    weighted_cost,
     xi_blocks,
     xi_values,
 )
+from ._pose_rows import cayley_rows, dot, r2, unary_cayley
 
 GEOMETRIES = ("arc", "random_walk")
 
@@ -276,7 +297,7 @@ def _data(inst: Instance) -> _Data:
                  np.asarray(m["w_prior"], float), bool(inst.params.get("marginalize", False)))
 
 
-# ----------------------------------------------------------------------------- lifting
+# ----------------------------------------------------------------------------- the factor graph: variables
 
 
 def pose_prefix(k: int) -> str:
@@ -297,18 +318,265 @@ def twist_block(k: int) -> str:
     return f"w_{k}"
 
 
+def _orthonormality_name(equation: str, index: int, **_: Any) -> str:
+    """``orth(p{k}_c{i},p{k}_c{j})`` by block name for the equation ``orth(i−1,j−1)`` of ``Rotation.constraints``
+    (``Variable.constraint_names``)."""
+    i, j = (int(a) + 1 for a in equation[len("orth("):-1].split(","))
+    return f"orth({pose_prefix(index)}c{i},{pose_prefix(index)}c{j})"
+
+
+def variables(inst: Instance) -> list[Variable]:
+    """C_k (blocks p{k}_c1, p{k}_c2, p{k}_c3), r_k (p{k}_r) and, unless marginalised, the cost-only ϖ_k (w_k)."""
+    out = [Variable("C", Rotation(3), type="so3", block=("c1", "c2", "c3"), element="p{i}_{block}",
+                    constraint_names=_orthonormality_name),
+           Variable("r", Euclidean(3), element="p{i}_{block}")]
+    if not _data(inst).marginalize:
+        out.append(Variable("w", Euclidean(6), element="{block}_{i}", cost_only=True))
+    return out
+
+
+def layer_state(state: Mapping[str, Any]) -> dict[str, np.ndarray]:
+    """A state {"T": (K, 4, 4)[, "w": (K, 6)]} as the layer's variables {"C", "r"[, "w"]}."""
+    T = np.asarray(state["T"], dtype=float)
+    out = {"C": T[:, :3, :3], "r": T[:, :3, 3]}
+    return out | ({"w": np.asarray(state["w"], dtype=float)} if "w" in state else {})
+
+
+def _poses(C: np.ndarray, r: np.ndarray) -> list[np.ndarray]:
+    return [lie.make_pose(Ck, rk) for Ck, rk in zip(C, r)]
+
+
+def _xi(xi: View) -> np.ndarray:
+    return np.hstack([xi.rho, xi.phi])
+
+
+#: names of the 12 Cayley rows of a pose residual: the rotation's columns, then the translation
+CAYLEY_ROWS = tuple(f"col{i + 1}[{k}]" for i in range(3) for k in range(3)) + tuple(f"r[{k}]" for k in range(3))
+
+
+# ----------------------------------------------------------------------------- the pose measurements
+
+
+def meas_data(d: _Data) -> np.ndarray:
+    """Each measurement's data (M, 15): [C̃ r̃] (row-major 3×4), then R1's constants c̃ᵢᵀr̃ (i = 1, 2, 3) summed as
+    the hand-written module summed them (``autotight.affine.quad``; the family's fit of the product would add
+    its three terms in another order, to the last bit).  Every row is then affine in the data (``degree=1``)."""
+    V = Variables([])
+    dots = [[quad(V, const(Tm[:3, i]), const(Tm[:3, 3]), np.eye(3)).matrix().toarray()[0, 0] for i in range(3)]
+            for Tm in d.T_meas]
+    return np.hstack([d.T_meas[:, :3, :].reshape(-1, 12), np.array(dots).reshape(-1, 3)])
+
+
+def _measured(D: np.ndarray) -> np.ndarray:
+    """The measured poses [C̃ r̃] (R, 3, 4) of the data (R, 15) (``meas_data``)."""
+    return D[:, :12].reshape(-1, 3, 4)
+
+
+def _on_measured(fn: Callable[..., np.ndarray]) -> Callable[..., np.ndarray]:
+    """fn(*views, Tm (R, 3, 4)) on the data (R, 15) of ``meas_data``."""
+    return lambda *views: fn(*views[:-1], _measured(views[-1]))
+
+
+def meas_residual(C: View, r: View, Tm: np.ndarray) -> np.ndarray:
+    """ξ_k = cay⁻¹(T_k T̃_k⁻¹)^∨ (R, 6), pose by pose as ``residuals`` (CayleySingularityError at angle π)."""
+    meas = _poses(Tm[:, :, :3], Tm[:, :, 3])
+    return np.array([lie.cay_inv_se3(T @ lie.inv_se3(M)) for T, M in zip(_poses(C.x, r.x), meas)]).reshape(-1, 6)
+
+
+def r1(C: View, r: View, xi: View, D: np.ndarray) -> np.ndarray:
+    """(R1, paper (35)) ½ (c_i + c̃_i)ᵀ ρ − c_iᵀ r + c̃_iᵀ r̃ = 0, i = 1, 2, 3, on the data [C̃ r̃ | c̃ᵢᵀr̃]
+    (``meas_data``)."""
+    return 0.5 * dot(C.x + _measured(D)[:, :, :3], xi.rho) - dot(C.x, r.x) + D[:, 12:]
+
+
+def r4(C: View, r: View, xi: View, Tm: np.ndarray) -> np.ndarray:
+    """(R4, paper (52)) φᵀ c_i = φᵀ c̃_i, i = 1, 2, 3."""
+    return dot(C.x - Tm[:, :, :3], xi.phi)
+
+
+def r5(C: View, r: View, xi: View, Tm: np.ndarray) -> np.ndarray:
+    """(R5, paper (53)) φᵀ r = φᵀ r̃ + φᵀ ρ."""
+    return dot(r.x - Tm[:, :, 3] - xi.rho, xi.phi)[:, None]
+
+
+#: R7's rows ℓmn
+R7_ROWS = ((0, 1, 2), (1, 2, 0), (2, 0, 1))
+
+
+def r7(C: View, r: View, xi: View, Tm: np.ndarray) -> np.ndarray:
+    """(R7, paper (55); SO(3) only) −½ φᵀ c_n = c_mᵀ c̃_ℓ − ½ c_mᵀ c̃_ℓ^∧ φ for ℓmn ∈ {123, 231, 312}."""
+    c, cm = C.x, Tm[:, :, :3]
+    return np.stack([0.5 * dot(c[:, :, n], xi.phi) + dot(c[:, :, m], cm[:, :, l])
+                     - 0.5 * dot(c[:, :, m], np.cross(cm[:, :, l], xi.phi)) for l, m, n in R7_ROWS], axis=1)
+
+
+def meas_family(d: _Data) -> Family:
+    """The pose measurements ``meas_k`` on (C_k, r_k), owning ξ_k (``meas_residual``, the 12 Cayley rows
+    ``unary_cayley``): residual ξ_k, weight W_k; R1, R2, R4, R5, R7."""
+    ks = [int(k) for k in d.measured]
+    xi = Auxiliary({"rho": 3, "phi": 3}, value=_on_measured(meas_residual), equations=_on_measured(unary_cayley),
+                   names=CAYLEY_ROWS)
+    paper = {"R1": r1, "R2": _on_measured(r2), "R4": _on_measured(r4), "R5": _on_measured(r5),
+             "R7": _on_measured(r7)}
+    return Family([(f"C{k}", f"r{k}") for k in ks], lambda C, r, xi, D: _xi(xi), data=meas_data(d),
+                  type="pose_meas", weight=d.W, auxiliary=xi, paper=paper,
+                  paper_labels={"R7": tuple(f"{l + 1}{m + 1}{n + 1}" for l, m, n in R7_ROWS)},
+                  names=[f"meas_{k}" for k in ks], aux_names=[meas_xi(k) for k in ks], degree=1, record_data=False)
+
+
+# ----------------------------------------------------------------------------- the prior on ϖ₀
+
+
+def twist_prior(d: _Data) -> Factor:
+    """The prior on ϖ₀: residual ϖ̌₀ − ϖ₀, weight Q₁⁻¹, and its lifted cost on [h, ϖ₀] declared, uᵀ Q₁⁻¹ u for the
+    affine u = ϖ̌₀ h − ϖ₀ (``autotight.affine.quad``): read off the residual, its unit coefficients would be
+    (ϖ̌₀ − 1) − ϖ̌₀, not −1, to the last bit."""
+    L = np.linalg.inv(d.Q1)
+    u = const(d.w_prior) - var("w", np.eye(6))
+    C = quad(Variables([("w", 6)]), u, u, L).matrix().toarray()
+    return Factor("w0", lambda w: d.w_prior - w.x, weight=L, cost=C, type="twist_prior", name="twist_prior")
+
+
+# ----------------------------------------------------------------------------- the motions (WNOA prior)
+
+
+def motion_residual(C1: View, r1: View, C2: View, r2: View, *rest: Any) -> np.ndarray:
+    """ξ_{k+1,k} = cay⁻¹(T_{k+1} T_k⁻¹)^∨ (R, 6), pose by pose as ``residuals`` (``rest``: ϖ_k, ϖ_{k+1} when kept,
+    then the data)."""
+    return np.array([lie.cay_inv_se3(T2 @ lie.inv_se3(T1))
+                     for T1, T2 in zip(_poses(C1.x, r1.x), _poses(C2.x, r2.x))]).reshape(-1, 6)
+
+
+def motion_cayley(C1: View, r1: View, C2: View, r2: View, xi: View) -> np.ndarray:
+    """ξ_{k+1,k} = cay⁻¹(T_{k+1} T_k⁻¹): (I − ½ξ^∧) T_{k+1} = (I + ½ξ^∧) T_k (12 rows)."""
+    return cayley_rows(C2.x, r2.x, C1.x, r1.x, xi)
+
+
+def wnoa_inverse_covariance(dt: float, Qc: np.ndarray) -> np.ndarray:
+    """Q_{k+1,k}⁻¹ = [[12/Δt³, −6/Δt²], [−6/Δt², 4/Δt]] ⊗ Q_c⁻¹ (12×12)."""
+    return np.kron(np.array([[12 / dt**3, -6 / dt**2], [-6 / dt**2, 4 / dt]]), np.linalg.inv(Qc))
+
+
+def wnoa_error(C1: View, r1: View, C2: View, r2: View, w1: View, w2: View, xi: View, dt: np.ndarray) -> np.ndarray:
+    """e_{k+1,k} = [Δt_k ϖ_k − ξ_{k+1,k}; ϖ_k − ϖ_{k+1}] (R, 12), dt (R, 1)."""
+    return np.hstack([dt * w1.x - _xi(xi), w1.x - w2.x])
+
+
+def r3(C1: View, r1: View, C2: View, r2: View, xi: View) -> np.ndarray:
+    """(R3, paper (44), C̃ = I, r̃ = 0) ½ (c₂,ᵢ + c₁,ᵢ)ᵀ ρ − c₂,ᵢᵀ r₂ + c₁,ᵢᵀ r₁ = 0, i = 1, 2, 3."""
+    return 0.5 * dot(C2.x + C1.x, xi.rho) - dot(C2.x, r2.x) + dot(C1.x, r1.x)
+
+
+def r6(C1: View, r1: View, C2: View, r2: View, xi: View) -> np.ndarray:
+    """(R6, paper (54)) φᵀ c₂,ᵢ = φᵀ c₁,ᵢ (i = 1, 2, 3) and φᵀ r₂ = φᵀ r₁ + φᵀ ρ."""
+    return np.hstack([dot(C2.x - C1.x, xi.phi), dot(r2.x - r1.x - xi.rho, xi.phi)[:, None]])
+
+
+def r8(C1: View, r1: View, C2: View, r2: View, xi: View) -> np.ndarray:
+    """(R8, paper (56)) r₂ᵀ r₂ = (r₂ + r₁)ᵀ ρ + r₁ᵀ r₁."""
+    return (dot(r2.x, r2.x) - dot(r2.x + r1.x, xi.rho) - dot(r1.x, r1.x))[:, None]
+
+
+def _motion_rows(fn: Callable[..., np.ndarray]) -> Callable[..., np.ndarray]:
+    """A row function of (pose k, pose k+1, ξ) in the motion family's signature (C_k, r_k, C_{k+1}, r_{k+1}[, ϖ_k,
+    ϖ_{k+1}], ξ, Δt)."""
+    return lambda C1, r1, C2, r2, *rest: fn(C1, r1, C2, r2, rest[-2])
+
+
+def motion_family(d: _Data) -> Family:
+    """The motions ``motion_{k+1}_{k}`` on (T_k, T_{k+1}) and, kept, (ϖ_k, ϖ_{k+1}), owning ξ_{k+1,k}
+    (``motion_residual``, ``motion_cayley``): residual e_{k+1,k} (``wnoa_error``), weight Q_{k+1,k}⁻¹
+    (marginalised: no residual); R3, R6, R8.  Data Δt_k."""
+    K, dts = d.K, np.diff(d.times)
+    poses = [(f"C{k}", f"r{k}", f"C{k + 1}", f"r{k + 1}") for k in range(K - 1)]
+    kept = not d.marginalize
+    xi = Auxiliary({"rho": 3, "phi": 3}, value=motion_residual, equations=_motion_rows(motion_cayley),
+                   names=CAYLEY_ROWS)
+    return Family([p + (f"w{k}", f"w{k + 1}") for k, p in enumerate(poses)] if kept else poses,
+                  wnoa_error if kept else None, data=dts[:, None], type="motion",
+                  weight=np.array([wnoa_inverse_covariance(dt, d.Qc) for dt in dts]) if kept else None,
+                  auxiliary=xi, paper={"R3": _motion_rows(r3), "R6": _motion_rows(r6), "R8": _motion_rows(r8)},
+                  paper_labels={"R6": ("1", "2", "3", "r")}, names=[f"motion_{motion_xi(k)}" for k in range(K - 1)],
+                  aux_names=[motion_xi(k) for k in range(K - 1)], roles=MOTION_ROLES, degree=1, record_data=False)
+
+
+# ----------------------------------------------------------------------------- the model
+
+
+def factors(inst: Instance) -> Iterator[Factor | Family]:
+    """The pose measurements, the prior on ϖ₀ (kept only) and the motions, in the order of the cost (46)."""
+    d = _data(inst)
+    yield meas_family(d)
+    if not d.marginalize:
+        yield twist_prior(d)
+    yield motion_family(d)
+
+
+#: the layer's model, lift and recover (the module keeps the paper's cost, sampler and local solver)
+_build, _lift, _, _, _, _recover = derive(variables, factors, by_element=True, state=layer_state)
+
+
+def _cliques_chain(d: _Data) -> list[tuple[str, ...]]:
+    """ϖ kept: per k < K−1 {h, pose k, pose k+1, ξ_{k+1,k}, ϖ_k, ϖ_{k+1}}, per measured k {h, pose k, ξ_k}."""
+    out = [("h", *pose_blocks(pose_prefix(k)), *pose_blocks(pose_prefix(k + 1)), *xi_blocks(motion_xi(k)),
+            twist_block(k), twist_block(k + 1)) for k in range(d.K - 1)]
+    return out + [("h", *pose_blocks(pose_prefix(int(k))), *xi_blocks(meas_xi(int(k)))) for k in d.measured]
+
+
+def _marginalized_cover(d: _Data) -> list[tuple[str, ...]]:
+    """ϖ marginalised: the Schur complement couples h and all motion ξ, so one bag must hold them all.
+
+    A tree decomposition (path B_0 – … – B_{K−2}) with the full bag in the middle, j = (K−2)//2:
+    B_i = {h, pose i, pose i+1} ∪ {ξ_{l+1,l} : i lies between l and j}, so B_i holds ξ_{l+1,l} for
+    l ≤ i (i < j), for l ≥ i (i > j) and for every l (i = j).  Pose i+1 lies in B_i and B_{i+1} only
+    and each ξ_{l+1,l} in the contiguous run from B_l to B_j: the running intersection property
+    holds.  Per measured k a leaf {h, pose k, ξ_k}.  Largest bag: 1 + 24 + 6(K−1).
+    """
+    j = (d.K - 2) // 2
+    out = []
+    for i in range(d.K - 1):
+        ls = range(d.K - 1) if i == j else range(0, i + 1) if i < j else range(i, d.K - 1)
+        out.append(("h", *pose_blocks(pose_prefix(i)), *pose_blocks(pose_prefix(i + 1)),
+                    *(b for l in ls for b in xi_blocks(motion_xi(l)))))
+    return out + [("h", *pose_blocks(pose_prefix(int(k))), *xi_blocks(meas_xi(int(k)))) for k in d.measured]
+
+
+def marginalized_cliques(inst: Instance) -> list[tuple[str, ...]]:
+    """A block-level clique tree covering the marginalised model (not used by default; see above)."""
+    return _marginalized_cover(_data(inst))
+
+
+def build(inst: Instance) -> Model:
+    """The layer's model (``factors``) in the hand-written module's order, factors by kind (the rotations
+    ``so3_k``, the measurements, the motions; the layer writes each rotation before the first factor on its
+    pose) and R1 … R8, with the module's cliques and advice: ϖ kept, the chain (``_cliques_chain``) and
+    ``decompose`` (Clarabel on our cover is 4× faster than its own chordal decomposition at K = 21);
+    marginalised, the cost S (``marginal``) and no cliques."""
+    d = _data(inst)
+    model = _build(inst)
+    kinds = {"so3": 0, "pose_meas": 1, "motion": 2}
+    order = {f"so3_{k}": k for k in range(d.K)}
+    model.factors = sorted(model.factors, key=lambda f: (kinds[f.type], order.get(f.name, 0)))
+    model.paper = {f"R{i}": model.paper[f"R{i}"] for i in range(1, 9)}
+    if d.marginalize:
+        model.cost, model.cliques, model.decompose = marginal(inst).S, None, None
+    else:
+        model.cliques, model.decompose = _cliques_chain(d), True
+    return model
+
+
+# ----------------------------------------------------------------------------- the marginalised cost (hand-written)
+
+
 def _variables(d: _Data, with_twists: bool) -> Variables:
+    """The lifting's blocks (the layer's, ``variables``), for the Schur complement's bookkeeping: x, and with
+    ``with_twists`` [x; ϖ]."""
     blocks = [b for k in range(d.K) for b in declare_pose(pose_prefix(k))]
     blocks += [b for k in d.measured for b in declare_xi(meas_xi(int(k)))]
     blocks += [b for k in range(d.K - 1) for b in declare_xi(motion_xi(k))]
     if with_twists:
         blocks += [(twist_block(k), 6) for k in range(d.K)]
     return Variables(blocks)
-
-
-def wnoa_inverse_covariance(dt: float, Qc: np.ndarray) -> np.ndarray:
-    """Q_{k+1,k}⁻¹ = [[12/Δt³, −6/Δt²], [−6/Δt², 4/Δt]] ⊗ Q_c⁻¹ (12×12)."""
-    return np.kron(np.array([[12 / dt**3, -6 / dt**2], [-6 / dt**2, 4 / dt]]), np.linalg.inv(Qc))
 
 
 def _full_cost(d: _Data, V: Variables) -> sp.csr_array:
@@ -468,122 +736,6 @@ def marginal_log_svr(inst: Instance, X: np.ndarray, cliques: Sequence[np.ndarray
     return log_svr(np.linalg.eigvalsh(marginal_X(inst, X, cliques))[::-1])
 
 
-# ----------------------------------------------------------------------------- paper families R4–R8
-
-
-def r4_unary(V: Variables, prefix: str, T_meas: np.ndarray, xi: str, name: str) -> list[Constraint]:
-    """(R4) φᵀ c_i = φᵀ c̃_i, i = 1, 2, 3 (paper (52))."""
-    phi = var(xi_blocks(xi)[1])
-    return [Constraint(sum_quads(V, [(phi, var(c) - const(T_meas[:3, i]), None)]), 0.0,
-                       name=f"{name}:R4[{i + 1}]", family="R4", factor=name)
-            for i, c in enumerate(rot_blocks(prefix))]
-
-
-def r5_unary(V: Variables, prefix: str, T_meas: np.ndarray, xi: str, name: str) -> list[Constraint]:
-    """(R5) φᵀ r = φᵀ r̃ + φᵀ ρ (paper (53))."""
-    rho, phi = (var(b) for b in xi_blocks(xi))
-    A = sum_quads(V, [(phi, var(trans_block(prefix)) - const(T_meas[:3, 3]) - rho, None)])
-    return [Constraint(A, 0.0, name=f"{name}:R5", family="R5", factor=name)]
-
-
-def r7_unary(V: Variables, prefix: str, T_meas: np.ndarray, xi: str, name: str) -> list[Constraint]:
-    """(R7) −½ φᵀ c_n = c_mᵀ c̃_ℓ − ½ c_mᵀ c̃_ℓ^∧ φ for ℓmn ∈ {123, 231, 312} (paper (55); SO(3) only)."""
-    phi = var(xi_blocks(xi)[1])
-    cols = rot_blocks(prefix)
-    out = []
-    for l, m, n in ((0, 1, 2), (1, 2, 0), (2, 0, 1)):
-        cm = T_meas[:3, l]
-        A = sum_quads(V, [(phi, var(cols[n]), 0.5 * np.eye(3)), (var(cols[m]), H, cm.reshape(3, 1)),
-                          (var(cols[m]), phi, -0.5 * lie.hat(cm))])
-        out.append(Constraint(A, 0.0, name=f"{name}:R7[{l + 1}{m + 1}{n + 1}]", family="R7", factor=name))
-    return out
-
-
-def r6_binary(V: Variables, pa: str, pb: str, xi: str, name: str) -> list[Constraint]:
-    """(R6) φᵀ c_{b,i} = φᵀ c_{a,i} (i = 1, 2, 3) and φᵀ r_b = φᵀ r_a + φᵀ ρ (paper (54)), b = a + 1."""
-    rho, phi = (var(b) for b in xi_blocks(xi))
-    out = [Constraint(sum_quads(V, [(phi, var(cb) - var(ca), None)]), 0.0, name=f"{name}:R6[{i + 1}]",
-                      family="R6", factor=name) for i, (ca, cb) in enumerate(zip(rot_blocks(pa), rot_blocks(pb)))]
-    A = sum_quads(V, [(phi, var(trans_block(pb)) - var(trans_block(pa)) - rho, None)])
-    return out + [Constraint(A, 0.0, name=f"{name}:R6[r]", family="R6", factor=name)]
-
-
-def r8_binary(V: Variables, pa: str, pb: str, xi: str, name: str) -> list[Constraint]:
-    """(R8) r_bᵀ r_b = (r_b + r_a)ᵀ ρ + r_aᵀ r_a (paper (56))."""
-    ra, rb, rho = var(trans_block(pa)), var(trans_block(pb)), var(xi_blocks(xi)[0])
-    A = sum_quads(V, [(rb, rb, None), (rb + ra, rho, -np.eye(3)), (ra, ra, -np.eye(3))])
-    return [Constraint(A, 0.0, name=f"{name}:R8", family="R8", factor=name)]
-
-
-# ----------------------------------------------------------------------------- the model
-
-
-def _cliques_chain(d: _Data) -> list[tuple[str, ...]]:
-    """ϖ kept: per k < K−1 {h, pose k, pose k+1, ξ_{k+1,k}, ϖ_k, ϖ_{k+1}}, per measured k {h, pose k, ξ_k}."""
-    out = [("h", *pose_blocks(pose_prefix(k)), *pose_blocks(pose_prefix(k + 1)), *xi_blocks(motion_xi(k)),
-            twist_block(k), twist_block(k + 1)) for k in range(d.K - 1)]
-    return out + [("h", *pose_blocks(pose_prefix(int(k))), *xi_blocks(meas_xi(int(k)))) for k in d.measured]
-
-
-def _marginalized_cover(d: _Data) -> list[tuple[str, ...]]:
-    """ϖ marginalised: the Schur complement couples h and all motion ξ, so one bag must hold them all.
-
-    A tree decomposition (path B_0 – … – B_{K−2}) with the full bag in the middle, j = (K−2)//2:
-    B_i = {h, pose i, pose i+1} ∪ {ξ_{l+1,l} : i lies between l and j}, so B_i holds ξ_{l+1,l} for
-    l ≤ i (i < j), for l ≥ i (i > j) and for every l (i = j).  Pose i+1 lies in B_i and B_{i+1} only
-    and each ξ_{l+1,l} in the contiguous run from B_l to B_j: the running intersection property
-    holds.  Per measured k a leaf {h, pose k, ξ_k}.  Largest bag: 1 + 24 + 6(K−1).
-    """
-    j = (d.K - 2) // 2
-    out = []
-    for i in range(d.K - 1):
-        ls = range(d.K - 1) if i == j else range(0, i + 1) if i < j else range(i, d.K - 1)
-        out.append(("h", *pose_blocks(pose_prefix(i)), *pose_blocks(pose_prefix(i + 1)),
-                    *(b for l in ls for b in xi_blocks(motion_xi(l)))))
-    return out + [("h", *pose_blocks(pose_prefix(int(k))), *xi_blocks(meas_xi(int(k)))) for k in d.measured]
-
-
-def marginalized_cliques(inst: Instance) -> list[tuple[str, ...]]:
-    """A block-level clique tree covering the marginalised model (not used by default; see above)."""
-    return _marginalized_cover(_data(inst))
-
-
-def build(inst: Instance) -> Model:
-    d = _data(inst)
-    if d.marginalize:
-        mg = marginal(inst)
-        V, Q, cliques = mg.Vx, mg.S, None
-    else:
-        V = _variables(d, True)
-        Q, cliques = _full_cost(d, V), _cliques_chain(d)
-    factors: list[Factor] = []
-    paper: dict[str, list[Constraint]] = {f"R{i}": [] for i in range(1, 9)}
-    for k in range(d.K):
-        p = pose_prefix(k)
-        factors.append(Factor(f"so3_{k}", "so3", ("h", *rot_blocks(p)),
-                              constraints=pose_orthonormality(V, p, factor=f"so3_{k}"), roles=("h", "c1", "c2", "c3")))
-    for j, k in enumerate(d.measured):
-        k, name, p, s, Tm = int(k), f"meas_{k}", pose_prefix(int(k)), meas_xi(int(k)), d.T_meas[j]
-        factors.append(Factor(name, "pose_meas", ("h", *pose_blocks(p), *xi_blocks(s)),
-                              cost=weighted_cost(V, s, d.W[j]), constraints=unary_cayley(V, p, Tm, s, name),
-                              roles=("h", *POSE_ROLES, *XI_ROLES)))
-        paper["R1"] += r1_unary(V, p, Tm, s, name, factor=name)
-        paper["R2"] += r2_unary(V, p, Tm, s, name, factor=name)
-        paper["R4"] += r4_unary(V, p, Tm, s, name)
-        paper["R5"] += r5_unary(V, p, Tm, s, name)
-        paper["R7"] += r7_unary(V, p, Tm, s, name)
-    for k in range(d.K - 1):
-        name, pa, pb, s = f"motion_{k + 1}_{k}", pose_prefix(k), pose_prefix(k + 1), motion_xi(k)
-        factors.append(Factor(name, "motion", ("h", *pose_blocks(pa), *pose_blocks(pb), *xi_blocks(s)),
-                              constraints=binary_cayley(V, pa, pb, None, s, name), roles=MOTION_ROLES))
-        paper["R3"] += r3_binary(V, pa, pb, None, s, name, factor=name)
-        paper["R6"] += r6_binary(V, pa, pb, s, name)
-        paper["R8"] += r8_binary(V, pa, pb, s, name)
-    # ϖ kept: Clarabel on our cover is 4× faster than its own chordal decomposition at K = 21
-    return Model(V, factors, paper=paper, cost=Q, cost_offset=0.0, cliques=cliques,
-                 decompose=None if d.marginalize else True)
-
-
 # ----------------------------------------------------------------------------- states and costs
 
 
@@ -595,32 +747,17 @@ def residuals(inst: Instance, T: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return meas, motion
 
 
-def _lift_values(inst: Instance, T: np.ndarray) -> dict[str, np.ndarray]:
-    d = _data(inst)
-    meas, motion = residuals(inst, T)
-    vals: dict[str, np.ndarray] = {}
-    for k in range(d.K):
-        vals |= pose_values(T[k][:3, :3], T[k][:3, 3], pose_prefix(k))
-    for k, xi in zip(d.measured, meas):
-        vals |= xi_values(xi, meas_xi(int(k)))
-    for k, xi in enumerate(motion):
-        vals |= xi_values(xi, motion_xi(k))
-    return vals
-
-
 def optimal_twists(inst: Instance, T: np.ndarray) -> np.ndarray:
     """argmin over ϖ of the cost for fixed poses T, (K, 6): ϖ* = −Q_ww⁻¹ Q_wx x(T)."""
     mg = marginal(inst)
-    return mg.twists(mg.Vx.assemble(_lift_values(inst, T))[0])
+    x = _lift(inst, {"T": T, "w": np.zeros((len(T), 6))})[:mg.Vx.N]  # the twists' blocks come last
+    return mg.twists(x)
 
 
 def lift(inst: Instance, state: dict) -> np.ndarray:
-    """x (N,): ϖ blocks are included (from state["w"]) only when the instance keeps ϖ in the lifting."""
-    d = _data(inst)
-    vals = _lift_values(inst, state["T"])
-    if not d.marginalize:
-        vals |= {twist_block(k): np.asarray(state["w"][k], dtype=float) for k in range(d.K)}
-    return _variables(d, not d.marginalize).assemble(vals)[0]
+    """x (N,) (the layer's): ϖ blocks are included (from state["w"]) only when the instance keeps ϖ in the lifting."""
+    _data(inst)
+    return _lift(inst, state)
 
 
 def cost(inst: Instance, state: dict) -> float:
@@ -728,23 +865,17 @@ def random_state(inst: Instance, rng: np.random.Generator) -> dict:
 
 
 def recover(inst: Instance, Theta: np.ndarray) -> dict:
-    """Poses from the rank-1 factor (raw rotations projected to SO(3), dets reported) and the twists:
-    read from x when kept, else ϖ* = −Q_ww⁻¹ Q_wx x."""
+    """Poses from the rank-1 factor (the layer's: raw rotations projected to SO(3), dets reported) and the
+    twists: read from x when kept, else ϖ* = −Q_ww⁻¹ Q_wx x."""
     d = _data(inst)
     x = np.asarray(Theta, dtype=float).reshape(-1)
-    x = x / x[0]
-    V = _variables(d, not d.marginalize)
-    if x.size != V.N:
-        raise ProblemDefinitionError(f"Θ has {x.size} columns, the lifting has {V.N}")
-    T, dets = np.empty((d.K, 4, 4)), np.empty(d.K)
-    for k in range(d.K):
-        C, r = pose_from_x(V, x, pose_prefix(k))
-        T[k], dets[k] = lie.make_pose(lie.project_to_so3(C), r), np.linalg.det(C)
-    if d.marginalize:
-        w = marginal(inst).twists(x)
-    else:
-        w = np.array([x[V.slice(twist_block(k))] for k in range(d.K)])
-    return {"T": T, "w": w, "det_raw": dets}
+    N = _variables(d, not d.marginalize).N
+    if x.size != N:
+        raise ProblemDefinitionError(f"Θ has {x.size} columns, the lifting has {N}")
+    est = _recover(inst, x)
+    T = np.array([lie.make_pose(C, r) for C, r in zip(est["C"], est["r"])])
+    w = marginal(inst).twists(x / x[0]) if d.marginalize else est["w"]
+    return {"T": T, "w": w, "det_raw": est["det_raw"]}
 
 
 def errors(inst: Instance, state: dict) -> dict:

@@ -83,6 +83,26 @@ def test_structure_counts_and_roles():
     assert kept.variables.N == model.variables.N + 6 * K
 
 
+@pytest.mark.parametrize("params", [{"K": 6}, {"K": 5, "sigma": 1.0, "preset": "long_horizon"},
+                                    {"K": 4, "times": (0.0, 0.5, 2.0, 2.7), "qc_diag": (1, 2, 3, 0.5, 0.1, 4)}])
+def test_the_declared_factors_are_the_hand_written_model_to_the_bit(params):
+    """The ϖ-kept cost the factor-graph layer sums from the declared factors is the form ``_full_cost`` assembles
+    block by block for the Schur complement (``marginal``), bit for bit, on the same blocks; the constraints keep
+    their names (the rotations' by block, the Cayley rows by column, R6 and R7 by row)."""
+    inst = PROB.generate(params, 1)
+    model = PROB.build(inst)
+    d = ct._data(inst)
+    V = ct._variables(d, True)
+    assert model.variables.names == V.names
+    assert (sp.csr_array(ct._full_cost(d, V)) != model.Q).nnz == 0
+    names = [c.name for c in model.primary()]
+    assert names[1:4] == ["orth(p0_c1,p0_c1)", "orth(p0_c1,p0_c2)", "orth(p0_c1,p0_c3)"]
+    assert "meas_0:col3[2]" in names and "motion_1_0:r[2]" in names
+    assert [c.name for c in model.paper["R6"][:4] + model.paper["R7"][:3]] == \
+        [f"motion_1_0:R6[{i}]" for i in ("1", "2", "3", "r")] + [f"meas_0:R7[{r}]" for r in ("123", "231", "312")]
+    assert all(f.data is None for f in model.factors)
+
+
 @pytest.mark.parametrize("marginalize", [True, False])
 def test_every_constraint_vanishes_on_fresh_so3_samples(marginalize, lifted_violations):
     inst = _instance(3, K=7, marginalize=marginalize)
@@ -493,3 +513,11 @@ def test_paper_default_k21_is_tight(seed):
     assert out.tight and out.outcome == "tight", out.verdict.reason
     assert out.log_svr_marginal > 5.0, out.log_svr_marginal
     assert out.sdp.usable and out.verdict.upper - out.verdict.lower <= 1e-4 * abs(out.verdict.upper)
+
+
+def test_the_cost_only_example_on_the_layer_page_is_the_shipped_module():
+    """Every line of docs/factor_graph.md's cost-only snippet is a line of problems/continuous_trajectory.py."""
+    from doc_snippets import missing_lines
+
+    lines, missing = missing_lines("cost_only=True", "continuous_trajectory")
+    assert len(lines) >= 7 and missing == []

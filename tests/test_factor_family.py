@@ -255,3 +255,132 @@ def test_element_names_and_roles_that_cannot_be_used_are_one_line_errors(make, m
         out = make()
         if not isinstance(out, Variable):
             Graph(CHAIN, _chain({"M": 3}, np.random.default_rng(0)).truth, out)
+
+
+# ----------------------------------------------------------------------------- cost-only variables and their costs
+
+
+def _moving(params, rng):
+    inst = _chain(params, rng)
+    inst.truth["v"] = rng.standard_normal((params["M"], 2))
+    inst.measurements["v0"] = rng.standard_normal(2)
+    return inst
+
+
+def _moving_factors(velocities: bool = True):
+    """The chain with velocities v_k (cost-only): e = [w − v_k; v_k − v_{k+1}] couples the step's own block w with
+    them; a prior on v_0; data kept off the model factors; named equations, paper rows and rotation constraints."""
+    def factors(inst):
+        K = len(inst.truth["C"])
+        rotated = lambda C, D: np.einsum("rij,rj->ri", C.x, D)  # noqa: E731
+        yield Family([(f"C{k}", f"p{k}") for k in range(K)], lambda C, p, z, D: z.z - p.x, data=inst.measurements["d"],
+                     type="meas", auxiliary=Auxiliary({"z": 2}, value=lambda C, p, D: rotated(C, D),
+                                                      equations=lambda C, p, z, D: z.z - rotated(C, D),
+                                                      names=("z[x]", "z[y]")),
+                     paper={"norm": lambda C, p, z, D: (z.z * z.z).sum(1) - (D * D).sum(1)},
+                     names=[f"meas_{k}" for k in range(K)], aux_names=[str(k) for k in range(K)], record_data=False)
+        if velocities:
+            yield Factor("v0", lambda v: inst.measurements["v0"] - v.x, weight=4.0, name="prior")
+        steps = [(f"C{k}", f"p{k}", f"C{k + 1}", f"p{k + 1}") for k in range(K - 1)]
+        error = lambda C1, p1, C2, p2, v1, v2, w, D: np.hstack([w.w - v1.x, v1.x - v2.x])  # noqa: E731
+        yield Family([s + (f"v{k}", f"v{k + 1}") for k, s in enumerate(steps)] if velocities else steps,
+                     error if velocities else None, data=inst.measurements["u"], type="step",
+                     weight=np.diag([1.0, 2.0, 3.0, 4.0]) if velocities else None,
+                     auxiliary=Auxiliary({"w": 2}, value=lambda C1, p1, C2, p2, *rest: p2.x - p1.x - rest[-1],
+                                         equations=lambda C1, p1, C2, p2, *rest: rest[-2].w - p2.x + p1.x + rest[-1]),
+                     paper={"pair": lambda C1, p1, C2, p2, *rest: np.stack(
+                         [((rest[-2].w - p2.x + p1.x + rest[-1]) * p.x).sum(1) for p in (p1, p2)], 1)},
+                     paper_labels={"pair": ("p", "p'")}, names=[f"step_{k + 1}_{k}" for k in range(K - 1)],
+                     aux_names=[f"{k + 1}_{k}" for k in range(K - 1)], roles=("h", "c", "p", "c'", "p'", "w"))
+    return factors
+
+
+MOVING = [Variable("C", Rotation(2), block="c", element="P{i}_{block}", factor="rot",
+                   constraint_names=lambda equation, index, **_: f"orth(P{index}_c)[{equation[5:-1]}]"),
+          Variable("p", Euclidean(2), element="P{i}_{block}"),
+          Variable("v", Euclidean(2), element="{block}_{i}", cost_only=True)]
+
+
+def test_cost_only_variables_are_last_in_no_factor_and_make_the_cost_explicit():
+    """``Variable.cost_only``: the velocities' blocks come after the auxiliary blocks, no factor lists them, the
+    costs on them make ``Model.cost`` (the factors touching them have none), which is every declared cost:
+    xᵀQx is the derived cost at a lifted sample.  ``Auxiliary.names``, ``Family.paper_labels``,
+    ``Family.record_data`` and ``Variable.constraint_names`` name and keep what they say."""
+    K = 4
+    inst = _moving({"M": K}, np.random.default_rng(0))
+    parts = derive(MOVING, _moving_factors(), by_element=True)
+    m = parts.build(inst)
+    names = m.variables.names
+    assert names[1 + 2 * K:] == [f"z_{k}" for k in range(K)] + [f"w_{k + 1}_{k}" for k in range(K - 1)] + \
+        [f"v_{k}" for k in range(K)]
+    assert [f.name for f in m.factors] == [n for k in range(K) for n in (f"rot_{k}", f"meas_{k}")] + \
+        [f"step_{k + 1}_{k}" for k in range(K - 1)]
+    assert not any(b.startswith("v_") for f in m.factors for b in f.blocks)
+    step = m.factor("step_1_0")
+    assert step.blocks == ("h", "P0_c", "P0_p", "P1_c", "P1_p", "w_1_0") and step.cost is None
+    assert m.factor("meas_0").cost is not None and m.factor("meas_0").data is None
+    assert [c.name for c in m.factor("meas_0").constraints] == ["meas_0:z[x]", "meas_0:z[y]"]
+    assert [c.name for c in m.factor("rot_0").constraints] == [f"orth(P0_c)[{i}]" for i in ("0,0", "0,1", "1,1")]
+    assert [c.name for c in m.paper["pair"][:2]] == ["step_1_0:pair[p]", "step_1_0:pair[p']"]
+    assert m.cost is not None
+    state = parts.sample(inst, np.random.default_rng(1), inst.truth, 0.7)
+    x = parts.lift(inst, state)
+    assert x @ (m.Q @ x) == pytest.approx(parts.cost(inst, state), rel=1e-12)
+    assert max(abs(c.value(np.outer(x, x))) for c in m.all_constraints() if c.family != "homogenisation") <= 1e-12
+    assert np.array_equal(parts.recover(inst, x)["v"], state["v"])
+    # without the velocities: the steps have no residual (constraints only) and the cost is the factors'
+    still = derive(MOVING[:2], _moving_factors(velocities=False), by_element=True).build(inst)
+    assert still.cost is None and still.factor("step_1_0").cost is None
+    assert [c.name for c in still.factor("step_1_0").constraints] == ["step_1_0:aux[0]", "step_1_0:aux[1]"]
+    assert still.variables.names == names[:len(still.variables.names)]
+
+
+def test_a_state_map_gives_the_layer_its_variables():
+    """``derive(state=…)``: the instance's truth and the states the parts take hold the variables in the module's
+    own form (here one stack of (C, p) pairs), mapped to the layer's."""
+    inst = _chain({"M": 3}, np.random.default_rng(0))
+    packed = {"pose": np.concatenate([inst.truth["C"], inst.truth["p"][:, :, None]], axis=2)}
+    inst.truth = packed
+    unpack = lambda s: {"C": s["pose"][:, :, :2], "p": s["pose"][:, :, 2]}  # noqa: E731
+    chain = _chain_factors()
+    parts = derive(CHAIN, lambda i: chain(types.SimpleNamespace(truth=unpack(i.truth), measurements=i.measurements)),
+                   by_element=True, state=unpack)
+    plain = derive(CHAIN, _chain_factors(), by_element=True)
+    ref = _chain({"M": 3}, np.random.default_rng(0))
+    assert np.array_equal(parts.lift(inst, packed), plain.lift(ref, ref.truth))
+    assert parts.build(inst).variables.names == plain.build(ref).variables.names
+
+
+@pytest.mark.parametrize("make, message", [
+    (lambda: Variable("v", Euclidean(2), lifting={"n": lambda v: [v @ v]}, cost_only=True),
+     r"a cost-only variable has no lifting"),
+    (lambda: Variable("C", Rotation(2), cost_only=True),
+     r"a cost-only variable has no lifting, no products and no manifold"),
+    (lambda: Auxiliary({"z": 2}, value=lambda *a: None, equations=lambda *a: None, names=("",)),
+     r"names must be non-empty strings"),
+])
+def test_cost_only_and_naming_declarations_that_cannot_be_used_are_one_line_errors(make, message):
+    with pytest.raises(ProblemDefinitionError, match=message):
+        make()
+
+
+@pytest.mark.parametrize("edit, message", [
+    ({"aux_names_count": True}, r"the auxiliary names 1 equations, its equations return 2"),
+    ({"labels": ("p",)}, r"paper_labels gives 1 labels for the 2 rows of 'pair'"),
+    ({"touch": True}, r"its equations or paper rows involve a cost-only variable"),
+])
+def test_names_and_cost_only_rows_that_do_not_fit_are_one_line_errors(edit, message):
+    inst = _moving({"M": 3}, np.random.default_rng(0))
+
+    def factors(inst):
+        for f in _moving_factors()(inst):
+            if isinstance(f, Family) and f.type == "meas" and "aux_names_count" in edit:
+                f.auxiliary.names = ("z",)
+            if isinstance(f, Family) and f.type == "step" and "labels" in edit:
+                f.paper_labels = {"pair": edit["labels"]}
+            if isinstance(f, Family) and f.type == "step" and "touch" in edit:
+                f.paper["pair"] = lambda C1, p1, C2, p2, v1, v2, w, D: (w.w * v1.x).sum(1)
+            yield f
+
+    with pytest.raises(ProblemDefinitionError, match=message):
+        Graph(MOVING, inst.truth, factors(inst), by_element=True).model()

@@ -20,6 +20,12 @@ The model's factors (``autotight.model.Factor``), which discovery learns on, are
 The families' paper rows make ``Model.paper``, their clique hints ``Model.cliques``.  Primary constraints are
 named by the variables' and factors' ``constraint_names`` formats; the names must be distinct in the model.
 
+Cost-only variables (``Variable.cost_only``) have no factor of their own and are left out of the model
+factors' blocks and roles; a declared cost on one (``Factor`` or ``Family``) joins no model factor (one with
+constraints or auxiliary blocks of its own keeps them and has no cost), and the model then carries its whole
+cost explicitly, ``Model.cost``: every declared cost summed in declaration order (a family's factor by factor),
+each as two halves (``Graph._cost``).
+
 Roles of a variable's blocks inside a factor: its main block's names without the index and its lifting and
 product blocks' names, suffixed ``_k`` (k its position in the factor) when a variable of the same name appears twice;
 then the factor's auxiliary blocks' names.  The auxiliary blocks of the factors, after every variable's
@@ -40,7 +46,7 @@ from .declare import Factor as Declared
 from .declare import Family, Group, Variable
 from .family import FamilyTerm, scatter
 from .layout import Element, Layout
-from .terms import Term
+from .terms import Term, equation_names
 
 
 def _global(local: np.ndarray, columns: np.ndarray, N: int) -> sp.coo_array:
@@ -49,9 +55,19 @@ def _global(local: np.ndarray, columns: np.ndarray, N: int) -> sp.coo_array:
     return canonical_coo(columns[r], columns[c], local[r, c], N)
 
 
+def _modelled(elements: Sequence[Element]) -> list[Element]:
+    """The elements a model factor lists: all but the cost-only variables'."""
+    return [el for el in elements if not el.var.cost_only]
+
+
+def _touches_cost_only(elements: Sequence[Element]) -> bool:
+    return any(el.var.cost_only for el in elements)
+
+
 def _roles(elements: Sequence[Element], over: Sequence[Element] = ()) -> tuple[str, ...]:
     """h, the main blocks' names of ``over`` (the variables of the elements' products), then each element's
     main, lifting and product blocks' names (suffixed ``_k`` for a variable appearing twice)."""
+    elements = _modelled(elements)
     stems = [el.var.main_blocks() for el in elements]
     out: list[str] = ["h"] + [b for el in over for b in el.var.main_blocks()]
     for k, el in enumerate(elements):
@@ -122,7 +138,7 @@ def _own(t: FamilyTerm) -> bool:
 def _own_factors(layout: Layout) -> dict[tuple[str, int | None], list[Element]]:
     """The variables' own model factors: elements grouped by (type, index), in layout order."""
     out: dict[tuple[str, int | None], list[Element]] = {}
-    for el in layout.elements:
+    for el in _modelled(layout.elements):
         out.setdefault((el.var.type or el.var.name, el.index), []).append(el)
     return out
 
@@ -178,21 +194,32 @@ class Graph:
         costs: dict[tuple[str, int | None], list[Term | _Member]] = {key: [] for key in owners}
         grouped: dict[tuple[str, tuple[str, ...]], list[Term | _Member]] = {}
         own: list[Term | FamilyTerm | tuple[str, Group]] = []
+        every: list[Term | _Member] = []  # every declared cost, in order (the model's, with cost-only variables)
+        loose = False  # whether some cost is on a cost-only variable (then in no model factor)
+        family_costs: dict[int, list[sp.coo_array]] = {}
         for item in self.items:
             if isinstance(item, tuple):
                 own.append(item)
                 continue
             if isinstance(item, FamilyTerm):
+                fam_costs = item.costs(N) if item.family.residual is not None else []
+                family_costs[id(item)] = fam_costs
+                members: list[Term | _Member] = [_Member(item, f, C) for f, C in enumerate(fam_costs)]
+                every += members
+                loose = loose or bool(members) and _touches_cost_only(item.elements[0])
                 if _own(item):
                     own.append(item)
                     continue
-                members: list[Term | _Member] = [_Member(item, f, C) for f, C in enumerate(item.costs(N))]
-            elif item.factor.constraints or item.aux is not None:
-                own.append(item)
-                continue
             else:
+                every.append(item)
+                loose = loose or _touches_cost_only(item.elements)
+                if item.factor.constraints or item.aux is not None:
+                    own.append(item)
+                    continue
                 members = [item]
             for t in members:
+                if _touches_cost_only(t.elements):
+                    continue  # in the model's explicit cost only
                 key = _holder(L, t.elements, home)
                 if key is not None:
                     costs[key].append(t)
@@ -231,7 +258,8 @@ class Graph:
         owned: list[tuple[list[Element], Factor]] = []  # the own model factors with their variables
         for item in own:
             if isinstance(item, FamilyTerm):
-                owned += list(zip(item.elements, self._family_factors(item, N, paper, cliques)))
+                fam_costs = [] if _touches_cost_only(item.elements[0]) else family_costs[id(item)]
+                owned += list(zip(item.elements, self._family_factors(item, N, paper, cliques, fam_costs)))
                 continue
             if isinstance(item, tuple):  # a group: blocks and roles, no cost, no constraints
                 gname, g = item
@@ -245,9 +273,10 @@ class Graph:
             roles = _roles(t.elements) + (tuple(t.aux.blocks) if t.aux is not None else ())
             if len(set(roles)) != len(roles):
                 raise ProblemDefinitionError(f"factor {t.name!r}: its blocks' roles {roles} are not distinct")
-            blocks = ("h",) + tuple(b for el in t.elements for b in el.blocks) + t.aux_blocks
-            owned.append((t.elements, Factor(t.name, t.type, blocks, cost=self._cost([t], N), constraints=cons,
-                                             roles=roles, data=t.factor.data)))
+            blocks = ("h",) + tuple(b for el in _modelled(t.elements) for b in el.blocks) + t.aux_blocks
+            cost = None if _touches_cost_only(t.elements) else self._cost([t], N)
+            owned.append((t.elements, Factor(t.name, t.type, blocks, cost=cost, constraints=cons, roles=roles,
+                                             data=t.factor.data)))
         factors = self._ordered(var_factors, factors, owned, home)
         seen: set[str] = set()
         for c in (c for f in factors for c in f.constraints):
@@ -256,7 +285,8 @@ class Graph:
                                              "factors' constraint_names a {factor} or distinct constraint names")
             seen.add(c.name)
         self._stacked()  # the local solver's residual map, made with the model (the solver follows the build)
-        return Model(L.V, factors, paper=paper, cliques=cliques or None)
+        total = self._cost(every, N, halves=True) if loose else None  # then in no factor's cost alone
+        return Model(L.V, factors, paper=paper, cliques=cliques or None, cost=total)
 
     def _variable_constraints(self) -> tuple[dict[int, list[str]], dict[int, list[sp.coo_array]]]:
         """The manifolds', liftings' and products' constraints of every element, a variable's elements at once: (per
@@ -291,7 +321,7 @@ class Graph:
         placed: set[tuple[str, int | None]] = set()
         seq: list[Factor] = []
         for els, fac in owned:
-            for el in els:
+            for el in _modelled(els):
                 key = home[el.main]
                 if key in var_factors and key not in placed:
                     placed.add(key)
@@ -301,48 +331,56 @@ class Graph:
 
     @staticmethod
     def _family_factors(t: FamilyTerm, N: int, paper: dict[str, list[Constraint]],
-                        cliques: list[tuple[str, ...]]) -> list[Factor]:
-        """The family's model factors (each with its cost, its fitted equations, its data); its paper rows added
-        to ``paper`` (named ``name:family[k]``, k from 1, or ``name:family`` for one row) and its factors' blocks
-        to ``cliques`` when it declares them clique hints."""
+                        cliques: list[tuple[str, ...]], costs: Sequence[sp.coo_array]) -> list[Factor]:
+        """The family's model factors (each with its cost, one per factor in ``costs`` or None, its fitted
+        equations, its data unless ``record_data`` is False); its paper rows added to ``paper`` (named
+        ``name:family[k]``, k from 1 or ``paper_labels``, or ``name:family`` for one unlabelled row) and its
+        factors' blocks to ``cliques`` when it declares them clique hints."""
         roles = t.roles(_roles(t.elements[0]))
         if len(set(roles)) != len(roles):
             raise ProblemDefinitionError(f"{t.where}: its blocks' roles {roles} are not distinct")
         eqs = t.equations.matrices(t.data, t.columns, N) if t.equations is not None else [[] for _ in t.names]
-        costs = t.costs(N)
-        rows = [f"aux[{k}]" for k in range(t.equations.k)] if t.equations is not None else []
+        rows = equation_names(t.aux, t.equations.k, t.where) if t.aux is not None and t.equations is not None else []
         out = []
         for f, name in enumerate(t.names):
-            blocks = ("h",) + tuple(b for el in t.elements[f] for b in el.blocks) + t.aux_blocks[f]
+            blocks = ("h",) + tuple(b for el in _modelled(t.elements[f]) for b in el.blocks) + t.aux_blocks[f]
             cons = [Constraint(A, 0.0, name=f"{name}:{r}", factor=name) for A, r in zip(eqs[f], rows)]
-            out.append(Factor(name, t.type, blocks, cost=costs[f], constraints=cons, roles=roles, data=t.data[f]))
+            out.append(Factor(name, t.type, blocks, cost=costs[f] if costs else None, constraints=cons, roles=roles,
+                              data=t.data[f] if t.family.record_data else None))
             if t.family.clique:
                 cliques.append(blocks)
+        given = t.family.paper_labels or {}
         for fam, fit in t.paper.items():
-            labels = [fam] if fit.k == 1 else [f"{fam}[{k + 1}]" for k in range(fit.k)]
+            labels = [fam] if fit.k == 1 and fam not in given else [f"{fam}[{lab}]" for lab in
+                                                                   given.get(fam, range(1, fit.k + 1))]
+            if len(labels) != fit.k:
+                raise ProblemDefinitionError(f"{t.where}: paper_labels gives {len(labels)} labels for the {fit.k} "
+                                             f"rows of {fam!r}")
             paper.setdefault(fam, []).extend(
                 Constraint(A, 0.0, name=f"{name}:{lab}", family=fam, factor=name)
                 for name, mats in zip(t.names, fit.matrices(t.data, t.columns, N)) for A, lab in zip(mats, labels))
         return out
 
     @staticmethod
-    def _cost(terms: Sequence[Term | _Member], N: int) -> sp.coo_array | None:
-        """The sum of the terms' lifted costs on the model's columns (one COO assembly)."""
+    def _cost(terms: Sequence[Term | _Member], N: int, halves: bool = False) -> sp.coo_array | None:
+        """The sum of the terms' lifted costs on the model's columns (one COO assembly), in order; ``halves``: each
+        term's (symmetric) matrix entering as two halves C/2 + C/2, as ``autotight.model.QuadForm`` sums a form
+        (the model's explicit cost: a module that summed its cost with QuadForm keeps it to the bit)."""
         if not terms:
             return None
         rows, cols, vals = [], [], []
         for t in terms:
             if isinstance(t, _Member):
                 G = t.global_cost()
-                rows.append(G.row)
-                cols.append(G.col)
-                vals.append(G.data)
-                continue
-            C = t.cost_matrix()
-            i, j = np.nonzero(C)
-            rows.append(t.columns[i])
-            cols.append(t.columns[j])
-            vals.append(C[i, j])
+                r, c, v = G.row, G.col, G.data
+            else:
+                C = t.cost_matrix()
+                i, j = np.nonzero(C)
+                r, c, v = t.columns[i], t.columns[j], C[i, j]
+            for _ in range(2 if halves else 1):
+                rows.append(r)
+                cols.append(c)
+                vals.append(0.5 * v if halves else v)
         return canonical_coo(np.concatenate(rows), np.concatenate(cols), np.concatenate(vals), N)
 
     # ------------------------------------------------------------------ at a state

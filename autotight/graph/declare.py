@@ -33,10 +33,11 @@ columns (after its variables').  ``value(*views) -> (Σ sizes,)``: their value a
 undefined: ``sample`` draws again).  ``equations(*views, aux) -> (k,)``: their defining relations, each a
 polynomial of degree ≤ 2 in the local entries (``aux.<block>`` the blocks' entries), zero at the value;
 fitted into k primary constraints of the factor (``terms``).  ``jacobian(*views, aux) -> (Σ sizes, Σ dof)``:
-∂value/∂ε for the local solver (default central differences).  The residual then gets ``aux`` after the
-views, e.g. ``lambda C, aux: aux.phi``, so a cost on the blocks is an affine residual.  ``equations`` may be
-None when the factor's declared ``constraints`` define the blocks (matrices used as given); ``element`` names
-the blocks in the lifted vector (default "{block}_{i}").
+∂value/∂ε for the local solver (default central differences); ``names``: the equations' constraint names
+(default ``aux[k]``).  The residual then gets ``aux`` after the views, e.g. ``lambda C, aux: aux.phi``, so a
+cost on the blocks is an affine residual.  ``equations`` may be None when the factor's declared ``constraints``
+define the blocks (matrices used as given); ``element`` names the blocks in the lifted vector (default
+"{block}_{i}").
 
 ``Group(blocks, type, roles, data, name)``: a model factor with no cost and no constraints on blocks of the
 lifted vector (by name, h prepended), a learning group for discovery.
@@ -46,6 +47,10 @@ embeddings of the given single ``Variable`` objects stacked (Kronecker, entry a�
 with z = w [t; vec C]), after its lifting blocks; their primary constraints h·z = x ⊗ θ.  The element's own
 model factor then holds those variables' main blocks first (h, t, c, w_i, z_i), and the cost of a factor on the
 element and those variables joins it.  A factor on such a variable must also be on its products' variables.
+
+``Variable(…, cost_only=True)``: a variable that only costs see (no constraints, no lifting; e.g. the twists of
+a motion prior): its blocks come last in the lifted vector, it has no model factor and the model factors of the
+declared factors on it leave its blocks out; their costs then make the model's explicit cost (``assemble``).
 
 ``Family(variables, residual, data, type, …)``: F factors of one type at once, their data stacked (F, *shape)
 and every function called on stacks with the data last (``family``); their auxiliary's equations and their
@@ -189,6 +194,11 @@ class Variable:
     #: single variables stacked (Kronecker; e.g. {"z": (t, C)}: z = w [t; vec C]); primary constraints h·z = x ⊗ θ;
     #: its own model factor holds those variables' main blocks first
     products: Mapping[str, Sequence[Variable]] = field(default_factory=dict)
+    #: a variable of the cost only (e.g. twists under a motion prior): blocks last in the lifted vector (after
+    #: the factors' auxiliary blocks), no model factor of its own, left out of the model factors' blocks; the
+    #: declared costs on it make the model's explicit cost (``assemble``).  Needs no constraints, no lifting and
+    #: no products
+    cost_only: bool = False
 
     def __post_init__(self) -> None:
         try:
@@ -219,6 +229,9 @@ class Variable:
         if bad:
             raise ProblemDefinitionError(f"variable {self.name!r}: product blocks must map identifiers other than 'x', "
                                          f"'h' and the lifting blocks to non-empty sequences of Variable, got {bad}")
+        if self.cost_only and (self.lifting or self.products or self.manifold.constraints()):
+            raise ProblemDefinitionError(f"variable {self.name!r}: a cost-only variable has no lifting, no products "
+                                         "and no manifold equations (it is in no model factor)")
         self._fits: list[LiftingFit] | None = None
 
     def element_block(self, block: str, i: int | None) -> str:
@@ -329,9 +342,15 @@ class Auxiliary:
     equations: Callable[..., Any] | None = None
     jacobian: Callable[..., Any] | None = None
     element: str = "{block}_{i}"
+    #: the equations' names, one per row (the constraints ``{factor}:{name}``; default ``aux[k]``)
+    names: Sequence[str] | None = None
 
     def __post_init__(self) -> None:
         self.blocks = dict(self.blocks)
+        if self.names is not None:
+            self.names = tuple(self.names)
+            if not self.names or not all(isinstance(n, str) and n for n in self.names):
+                raise ProblemDefinitionError(f"auxiliary blocks {list(self.blocks)}: names must be non-empty strings")
         bad = [b for b, k in self.blocks.items() if not isinstance(b, str) or not b.isidentifier() or b in ("x", "h")
                or isinstance(k, bool) or not isinstance(k, (int, np.integer)) or k < 1]
         if not self.blocks or bad:
@@ -407,7 +426,8 @@ class Family:
     the factors' measurements stacked, (F, *shape); each factor's model ``Factor.data`` is its row, raveled.
     ``residual(*views, [aux,] data) -> (F, m)``: views of stacks (``view.x`` (F, *shape), ``view.<block>``
     (F, size)), the auxiliary's view when there is one, the data stack; affine in the views' entries (the
-    lifted cost is derived).  ``weight``: a number, an (m, m) or an (F, m, m) stack of symmetric matrices.
+    lifted cost is derived), or None: the factors have no cost (constraints only: the auxiliary's equations and
+    the paper rows).  ``weight``: a number, an (m, m) or an (F, m, m) stack of symmetric matrices.
     ``auxiliary``: an ``Auxiliary`` whose functions take the same stacks and the data (``value(*views,
     data) -> (F, Σ sizes)``, ``equations(*views, aux, data) -> (F, k)``, ``jacobian(*views, aux, data) ->
     (F, Σ sizes, Σ dof)``).  ``paper``: redundant constraints {family: rows(*views, [aux,] data) -> (F, k)},
@@ -415,12 +435,13 @@ class Family:
     in ``Model.paper[family]``.  The equations' and paper rows' coefficients must be polynomials of degree
     ≤ ``degree`` (1 or 2) in the data: they are fitted once per family.  ``names``: the factors' model
     names (default ``type_i``).  ``clique``: each factor's blocks are a clique hint (``Model.cliques``).
-    ``aux_names``: the suffixes of the factors' auxiliary block names; ``roles``: the roles of their blocks
-    (both optional).
+    ``aux_names``: the suffixes of the factors' auxiliary block names; ``roles``: the roles of their blocks;
+    ``paper_labels``: the labels of a paper family's rows; ``record_data``: False leaves the model factors'
+    ``data`` None (all optional).
     """
 
     variables: str | Sequence[str] | Sequence[Sequence[str]]
-    residual: Callable[..., Any]
+    residual: Callable[..., Any] | None
     data: np.ndarray
     type: str
     weight: float | np.ndarray | None = None
@@ -435,6 +456,11 @@ class Family:
     #: the roles of its factors' blocks (h, the variables' blocks, the auxiliary blocks); default derived
     #: (``assemble``: a variable appearing twice gets its roles suffixed ``_k``)
     roles: Sequence[str] | None = None
+    #: per paper family, the labels of its rows (constraints ``name:family[label]``; default 1, 2, …)
+    paper_labels: Mapping[str, Sequence[str]] | None = None
+    #: whether each model factor's ``Factor.data`` is its row of ``data`` (False: None, the data only feeding
+    #: the family's functions, e.g. for a module whose learned sets were found without factor data)
+    record_data: bool = True
 
     def __post_init__(self) -> None:
         if not isinstance(self.type, str) or not self.type:
@@ -458,8 +484,8 @@ class Family:
                                          "each as long")
         #: each factor's variables
         self.members = members
-        if not callable(self.residual):
-            raise ProblemDefinitionError(f"{where}: residual must be a function")
+        if self.residual is not None and not callable(self.residual):
+            raise ProblemDefinitionError(f"{where}: residual must be a function (or None: no cost)")
         if self.auxiliary is not None and not isinstance(self.auxiliary, Auxiliary):
             raise ProblemDefinitionError(f"{where}: auxiliary must be an autotight.graph.Auxiliary")
         if self.auxiliary is not None and self.auxiliary.equations is None:
@@ -468,6 +494,10 @@ class Family:
         self.paper = dict(self.paper)
         if any(not isinstance(k, str) or not k or not callable(fn) for k, fn in self.paper.items()):
             raise ProblemDefinitionError(f"{where}: paper must map family names to functions")
+        if self.paper_labels is not None:
+            self.paper_labels = {k: tuple(str(x) for x in v) for k, v in dict(self.paper_labels).items()}
+            if not set(self.paper_labels) <= set(self.paper):
+                raise ProblemDefinitionError(f"{where}: paper_labels names families not in paper")
         if self.names is not None:
             self.names = list(self.names)
             if len(self.names) != F or len(set(self.names)) != F or not all(isinstance(n, str) and n

@@ -26,7 +26,7 @@ auxiliary value raises ValueError, e.g. at a singularity of its map, or the modu
 from __future__ import annotations
 
 import weakref
-from typing import Any, Callable, Iterable, NamedTuple, Sequence, cast
+from typing import Any, Callable, Iterable, Mapping, NamedTuple, Sequence, cast
 
 import numpy as np
 
@@ -58,7 +58,7 @@ class Parts(NamedTuple):
 def derive(variables: Sequence[Variable] | Callable[[Any], Sequence[Variable]],
            factors: Callable[[Any], Iterable[Factor | Family | Group]], by_element: bool = False,
            tangent: Sequence[str] | None = None, keep: Callable[[Any, dict], bool] | None = None,
-           tries: int = SAMPLE_TRIES) -> Parts:
+           tries: int = SAMPLE_TRIES, state: Callable[[Mapping[str, Any]], Mapping[str, Any]] | None = None) -> Parts:
     """The contract's parts from the declarations (see the module docstring).  ``by_element``: the lifted vector
     and the model's factors ordered element by element (``layout.Layout``, ``assemble.Graph``): element i of
     every stacked variable before element i + 1, and each variable's own factor right before the first factor of
@@ -69,21 +69,31 @@ def derive(variables: Sequence[Variable] | Callable[[Any], Sequence[Variable]],
     draws a pose's rotation step before its translation step; ``keep(instance, state) -> bool``, the states
     ``sample`` may return (it draws again while False, e.g. a camera pose with every landmark at a least depth:
     default every state); ``tries``, the draws ``sample`` makes before it gives up (ParameterError when the last
-    draw was refused by ``keep``, SolverError when an auxiliary value was undefined)."""
+    draw was refused by ``keep``, SolverError when an auxiliary value was undefined).
+
+    ``state``: for a module whose states do not hold its variables by name (e.g. poses T (K, 4, 4) for variables
+    C and r), the map from its state to {variable: value or stack}, applied to the instance's truth and to every
+    state the parts take (``lift``, ``cost``, ``sample``'s nominal, ``local_solve``'s start); the states the
+    parts return (``sample``, ``local_solve``, ``recover``) and ``keep`` sees hold the variables."""
     if not callable(factors):
         raise ProblemDefinitionError("factors must be a function factors(instance) -> iterable of Factor")
     if keep is not None and not callable(keep):
         raise ProblemDefinitionError("keep must be a function keep(instance, state) -> bool")
     if isinstance(tries, bool) or not isinstance(tries, int) or tries < 1:
         raise ProblemDefinitionError(f"tries must be a positive integer, got {tries!r}")
+    if state is not None and not callable(state):
+        raise ProblemDefinitionError("state must be a function of a state, or None")
     cache: dict[int, tuple[weakref.ref, Graph]] = {}
+
+    def held(s: Mapping[str, Any]) -> Mapping[str, Any]:
+        return s if state is None else state(s)
 
     def graph(inst: Any) -> Graph:
         hit = cache.get(id(inst))
         if hit is not None and hit[0]() is inst:
             return hit[1]
         declared = variables(inst) if callable(variables) else variables
-        g = Graph(list(declared), inst.truth, factors(inst), by_element, tangent)
+        g = Graph(list(declared), held(inst.truth), factors(inst), by_element, tangent)
         for k in [k for k, (ref, _) in cache.items() if ref() is None]:
             del cache[k]
         cache[id(inst)] = (weakref.ref(inst), g)
@@ -94,16 +104,16 @@ def derive(variables: Sequence[Variable] | Callable[[Any], Sequence[Variable]],
 
     def lift(inst: Any, state: dict) -> np.ndarray:
         g = graph(inst)
-        return g.lift(g.layout.values(state))
+        return g.lift(g.layout.values(held(state)))
 
     def cost(inst: Any, state: dict) -> float:
         g = graph(inst)
-        return g.cost(g.layout.values(state))
+        return g.cost(g.layout.values(held(state)))
 
     def sample(inst: Any, rng: np.random.Generator, nominal: dict, spread: float) -> dict:
         g = graph(inst)
         L = g.layout
-        start = L.values(nominal)
+        start = L.values(held(nominal))
         refused = False
         for _ in range(tries):
             values = L.retract(start, spread * rng.standard_normal(L.n_tangent))
@@ -129,7 +139,7 @@ def derive(variables: Sequence[Variable] | Callable[[Any], Sequence[Variable]],
     def local_solve(inst: Any, init: dict, max_iter: int = 200, rel_tol: float = 1e-12) -> Any:
         g = graph(inst)
         dense = g.layout.n_tangent <= DENSE_TANGENT and g.all_affine
-        res = gauss_newton(lambda values: g.linearize(values, dense), g.layout.retract, g.layout.values(init),
+        res = gauss_newton(lambda values: g.linearize(values, dense), g.layout.retract, g.layout.values(held(init)),
                            max_iter=max_iter, rel_tol=rel_tol)
         res.state = g.layout.state(cast(list, res.state))  # gauss_newton's state is the list of values
         return res

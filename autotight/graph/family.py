@@ -111,14 +111,23 @@ class Fit:
         """The used coefficients for each datum (R, q): (R, used)."""
         return features(D.reshape(len(D), self.q), self.degree) @ self.coef
 
-    def matrices(self, data: np.ndarray, columns: np.ndarray, N: int) -> list[list[sp.coo_array]]:
-        """[factor][row]: each row homogenised, [h; θ]ᵀ A [h; θ], as an N×N matrix on the factors' columns."""
+    def _positions(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Each entry monomial's positions in the (1 + p)² matrix and its factor there: 1, θ_j, θ_j², θ_iθ_j."""
         p = self.p
         i, j = np.triu_indices(p, 1)
-        # an entry monomial's positions in the (1 + p)² matrix and its factor there: 1, θ_j, θ_j², θ_iθ_j
         first = np.concatenate([[0], np.zeros(p, int), 1 + np.arange(p), 1 + i])
         second = np.concatenate([[0], 1 + np.arange(p), 1 + np.arange(p), 1 + j])
         half = np.concatenate([[1.0], np.full(p, 0.5), np.ones(p), np.full(i.size, 0.5)])
+        return first, second, half
+
+    def columns(self) -> np.ndarray:
+        """The local columns (0: h) that some row involves for some datum."""
+        first, second, _ = self._positions()
+        return np.unique(np.concatenate([first[self.mono], second[self.mono]]))
+
+    def matrices(self, data: np.ndarray, columns: np.ndarray, N: int) -> list[list[sp.coo_array]]:
+        """[factor][row]: each row homogenised, [h; θ]ᵀ A [h; θ], as an N×N matrix on the factors' columns."""
+        first, second, half = self._positions()
         a, b, mono = first[self.mono], second[self.mono], np.arange(self.mono.size)
         off = a != b
         rows = np.concatenate([a, b[off]])
@@ -164,10 +173,10 @@ class FamilyTerm:
         self.tangent = np.array([np.concatenate([np.arange(el.tangent_offset, el.tangent_offset + el.dof)
                                                  for el in els]) for els in self.elements])
         self.dof = int(sum(dofs))
-        nblocks = 1 + sum(len(el.blocks) for el in self.elements[0]) + len(self.aux_blocks[0])
+        nblocks = 1 + sum(len(el.blocks) for el in self.elements[0] if not el.var.cost_only) + len(self.aux_blocks[0])
         if fam.roles is not None and len(fam.roles) != nblocks:
-            raise ProblemDefinitionError(f"{where}: roles must name its factors' {nblocks} blocks (h, the variables', "
-                                         f"the auxiliary's), got {len(fam.roles)}")
+            raise ProblemDefinitionError(f"{where}: roles must name its factors' {nblocks} blocks (h, the variables' "
+                                         f"but the cost-only ones, the auxiliary's), got {len(fam.roles)}")
         self.M = self._affine_map()
         self.m = self.M.shape[1]
         self.W = self._weights()
@@ -175,6 +184,13 @@ class FamilyTerm:
             Fit(self._caller(self.aux.equations), self.n - 1, self.data, fam.degree, where, "auxiliary's equations")
         self.paper = {name: Fit(self._caller(fn), self.n - 1, self.data, fam.degree, where, f"paper rows {name!r}")
                       for name, fn in fam.paper.items()}
+        starts = np.cumsum([1] + self.sizes)
+        #: the local columns of cost-only variables (``Variable.cost_only``): in the cost, in no constraint
+        self.cost_only = np.concatenate([np.zeros(0, int)] + [np.arange(starts[k], starts[k + 1])
+                                                               for k, var in enumerate(self.vars) if var.cost_only])
+        fits = ([self.equations] if self.equations is not None else []) + list(self.paper.values())
+        if self.cost_only.size and any(np.isin(fit.columns(), self.cost_only).any() for fit in fits):
+            raise ProblemDefinitionError(f"{where}: its equations or paper rows involve a cost-only variable")
 
     # ------------------------------------------------------------------ stacks of local columns
     def _views(self, theta: np.ndarray) -> list[View]:
@@ -216,8 +232,11 @@ class FamilyTerm:
         return call
 
     def _affine_map(self) -> np.ndarray:
-        """M (F, m, n): each factor's residual map [b A], read off at θ = e_h, e_h + e_j and checked."""
+        """M (F, m, n): each factor's residual map [b A], read off at θ = e_h, e_h + e_j and checked; m = 0 for a
+        family without a residual."""
         F, n = self.F, self.n
+        if self.family.residual is None:
+            return np.zeros((F, 0, n))
         call = self._caller(self.family.residual)
         probes = np.eye(n)
         probes[1:, 0] = 1.0
@@ -253,7 +272,8 @@ class FamilyTerm:
         return [mats[0] for mats in scatter(C[:, r, c], np.zeros(r.size, int), r, c, 1, self.columns, N)]
 
     def roles(self, roles: tuple[str, ...]) -> tuple[str, ...]:
-        """The declared roles, else the variables' (``roles``) and the auxiliary blocks' names."""
+        """The declared roles, else the variables' (``roles``, the cost-only ones left out) and the auxiliary
+        blocks' names."""
         if self.family.roles is not None:
             return tuple(self.family.roles)
         return roles + (tuple(self.aux.blocks) if self.aux is not None else ())
@@ -311,5 +331,7 @@ class FamilyTerm:
         return a, np.stack(cols, axis=2)
 
     def residuals(self, theta: np.ndarray) -> np.ndarray:
-        """The declared residual at local columns θ (F, n), (F, m)."""
+        """The declared residual at local columns θ (F, n), (F, m) (m = 0 without a residual)."""
+        if self.family.residual is None:
+            return np.zeros((self.F, 0))
         return self._caller(self.family.residual)(theta, self.data.reshape(self.F, -1))

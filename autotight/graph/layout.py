@@ -5,7 +5,8 @@ The truth fixes the variables' multiplicity (``declare.Variable``).  Blocks, in 
 (a stack; ``Variable.block`` for ``name`` when given, each of its parts when it splits the block; a stack's
 names by ``Variable.element``), then its lifting and product blocks ``block`` or ``block{i}``; with ``by_element``, the
 single variables' blocks, then element 0 of every stacked variable (declaration order), element 1, …; after
-every variable, the factors' auxiliary blocks (``assemble``).  A state is ``{name: value or (N, *shape) stack}``
+every variable, the factors' auxiliary blocks (``assemble``); last, the cost-only variables' blocks
+(``Variable.cost_only``), in the same order among themselves.  A state is ``{name: value or (N, *shape) stack}``
 with one entry per declared variable.  The stacked tangent vector (the retraction steps ε, the sampler's draws)
 holds each variable's elements in index order, the variables in declaration order or in the ``tangent`` order.
 """
@@ -66,7 +67,7 @@ class Layout:
         self.counts: dict[str, int | None] = {}
         #: whether the blocks are ordered element by element (``derive(by_element=True)``)
         self.by_element = by_element
-        placed: list[tuple[int, list[tuple[str, int]]]] = []  # (element index, its blocks)
+        placed: list[tuple[int, list[tuple[str, int]], bool]] = []  # (element index, its blocks, cost-only)
         offset = 0
         for var in self.variables:
             if var.name not in truth:
@@ -87,11 +88,12 @@ class Layout:
                 own = tuple(var.element_block(b, i) for b in parts + tuple(f.name for f in fits) + tuple(var.products))
                 el = Element(var, i, own, offset)
                 self.elements.append(el)
-                placed.append((-1 if i is None else i, list(zip(el.blocks, sizes))))
+                placed.append((-1 if i is None else i, list(zip(el.blocks, sizes)), var.cost_only))
                 offset += el.dof
         if by_element:  # element i of every variable (declaration order) before element i + 1; single ones first
             placed.sort(key=lambda p: p[0])
-        blocks = [b for _, bs in placed for b in bs]
+        blocks = [b for _, bs, last in placed if not last for b in bs]
+        trailing = [b for _, bs, last in placed if last for b in bs]
         if tangent is not None:  # the stacked tangent vector in the given order of the variables
             offset = 0
             for name in tangent:
@@ -100,11 +102,11 @@ class Layout:
                         el.tangent_offset = offset
                         offset += el.dof
         self.n_tangent = offset
-        taken = {b for b, _ in blocks}
+        taken = {b for b, _ in blocks + trailing}
         clash = [b for b, _ in auxiliary if b in taken or b == "h"]
         if clash:
             raise ProblemDefinitionError(f"auxiliary blocks {clash} have the names of other blocks")
-        self.V = Variables(blocks + list(auxiliary))
+        self.V = Variables(blocks + list(auxiliary) + trailing)
         self.by_main = {el.main: el for el in self.elements}
         for el in self.elements:  # also by name and index when the main block is renamed
             self.by_main.setdefault(el.var.name + ("" if el.index is None else str(el.index)), el)

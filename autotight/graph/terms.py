@@ -24,7 +24,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..errors import ProblemDefinitionError
-from .declare import Factor, View, fit_quadratic, quadratic_forms
+from .declare import Auxiliary, Factor, View, fit_quadratic, quadratic_forms
 from .layout import Element, Layout
 
 #: an affine residual must match its read-off map at a random point to this relative accuracy
@@ -40,6 +40,16 @@ def _vector(e: object, where: str) -> np.ndarray:
     if v.ndim > 1 or not v.size or not np.all(np.isfinite(v)):
         raise ProblemDefinitionError(f"{where}: residual must return a non-empty finite vector, got shape {v.shape}")
     return v.reshape(-1)
+
+
+def equation_names(aux: Auxiliary, k: int, where: str) -> list[str]:
+    """The names of an auxiliary's k equations: its ``names``, else ``aux[0] … aux[k−1]``."""
+    if aux.names is None:
+        return [f"aux[{i}]" for i in range(k)]
+    if len(aux.names) != k:
+        raise ProblemDefinitionError(f"{where}: the auxiliary names {len(aux.names)} equations, its equations "
+                                     f"return {k}")
+    return list(aux.names)
 
 
 def check_point(n: int) -> np.ndarray:
@@ -90,6 +100,13 @@ class Term:
         self.W = self._weight(self.m)
         for nm, C in factor.constraints:
             self._local(C, f"constraint {nm!r}")
+        #: the local columns of cost-only variables (``Variable.cost_only``), which its constraints must not touch
+        starts = np.cumsum([1] + self.sizes)
+        self.cost_only = np.concatenate([np.zeros(0, int)] + [np.arange(starts[i], starts[i + 1])
+                                                               for i, el in enumerate(self.elements)
+                                                               if el.var.cost_only])
+        if self.cost_only.size and any(np.any(M[self.cost_only]) for _, M in self.local_constraints()):
+            raise ProblemDefinitionError(f"{self.where}: its constraints involve a cost-only variable")
 
     @property
     def type(self) -> str:
@@ -137,7 +154,7 @@ class Term:
         if err > EQUATION_RTOL:
             raise ProblemDefinitionError(f"{self.where}: the auxiliary's equations are not polynomials of degree "
                                          "≤ 2 in the factor's local entries (its variables' blocks and its own)")
-        return [(f"aux[{k}]", M) for k, M in enumerate(quadratic_forms(c0, G, S))]
+        return list(zip(equation_names(aux, len(c0), self.where), quadratic_forms(c0, G, S)))
 
     def _thetas(self, k: int, own: Sequence[np.ndarray]) -> list[np.ndarray]:
         """Per product block of the factor's k-th variable, θ at the factor's variables' values."""
