@@ -50,13 +50,34 @@ pose, (I − ½ξ_l^∧)(I + ½ξ_m^∧)T̃_m = (I + ½ξ_l^∧)(I − ½ξ_m^�
 ½(h + w_m)·½(h + w_l) written with u_m, u_l.  Gated: relations of consecutive pairs only certify 2 of 10
 held-out instances (M = 6, σ = 0.05, every candidate); those of every pair, with the pose, all 10.
 
-Factors: "so3" (h, c₁, c₂, c₃); per m "robust_meas" (h, C, r and the measurement's blocks; 20 columns
-gated, 26 product); per pair "robust_pair", no cost and no primary constraint: a learning group (so
-that ``factors`` learns the relations between two measurements, and a learned set carries to any M).
-Gated: every pair (m, l), with the pose (h, C, r, w_m, u_m, w_l, u_l; 27 columns); no clique cover (the
-pairs couple every measurement with every other).  Product: consecutive pairs without the pose (h, ξ_m,
-w_m, z_m, ξ_{m+1}, w_{m+1}, z_{m+1}; 27 columns) on the path cover {h, C, r, m's blocks, m+1's}.
-No paper families.
+Written on the factor-graph layer (``autotight.graph``), as above:
+
+- variables: C ∈ SO(3) (blocks c₁, c₂, c₃; its factor "rotation" of type "so3" holds c_iᵀc_j = δ_ij h²,
+  named orth(c_i,c_j)), r ∈ R³ (no factor of its own) and the labels w ∈ {±1}^M (``Binary(equation=False)``,
+  blocks w_m: each measurement factor declares its w_m² = h², where saved sets know it);
+- factors: per m "meas_m" of type "robust_meas" on (C, r, w_m), owning the measurement's lifted blocks
+  (``OWN``: u_m gated, ξ_m and z_m product), whose value is ``own_values``; its lifted TLS term
+  (``tls_cost``) and primary constraints (``meas_constraints``: the 12 Cayley rows, gated or not, w_m² = h²
+  and the 6 rows u_m·h = u_m·w_m or z_m·h = w_m·ξ_m); 20 columns gated, 26 product;
+- groups: per pair "pair_m_l" of type "robust_pair", no cost and no primary constraint: a learning group (so
+  that ``factors`` learns the relations between two measurements, and a learned set carries to any M).
+  Gated: every pair (m, l), with the pose (h, C, r, w_m, u_m, w_l, u_l; 27 columns).  Product: consecutive
+  pairs without the pose (h, ξ_m, w_m, z_m, ξ_{m+1}, w_{m+1}, z_{m+1}; 27 columns);
+- the lifted vector in the order written above (``lifted_blocks``, ``derive(blocks=…)``), each measurement
+  factor's blocks in that order.  No paper families.
+
+The layer derives the model (``build``, which adds the cliques), ``lift`` (the labels checked first, as (1, n))
+and ``recover``.  Hand-written, so that the committed reports and saved sets stand to the last bit:
+
+- each measurement's lifted cost and primary constraints, as matrices on its local columns built with
+  ``autotight.affine`` as before (``tls_cost``: h² − w_m h is no eᵀWe of an affine residual;
+  ``meas_constraints``: the same 19 rows given to the layer as the auxiliary's equations are fitted to
+  matrices up to 4e-16 relative apart, the fit evaluating at h = 1, and named aux[k]);
+- the cliques (product lifting: the path cover {h, C, r, m's blocks, m+1's}, which no factor holds; gated:
+  none, its pairs couple every measurement with every other);
+- ``cost`` (the TLS formula, by which the local solver compares labellings), ``sample`` (T = exp(ν^∧) T̄ on
+  SE(3), then uniform labels: the layer's sampler retracts C and r apart and leaves labels fixed),
+  ``random_state``, ``errors`` and ``local_solve`` (below: the layer's solver moves continuous variables only).
 
 Discovery: ``DEFAULT_GROUPS`` ("factors"); one instance's irreducible set is too small for others, so
 ``discover``'s held-out rounds take failing instances in until a fresh batch passes.  Measured before that
@@ -82,30 +103,31 @@ Comparison (no paper families): AutoTight's published robust point registration 
 from __future__ import annotations
 
 import itertools
+from typing import Iterator
 
 import numpy as np
 import scipy.sparse as sp
+from scipy.linalg import block_diag
 
 from autotight import lie
 from autotight.affine import Affine
 from autotight.errors import ParameterError
 from autotight.gauss_newton import block_weight, gauss_newton
-from autotight.model import Constraint, Factor, Model, QuadForm, Variables
+from autotight.graph import Auxiliary, Binary, Euclidean, Factor, Group, Rotation, Variable, View, derive
+from autotight.model import Model, QuadForm, Variables
 from autotight.problem import Instance, LocalResult, Meta, Param
 
 from ._cayley import draw_valid
-from ._pose import (POSE_ROLES, XI_ROLES, pose_blocks, pose_from_x, pose_orthonormality, pose_values,
-                    unary_cayley, unary_residuals, xi_blocks)
+from ._pose import POSE_ROLES, XI_ROLES, pose_blocks, unary_cayley, unary_residuals, xi_blocks
 
 NAME = "robust_pose_averaging"
 DESCRIPTION = "Pose averaging with outliers: TLS cost with binary w_m, lifted u_m = ½(1 + w_m)·ξ_m (paper §3.2 + TLS)."
 #: the two liftings (module docstring): their per-measurement blocks' roles after h and the pose
 LABEL_ROLES = {"gated": ("w", "urho", "uphi"), "product": (*XI_ROLES, "w", "zrho", "zphi")}
 LIFTINGS = tuple(LABEL_ROLES)
-
-
-def meas_roles(lifting: str) -> tuple[str, ...]:
-    return ("h", *POSE_ROLES, *LABEL_ROLES[lifting])
+#: the blocks a measurement factor owns (its auxiliary blocks), by lifting: u_m = ½(1 + w_m)·ξ_m, or ξ_m and
+#: z_m = w_m·ξ_m
+OWN = {"gated": {"urho": 3, "uphi": 3}, "product": {"rho": 3, "phi": 3, "zrho": 3, "zphi": 3}}
 
 
 def pair_roles(lifting: str) -> tuple[str, ...]:
@@ -191,11 +213,35 @@ def meas_blocks(m: int, lifting: str) -> list[str]:
     return [*pose_blocks(), *label_blocks(m, lifting)]
 
 
-def _variables(M: int, lifting: str) -> Variables:
-    blocks = [(b, 3) for b in pose_blocks()]
-    for m in range(M):
-        blocks += [(b, 1 if b == w_block(m) else 3) for b in label_blocks(m, lifting)]
-    return Variables(blocks)
+def lifted_blocks(inst: Instance) -> list[str]:
+    """The lifted vector after h: x = [h, c₁, c₂, c₃, r, (measurement m's label blocks)_m]."""
+    lifting = lifting_of(inst)
+    return [*pose_blocks(), *(b for m in range(len(inst.measurements["T_meas"])) for b in label_blocks(m, lifting))]
+
+
+# ----------------------------------------------------------------------------- variables
+
+
+def orth_name(equation: str, **_: object) -> str:
+    """C's constraint c_iᵀc_j = δ_ij h² as saved sets name it: orth(c1,c2) for the manifold's orth(0,1)."""
+    i, j = (int(k) for k in equation[len("orth("):-1].split(","))
+    return f"orth(c{i + 1},c{j + 1})"
+
+
+#: the pose T = [[C, r], [0ᵀ, 1]] (C as its columns c₁, c₂, c₃, its factor "rotation") and the labels w_m ∈ {±1}
+#: (blocks w_m; their equation w_m² = h² is the measurement factor's)
+VARIABLES = [Variable("C", Rotation(3), type="so3", block=("c1", "c2", "c3"), factor="rotation",
+                      constraint_names=orth_name),
+             Variable("r", Euclidean(3)),
+             Variable("w", Binary(equation=False), element="{block}_{i}")]
+
+
+# ----------------------------------------------------------------------------- the measurement factor
+
+
+def local_columns(lifting: str) -> Variables:
+    """A measurement factor's local columns: h, C, r, w_m, then its own blocks (``OWN``)."""
+    return Variables([(b, 3) for b in POSE_ROLES] + [("w", 1)] + list(OWN[lifting].items()))
 
 
 def _pair_form(V: Variables, a: list[str], b: list[str], W: np.ndarray) -> QuadForm:
@@ -209,57 +255,96 @@ def _pair_form(V: Variables, a: list[str], b: list[str], W: np.ndarray) -> QuadF
     return qf
 
 
-def meas_cost(V: Variables, m: int, W: np.ndarray, beta: float, lifting: str) -> sp.csr_array:
-    """Measurement m's TLS term (1 + w_m)/β² ξ_mᵀWξ_m + 1 − w_m, lifted:
-    2 u_mᵀW u_m/β² + h² − w_m h (gated), (ξ_mᵀWξ_m + ξ_mᵀW z_m)/β² + h² − w_m h (product)."""
+def tls_cost(W: np.ndarray, beta: float, lifting: str) -> sp.csr_array:
+    """The TLS term (1 + w_m)/β² ξ_mᵀWξ_m + 1 − w_m lifted on the local columns: 2 u_mᵀW u_m/β² + h² − w_m h
+    (gated), (ξ_mᵀWξ_m + ξ_mᵀW z_m)/β² + h² − w_m h (product)."""
+    L = local_columns(lifting)
     if lifting == "gated":
-        u = u_blocks(m)
-        A = 2.0 * _pair_form(V, u, u, W).matrix() / beta ** 2
+        u = ["urho", "uphi"]
+        A = 2.0 * _pair_form(L, u, u, W).matrix() / beta ** 2
     else:
-        xi = xi_blocks(str(m))
-        A = (_pair_form(V, xi, xi, W).matrix() + _pair_form(V, xi, z_blocks(m), W).matrix()) / beta ** 2
-    return sp.csr_array(A + QuadForm(V).const(1.0).add("h", w_block(m), -1.0).matrix())
+        xi = ["rho", "phi"]
+        A = (_pair_form(L, xi, xi, W).matrix() + _pair_form(L, xi, ["zrho", "zphi"], W).matrix()) / beta ** 2
+    return sp.csr_array(A + QuadForm(L).const(1.0).add("h", "w", -1.0).matrix())
 
 
-def binary_constraints(V: Variables, m: int, name: str, lifting: str) -> list[Constraint]:
-    """w_m² = h², then z_m·h = w_m·ξ_m (product) or u_m·h = u_m·w_m (gated: u_m = 0 for an outlier); 7 rows."""
-    w = w_block(m)
-    out = [Constraint(QuadForm(V).add(w, w, 1.0).const(-1.0).matrix(), 0.0, name=f"{name}:w²=h²")]
-    pairs = zip(u_blocks(m), u_blocks(m)) if lifting == "gated" else zip(z_blocks(m), xi_blocks(str(m)))
+def meas_constraints(T_meas: np.ndarray, m: int, lifting: str) -> list[tuple[str, sp.coo_array]]:
+    """Measurement m's primary constraints on the local columns, named as saved sets know them: the 12 Cayley
+    rows of ξ_m = cay⁻¹(T T̃_m⁻¹) (gated: multiplied by ½(h + w_m), written with u_m; ``affine.cayley_rows``),
+    w_m² = h², then u_m·h = u_m·w_m (gated: u_m = 0 for an outlier) or z_m·h = w_m·ξ_m (product)."""
+    L, name = local_columns(lifting), f"meas_{m}"
+    if lifting == "gated":
+        gate = Affine({"h": np.array([[0.5]]), "w": np.array([[0.5]])})
+        rows = unary_cayley(L, "", T_meas, ["urho", "uphi"], name, gate=gate)
+        pairs = [("urho", "urho"), ("uphi", "uphi")]
+    else:
+        rows = unary_cayley(L, "", T_meas, ["rho", "phi"], name)
+        pairs = [("zrho", "rho"), ("zphi", "phi")]
+    out = [(c.name, c.A) for c in rows]
+    out.append((f"{name}:w²=h²", QuadForm(L).add("w", "w", 1.0).const(-1.0).matrix()))
     for zb, xb in pairs:
         for k in range(3):
             e = np.zeros((1, 3))
             e[0, k] = 1.0
-            A = QuadForm(V).add("h", zb, e).add(w, xb, -e).matrix()
-            out.append(Constraint(A, 0.0, name=f"{name}:{zb}[{k}]h=w·{xb}[{k}]"))
+            A = QuadForm(L).add("h", zb, e).add("w", xb, -e).matrix()
+            out.append((f"{name}:{zb}_{m}[{k}]h=w·{xb}_{m}[{k}]", A))
     return out
 
 
-def meas_cayley(V: Variables, T_meas: np.ndarray, m: int, name: str, lifting: str) -> list[Constraint]:
-    """The 12 Cayley rows of ξ_m = cay⁻¹(T T̃_m⁻¹); gated: multiplied by ½(h + w_m), written with u_m."""
-    if lifting == "product":
-        return unary_cayley(V, "", T_meas, str(m), name)
-    gate = Affine({"h": np.array([[0.5]]), w_block(m): np.array([[0.5]])})
-    return unary_cayley(V, "", T_meas, u_blocks(m), name, gate=gate)
+#: the last pose's residuals (T_meas, pose bytes, ξ (M, 6)): ``lift`` asks for them once per measurement factor
+_LAST: list[tuple[np.ndarray, bytes, np.ndarray] | None] = [None]
 
 
-def build(inst: Instance) -> Model:
+def pose_residuals(T_meas: np.ndarray, C: np.ndarray, r: np.ndarray) -> np.ndarray:
+    """ξ_m = cay⁻¹(T T̃_m⁻¹)^∨ of every measurement at once (M, 6), as ``residuals``; the last pose's kept."""
+    key = np.asarray(C, float).tobytes() + np.asarray(r, float).tobytes()
+    hit = _LAST[0]
+    if hit is None or hit[0] is not T_meas or hit[1] != key:
+        hit = (T_meas, key, unary_residuals(lie.make_pose(C, r), T_meas))
+        _LAST[0] = hit
+    return hit[2]
+
+
+def own_values(inst: Instance, C: np.ndarray, r: np.ndarray, w: float, m: int, lifting: str) -> np.ndarray:
+    """Measurement m's own blocks at a state: u_m = ½(1 + w_m)·ξ_m (gated) or [ξ_m, w_m·ξ_m] (product), ξ_m from
+    every measurement at once (``pose_residuals``)."""
+    xi = pose_residuals(inst.measurements["T_meas"], C, r)[m]
+    if lifting == "gated":
+        g = 0.5 * (1.0 + w)
+        return np.concatenate([g * xi[:3], g * xi[3:]])
+    return np.concatenate([xi[:3], xi[3:], w * xi[:3], w * xi[3:]])
+
+
+def tls_residual(w: View, own: View, lifting: str) -> np.ndarray:
+    """e_m = [(1 + w_m)·ξ_m; 1 − w_m] (2u_m, or ξ_m + z_m), so that eᵀ diag(W_m/(2β²), ½) e is the TLS term."""
+    v = 2.0 * np.r_[own.urho, own.uphi] if lifting == "gated" else np.r_[own.rho + own.zrho, own.phi + own.zphi]
+    return np.r_[v, 1.0 - w.x]
+
+
+def factors(inst: Instance) -> Iterator[Factor | Group]:
+    """Per measurement its TLS term and primary constraints, owning its lifted blocks; per pair its learning group."""
     T_meas, Ws, beta = inst.measurements["T_meas"], inst.measurements["W"], float(inst.measurements["beta"])
     lifting = lifting_of(inst)
     M = len(T_meas)
-    V = _variables(M, lifting)
-    pose = pose_blocks()
-    factors = [Factor("rotation", "so3", ("h", *pose[:3]), constraints=pose_orthonormality(V, factor="rotation"))]
     for m in range(M):
-        name = f"meas_{m}"
-        cons = meas_cayley(V, T_meas[m], m, name, lifting) + binary_constraints(V, m, name, lifting)
-        factors.append(Factor(name, "robust_meas", ("h", *meas_blocks(m, lifting)),
-                              cost=meas_cost(V, m, Ws[m], beta, lifting), constraints=cons,
-                              roles=meas_roles(lifting)))
-    for m, l in pairs_of(M, lifting):  # learning groups only: no cost, no primary constraints
-        factors.append(Factor(f"pair_{m}_{l}", "robust_pair", ("h", *pair_blocks(m, l, lifting)),
-                              roles=pair_roles(lifting)))
-    return Model(V, factors, paper={}, cliques=cliques(M, lifting))
+        own = Auxiliary(OWN[lifting], value=lambda C, r, w, m=m: own_values(inst, C.x, r.x, float(w.x), m, lifting))
+        weight = block_diag(Ws[m] / (2 * beta ** 2), 0.5)
+        yield Factor(("C", "r", w_block(m)), lambda C, r, w, own: tls_residual(w, own, lifting), type="robust_meas",
+                     weight=weight, cost=tls_cost(Ws[m], beta, lifting),
+                     constraints=meas_constraints(T_meas[m], m, lifting), constraint_names="{constraint}",
+                     auxiliary=own, name=f"meas_{m}")
+    for m, l in pairs_of(M, lifting):
+        yield Group(pair_blocks(m, l, lifting), "robust_pair", roles=pair_roles(lifting)[1:], name=f"pair_{m}_{l}")
+
+
+_parts = derive(VARIABLES, factors, blocks=lifted_blocks)
+
+
+def build(inst: Instance) -> Model:
+    """The layer's model with the module's clique cover (``cliques``)."""
+    model = _parts.build(inst)
+    model.cliques = cliques(len(inst.measurements["T_meas"]), lifting_of(inst))
+    return model
 
 
 def pairs_of(M: int, lifting: str) -> list[tuple[int, int]]:
@@ -302,20 +387,14 @@ def lifting_of(inst: Instance) -> str:
 
 
 def lift(inst: Instance, state: dict) -> np.ndarray:
-    w = _labels(inst, state)
-    lifting = lifting_of(inst)
-    vals = pose_values(state["C"], state["r"])
-    for m, xi in enumerate(residuals(inst, state)):
-        vals[w_block(m)] = np.array([w[m]])
-        if lifting == "gated":
-            ur, up = u_blocks(m)
-            g = 0.5 * (1.0 + w[m])
-            vals |= {ur: g * xi[:3], up: g * xi[3:]}
-        else:
-            rho, phi = xi_blocks(str(m))
-            zr, zp = z_blocks(m)
-            vals |= {rho: xi[:3], phi: xi[3:], zr: w[m] * xi[:3], zp: w[m] * xi[3:]}
-    return _variables(len(w), lifting).assemble(vals)
+    """The layer's lift with the labels checked (M entries ±1; absent: every measurement an inlier), as (1, n)."""
+    return _parts.lift(inst, state | {"w": _labels(inst, state)})[None, :]
+
+
+def recover(inst: Instance, Theta: np.ndarray) -> dict:
+    """The layer's recover: T from the rank-1 factor x (raw rotation projected to SO(3), its det reported) and
+    w_m = sign(x_w) (+1 at 0)."""
+    return _parts.recover(inst, Theta)
 
 
 def cost(inst: Instance, state: dict) -> float:
@@ -386,17 +465,6 @@ def local_solve(inst: Instance, init: dict, max_iter: int = 100) -> LocalResult:
     best.iterations = iters
     best.message = f"best of 2^{M} labellings; {best.message}"
     return best
-
-
-def recover(inst: Instance, Theta: np.ndarray) -> dict:
-    """T from the rank-1 factor x (raw rotation projected to SO(3), its det reported) and w_m = sign(x_w)."""
-    x = np.asarray(Theta, dtype=float).reshape(-1)
-    x = x / x[0]
-    M = len(inst.measurements["T_meas"])
-    V = _variables(M, lifting_of(inst))
-    C_raw, r = pose_from_x(V, x)
-    w = np.array([1.0 if x[V.slice(w_block(m))][0] >= 0 else -1.0 for m in range(M)])
-    return {"C": lie.project_to_so3(C_raw), "r": r, "w": w, "det_raw": np.array(np.linalg.det(C_raw))}
 
 
 def errors(inst: Instance, state: dict) -> dict:

@@ -573,6 +573,59 @@ def test_the_labels_snippet_is_the_shipped_module():
     assert len(lines) >= 10 and not missing
 
 
+# ----------------------------------------------------------------------------- the module's order of the lifted vector
+#
+# A toy of robust pose averaging's gated lifting: x ∈ R and labels w_j ∈ {±1}, each factor on (x, w_j) owning
+# u_j = ½(1 + w_j)(x − a_j), defined by the declared ½(h + w_j)(x − a_j h) = u_j h, and declaring w_j² = h² itself.
+
+
+def _gated(params, rng):
+    return Instance("gated", dict(params), {"a": np.array([0.0, 0.5, 1.0])},
+                    {"x": np.array([0.3]), "w": np.array([1.0, -1.0, 1.0])})
+
+
+def _gated_factors(inst):
+    cols = Variables([("x", 1), ("w", 1), ("u", 1)])  # a factor's local columns [h, x, w_j, u_j]
+    for j, a in enumerate(inst.measurements["a"]):
+        gate = QuadForm(cols).add("h", "x", 0.5).add("w", "x", 0.5).add("h", "h", -0.5 * a).add("h", "w", -0.5 * a)
+        cons = [("w²", QuadForm(cols).add("w", "w", 1.0).add("h", "h", -1.0).matrix()),
+                ("gate", gate.add("h", "u", -1.0).matrix())]
+        u = Auxiliary({"u": 1}, value=lambda x, w, a=a: 0.5 * (1.0 + w.x) * (x.x - a))
+        yield Factor(("x", f"w_{j}"), lambda x, w, u: u.u, type="gated", constraints=cons, auxiliary=u, name=f"g_{j}")
+
+
+def _interleaved(inst):
+    return ["x"] + [f"{b}_{j}" for j in range(3) for b in ("u", "w")]
+
+
+def test_the_module_orders_the_lifted_vector_and_its_factors_blocks_follow():
+    variables = [Variable("x", Euclidean(1)), Variable("w", Binary(equation=False), element="{block}_{i}")]
+    parts = derive(variables, _gated_factors, blocks=_interleaved)
+    inst = _gated({}, None)
+    model = parts.build(inst)
+    assert model.variables.names == ["h", "x", "u_0", "w_0", "u_1", "w_1", "u_2", "w_2"]
+    # no factor of the labels' own (no equation); each factor's blocks in the lifted vector's order
+    assert [(f.name, f.blocks, f.roles, [c.name for c in f.constraints]) for f in model.factors] == [
+        (f"g_{j}", ("h", "x", f"u_{j}", f"w_{j}"), ("h", "x", "u", "w"), [f"g_{j}:w²", f"g_{j}:gate"])
+        for j in range(3)]
+    x = parts.lift(inst, inst.truth)
+    a, w = inst.measurements["a"], inst.truth["w"]
+    assert np.array_equal(x, np.r_[1.0, 0.3, np.ravel([(0.5 * (1 + w[j]) * (0.3 - a[j]), w[j]) for j in range(3)])])
+    assert max(abs(x @ c.A @ x - c.b) for c in model.primary()) <= 1e-15
+    assert np.array_equal(parts.recover(inst, x)["w"], w)
+    assert Binary().constraints() and not Binary(equation=False).constraints()
+    with pytest.raises(ProblemDefinitionError, match=r"^the lifted vector's order must name every block once: missing "
+                                                     r"\['u_0'\], unknown or repeated \['x', 'y'\]$"):
+        derive(variables, _gated_factors, blocks=lambda inst: ["x", "x", "y"] + _interleaved(inst)[2:]).build(inst)
+
+
+def test_the_robust_pose_averaging_snippet_is_the_shipped_module():
+    from doc_snippets import missing_lines
+
+    lines, missing = missing_lines("blocks=lifted_blocks", "robust_pose_averaging")
+    assert len(lines) >= 10 and not missing
+
+
 # ----------------------------------------------------------------------------- entry points
 
 

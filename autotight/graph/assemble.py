@@ -17,6 +17,9 @@ The model's factors (``autotight.model.Factor``), which discovery learns on, are
   factors of their own;
 - no factor for a variable with neither primary constraints nor a cost of its own.
 
+A declared ``Factor``'s model factor lists h, its variables' blocks, then its auxiliary blocks; with the module's
+order of the lifted vector (``derive(blocks=…)``), h, then its blocks in that order.
+
 The families' paper rows make ``Model.paper``, their clique hints ``Model.cliques``.  Primary constraints are
 named by the variables' and factors' ``constraint_names`` formats; the names must be distinct in the model.
 
@@ -148,7 +151,7 @@ class Graph:
 
     def __init__(self, variables: Sequence[Variable], truth: Mapping[str, Any],
                  factors: Iterable[Declared | Family | Group], by_element: bool = False,
-                 tangent: Sequence[str] | None = None):
+                 tangent: Sequence[str] | None = None, order: Sequence[str] | None = None):
         declared = list(factors)
         for f in declared:
             if not isinstance(f, (Declared, Family, Group)):
@@ -157,7 +160,7 @@ class Graph:
         aux = _auxiliary_blocks(declared)
         blocks = [(b, k) for f, members in zip(declared, aux) if not isinstance(f, Group) and f.auxiliary is not None
                   for bs in members for b, k in zip(bs, f.auxiliary.blocks.values())]
-        self.layout = layout = Layout(variables, truth, blocks, by_element, tangent)
+        self.layout = layout = Layout(variables, truth, blocks, by_element, tangent, order)
         self.terms: list[Term] = []
         self.families: list[FamilyTerm] = []
         #: the declared items in order, resolved (a ``Group`` with its model factor's name)
@@ -274,6 +277,9 @@ class Graph:
             if len(set(roles)) != len(roles):
                 raise ProblemDefinitionError(f"factor {t.name!r}: its blocks' roles {roles} are not distinct")
             blocks = ("h",) + tuple(b for el in _modelled(t.elements) for b in el.blocks) + t.aux_blocks
+            if L.ordered:  # in the module's order of the lifted vector, h first
+                at = sorted(range(1, len(blocks)), key=lambda k: L.V.offsets[blocks[k]])
+                blocks, roles = ("h",) + tuple(blocks[k] for k in at), ("h",) + tuple(roles[k] for k in at)
             cost = None if _touches_cost_only(t.elements) else self._cost([t], N)
             owned.append((t.elements, Factor(t.name, t.type, blocks, cost=cost, constraints=cons, roles=roles,
                                              data=t.factor.data)))

@@ -58,7 +58,8 @@ class Parts(NamedTuple):
 def derive(variables: Sequence[Variable] | Callable[[Any], Sequence[Variable]],
            factors: Callable[[Any], Iterable[Factor | Family | Group]], by_element: bool = False,
            tangent: Sequence[str] | None = None, keep: Callable[[Any, dict], bool] | None = None,
-           tries: int = SAMPLE_TRIES, state: Callable[[Mapping[str, Any]], Mapping[str, Any]] | None = None) -> Parts:
+           tries: int = SAMPLE_TRIES, state: Callable[[Mapping[str, Any]], Mapping[str, Any]] | None = None,
+           blocks: Callable[[Any], Sequence[str]] | None = None) -> Parts:
     """The contract's parts from the declarations (see the module docstring).  ``by_element``: the lifted vector
     and the model's factors ordered element by element (``layout.Layout``, ``assemble.Graph``): element i of
     every stacked variable before element i + 1, and each variable's own factor right before the first factor of
@@ -74,11 +75,18 @@ def derive(variables: Sequence[Variable] | Callable[[Any], Sequence[Variable]],
     ``state``: for a module whose states do not hold its variables by name (e.g. poses T (K, 4, 4) for variables
     C and r), the map from its state to {variable: value or stack}, applied to the instance's truth and to every
     state the parts take (``lift``, ``cost``, ``sample``'s nominal, ``local_solve``'s start); the states the
-    parts return (``sample``, ``local_solve``, ``recover``) and ``keep`` sees hold the variables."""
+    parts return (``sample``, ``local_solve``, ``recover``) and ``keep`` sees hold the variables.
+
+    ``blocks(instance) -> names``: the lifted vector's blocks after h in the module's order (every block once,
+    e.g. a label's blocks beside the auxiliary blocks of its measurement, as a paper writes x); each declared
+    ``Factor``'s model factor then lists its blocks in that order too.  Default: the variables' blocks, then
+    the auxiliary blocks (``layout.Layout``)."""
     if not callable(factors):
         raise ProblemDefinitionError("factors must be a function factors(instance) -> iterable of Factor")
     if keep is not None and not callable(keep):
         raise ProblemDefinitionError("keep must be a function keep(instance, state) -> bool")
+    if blocks is not None and not callable(blocks):
+        raise ProblemDefinitionError("blocks must be a function blocks(instance) -> the lifted vector's block names")
     if isinstance(tries, bool) or not isinstance(tries, int) or tries < 1:
         raise ProblemDefinitionError(f"tries must be a positive integer, got {tries!r}")
     if state is not None and not callable(state):
@@ -93,7 +101,8 @@ def derive(variables: Sequence[Variable] | Callable[[Any], Sequence[Variable]],
         if hit is not None and hit[0]() is inst:
             return hit[1]
         declared = variables(inst) if callable(variables) else variables
-        g = Graph(list(declared), held(inst.truth), factors(inst), by_element, tangent)
+        g = Graph(list(declared), held(inst.truth), factors(inst), by_element, tangent,
+                  None if blocks is None else blocks(inst))
         for k in [k for k, (ref, _) in cache.items() if ref() is None]:
             del cache[k]
         cache[id(inst)] = (weakref.ref(inst), g)

@@ -6,9 +6,11 @@ The truth fixes the variables' multiplicity (``declare.Variable``).  Blocks, in 
 names by ``Variable.element``), then its lifting and product blocks ``block`` or ``block{i}``; with ``by_element``, the
 single variables' blocks, then element 0 of every stacked variable (declaration order), element 1, …; after
 every variable, the factors' auxiliary blocks (``assemble``); last, the cost-only variables' blocks
-(``Variable.cost_only``), in the same order among themselves.  A state is ``{name: value or (N, *shape) stack}``
-with one entry per declared variable.  The stacked tangent vector (the retraction steps ε, the sampler's draws)
-holds each variable's elements in index order, the variables in declaration order or in the ``tangent`` order.
+(``Variable.cost_only``), in the same order among themselves.  ``order`` (``derive(blocks=…)``): the blocks
+before the cost-only ones in the module's order instead, every one of them once.  A state is
+``{name: value or (N, *shape) stack}`` with one entry per declared variable.  The stacked tangent vector (the
+retraction steps ε, the sampler's draws) holds each variable's elements in index order, the variables in
+declaration order or in the ``tangent`` order.
 """
 
 from __future__ import annotations
@@ -53,7 +55,7 @@ class Layout:
 
     def __init__(self, variables: Sequence[Variable], truth: Mapping[str, Any],
                  auxiliary: Sequence[tuple[str, int]] = (), by_element: bool = False,
-                 tangent: Sequence[str] | None = None):
+                 tangent: Sequence[str] | None = None, order: Sequence[str] | None = None):
         if not variables or not all(isinstance(v, Variable) for v in variables):
             raise ProblemDefinitionError("VARIABLES must be a non-empty list of autotight.graph.Variable")
         names = [v.name for v in variables]
@@ -106,7 +108,18 @@ class Layout:
         clash = [b for b, _ in auxiliary if b in taken or b == "h"]
         if clash:
             raise ProblemDefinitionError(f"auxiliary blocks {clash} have the names of other blocks")
-        self.V = Variables(blocks + list(auxiliary) + trailing)
+        blocks += list(auxiliary)
+        #: whether the module gave the blocks' order (``derive(blocks=…)``)
+        self.ordered = order is not None
+        if order is not None:  # the module's order: a permutation of the blocks above
+            order, size = list(order), dict(blocks)
+            if sorted(order) != sorted(size):
+                missing = [b for b in size if b not in order]
+                other = [b for b in order if b not in size or order.count(b) > 1]
+                raise ProblemDefinitionError(f"the lifted vector's order must name every block once: missing "
+                                             f"{missing}, unknown or repeated {sorted(set(other))}")
+            blocks = [(b, size[b]) for b in order]
+        self.V = Variables(blocks + trailing)
         self.by_main = {el.main: el for el in self.elements}
         for el in self.elements:  # also by name and index when the main block is renamed
             self.by_main.setdefault(el.var.name + ("" if el.index is None else str(el.index)), el)

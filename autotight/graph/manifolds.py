@@ -17,6 +17,8 @@ perturbation; ε has 1 entry in 2-D, 3 in 3-D), equations c_iᵀc_j = δ_ij h² 
 dropped, as in the problems of the paper: O(d), and ``project`` returns det +1).
 ``Binary()``: a label w ∈ {−1, +1} (shape ()), v = [w], equation w² = h² (named "w²"); discrete: no
 retraction (dof 0: the local solver and the sampler leave it where it is), ``project`` its sign (0 → +1).
+``Binary(equation=False)``: the same label without an equation, for a factor that declares w² = h² among its own
+constraints (e.g. a measurement's, in the order its saved sets know).
 """
 
 from __future__ import annotations
@@ -144,13 +146,18 @@ class Rotation:
 class Binary:
     """{−1, +1}: a label w, embedded as itself; its only equation w² = h² ("w²").  A discrete variable has no
     tangent directions (dof 0): ``retract`` returns it unchanged, so the layer's local solver optimises the
-    other variables at fixed labels and its sampler keeps the nominal's (a module draws labels itself)."""
+    other variables at fixed labels and its sampler keeps the nominal's (a module draws labels itself).
+    ``equation=False``: no equation, so no model factor of the variable's own: a factor on it declares w² = h²."""
 
     shape: tuple[int, ...] = ()
     size, dof = 1, 0
 
+    def __init__(self, equation: bool = True):
+        #: whether w² = h² is the manifold's equation (False: a factor on the variable declares it)
+        self.equation = bool(equation)
+
     def __repr__(self) -> str:
-        return "Binary()"
+        return "Binary()" if self.equation else "Binary(equation=False)"
 
     def embed(self, x: np.ndarray) -> np.ndarray:
         return np.asarray(x, float).reshape(1)
@@ -168,4 +175,4 @@ class Binary:
         return np.zeros((1, 0))
 
     def constraints(self) -> list[tuple[str, np.ndarray]]:
-        return [("w²", np.diag([-1.0, 1.0]))]
+        return [("w²", np.diag([-1.0, 1.0]))] if self.equation else []
