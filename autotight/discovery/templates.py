@@ -235,7 +235,7 @@ def learn_templates(problem: Problem, params: dict[str, Any] | Sequence[dict[str
     fitted: dict[str, tuple[int, np.ndarray, np.ndarray]] = {}
     fallback: dict[str, str] = {}
     layout: dict[str, tuple[list[str], list[int]]] = {}
-    open_types = set(wanted)
+    open_types = dict.fromkeys(wanted)  # an ordered set: types in the pairs' order, whatever the hash seed
     k = 0
     while open_types and k < MAX_INSTANCES:
         rng = np.random.default_rng([seed, 1000 + k])
@@ -246,7 +246,7 @@ def learn_templates(problem: Problem, params: dict[str, Any] | Sequence[dict[str
             fs = [f for f in model.factors if f.type == t]
             if not fs:
                 fallback[t] = f"factor type {t!r} has no factor on an instance with params {point}"
-                open_types.discard(t)
+                open_types.pop(t)
             else:
                 layout[t] = (list(fs[0].roles or fs[0].blocks), [model.variables.sizes[b] for b in fs[0].blocks])
         got, issues = _factor_samples(problem, inst, model, {t: wanted[t] for t in open_types}, rng, opts, cache)
@@ -255,12 +255,12 @@ def learn_templates(problem: Problem, params: dict[str, Any] | Sequence[dict[str
             bad = [s for s in issues if s.startswith(f"identity {t}:")]
             if bad:
                 fallback[t] = f"{bad[0]}: the identity is not a basic solution on every factor, so it has no template"
-                open_types.discard(t)
+                open_types.pop(t)
                 continue
             n_data = {d.size for d, _ in samples[t]}
             if len(n_data) != 1:
                 fallback[t] = f"factors of type {t!r} have measurement data of different lengths {sorted(n_data)}"
-                open_types.discard(t)
+                open_types.pop(t)
                 continue
             D = np.array([d for d, _ in samples[t]]).reshape(len(samples[t]), -1)
             Y = np.array([y for _, y in samples[t]])
@@ -272,7 +272,7 @@ def learn_templates(problem: Problem, params: dict[str, Any] | Sequence[dict[str
                 W = _fit(D[:n_fit], Y[:n_fit], g)
                 if relative_error(features(D, g) @ W, Y).max() <= FIT_RTOL:  # the last VALIDATE factors decide
                     fitted[t] = (g, _fit(D, Y, g), np.flatnonzero(np.any(Y != 0, axis=0)))
-                    open_types.discard(t)
+                    open_types.pop(t)
                     break
             if t in open_types and len(Y) - VALIDATE >= n_features(p, max(DEGREES)) + VALIDATE:
                 errs = [relative_error(features(D, g) @ _fit(D[:-VALIDATE], Y[:-VALIDATE], g), Y).max()
@@ -280,7 +280,7 @@ def learn_templates(problem: Problem, params: dict[str, Any] | Sequence[dict[str
                 fallback[t] = (f"the coefficients of factor type {t!r} are not a polynomial of degree ≤ "
                                f"{max(DEGREES)} in its {p} measurement entries (smallest relative error on "
                                f"validation factors {min(errs):.1e} > {FIT_RTOL:g}); learned per factor instead")
-                open_types.discard(t)
+                open_types.pop(t)
         if progress is not None:
             progress(f"template instance {k}: {sorted(open_types)} open")
     for t in open_types:
