@@ -201,13 +201,7 @@ class Variable:
     cost_only: bool = False
 
     def __post_init__(self) -> None:
-        try:
-            probe = self.element.format(block="b", i=7)
-        except (AttributeError, KeyError, IndexError, ValueError):
-            probe = ""
-        if "{block}" not in self.element or "{i}" not in self.element or not probe.isidentifier():
-            raise ProblemDefinitionError(f"variable {self.name!r}: element must be a format of {{block}} and {{i}} "
-                                         f"giving identifiers, got {self.element!r}")
+        check_element(self.element, f"variable {self.name!r}")
         if not callable(self.constraint_names):
             check_format(self.constraint_names, ("factor", "variable", "constraint"), f"variable {self.name!r}")
         if self.factor is not None and (not isinstance(self.factor, str) or not self.factor):
@@ -312,6 +306,17 @@ def _pad(M: np.ndarray, n: int) -> np.ndarray:
     return out
 
 
+def check_element(fmt: object, where: str) -> None:
+    """Refuse a block-name format that is not a string of {block} and {i} giving identifiers."""
+    try:
+        ok = isinstance(fmt, str) and "{block}" in fmt and "{i}" in fmt and fmt.format(block="b", i=7).isidentifier()
+    except (AttributeError, KeyError, IndexError, ValueError):
+        ok = False
+    if not ok:
+        raise ProblemDefinitionError(f"{where}: element must be a format of {{block}} and {{i}} giving identifiers, "
+                                     f"got {fmt!r}")
+
+
 def check_format(fmt: object, fields: tuple[str, ...], where: str) -> None:
     """Refuse a constraint name format that is not a string holding {constraint} and no field but ``fields``."""
     probe = {f: "x" for f in fields}
@@ -359,13 +364,7 @@ class Auxiliary:
         for what, fn in (("value", self.value), ("equations", self.equations)):
             if not callable(fn) and not (what == "equations" and fn is None):
                 raise ProblemDefinitionError(f"auxiliary blocks {list(self.blocks)}: {what} must be a function")
-        try:
-            probe = self.element.format(block="b", i=7)
-        except (AttributeError, KeyError, IndexError, ValueError):
-            probe = ""
-        if "{block}" not in self.element or "{i}" not in self.element or not probe.isidentifier():
-            raise ProblemDefinitionError(f"auxiliary blocks {list(self.blocks)}: element must be a format of {{block}} "
-                                         f"and {{i}} giving identifiers, got {self.element!r}")
+        check_element(self.element, f"auxiliary blocks {list(self.blocks)}")
 
     @property
     def size(self) -> int:
