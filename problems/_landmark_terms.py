@@ -11,12 +11,18 @@ data, and costs ‖E‖_F² = Σ_ab ⟨M_a M_bᵀ, Θ_aᵀ Θ_b⟩.  All quadrat
 this *Gram form* (coefficients of the column dot products θ_{a,i}·θ_{b,j}) and translated to the
 lifting by ``Lifting.add``: in the vector lifting θ_{b,j} = x_b[jd:(j+1)d] and θ_{h,i} = e_i·h.
 The same residuals give the direct cost and the Gauss-Newton Jacobians of the local solver.
+
+The problem modules (landmark_localization, landmark_slam, pose_graph) are written on the factor-graph layer:
+``pose_variables`` declares C_k ∈ SO(d) (type "pose", constraints ``orth(C_k:i,j)``), r_k and ℓ_j; ``factor``
+makes a term a model factor of its own with its Gram-form cost declared; ``width`` and ``block_order`` fix the
+lifting (Θ of width d, or x) and its blocks [C_0, r_0, …, ℓ_0, …].  What the layer would not give to the bit stays
+here: the terms' costs (``Term.cost_matrix``), the direct cost and the pose-by-pose Gauss-Newton (``PoseTerms``),
+``random_state``, ``state_errors``, and ``pose_state`` (``recover``'s entries in the order C, r, det_raw, l).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Callable
 
 import numpy as np
 import scipy.sparse as sp
@@ -24,7 +30,9 @@ import scipy.sparse as sp
 from autotight import lie
 from autotight.errors import ParameterError, ProblemDefinitionError
 from autotight.gauss_newton import gauss_newton
-from autotight.model import HOMOGENISING as H, Constraint, Factor, Model, QuadForm, Variables
+from autotight.graph import Euclidean, Rotation, Variable, View
+from autotight.graph import Factor as GraphFactor
+from autotight.model import HOMOGENISING as H, QuadForm, Variables
 from autotight.problem import Instance, LocalResult, Param
 
 LIFTINGS = ("matrix", "vector")
@@ -120,26 +128,6 @@ class Lifting:
             return qf.add(a, H, M.ravel(order="C")[:, None])
         return qf.add(a, b, np.kron(M, np.eye(self.dim)))
 
-    def theta(self, V: Variables, values: dict[str, np.ndarray]) -> np.ndarray:
-        """Θ (d, N) from block values (d, cols) (h is filled in)."""
-        vals = {n: v for n, v in values.items() if n != H}
-        if self.kind == "vector":
-            vals = {n: np.asarray(v, float).reshape(self.dim, -1).ravel(order="F") for n, v in vals.items()}
-        return V.assemble(vals)
-
-    def block(self, V: Variables, Theta: np.ndarray, name: str) -> np.ndarray:
-        """The (dim, cols) value of a block in a lifted point Θ."""
-        T = np.atleast_2d(Theta)
-        if self.kind == "matrix":
-            return T[:, V.slice(name)]
-        return T[0, V.slice(name)].reshape(self.dim, -1, order="F")
-
-
-def normalise_theta(Theta: np.ndarray, d: int) -> np.ndarray:
-    """Θ ← Θ_h⁻¹ Θ so that its h block is I_d (a rank-d factor is defined up to a left factor)."""
-    T = np.atleast_2d(np.asarray(Theta, dtype=float))
-    return np.linalg.solve(T[:, :d], T)
-
 
 # ----------------------------------------------------------------------------- terms
 
@@ -157,13 +145,20 @@ class Term:
     roles: tuple[str, ...]
     residual: Residual
 
-    def cost_matrix(self, lifting: Lifting, V: Variables) -> sp.csr_array:
-        """Q with ⟨Q, ΘᵀΘ⟩ = ‖E‖_F² (constants on the h block)."""
-        qf = QuadForm(V)
+    def cost_matrix(self, lifting: Lifting) -> sp.coo_array:
+        """The lifted cost on the term's local columns [h, its blocks] (``autotight.graph.Factor(cost=…)``):
+        ⟨Q, ΘᵀΘ⟩ = ‖E‖_F², each Gram-form product M_a M_bᵀ translated by ``Lifting.add`` (constants on h)."""
+        d = self.dim
+        qf = QuadForm(lifting.variables([(b, d if b.startswith("C") else 1) for b in self.blocks]))
         for a, Ma in self.residual:
             for b, Mb in self.residual:
                 lifting.add(qf, a, b, Ma @ Mb.T)
         return qf.matrix()
+
+    @property
+    def dim(self) -> int:
+        """d: the rows of a rotation block's coefficient (every term has one)."""
+        return next(int(M.shape[0]) for b, M in self.residual if b.startswith("C"))
 
     def evaluate(self, values: dict[str, np.ndarray]) -> np.ndarray:
         """E (d×p) from block values (d, cols); values[h] = I_d."""
@@ -204,19 +199,6 @@ def prior_term(name: str, C: str, r: str, C_prior: np.ndarray, r_prior: np.ndarr
                  (H, -np.hstack([np.asarray(C_prior, float), _col(r_prior)]))])
 
 
-def orthonormality(lifting: Lifting, V: Variables, C: str, factor: str) -> list[Constraint]:
-    """c_iᵀ c_j = δ_ij (i ≤ j): the (C, C) block of X equals I_d."""
-    d, out = lifting.dim, []
-    for i in range(d):
-        for j in range(i, d):
-            qf = QuadForm(V)
-            lifting.add(qf, C, C, np.outer(np.eye(d)[i], np.eye(d)[j]))
-            if i == j:
-                lifting.add(qf, H, H, -np.eye(d) / d)
-            out.append(Constraint(qf.matrix(), 0.0, name=f"orth({C}:{i},{j})", factor=factor))
-    return out
-
-
 # ----------------------------------------------------------------------------- a graph of terms
 
 
@@ -236,51 +218,41 @@ def landmark_block(j: int) -> str:
     return f"l{j}"
 
 
-class PoseLandmarkGraph:
-    """K poses, L unknown landmarks and their terms; builds the Model and solves locally.
+def check_term(term: Term, d: int) -> Term:
+    """The term after checking its data have dimension d (e.g. no 2D measurement in 3D)."""
+    for b, M in term.residual:
+        rows = d if b == H or b.startswith("C") else 1
+        if M.shape != (rows, term.residual[0][1].shape[1]):
+            raise ProblemDefinitionError(f"term {term.name}: its data do not fit d = {d} "
+                                         f"(coefficient of {b} has shape {M.shape})")
+    return term
+
+
+def check_pose(k: int, K: int, what: str = "measurement") -> tuple[str, str]:
+    """Block names (C_k, r_k); a clear error for a pose that does not exist."""
+    if not 0 <= int(k) < K:
+        raise ProblemDefinitionError(f"{what} on pose {k}, but there are only {K} poses (0…{K - 1})")
+    return pose_blocks(int(k))
+
+
+def block_order(K: int, L: int = 0) -> list[str]:
+    """The lifted blocks after h: C_0, r_0, …, C_{K−1}, r_{K−1}, ℓ_0, …, ℓ_{L−1}."""
+    return [b for k in range(K) for b in pose_blocks(k)] + [landmark_block(j) for j in range(L)]
+
+
+@dataclass
+class PoseTerms:
+    """The terms of K poses and L unknown landmarks at states, for the module's cost and Gauss-Newton.
 
     A state is {"C": (K, d, d), "r": (K, d)} plus "l": (L, d) when L > 0.
     The local perturbation is [ψ_0, δr_0, …, ψ_{K−1}, δr_{K−1}, δℓ_0, …] with C ← exp(ψ^∧) C.
     """
 
-    def __init__(self, lifting: Lifting, n_poses: int, n_landmarks: int = 0):
-        self.lifting, self.K, self.L, self.dim = lifting, int(n_poses), int(n_landmarks), lifting.dim
-        self.terms: list[Term] = []
-        blocks = [(b, c) for k in range(self.K) for b, c in zip(pose_blocks(k), (self.dim, 1))]
-        self.V = lifting.variables(blocks + [(landmark_block(j), 1) for j in range(self.L)])
+    terms: list[Term]
+    K: int
+    L: int
+    dim: int
 
-    def pose(self, k: int, what: str = "measurement") -> tuple[str, str]:
-        """Block names (C_k, r_k); a clear error for a pose that does not exist."""
-        if not 0 <= int(k) < self.K:
-            raise ProblemDefinitionError(f"{what} on pose {k}, but there are only {self.K} poses (0…{self.K - 1})")
-        return pose_blocks(int(k))
-
-    def landmark(self, j: int) -> str:
-        """Block name of unknown landmark j; a clear error when it does not exist."""
-        return landmark_block(check_landmark(j, self.L))
-
-    def add(self, term: Term) -> None:
-        """Add a term after checking its data have dimension d (e.g. no 2D measurement in 3D)."""
-        for b, M in term.residual:
-            rows = self.dim if b == H or b.startswith("C") else 1
-            if M.shape != (rows, term.residual[0][1].shape[1]):
-                raise ProblemDefinitionError(f"term {term.name}: its data do not fit d = {self.dim} "
-                                             f"(coefficient of {b} has shape {M.shape})")
-        self.terms.append(term)
-
-    # --- the QCQP
-    def model(self) -> Model:
-        factors = []
-        for k in range(self.K):
-            C, _ = pose_blocks(k)
-            factors.append(Factor(f"pose_{k}", "pose", (H, C), roles=(H, "C"),
-                                  constraints=orthonormality(self.lifting, self.V, C, f"pose_{k}")))
-        for t in self.terms:
-            factors.append(Factor(t.name, t.type, (H, *t.blocks), cost=t.cost_matrix(self.lifting, self.V),
-                                  roles=(H, *t.roles)))
-        return Model(self.V, factors, paper={})
-
-    # --- states
     def values(self, state: dict) -> dict[str, np.ndarray]:
         C, r = np.asarray(state["C"], float), np.asarray(state["r"], float)
         if C.shape != (self.K, self.dim, self.dim) or r.shape != (self.K, self.dim):
@@ -294,22 +266,8 @@ class PoseLandmarkGraph:
             vals |= {landmark_block(j): ls[j][:, None] for j in range(self.L)}
         return vals
 
-    def lift(self, state: dict) -> np.ndarray:
-        return self.lifting.theta(self.V, self.values(state))
-
-    def recover(self, Theta: np.ndarray) -> dict:
-        """State from a rank-d factor; rotations projected to SO(d), raw dets in "det_raw"."""
-        T = normalise_theta(Theta, self.lifting.d)
-        get = lambda n: self.lifting.block(self.V, T, n)  # noqa: E731
-        C_raw = np.array([get(pose_blocks(k)[0]) for k in range(self.K)])
-        out = {"C": np.array([project_rotation(c) for c in C_raw]),
-               "r": np.array([get(pose_blocks(k)[1])[:, 0] for k in range(self.K)]),
-               "det_raw": np.array([np.linalg.det(c) for c in C_raw])}
-        if self.L:
-            out["l"] = np.array([get(landmark_block(j))[:, 0] for j in range(self.L)])
-        return out
-
     def cost(self, state: dict) -> float:
+        """Σ ‖E‖_F² over the terms."""
         vals = self.values(state)
         return float(sum(np.sum(t.evaluate(vals) ** 2) for t in self.terms))
 
@@ -365,18 +323,6 @@ class PoseLandmarkGraph:
 # ----------------------------------------------------------------------------- states near and far
 
 
-def sample_state(rng: np.random.Generator, nominal: dict, spread: float) -> dict:
-    """C_k = exp(spread·ν^∧) C̄_k, r_k = r̄_k + spread·n, ℓ_j = ℓ̄_j + spread·n (ν, n ~ N(0, I))."""
-    C = np.asarray(nominal["C"], float)
-    K, d = C.shape[:2]
-    out = {"C": np.array([exp_rot(spread * rng.standard_normal(rot_dof(d)), d) @ c for c in C]),
-           "r": np.asarray(nominal["r"], float) + spread * rng.standard_normal((K, d))}
-    if "l" in nominal:
-        ls = np.asarray(nominal["l"], float)
-        out["l"] = ls + spread * rng.standard_normal(ls.shape)
-    return out
-
-
 def random_state(rng: np.random.Generator, truth: dict, scale: float) -> dict:
     """Uniform rotations; positions ~ N(0, scale²) (shapes as in ``truth``)."""
     C = np.asarray(truth["C"])
@@ -403,33 +349,43 @@ def noisy_rotation(rng: np.random.Generator, C: np.ndarray, sigma: float) -> np.
     return exp_rot(sigma * rng.standard_normal(rot_dof(d)), d) @ C
 
 
-def graph_problem(graph: Callable[[Instance], "PoseLandmarkGraph"], extent_param: str) -> tuple[Callable, ...]:
-    """The parts of a pose-landmark problem module that only delegate to its graph:
-    (build, lift, cost, sample, random_state, local_solve, recover, errors).
-    ``extent_param`` names the parameter that scales random starts."""
+# ----------------------------------------------------------------------------- on the factor-graph layer
 
-    def build(inst: Instance) -> Model:
-        return graph(inst).model()
 
-    def lift(inst: Instance, state: dict) -> np.ndarray:
-        return graph(inst).lift(state)
+def _orth_name(variable: str, equation: str, **_: object) -> str:
+    """orth(C3:0,1): the model names of pose 3's orthonormality c_0ᵀc_1 = 0, as the saved sets carry them."""
+    return f"orth({variable}:{equation[len('orth('):]}"
 
-    def cost(inst: Instance, state: dict) -> float:
-        return graph(inst).cost(state)
 
-    def sample(inst: Instance, rng: np.random.Generator, nominal: dict, spread: float) -> dict:
-        return sample_state(rng, nominal, spread)
+def pose_variables(d: int, n_landmarks: int = 0) -> list[Variable]:
+    """C_k ∈ SO(d) (its own factor "pose_k": c_iᵀc_j = δ_ij), r_k ∈ R^d and, when there are landmarks, ℓ_j ∈ R^d."""
+    out = [Variable("C", Rotation(d), type="pose", constraint_names=_orth_name), Variable("r", Euclidean(d))]
+    return out + ([Variable("l", Euclidean(d))] if n_landmarks else [])
 
-    def random_start(inst: Instance, rng: np.random.Generator) -> dict:
-        return random_state(rng, inst.truth, inst.params[extent_param])
 
-    def local_solve(inst: Instance, init: dict, max_iter: int = 200) -> LocalResult:
-        return graph(inst).local_solve(init, max_iter)
+def factor(term: Term, lifting: Lifting) -> GraphFactor:
+    """The term as a model factor of its own (name, type, roles of the term): residual vec E, and its lifted cost
+    declared in the Gram form (``Term.cost_matrix``; the layer's Mᵀ M of the read-off residual sums the same
+    products in another order, and in the matrix lifting it derives none)."""
+    d = term.dim
 
-    def recover(inst: Instance, Theta: np.ndarray) -> dict:
-        return graph(inst).recover(Theta)
+    def residual(*views: View) -> np.ndarray:
+        vals = {H: np.eye(d)} | {b: np.asarray(v.x, float).reshape(d, -1) for b, v in zip(term.blocks, views)}
+        return term.evaluate(vals).ravel(order="F")
 
-    def errors(inst: Instance, state: dict) -> dict:
-        return state_errors(state, inst.truth)
+    return GraphFactor(term.blocks, residual, type=term.type, cost=term.cost_matrix(lifting), name=term.name, own=True,
+                       roles=term.roles)
 
-    return build, lift, cost, sample, random_start, local_solve, recover, errors
+
+def lifting_of(inst: Instance) -> Lifting:
+    return Lifting(inst.params["lifting"], check_dim(inst.params["dim"]))
+
+
+def width(inst: Instance) -> int:
+    """The lifted matrix's width: d for the matrix lifting Θ = [I_d, C_0, r_0, …], 1 for x = [1, vec C_0, r_0, …]."""
+    return lifting_of(inst).d
+
+
+def pose_state(state: dict) -> dict:
+    """A state's entries in the order C, r, det_raw, l (the layer's ``recover`` puts det_raw last)."""
+    return {k: state[k] for k in ("C", "r", "det_raw", "l") if k in state}

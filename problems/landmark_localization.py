@@ -7,13 +7,25 @@ y_j = Cᵀ(ℓ_j − r) + n_j, n_j ~ N(0, σ² I).  Prior: Č = exp(σ_p ν^∧)
 
 Lifting (param ``lifting``): Θ = [I_d, C, r] (matrix, rank d) or x = [1, vec C, r] (vector, rank 1).
 Primary constraints: CᵀC = I (the det is dropped).  No hand-derived redundant constraints.
+
+Written on the factor-graph layer (``autotight.graph``): the variables C_k ∈ SO(d) (type "pose": factor "pose_k"
+holds C_kᵀC_k = I, named ``orth(C_k:i,j)``) and r_k ∈ R^d (one pose, k = 0), and one factor of its own per
+measurement term (``Factor(own=True, roles=…)``: "landmark_n" of type "known_landmark" and "prior", roles (C, r));
+the layer derives the model, ``lift`` and ``recover`` in either lifting (``derive(width=…)``: the matrix lifting
+has width d) and ``sample``. Hand-written, because the layer would not give the same bits (``_landmark_terms``):
+each term's lifted cost, declared in the Gram form (the layer's Mᵀ M of the read-off residual sums the same
+products in another order, and derives no cost in the matrix lifting); ``cost`` (Σ ‖E‖_F² term by term);
+``local_solve`` (Gauss-Newton with the perturbation pose by pose [ψ_0, δr_0, …], where the layer's orders it
+variable by variable and stacks the residuals by a sparse product); ``random_state`` (uniform rotations, positions
+at the scale ``extent``).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from autotight.problem import Instance, Param
+from autotight.graph import Factor, Variable, derive
+from autotight.problem import Instance, LocalResult, Param
 
 from . import _landmark_terms as lt
 
@@ -38,16 +50,59 @@ def generate(params: dict, rng: np.random.Generator) -> Instance:
     return Instance(NAME, dict(params), meas, {"C": C[None], "r": r[None]})
 
 
-def graph(inst: Instance) -> lt.PoseLandmarkGraph:
-    """The pose, one known-landmark term per observation, and the prior."""
-    m, p = inst.measurements, inst.params
-    g = lt.PoseLandmarkGraph(lt.Lifting(p["lifting"], lt.check_dim(p["dim"])), n_poses=1)
-    C, r = g.pose(0)
+def terms(inst: Instance) -> list[lt.Term]:
+    """One known-landmark term per observation, ‖(ℓ_j − r) − C y_j‖², and the prior ‖C − Č‖_F² + ‖r − ř‖²."""
+    m, d = inst.measurements, lt.check_dim(inst.params["dim"])
+    C, r = lt.check_pose(0, 1)
     ells = np.asarray(m["landmarks"], float)
+    out = []
     for n, (j, y) in enumerate(zip(m["obs_landmark"], np.asarray(m["y"], float))):
-        g.add(lt.known_landmark_term(f"landmark_{n}", C, r, ells[lt.check_landmark(j, len(ells))], y))
-    g.add(lt.prior_term("prior", C, r, m["prior_C"], m["prior_r"]))
-    return g
+        out.append(lt.check_term(lt.known_landmark_term(f"landmark_{n}", C, r, ells[lt.check_landmark(j, len(ells))],
+                                                        y), d))
+    out.append(lt.check_term(lt.prior_term("prior", C, r, m["prior_C"], m["prior_r"]), d))
+    return out
 
 
-build, lift, cost, sample, random_state, local_solve, recover, errors = lt.graph_problem(graph, "extent")
+def variables(inst: Instance) -> list[Variable]:
+    """The pose C_0 ∈ SO(d) and r_0 ∈ R^d."""
+    return lt.pose_variables(lt.check_dim(inst.params["dim"]))
+
+
+def factors(inst: Instance) -> list[Factor]:
+    """Each term a factor of its own, its lifted cost in the instance's lifting."""
+    lifting = lt.lifting_of(inst)
+    return [lt.factor(t, lifting) for t in terms(inst)]
+
+
+def blocks(inst: Instance) -> list[str]:
+    """x = [h, vec C_0, r_0] (or Θ = [I_d, C_0, r_0])."""
+    return lt.block_order(1)
+
+
+build, lift, _, sample, _, _recover = derive(variables, factors, width=lt.width, blocks=blocks)
+
+
+def recover(inst: Instance, Theta: np.ndarray) -> dict:
+    return lt.pose_state(_recover(inst, Theta))
+
+
+def pose_terms(inst: Instance) -> lt.PoseTerms:
+    """The terms at states: the module's cost and Gauss-Newton."""
+    p = inst.params
+    return lt.PoseTerms(terms(inst), 1, 0, lt.check_dim(p["dim"]))
+
+
+def cost(inst: Instance, state: dict) -> float:
+    return pose_terms(inst).cost(state)
+
+
+def local_solve(inst: Instance, init: dict, max_iter: int = 200) -> LocalResult:
+    return pose_terms(inst).local_solve(init, max_iter)
+
+
+def random_state(inst: Instance, rng: np.random.Generator) -> dict:
+    return lt.random_state(rng, inst.truth, inst.params["extent"])
+
+
+def errors(inst: Instance, state: dict) -> dict:
+    return lt.state_errors(state, inst.truth)

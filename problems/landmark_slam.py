@@ -9,13 +9,25 @@ Measurements (noise std σ): landmark j from pose k, y = C_kᵀ(ℓ_j − r_k) +
 
 Lifting: Θ = [I_d, C_0, r_0, …, ℓ_0, …] (matrix, rank d) or x = [1, vec C_0, r_0, …, ℓ_0, …] (vector).
 Primary constraints: C_kᵀC_k = I per pose.  No hand-derived redundant constraints.
+
+Written on the factor-graph layer (``autotight.graph``): the variables C_k ∈ SO(d) (type "pose": factor "pose_k"
+holds C_kᵀC_k = I, named ``orth(C_k:i,j)``), r_k ∈ R^d and ℓ_j ∈ R^d, and one factor of its own per measurement
+term (``Factor(own=True, roles=…)``: "landmark_n" of type "landmark", roles (C, r, l); "odometry_n" of type
+"relative_pose", roles (C_i, r_i, C_j, r_j); "prior", roles (C, r)); the layer derives the model, ``lift`` and
+``recover`` in either lifting (``derive(width=…)``: the matrix lifting has width d) and ``sample``. Hand-written,
+because the layer would not give the same bits (``_landmark_terms``): each term's lifted cost, declared in the Gram
+form (the layer's Mᵀ M of the read-off residual sums the same products in another order, and derives no cost in the
+matrix lifting); ``cost`` (Σ ‖E‖_F² term by term); ``local_solve`` (Gauss-Newton with the perturbation pose by pose
+[ψ_0, δr_0, …], where the layer's orders it variable by variable and stacks the residuals by a sparse product);
+``random_state`` (uniform rotations, positions at the scale ``extent``).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from autotight.problem import Instance, Param
+from autotight.graph import Factor, Variable, derive
+from autotight.problem import Instance, LocalResult, Param
 
 from . import _landmark_terms as lt
 
@@ -70,16 +82,64 @@ def generate(params: dict, rng: np.random.Generator) -> Instance:
     return Instance(NAME, dict(params), meas, {"C": C, "r": r, "l": ls})
 
 
-def graph(inst: Instance) -> lt.PoseLandmarkGraph:
-    """Per-pose orthonormality; one term per landmark observation, per odometry step, and the prior."""
+def terms(inst: Instance) -> list[lt.Term]:
+    """One term per landmark observation ‖(ℓ_j − r_k) − C_k y‖², per odometry step
+    ‖r_{k+1} − r_k − C_k Δr‖² + ‖C_{k+1} − C_k ΔC‖_F², and the prior on pose 0."""
     m, p = inst.measurements, inst.params
-    g = lt.PoseLandmarkGraph(lt.Lifting(p["lifting"], lt.check_dim(p["dim"])), p["n_poses"], p["n_landmarks"])
+    K, L, d = p["n_poses"], p["n_landmarks"], lt.check_dim(p["dim"])
+    out = []
     for n, (k, j, y) in enumerate(zip(m["obs_pose"], m["obs_landmark"], np.asarray(m["y"], float))):
-        g.add(lt.landmark_term(f"landmark_{n}", *g.pose(k, "landmark measurement"), g.landmark(j), y))
+        C, r = lt.check_pose(k, K, "landmark measurement")
+        out.append(lt.check_term(lt.landmark_term(f"landmark_{n}", C, r, lt.landmark_block(lt.check_landmark(j, L)),
+                                                  y), d))
     for n, (i, j, dC, dr) in enumerate(zip(m["odo_from"], m["odo_to"], m["odo_C"], m["odo_r"])):
-        g.add(lt.relative_pose_term(f"odometry_{n}", *g.pose(i, "odometry"), *g.pose(j, "odometry"), dC, dr))
-    g.add(lt.prior_term("prior", *g.pose(0, "prior"), m["prior_C"], m["prior_r"]))
-    return g
+        Ci, ri = lt.check_pose(i, K, "odometry")
+        Cj, rj = lt.check_pose(j, K, "odometry")
+        out.append(lt.check_term(lt.relative_pose_term(f"odometry_{n}", Ci, ri, Cj, rj, dC, dr), d))
+    out.append(lt.check_term(lt.prior_term("prior", *lt.check_pose(0, K, "prior"), m["prior_C"], m["prior_r"]), d))
+    return out
 
 
-build, lift, cost, sample, random_state, local_solve, recover, errors = lt.graph_problem(graph, "extent")
+def variables(inst: Instance) -> list[Variable]:
+    """Poses C_k ∈ SO(d), r_k ∈ R^d and landmarks ℓ_j ∈ R^d."""
+    return lt.pose_variables(lt.check_dim(inst.params["dim"]), inst.params["n_landmarks"])
+
+
+def factors(inst: Instance) -> list[Factor]:
+    """Each term a factor of its own, its lifted cost in the instance's lifting."""
+    lifting = lt.lifting_of(inst)
+    return [lt.factor(t, lifting) for t in terms(inst)]
+
+
+def blocks(inst: Instance) -> list[str]:
+    """x = [h, vec C_0, r_0, …, vec C_{K−1}, r_{K−1}, ℓ_0, …, ℓ_{L−1}] (or Θ's columns in that order)."""
+    return lt.block_order(inst.params["n_poses"], inst.params["n_landmarks"])
+
+
+build, lift, _, sample, _, _recover = derive(variables, factors, width=lt.width, blocks=blocks)
+
+
+def recover(inst: Instance, Theta: np.ndarray) -> dict:
+    return lt.pose_state(_recover(inst, Theta))
+
+
+def pose_terms(inst: Instance) -> lt.PoseTerms:
+    """The terms at states: the module's cost and Gauss-Newton."""
+    p = inst.params
+    return lt.PoseTerms(terms(inst), p["n_poses"], p["n_landmarks"], lt.check_dim(p["dim"]))
+
+
+def cost(inst: Instance, state: dict) -> float:
+    return pose_terms(inst).cost(state)
+
+
+def local_solve(inst: Instance, init: dict, max_iter: int = 200) -> LocalResult:
+    return pose_terms(inst).local_solve(init, max_iter)
+
+
+def random_state(inst: Instance, rng: np.random.Generator) -> dict:
+    return lt.random_state(rng, inst.truth, inst.params["extent"])
+
+
+def errors(inst: Instance, state: dict) -> dict:
+    return lt.state_errors(state, inst.truth)

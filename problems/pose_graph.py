@@ -8,13 +8,25 @@ T_0 = T_{K−1} ΔT; ΔC perturbed by exp(σν^∧), Δr by N(0, σ² I).  A pri
 
 Lifting: Θ = [I_d, C_0, r_0, …] (matrix, rank d) or x = [1, vec C_0, r_0, …] (vector, rank 1).
 Primary constraints: C_kᵀC_k = I per pose.  No hand-derived redundant constraints.
+
+Written on the factor-graph layer (``autotight.graph``): the variables C_k ∈ SO(d) (type "pose": factor "pose_k"
+holds C_kᵀC_k = I, named ``orth(C_k:i,j)``) and r_k ∈ R^d, and one factor of its own per measurement term
+(``Factor(own=True, roles=…)``: "relative_n" of type "relative_pose", roles (C_i, r_i, C_j, r_j); "prior", roles
+(C, r)); the layer derives the model, ``lift`` and ``recover`` in either lifting (``derive(width=…)``: the matrix
+lifting has width d) and ``sample``. Hand-written, because the layer would not give the same bits
+(``_landmark_terms``): each term's lifted cost, declared in the Gram form (the layer's Mᵀ M of the read-off
+residual sums the same products in another order, and derives no cost in the matrix lifting); ``cost`` (Σ ‖E‖_F²
+term by term); ``local_solve`` (Gauss-Newton with the perturbation pose by pose [ψ_0, δr_0, …], where the layer's
+orders it variable by variable and stacks the residuals by a sparse product); ``random_state`` (uniform rotations,
+positions at the scale ``radius``).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from autotight.problem import Instance, Param
+from autotight.graph import Factor, Variable, derive
+from autotight.problem import Instance, LocalResult, Param
 
 from . import _landmark_terms as lt
 
@@ -57,15 +69,59 @@ def generate(params: dict, rng: np.random.Generator) -> Instance:
     return Instance(NAME, dict(params), meas, {"C": C, "r": r})
 
 
-def graph(inst: Instance) -> lt.PoseLandmarkGraph:
-    """Per-pose orthonormality, one relative-pose term per edge, and the prior."""
+def terms(inst: Instance) -> list[lt.Term]:
+    """One relative-pose term per edge, ‖r_j − r_i − C_i Δr‖² + ‖C_j − C_i ΔC‖_F², and the prior on pose 0."""
     m, p = inst.measurements, inst.params
-    g = lt.PoseLandmarkGraph(lt.Lifting(p["lifting"], lt.check_dim(p["dim"])), p["n_poses"])
+    K, d = p["n_poses"], lt.check_dim(p["dim"])
+    out = []
     for n, (i, j, dC, dr) in enumerate(zip(m["rel_from"], m["rel_to"], m["rel_C"], m["rel_r"])):
-        g.add(lt.relative_pose_term(f"relative_{n}", *g.pose(i, "relative pose"), *g.pose(j, "relative pose"),
-                                    dC, dr))
-    g.add(lt.prior_term("prior", *g.pose(0, "prior"), m["prior_C"], m["prior_r"]))
-    return g
+        Ci, ri = lt.check_pose(i, K, "relative pose")
+        Cj, rj = lt.check_pose(j, K, "relative pose")
+        out.append(lt.check_term(lt.relative_pose_term(f"relative_{n}", Ci, ri, Cj, rj, dC, dr), d))
+    out.append(lt.check_term(lt.prior_term("prior", *lt.check_pose(0, K, "prior"), m["prior_C"], m["prior_r"]), d))
+    return out
 
 
-build, lift, cost, sample, random_state, local_solve, recover, errors = lt.graph_problem(graph, "radius")
+def variables(inst: Instance) -> list[Variable]:
+    """Poses C_k ∈ SO(d) and r_k ∈ R^d."""
+    return lt.pose_variables(lt.check_dim(inst.params["dim"]))
+
+
+def factors(inst: Instance) -> list[Factor]:
+    """Each term a factor of its own, its lifted cost in the instance's lifting."""
+    lifting = lt.lifting_of(inst)
+    return [lt.factor(t, lifting) for t in terms(inst)]
+
+
+def blocks(inst: Instance) -> list[str]:
+    """x = [h, vec C_0, r_0, …, vec C_{K−1}, r_{K−1}] (or Θ's columns in that order)."""
+    return lt.block_order(inst.params["n_poses"])
+
+
+build, lift, _, sample, _, _recover = derive(variables, factors, width=lt.width, blocks=blocks)
+
+
+def recover(inst: Instance, Theta: np.ndarray) -> dict:
+    return lt.pose_state(_recover(inst, Theta))
+
+
+def pose_terms(inst: Instance) -> lt.PoseTerms:
+    """The terms at states: the module's cost and Gauss-Newton."""
+    p = inst.params
+    return lt.PoseTerms(terms(inst), p["n_poses"], 0, lt.check_dim(p["dim"]))
+
+
+def cost(inst: Instance, state: dict) -> float:
+    return pose_terms(inst).cost(state)
+
+
+def local_solve(inst: Instance, init: dict, max_iter: int = 200) -> LocalResult:
+    return pose_terms(inst).local_solve(init, max_iter)
+
+
+def random_state(inst: Instance, rng: np.random.Generator) -> dict:
+    return lt.random_state(rng, inst.truth, inst.params["radius"])
+
+
+def errors(inst: Instance, state: dict) -> dict:
+    return lt.state_errors(state, inst.truth)

@@ -720,3 +720,92 @@ def test_bad_declarations_are_one_line_errors(variables, factors, message):
     prob = load(_module(variables, factors, _point_instance))
     with pytest.raises(ProblemDefinitionError, match=message):
         prob.build(prob.generate({}, 0))
+
+
+# ----------------------------------------------------------------------------- matrix liftings (width d)
+
+
+def _pose_prior_instance(d: int) -> Instance:
+    rng = np.random.default_rng(3)
+    C = np.linalg.qr(rng.standard_normal((d, d)))[0]
+    C[:, 0] *= np.sign(np.linalg.det(C))  # a rotation, det +1
+    return Instance("pose_prior", {}, {"C": C, "r": rng.standard_normal(d)},
+                    {"C": C[None], "r": rng.standard_normal((1, d))})
+
+
+def _pose_prior_factors(width: int | None):
+    """‖C − Č‖_F² + ‖r − ř‖² on one pose, its Gram-form cost on [h (d), C (d), r (1)] (or [h, vec C, r])."""
+
+    def factors(inst):
+        Cp, rp = inst.measurements["C"], inst.measurements["r"]
+        d = len(rp)
+        M = np.vstack([-np.hstack([Cp, rp[:, None]]), np.eye(d, d + 1), np.eye(1, d + 1, d)])  # E = [I C r] M
+        if width == d:
+            G = M @ M.T
+        else:  # the same form on x = [1, vec C, r]
+            E = np.zeros((d * (d + 1), 1 + d * d + d))  # vec E = A [1; vec C; r]
+            E[:, 0] = -np.hstack([Cp, rp[:, None]]).ravel(order="F")
+            E[:d * d, 1:1 + d * d] = np.eye(d * d)
+            E[d * d:, 1 + d * d:] = np.eye(d)
+            G = E.T @ E
+        yield Factor(("C0", "r0"), lambda C, r: np.r_[(C.x - Cp).ravel(order="F"), r.x - rp], type="prior",
+                     cost=G, own=True, roles=("C", "r"), name="prior")
+
+    return factors
+
+
+@pytest.mark.parametrize("d", [2, 3])
+def test_width_d_lifts_theta_and_derives_gram_form_constraints(d):
+    inst = _pose_prior_instance(d)
+    variables = [Variable("C", Rotation(d), type="pose"), Variable("r", Euclidean(d))]
+    parts = derive(variables, _pose_prior_factors(d), width=lambda inst: d)
+    model = parts.build(inst)
+    assert model.d == d and [(b, model.variables.sizes[b]) for b in model.variables.names] == \
+        [("h", d), ("C0", d), ("r0", 1)]
+    assert [(f.name, f.type, f.blocks, f.roles) for f in model.factors] == \
+        [("pose_0", "pose", ("h", "C0"), ("h", "C")), ("prior", "prior", ("h", "C0", "r0"), ("h", "C", "r"))]
+    Theta = parts.lift(inst, inst.truth)
+    assert Theta.shape == (d, d + d + 1)
+    np.testing.assert_array_equal(Theta[:, :d], np.eye(d))
+    np.testing.assert_array_equal(Theta[:, d:2 * d], inst.truth["C"][0])
+    X = Theta.T @ Theta
+    for c in model.factors[0].constraints:  # c_iᵀc_j = δ_ij, in the dot products of Θ's columns
+        assert abs(np.sum(c.A.toarray() * X)) < 1e-12
+    assert len(model.factors[0].constraints) == d * (d + 1) // 2
+    C_st = {"C": inst.truth["C"], "r": inst.truth["r"]}
+    assert np.sum(model.Q.toarray() * X) == pytest.approx(parts.cost(inst, C_st), rel=1e-12)
+    U = np.random.default_rng(0).standard_normal((d, d)) + 3 * np.eye(d)  # a rank-d factor up to a left factor
+    got = parts.recover(inst, U @ Theta)
+    np.testing.assert_allclose(got["C"], inst.truth["C"], atol=1e-12)
+    np.testing.assert_allclose(got["r"], inst.truth["r"], atol=1e-12)
+    s = parts.sample(inst, np.random.default_rng(1), C_st, 0.1)
+    assert s["C"].shape == (1, d, d)
+    with pytest.raises(ProblemDefinitionError, match="vector liftings"):
+        parts.local_solve(inst, C_st)
+
+
+def test_width_one_keeps_the_vector_model_and_returns_theta_as_a_row():
+    inst = _pose_prior_instance(3)
+    variables = [Variable("C", Rotation(3), type="pose"), Variable("r", Euclidean(3))]
+    vec = derive(variables, _pose_prior_factors(None))
+    row = derive(variables, _pose_prior_factors(None), width=lambda inst: 1)
+    a, b = vec.build(inst), row.build(inst)
+    assert (a.Q != b.Q).nnz == 0 and a.variables.names == b.variables.names
+    x = vec.lift(inst, inst.truth)
+    np.testing.assert_array_equal(row.lift(inst, inst.truth), x[None])
+    np.testing.assert_allclose(row.recover(inst, -2.0 * x[None])["C"], inst.truth["C"], atol=1e-12)
+
+
+def test_width_refuses_what_it_cannot_hold():
+    inst = _pose_prior_instance(2)
+
+    def no_cost(inst):
+        yield Factor(("C0", "r0"), lambda C, r: np.r_[C.x.ravel(), r.x])
+
+    with pytest.raises(ProblemDefinitionError, match="give its lifted cost"):
+        derive([Variable("C", Rotation(2)), Variable("r", Euclidean(2))], no_cost, width=lambda i: 2).build(inst)
+    lifted = Variable("r", Euclidean(2), lifting={"n": lambda r: [r @ r]})
+    with pytest.raises(ProblemDefinitionError, match="main blocks only"):
+        derive([Variable("C", Rotation(2)), lifted], _pose_prior_factors(2), width=lambda i: 2).build(inst)
+    with pytest.raises(ProblemDefinitionError, match="roles must be distinct"):
+        Factor("C0", lambda C: C.x.ravel(), roles=("h",))

@@ -56,23 +56,28 @@ def _term_case(kind: str, d: int, rng: np.random.Generator, orthogonal: bool):
 def test_term_cost_equals_direct_cost(kind, d, lifting):
     """⟨Q, ΘᵀΘ⟩ = the expanded cost, on rotations and (the identity is exact) on arbitrary matrices."""
     L = lt.Lifting(lifting, d)
-    V = L.variables([("C", d), ("r", 1), ("C2", d), ("r2", 1), ("l", 1)])
     rng = np.random.default_rng(10 * d + len(kind))
     for s in range(6):
         term, vals, direct = _term_case(kind, d, rng, orthogonal=s % 2 == 0)
-        Theta = L.theta(V, vals)
+        V = L.variables([(b, d if b.startswith("C") else 1) for b in term.blocks])  # the term's local columns
+        cols = {b: np.asarray(vals[b], float).reshape(d, -1) for b in term.blocks}
+        if lifting == "vector":
+            cols = {b: v.ravel(order="F") for b, v in cols.items()}
+        Theta = V.assemble(cols)
         assert Theta.shape == ((d, V.N) if lifting == "matrix" else (1, V.N))
-        assert lifted_cost(term.cost_matrix(L, V), Theta) == pytest.approx(direct, rel=1e-10)
+        assert lifted_cost(term.cost_matrix(L), Theta) == pytest.approx(direct, rel=1e-10)
         assert fro2(term.evaluate(vals | {"h": np.eye(d)})) == pytest.approx(direct, rel=1e-10)
 
 
 def test_vector_lifting_layout_is_vec_by_columns():
-    L = lt.Lifting("vector", 3)
-    V = L.variables([("C", 3), ("r", 1)])
+    P = load("landmark_localization")
+    inst = P.generate({"dim": 3, "lifting": "vector"}, seed=0)
     C, r = np.arange(9.0).reshape(3, 3), np.array([9.0, 10.0, 11.0])
-    x = L.theta(V, {"C": C, "r": r[:, None]})[0]
+    x = P.module.lift(inst, {"C": C[None], "r": r[None]})[0]
     np.testing.assert_array_equal(x, np.r_[1.0, C[:, 0], C[:, 1], C[:, 2], r])
-    np.testing.assert_array_equal(L.block(V, x, "C"), C)
+    R = lt.random_rotation(np.random.default_rng(0), 3)
+    np.testing.assert_allclose(P.module.recover(inst, 2.0 * P.module.lift(inst, {"C": R[None], "r": r[None]}))["C"][0],
+                               R, atol=1e-12)
 
 
 # ----------------------------------------------------------------------------- problems
@@ -151,7 +156,7 @@ def test_factor_types_and_roles_are_consistent():
 def test_local_solver_jacobian_matches_finite_differences(name, d):
     P = load(name)
     inst = P.generate({"dim": d, "sigma": 0.2}, seed=4)
-    g = P.module.graph(inst)
+    g = P.module.pose_terms(inst)
     st = P.sample(inst, np.random.default_rng(1), spread=0.3)
     e, J, _ = g.linearize(st)
     h = 1e-6

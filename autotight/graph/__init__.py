@@ -5,6 +5,7 @@ lifting blocks) and ``factors(instance)`` (``Factor``: residual, optional Jacobi
 constraints, data; ``Family``: many factors of one type at once, on stacks; ``Group``: a learning group of
 blocks with no cost), then
 ``build, lift, cost, sample, local_solve, recover = derive(VARIABLES, factors)``.
+``derive(…, width=fn)`` lifts a matrix Θ of width d (the paper's matrix lifting) instead of a vector.
 See ``docs/factor_graph.md`` and the worked example ``docs/range_only_2d.md``.
 """
 

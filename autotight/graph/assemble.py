@@ -10,9 +10,10 @@ The model's factors (``autotight.model.Factor``), which discovery learns on, are
   the variables of its products, and that has no constraints of its own;
 - one per (type, variables) of the other declared factors without constraints of their own (their costs
   summed), named ``type:variables``;
-- one per declared factor with constraints or auxiliary blocks of its own (named ``Factor.name``, default
-  ``type_i``, with its ``data``), and one per factor of a ``Family`` with auxiliary blocks or paper rows
-  (``family.FamilyTerm``; the family's other factors' costs go where a ``Factor``'s would);
+- one per declared factor with constraints or auxiliary blocks of its own, or declared ``own`` (named
+  ``Factor.name``, default ``type_i``, with its ``data``; roles ``Factor.roles`` when given), and one per factor
+  of a ``Family`` with auxiliary blocks or paper rows (``family.FamilyTerm``; the family's other factors' costs
+  go where a ``Factor``'s would);
 - one per ``Group`` (blocks h and its blocks, no cost, no constraints), in declaration order among the
   factors of their own;
 - no factor for a variable with neither primary constraints nor a cost of its own.
@@ -48,7 +49,7 @@ from ..model import Constraint, Factor, Model, canonical_coo
 from .declare import Factor as Declared
 from .declare import Family, Group, Variable
 from .family import FamilyTerm, scatter
-from .layout import Element, Layout
+from .layout import Element, Layout, gram_form
 from .terms import Term, equation_names
 
 
@@ -133,6 +134,11 @@ class _Member:
         return self._cost
 
 
+def _alone(t: Term) -> bool:
+    """Whether a declared ``Factor`` is a model factor of its own (constraints, auxiliary blocks or ``own``)."""
+    return bool(t.factor.constraints) or t.aux is not None or t.factor.own
+
+
 def _own(t: FamilyTerm) -> bool:
     """Whether a family's factors are model factors of their own (auxiliary blocks or paper rows)."""
     return t.aux is not None or bool(t.paper)
@@ -151,16 +157,19 @@ class Graph:
 
     def __init__(self, variables: Sequence[Variable], truth: Mapping[str, Any],
                  factors: Iterable[Declared | Family | Group], by_element: bool = False,
-                 tangent: Sequence[str] | None = None, order: Sequence[str] | None = None):
+                 tangent: Sequence[str] | None = None, order: Sequence[str] | None = None,
+                 width: int | None = None):
         declared = list(factors)
         for f in declared:
             if not isinstance(f, (Declared, Family, Group)):
                 raise ProblemDefinitionError("factors must yield autotight.graph.Factor, Family or Group, got "
                                              f"{type(f).__name__}")
+        if width is not None and width > 1 and any(isinstance(f, Family) for f in declared):
+            raise ProblemDefinitionError(f"a lifting of width {width} holds no factor families; declare Factor")
         aux = _auxiliary_blocks(declared)
         blocks = [(b, k) for f, members in zip(declared, aux) if not isinstance(f, Group) and f.auxiliary is not None
                   for bs in members for b, k in zip(bs, f.auxiliary.blocks.values())]
-        self.layout = layout = Layout(variables, truth, blocks, by_element, tangent, order)
+        self.layout = layout = Layout(variables, truth, blocks, by_element, tangent, order, width)
         self.terms: list[Term] = []
         self.families: list[FamilyTerm] = []
         #: the declared items in order, resolved (a ``Group`` with its model factor's name)
@@ -182,7 +191,7 @@ class Graph:
         self.aux_terms = [t for t in self.terms if t.aux is not None]
         #: whether some factor has auxiliary blocks (whose values may be undefined at a state)
         self.has_auxiliary = bool(self.aux_terms) or any(t.aux is not None for t in self.families)
-        names = [t.name for t in self.terms if t.factor.constraints or t.aux is not None]
+        names = [t.name for t in self.terms if _alone(t)]
         names += [n for t in self.families if _own(t) for n in t.names]
         names += [item[0] for item in self.items if isinstance(item, tuple)]
         if len(set(names)) != len(names):
@@ -216,7 +225,7 @@ class Graph:
             else:
                 every.append(item)
                 loose = loose or _touches_cost_only(item.elements)
-                if item.factor.constraints or item.aux is not None:
+                if _alone(item):
                     own.append(item)
                     continue
                 members = [item]
@@ -274,10 +283,15 @@ class Graph:
             cons = [Constraint(_global(M, t.columns, N), 0.0, name=fmt.format(factor=t.name, constraint=nm),
                                factor=t.name) for nm, M in t.local_constraints()]
             roles = _roles(t.elements) + (tuple(t.aux.blocks) if t.aux is not None else ())
+            if t.factor.roles is not None:
+                if len(t.factor.roles) != len(roles) - 1:
+                    raise ProblemDefinitionError(f"factor {t.name!r}: roles must name its {len(roles) - 1} blocks "
+                                                 f"after h, got {t.factor.roles}")
+                roles = ("h",) + tuple(t.factor.roles)
             if len(set(roles)) != len(roles):
                 raise ProblemDefinitionError(f"factor {t.name!r}: its blocks' roles {roles} are not distinct")
             blocks = ("h",) + tuple(b for el in _modelled(t.elements) for b in el.blocks) + t.aux_blocks
-            if L.ordered:  # in the module's order of the lifted vector, h first
+            if L.ordered and t.factor.roles is None:  # in the module's order of the lifted vector, h first
                 at = sorted(range(1, len(blocks)), key=lambda k: L.V.offsets[blocks[k]])
                 blocks, roles = ("h",) + tuple(blocks[k] for k in at), ("h",) + tuple(roles[k] for k in at)
             cost = None if _touches_cost_only(t.elements) else self._cost([t], N)
@@ -302,6 +316,8 @@ class Graph:
         mats: dict[int, list[sp.coo_array]] = {}
         for var, idx, columns in L.families:
             local = var.local_constraints()
+            if L.V.d > 1:  # on h's d columns and the element's k: the Gram form of each equation
+                local = [(nm, gram_form(M, L.V.d)) for nm, M in local]
             names[id(var)] = [nm for nm, _ in local]
             if not local or not len(idx):
                 mats.update({int(k): [] for k in idx})
@@ -312,7 +328,8 @@ class Graph:
             group = np.repeat(np.arange(len(local)), [r.size for r, _ in entries])
             vals = np.concatenate([M[r, c] for (_, M), (r, c) in zip(local, entries)])
             theta = L.product_columns(var)  # the products' θ, after the element's own columns
-            cols_of = np.hstack([np.zeros((len(idx), 1), int), columns, np.broadcast_to(theta, (len(idx), theta.size))])
+            cols_of = np.hstack([np.broadcast_to(np.arange(L.V.d), (len(idx), L.V.d)), columns,
+                                 np.broadcast_to(theta, (len(idx), theta.size))])
             per = scatter(np.broadcast_to(vals, (len(idx), vals.size)), group, rows, cols, len(local), cols_of, N)
             mats.update({int(k): m for k, m in zip(idx, per)})
         return names, mats

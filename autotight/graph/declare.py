@@ -22,8 +22,9 @@ optional (the chain rule through the lifting when the residual is affine, centra
 the retraction otherwise).  ``constraints``: extra primary constraints [(name, (n, n) matrix)] on the same
 local columns (value 0); ``data``: the factor's measurement vector (``autotight.model.Factor.data``);
 ``type``: its factor type; ``name``: its model factor's name; ``constraint_names``: the format of its
-constraints' model names (default "{factor}:{constraint}").  ``cost`` and the constraints' matrices may be
-dense or scipy sparse.
+constraints' model names (default "{factor}:{constraint}"); ``own``: a model factor of its own even without
+constraints; ``roles``: its model factor's roles after h (its blocks then in its variables' order).  ``cost`` and
+the constraints' matrices may be dense or scipy sparse.
 
 ``Factor(…, auxiliary=Auxiliary(blocks, value, equations, jacobian=None))``: lifted blocks the factor owns,
 which are not a polynomial lifting of one variable but functions of the factor's variables and data (e.g.
@@ -399,9 +400,23 @@ class Factor:
     #: {factor} (its model factor's name) and {constraint}; "{constraint}" keeps the declared names (then they must
     #: be distinct in the model)
     constraint_names: str = "{factor}:{constraint}"
+    #: whether it is a model factor of its own (named ``name``, holding its cost) even without constraints or
+    #: auxiliary blocks of its own, e.g. one factor per measurement, as a paper writes its cost terms
+    own: bool = False
+    #: the roles of its model factor's blocks after h (its variables' blocks, then its auxiliary blocks), e.g.
+    #: ("C_i", "r_i", "C_j", "r_j"); given, the model factor lists its blocks in the factor's order of its
+    #: variables, also with the module's order of the lifted vector (``derive(blocks=…)``).  Default derived
+    #: (``assemble``)
+    roles: Sequence[str] | None = None
 
     def __post_init__(self) -> None:
         self.variables = (self.variables,) if isinstance(self.variables, str) else tuple(self.variables)
+        if self.roles is not None:
+            self.roles = tuple(self.roles)
+            if (not all(isinstance(r, str) and r for r in self.roles)
+                    or len(set(self.roles) | {"h"}) != len(self.roles) + 1):
+                raise ProblemDefinitionError(f"factor on {self.variables}: roles must be distinct non-empty strings "
+                                             f"other than 'h', got {self.roles}")
         if not self.variables or len(set(self.variables)) != len(self.variables):
             raise ProblemDefinitionError(f"a factor needs distinct variables, got {self.variables}")
         if not callable(self.residual):

@@ -59,7 +59,8 @@ def derive(variables: Sequence[Variable] | Callable[[Any], Sequence[Variable]],
            factors: Callable[[Any], Iterable[Factor | Family | Group]], by_element: bool = False,
            tangent: Sequence[str] | None = None, keep: Callable[[Any, dict], bool] | None = None,
            tries: int = SAMPLE_TRIES, state: Callable[[Mapping[str, Any]], Mapping[str, Any]] | None = None,
-           blocks: Callable[[Any], Sequence[str]] | None = None) -> Parts:
+           blocks: Callable[[Any], Sequence[str]] | None = None,
+           width: Callable[[Any], int | None] | None = None) -> Parts:
     """The contract's parts from the declarations (see the module docstring).  ``by_element``: the lifted vector
     and the model's factors ordered element by element (``layout.Layout``, ``assemble.Graph``): element i of
     every stacked variable before element i + 1, and each variable's own factor right before the first factor of
@@ -80,7 +81,13 @@ def derive(variables: Sequence[Variable] | Callable[[Any], Sequence[Variable]],
     ``blocks(instance) -> names``: the lifted vector's blocks after h in the module's order (every block once,
     e.g. a label's blocks beside the auxiliary blocks of its measurement, as a paper writes x); each declared
     ``Factor``'s model factor then lists its blocks in that order too.  Default: the variables' blocks, then
-    the auxiliary blocks (``layout.Layout``)."""
+    the auxiliary blocks (``layout.Layout``).
+
+    ``width(instance) -> d or None``: the lifting's width (``layout.Layout``): None, a vector x (d = 1); d, a
+    matrix Θ = [I_d, blocks…] (d × N) with X = ΘᵀΘ, each variable's value a d × k block (k = size / d), which
+    ``lift`` returns and ``recover`` takes (normalised by Θ_h⁻¹); its factors declare their lifted costs and
+    constraints in the Gram form on h's d columns and their variables' columns, and the manifolds' equations are
+    translated to it (``layout.gram_form``).  The derived ``local_solve`` is for vectors only (d = 1)."""
     if not callable(factors):
         raise ProblemDefinitionError("factors must be a function factors(instance) -> iterable of Factor")
     if keep is not None and not callable(keep):
@@ -102,7 +109,7 @@ def derive(variables: Sequence[Variable] | Callable[[Any], Sequence[Variable]],
             return hit[1]
         declared = variables(inst) if callable(variables) else variables
         g = Graph(list(declared), held(inst.truth), factors(inst), by_element, tangent,
-                  None if blocks is None else blocks(inst))
+                  None if blocks is None else blocks(inst), None if width is None else width(inst))
         for k in [k for k, (ref, _) in cache.items() if ref() is None]:
             del cache[k]
         cache[id(inst)] = (weakref.ref(inst), g)
@@ -147,6 +154,9 @@ def derive(variables: Sequence[Variable] | Callable[[Any], Sequence[Variable]],
 
     def local_solve(inst: Any, init: dict, max_iter: int = 200, rel_tol: float = 1e-12) -> Any:
         g = graph(inst)
+        if g.layout.V.d > 1:
+            raise ProblemDefinitionError(f"the derived local solver is for vector liftings; this lifting has width "
+                                         f"{g.layout.V.d}: the module gives local_solve")
         dense = g.layout.n_tangent <= DENSE_TANGENT and g.all_affine
         res = gauss_newton(lambda values: g.linearize(values, dense), g.layout.retract, g.layout.values(held(init)),
                            max_iter=max_iter, rel_tol=rel_tol)
@@ -155,6 +165,6 @@ def derive(variables: Sequence[Variable] | Callable[[Any], Sequence[Variable]],
 
     def recover(inst: Any, Theta: np.ndarray) -> dict:
         L = graph(inst).layout
-        return L.recover(np.asarray(Theta, float).reshape(-1))
+        return L.recover(np.asarray(Theta, float) if L.width is not None else np.asarray(Theta, float).reshape(-1))
 
     return Parts(build, lift, cost, sample, local_solve, recover)

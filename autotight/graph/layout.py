@@ -11,6 +11,14 @@ before the cost-only ones in the module's order instead, every one of them once.
 ``{name: value or (N, *shape) stack}`` with one entry per declared variable.  The stacked tangent vector (the
 retraction steps ε, the sampler's draws) holds each variable's elements in index order, the variables in
 declaration order or in the ``tangent`` order.
+
+``width`` (``derive(width=…)``): the lifted variable is a matrix Θ (d × N, d = width) instead of a vector, the
+paper's "matrix lifting" Θ = [I_d, C_0, r_0, …] with X = ΘᵀΘ.  A variable's value then contributes a d × k block
+(k = size / d columns): its embedding v, which must be vec of a d × k matrix (columns stacked: Euclidean(d) gives
+the column x, Rotation(d) the matrix C), reshaped; h is the block I_d (``Variables(d=width)``).  Only main blocks:
+no lifting, product, auxiliary or cost-only blocks.  With a width (1 included) ``lift`` returns Θ as a (d, N) array
+and ``recover`` takes one, normalised by Θ_h⁻¹ (``np.linalg.solve``, which a rank-d factor needs: it is defined up
+to a left factor).
 """
 
 from __future__ import annotations
@@ -50,12 +58,46 @@ class Element:
         return v if self.index is None else v[self.index]
 
 
+def _check_width(variables: Sequence[Variable], width: int, auxiliary: bool) -> None:
+    """Refuse what a lifting of width d cannot hold (see the module docstring), in one line."""
+    if isinstance(width, bool) or not isinstance(width, (int, np.integer)) or width not in (1, 2, 3):
+        raise ProblemDefinitionError(f"the lifting's width must be 1, 2 or 3, got {width!r}")
+    if auxiliary:
+        raise ProblemDefinitionError("a lifting of a given width holds no auxiliary blocks")
+    for var in variables:
+        if var.lifting or var.products or var.cost_only or var.manifold.size % width:
+            raise ProblemDefinitionError(f"variable {var.name!r}: a lifting of width {width} holds d × k blocks of "
+                                         "main blocks only (no lifting, product or cost-only blocks; size a multiple "
+                                         "of d)")
+
+
+def gram_form(M: np.ndarray, d: int) -> np.ndarray:
+    """An equation [h; v]ᵀ M [h; v] = 0 of a variable's embedding v = vec B (B d × k, columns stacked) as the
+    (d + k) × (d + k) matrix G on the columns [h (I_d), B] of a lifting of width d, ⟨G, [I_d B]ᵀ[I_d B]⟩ the same
+    polynomial: G_hh = M_hh/d · I_d, G_{h_i, b_j} = M_{h, v_(j, i)} and M_vv = G_bb ⊗ I_d, as only dot products of
+    columns are expressible (a one-line error otherwise)."""
+    p = M.shape[0] - 1
+    k = p // d
+    S = M[1:, 1:]
+    Gbb = S[::d, ::d]
+    if not np.array_equal(S, np.kron(Gbb, np.eye(d))):
+        raise ProblemDefinitionError(f"an equation of a variable is not a form in the dot products of its {k} "
+                                     f"columns, which a lifting of width {d} holds")
+    G = np.zeros((d + k, d + k))
+    G[:d, :d] = (M[0, 0] / d) * np.eye(d)
+    G[:d, d:] = M[0, 1:].reshape(d, k, order="F")
+    G[d:, :d] = M[1:, 0].reshape(d, k, order="F").T
+    G[d:, d:] = Gbb
+    return G
+
+
 class Layout:
-    """The instance's elements and ``Variables`` (d = 1), with lift, recover and retraction."""
+    """The instance's elements and ``Variables`` (d = 1, or ``width``), with lift, recover and retraction."""
 
     def __init__(self, variables: Sequence[Variable], truth: Mapping[str, Any],
                  auxiliary: Sequence[tuple[str, int]] = (), by_element: bool = False,
-                 tangent: Sequence[str] | None = None, order: Sequence[str] | None = None):
+                 tangent: Sequence[str] | None = None, order: Sequence[str] | None = None,
+                 width: int | None = None):
         if not variables or not all(isinstance(v, Variable) for v in variables):
             raise ProblemDefinitionError("VARIABLES must be a non-empty list of autotight.graph.Variable")
         names = [v.name for v in variables]
@@ -65,6 +107,11 @@ class Layout:
             raise ProblemDefinitionError(f"the tangent order must name every variable once, got {list(tangent)} for "
                                          f"variables {names}")
         self.variables = list(variables)
+        #: the lifting's width d (None: a vector, d = 1, as ``lift`` returns it); see the module docstring
+        self.width = width
+        d = 1 if width is None else width
+        if width is not None:
+            _check_width(self.variables, width, bool(auxiliary))
         self.elements: list[Element] = []
         self.counts: dict[str, int | None] = {}
         #: whether the blocks are ordered element by element (``derive(by_element=True)``)
@@ -84,7 +131,7 @@ class Layout:
                                              f"{shape}, expected {want} or (N, *{want})")
             self.counts[var.name] = count
             fits, parts = var.fits(), var.main_blocks()
-            sizes = [var.manifold.size // len(parts)] * len(parts) + [f.size for f in fits] + \
+            sizes = [var.manifold.size // len(parts) // d] * len(parts) + [f.size for f in fits] + \
                 [k for k, _ in var.product_sizes()]
             for i in [None] if count is None else range(count):
                 own = tuple(var.element_block(b, i) for b in parts + tuple(f.name for f in fits) + tuple(var.products))
@@ -119,7 +166,7 @@ class Layout:
                 raise ProblemDefinitionError(f"the lifted vector's order must name every block once: missing "
                                              f"{missing}, unknown or repeated {sorted(set(other))}")
             blocks = [(b, size[b]) for b in order]
-        self.V = Variables(blocks + trailing)
+        self.V = Variables(blocks + trailing, d=d)
         self.by_main = {el.main: el for el in self.elements}
         for el in self.elements:  # also by name and index when the main block is renamed
             self.by_main.setdefault(el.var.name + ("" if el.index is None else str(el.index)), el)
@@ -191,7 +238,13 @@ class Layout:
         return out
 
     def lift(self, values: Sequence[np.ndarray]) -> np.ndarray:
-        """x = [h, blocks…] (N,) with h = 1."""
+        """x = [h, blocks…] (N,) with h = 1; with a ``width`` d, Θ = [I_d, blocks…] (d, N)."""
+        if self.width is not None:
+            Theta = np.zeros((self.width, self.V.N))
+            Theta[:, :self.width] = np.eye(self.width)
+            for cols, el, v in zip(self._columns, self.elements, values):
+                Theta[:, cols] = el.var.manifold.embed(v).reshape(self.width, -1, order="F")
+            return Theta
         x = np.zeros(self.V.N)
         x[0] = 1.0
         for cols, el, v in zip(self._columns, self.elements, values):
@@ -249,7 +302,13 @@ class Layout:
         return x, J
 
     def raw(self, x: np.ndarray) -> list[np.ndarray]:
-        """Each element's main block, unembedded, from x divided by h (when h ≠ 0): not yet on its manifold."""
+        """Each element's main block, unembedded, from x divided by h (when h ≠ 0): not yet on its manifold.  With
+        a ``width`` d, x is Θ (d, N) (or (N,) when d = 1), normalised as Θ_h⁻¹ Θ."""
+        if self.width is not None:
+            T = np.asarray(x, float).reshape(self.width, -1)
+            T = np.linalg.solve(T[:, :self.width], T)
+            return [el.var.manifold.unembed(T[:, cols].ravel(order="F"))
+                    for el, cols in zip(self.elements, self._columns)]
         x = np.asarray(x, float).reshape(-1)
         x = x / x[0] if x[0] != 0 else x
         return [el.var.manifold.unembed(x[cols[:el.var.manifold.size]])

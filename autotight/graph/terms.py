@@ -14,6 +14,10 @@ evaluated at states only (it may need its variables on their manifolds); its Jac
 ``jacobian`` or central differences of the residual along each retraction direction (step ``FD_STEP``).
 An affine residual of a factor with auxiliary blocks is stacked likewise, the auxiliary rows of ∂θ/∂ε the
 auxiliary's ``jacobian`` or central differences of its ``value`` (``aux_linearize``).
+
+In a lifting of width d > 1 (``derive(width=…)``) the local columns are h's d columns, then each variable's k
+(``columns``); the factor's declared cost and constraints are Gram forms on them (required: nothing is read
+off), while its residual and views keep the variables' embeddings (``sizes``, ``n``) and are evaluated at states.
 """
 
 from __future__ import annotations
@@ -79,12 +83,19 @@ class Term:
         #: the auxiliary blocks' names in the lifted vector and their columns
         self.aux_blocks = tuple(aux_blocks)
         self.aux_columns = layout.V.index(self.aux_blocks) if self.aux_blocks else np.zeros(0, int)
-        self.columns = np.concatenate([[0]] + [layout.columns(el) for el in self.elements] + [self.aux_columns])
-        self.sizes = [layout.columns(el).size for el in self.elements]
+        #: the model's columns of its local columns (with a lifting width d: h's d columns, then the variables')
+        self.columns = np.concatenate([np.arange(layout.V.d)] + [layout.columns(el) for el in self.elements] +
+                                      [self.aux_columns])
+        #: the size of each variable's lifted vector, its entries in the views (in a lifting of width d > 1, its
+        #: embedding, which the model holds as a d × k block)
+        self.sizes = [el.var.manifold.size if layout.V.d > 1 else layout.columns(el).size for el in self.elements]
         #: the factor's variables' entries of the stacked tangent vector, in its order
         self.tangent = np.concatenate([np.arange(el.tangent_offset, el.tangent_offset + el.dof)
                                        for el in self.elements])
-        self.n = int(self.columns.size)
+        self.n = 1 + sum(self.sizes) + int(self.aux_columns.size)
+        if layout.V.d > 1 and factor.cost is None:
+            raise ProblemDefinitionError(f"{self.where}: in a lifting of width {layout.V.d} give its lifted cost "
+                                         "(Factor(cost=…), on h's d columns and its variables' columns)")
         self._aux_constraints = self._fit_equations() if self.aux is not None and self.aux.equations is not None \
             else []
         if factor.cost is None:
@@ -236,8 +247,9 @@ class Term:
 
     def _local(self, C: object, what: str) -> np.ndarray:
         A = cast(Any, C).toarray() if sp.issparse(C) else np.asarray(C, float)
-        if A.shape != (self.n, self.n) or not np.all(np.isfinite(A)):
-            raise ProblemDefinitionError(f"{self.where}: {what} must be a finite ({self.n}, {self.n}) matrix on the "
+        n = self.columns.size
+        if A.shape != (n, n) or not np.all(np.isfinite(A)):
+            raise ProblemDefinitionError(f"{self.where}: {what} must be a finite ({n}, {n}) matrix on the "
                                          "factor's local columns [h, its variables' blocks]")
         return 0.5 * (A + A.T)
 
