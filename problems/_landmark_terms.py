@@ -23,6 +23,7 @@ here: the terms' costs (``Term.cost_matrix``), the direct cost and the pose-by-p
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Callable, Iterable
 
 import numpy as np
 import scipy.sparse as sp
@@ -30,7 +31,7 @@ import scipy.sparse as sp
 from autotight import lie
 from autotight.errors import ParameterError, ProblemDefinitionError
 from autotight.gauss_newton import gauss_newton
-from autotight.graph import Euclidean, Rotation, Variable, View
+from autotight.graph import Euclidean, Rotation, Variable, View, derive
 from autotight.graph import Factor as GraphFactor
 from autotight.model import HOMOGENISING as H, QuadForm, Variables
 from autotight.problem import Instance, LocalResult, Param
@@ -189,6 +190,18 @@ def relative_pose_term(name: str, Ci: str, ri: str, Cj: str, rj: str, dC: np.nda
     e0, rest = np.eye(1, d + 1), np.eye(d + 1)[1:]  # (1, d+1) and (d, d+1) column selectors
     return Term(name, "relative_pose", (Ci, ri, Cj, rj), ("C_i", "r_i", "C_j", "r_j"),
                 [(rj, e0), (ri, -e0), (Ci, -np.hstack([_col(dr), dC])), (Cj, rest)])
+
+
+def relative_terms(stem: str, pairs: Iterable[tuple], K: int, d: int, what: str) -> list[Term]:
+    """One relative-pose term "{stem}_n" per (i, j, ΔC, Δr) of ``pairs``: ‖r_j − r_i − C_i Δr‖² + ‖C_j − C_i ΔC‖_F²
+    (``relative_pose_term``), its poses checked against the K poses and its data against d (``what`` names the
+    measurement in an error)."""
+    out = []
+    for n, (i, j, dC, dr) in enumerate(pairs):
+        Ci, ri = check_pose(i, K, what)
+        Cj, rj = check_pose(j, K, what)
+        out.append(check_term(relative_pose_term(f"{stem}_{n}", Ci, ri, Cj, rj, dC, dr), d))
+    return out
 
 
 def prior_term(name: str, C: str, r: str, C_prior: np.ndarray, r_prior: np.ndarray) -> Term:
@@ -389,3 +402,40 @@ def width(inst: Instance) -> int:
 def pose_state(state: dict) -> dict:
     """A state's entries in the order C, r, det_raw, l (the layer's ``recover`` puts det_raw last)."""
     return {k: state[k] for k in ("C", "r", "det_raw", "l") if k in state}
+
+
+def module_parts(terms: Callable[[Instance], list[Term]], variables: Callable[[Instance], list[Variable]],
+                 counts: Callable[[Instance], tuple[int, int]], spread: str) -> tuple[Callable, ...]:
+    """(build, lift, cost, sample, local_solve, recover, random_state, errors) of a module of pose (and landmark)
+    terms: ``terms(inst)`` its terms, each a factor of its own with its lifted cost in the instance's lifting;
+    ``variables(inst)`` its variables; ``counts(inst) -> (K, L)`` its poses and landmarks, the lifted blocks
+    [C_0, r_0, …, ℓ_0, …] in that order (``block_order``); ``spread``, the parameter that scales the random
+    starts.  The layer derives the model, lift, sample and recover (Θ of width d or x, ``width``); the cost and
+    the Gauss-Newton solver are the terms' own (``PoseTerms``)."""
+
+    def factors(inst: Instance) -> list[GraphFactor]:
+        lifting = lifting_of(inst)
+        return [factor(t, lifting) for t in terms(inst)]
+
+    build, lift, _, sample, _, derived_recover = derive(variables, factors, width=width,
+                                                        blocks=lambda inst: block_order(*counts(inst)))
+
+    def pose_terms(inst: Instance) -> PoseTerms:
+        return PoseTerms(terms(inst), *counts(inst), check_dim(inst.params["dim"]))
+
+    def cost(inst: Instance, state: dict) -> float:
+        return pose_terms(inst).cost(state)
+
+    def local_solve(inst: Instance, init: dict, max_iter: int = 200) -> LocalResult:
+        return pose_terms(inst).local_solve(init, max_iter)
+
+    def recover(inst: Instance, Theta: np.ndarray) -> dict:
+        return pose_state(derived_recover(inst, Theta))
+
+    def start(inst: Instance, rng: np.random.Generator) -> dict:
+        return random_state(rng, inst.truth, inst.params[spread])
+
+    def errors(inst: Instance, state: dict) -> dict:
+        return state_errors(state, inst.truth)
+
+    return build, lift, cost, sample, local_solve, recover, start, errors

@@ -24,8 +24,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from autotight.graph import Factor, Variable, derive
-from autotight.problem import Instance, LocalResult, Param
+from autotight.graph import Variable
+from autotight.problem import Instance, Param
 
 from . import _landmark_terms as lt
 
@@ -68,41 +68,10 @@ def variables(inst: Instance) -> list[Variable]:
     return lt.pose_variables(lt.check_dim(inst.params["dim"]))
 
 
-def factors(inst: Instance) -> list[Factor]:
-    """Each term a factor of its own, its lifted cost in the instance's lifting."""
-    lifting = lt.lifting_of(inst)
-    return [lt.factor(t, lifting) for t in terms(inst)]
+def counts(inst: Instance) -> tuple[int, int]:
+    """One pose, no unknown landmark: x = [h, vec C_0, r_0] (or Θ = [I_d, C_0, r_0])."""
+    return 1, 0
 
 
-def blocks(inst: Instance) -> list[str]:
-    """x = [h, vec C_0, r_0] (or Θ = [I_d, C_0, r_0])."""
-    return lt.block_order(1)
-
-
-build, lift, _, sample, _, _recover = derive(variables, factors, width=lt.width, blocks=blocks)
-
-
-def recover(inst: Instance, Theta: np.ndarray) -> dict:
-    return lt.pose_state(_recover(inst, Theta))
-
-
-def pose_terms(inst: Instance) -> lt.PoseTerms:
-    """The terms at states: the module's cost and Gauss-Newton."""
-    p = inst.params
-    return lt.PoseTerms(terms(inst), 1, 0, lt.check_dim(p["dim"]))
-
-
-def cost(inst: Instance, state: dict) -> float:
-    return pose_terms(inst).cost(state)
-
-
-def local_solve(inst: Instance, init: dict, max_iter: int = 200) -> LocalResult:
-    return pose_terms(inst).local_solve(init, max_iter)
-
-
-def random_state(inst: Instance, rng: np.random.Generator) -> dict:
-    return lt.random_state(rng, inst.truth, inst.params["extent"])
-
-
-def errors(inst: Instance, state: dict) -> dict:
-    return lt.state_errors(state, inst.truth)
+(build, lift, cost, sample, local_solve, recover, random_state,
+ errors) = lt.module_parts(terms, variables, counts, "extent")

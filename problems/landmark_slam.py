@@ -26,8 +26,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from autotight.graph import Factor, Variable, derive
-from autotight.problem import Instance, LocalResult, Param
+from autotight.graph import Variable
+from autotight.problem import Instance, Param
 
 from . import _landmark_terms as lt
 
@@ -92,10 +92,7 @@ def terms(inst: Instance) -> list[lt.Term]:
         C, r = lt.check_pose(k, K, "landmark measurement")
         out.append(lt.check_term(lt.landmark_term(f"landmark_{n}", C, r, lt.landmark_block(lt.check_landmark(j, L)),
                                                   y), d))
-    for n, (i, j, dC, dr) in enumerate(zip(m["odo_from"], m["odo_to"], m["odo_C"], m["odo_r"])):
-        Ci, ri = lt.check_pose(i, K, "odometry")
-        Cj, rj = lt.check_pose(j, K, "odometry")
-        out.append(lt.check_term(lt.relative_pose_term(f"odometry_{n}", Ci, ri, Cj, rj, dC, dr), d))
+    out += lt.relative_terms("odometry", zip(m["odo_from"], m["odo_to"], m["odo_C"], m["odo_r"]), K, d, "odometry")
     out.append(lt.check_term(lt.prior_term("prior", *lt.check_pose(0, K, "prior"), m["prior_C"], m["prior_r"]), d))
     return out
 
@@ -105,41 +102,10 @@ def variables(inst: Instance) -> list[Variable]:
     return lt.pose_variables(lt.check_dim(inst.params["dim"]), inst.params["n_landmarks"])
 
 
-def factors(inst: Instance) -> list[Factor]:
-    """Each term a factor of its own, its lifted cost in the instance's lifting."""
-    lifting = lt.lifting_of(inst)
-    return [lt.factor(t, lifting) for t in terms(inst)]
+def counts(inst: Instance) -> tuple[int, int]:
+    """K poses and L landmarks: x = [h, vec C_0, r_0, …, vec C_{K−1}, r_{K−1}, ℓ_0, …, ℓ_{L−1}] (or Θ's columns)."""
+    return inst.params["n_poses"], inst.params["n_landmarks"]
 
 
-def blocks(inst: Instance) -> list[str]:
-    """x = [h, vec C_0, r_0, …, vec C_{K−1}, r_{K−1}, ℓ_0, …, ℓ_{L−1}] (or Θ's columns in that order)."""
-    return lt.block_order(inst.params["n_poses"], inst.params["n_landmarks"])
-
-
-build, lift, _, sample, _, _recover = derive(variables, factors, width=lt.width, blocks=blocks)
-
-
-def recover(inst: Instance, Theta: np.ndarray) -> dict:
-    return lt.pose_state(_recover(inst, Theta))
-
-
-def pose_terms(inst: Instance) -> lt.PoseTerms:
-    """The terms at states: the module's cost and Gauss-Newton."""
-    p = inst.params
-    return lt.PoseTerms(terms(inst), p["n_poses"], p["n_landmarks"], lt.check_dim(p["dim"]))
-
-
-def cost(inst: Instance, state: dict) -> float:
-    return pose_terms(inst).cost(state)
-
-
-def local_solve(inst: Instance, init: dict, max_iter: int = 200) -> LocalResult:
-    return pose_terms(inst).local_solve(init, max_iter)
-
-
-def random_state(inst: Instance, rng: np.random.Generator) -> dict:
-    return lt.random_state(rng, inst.truth, inst.params["extent"])
-
-
-def errors(inst: Instance, state: dict) -> dict:
-    return lt.state_errors(state, inst.truth)
+(build, lift, cost, sample, local_solve, recover, random_state,
+ errors) = lt.module_parts(terms, variables, counts, "extent")

@@ -25,8 +25,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from autotight.graph import Factor, Variable, derive
-from autotight.problem import Instance, LocalResult, Param
+from autotight.graph import Variable
+from autotight.problem import Instance, Param
 
 from . import _landmark_terms as lt
 
@@ -73,11 +73,8 @@ def terms(inst: Instance) -> list[lt.Term]:
     """One relative-pose term per edge, ‖r_j − r_i − C_i Δr‖² + ‖C_j − C_i ΔC‖_F², and the prior on pose 0."""
     m, p = inst.measurements, inst.params
     K, d = p["n_poses"], lt.check_dim(p["dim"])
-    out = []
-    for n, (i, j, dC, dr) in enumerate(zip(m["rel_from"], m["rel_to"], m["rel_C"], m["rel_r"])):
-        Ci, ri = lt.check_pose(i, K, "relative pose")
-        Cj, rj = lt.check_pose(j, K, "relative pose")
-        out.append(lt.check_term(lt.relative_pose_term(f"relative_{n}", Ci, ri, Cj, rj, dC, dr), d))
+    out = lt.relative_terms("relative", zip(m["rel_from"], m["rel_to"], m["rel_C"], m["rel_r"]), K, d,
+                            "relative pose")
     out.append(lt.check_term(lt.prior_term("prior", *lt.check_pose(0, K, "prior"), m["prior_C"], m["prior_r"]), d))
     return out
 
@@ -87,41 +84,10 @@ def variables(inst: Instance) -> list[Variable]:
     return lt.pose_variables(lt.check_dim(inst.params["dim"]))
 
 
-def factors(inst: Instance) -> list[Factor]:
-    """Each term a factor of its own, its lifted cost in the instance's lifting."""
-    lifting = lt.lifting_of(inst)
-    return [lt.factor(t, lifting) for t in terms(inst)]
+def counts(inst: Instance) -> tuple[int, int]:
+    """K poses, no landmark: x = [h, vec C_0, r_0, …, vec C_{K−1}, r_{K−1}] (or Θ's columns in that order)."""
+    return inst.params["n_poses"], 0
 
 
-def blocks(inst: Instance) -> list[str]:
-    """x = [h, vec C_0, r_0, …, vec C_{K−1}, r_{K−1}] (or Θ's columns in that order)."""
-    return lt.block_order(inst.params["n_poses"])
-
-
-build, lift, _, sample, _, _recover = derive(variables, factors, width=lt.width, blocks=blocks)
-
-
-def recover(inst: Instance, Theta: np.ndarray) -> dict:
-    return lt.pose_state(_recover(inst, Theta))
-
-
-def pose_terms(inst: Instance) -> lt.PoseTerms:
-    """The terms at states: the module's cost and Gauss-Newton."""
-    p = inst.params
-    return lt.PoseTerms(terms(inst), p["n_poses"], 0, lt.check_dim(p["dim"]))
-
-
-def cost(inst: Instance, state: dict) -> float:
-    return pose_terms(inst).cost(state)
-
-
-def local_solve(inst: Instance, init: dict, max_iter: int = 200) -> LocalResult:
-    return pose_terms(inst).local_solve(init, max_iter)
-
-
-def random_state(inst: Instance, rng: np.random.Generator) -> dict:
-    return lt.random_state(rng, inst.truth, inst.params["radius"])
-
-
-def errors(inst: Instance, state: dict) -> dict:
-    return lt.state_errors(state, inst.truth)
+(build, lift, cost, sample, local_solve, recover, random_state,
+ errors) = lt.module_parts(terms, variables, counts, "radius")
