@@ -6,7 +6,8 @@ q = [I_d, pᵀ ⊗ I_d] [t; c].  The only primary constraints on the pose are C�
 dropped, as in the peer).  A state is {"C": (d, d), "t": (d,)} (plus problem-specific entries).
 
 Local solvers perturb C ← exp(ψ^∧) C, t ← t + δ (ψ of size 1 in 2D, 3 in 3D; ``_landmark_terms``).
-Modules on the factor-graph layer (wahba, mono_localization) declare the pose with ``pose_variables``.
+Modules on the factor-graph layer declare the pose with ``pose_variables`` (wahba, mono_localization) or as
+the variables t and C (stereo, robust_wahba).
 """
 
 from __future__ import annotations
@@ -32,10 +33,6 @@ def pose_blocks(d: int) -> list[tuple[str, int]]:
     return [(T_BLOCK, d), (C_BLOCK, d * d)]
 
 
-def pose_values(C: np.ndarray, t: np.ndarray) -> dict[str, np.ndarray]:
-    return {T_BLOCK: np.asarray(t, float).ravel(), C_BLOCK: np.asarray(C, float).ravel(order="F")}
-
-
 def point_map(p: np.ndarray) -> Affine:
     """q = C p + t as an affine expression in the blocks (d rows)."""
     p = np.asarray(p, float).ravel()
@@ -55,22 +52,6 @@ def orthonormality(V: Variables, d: int, factor: str) -> list[Constraint]:
                 qf.const(-1.0)
             out.append(Constraint(qf.matrix(), 0.0, name=f"orth({i},{j})", factor=factor))
     return out
-
-
-def pose_from_vector(x: np.ndarray, V: Variables, d: int) -> tuple[np.ndarray, np.ndarray]:
-    """(C projected to SO(d), t) and the raw C from a lifted vector x (x[0] = h; divided out when nonzero)."""
-    x = np.asarray(x, float).reshape(-1)
-    x = x / x[0] if x[0] != 0 else x  # h = 0 only on a factor of a rank > 1 solution: no rescaling
-    C_raw = x[V.slice(C_BLOCK)].reshape(d, d, order="F")
-    return lt.project_rotation(C_raw), x[V.slice(T_BLOCK)].copy(), C_raw
-
-
-def sample_pose(rng: np.random.Generator, nominal: dict, spread: float) -> dict:
-    """C = exp(spread·ν^∧) C̄, t = t̄ + spread·n (ν, n ~ N(0, I))."""
-    C = np.asarray(nominal["C"], float)
-    d = C.shape[0]
-    return {"C": lt.exp_rot(spread * rng.standard_normal(lt.rot_dof(d)), d) @ C,
-            "t": np.asarray(nominal["t"], float) + spread * rng.standard_normal(d)}
 
 
 def point_jacobian(C: np.ndarray, p: np.ndarray) -> np.ndarray:
@@ -123,3 +104,19 @@ def random_pose_state(inst, rng: np.random.Generator) -> dict:
 def errors(inst, state: dict) -> dict[str, float]:
     """``pose_errors`` against the instance's truth."""
     return pose_errors(state, inst.truth)
+
+
+def last_pose(fn: Callable[[np.ndarray, np.ndarray], np.ndarray]) -> Callable[[np.ndarray, np.ndarray], np.ndarray]:
+    """``fn(a, b)`` of a pose, remembering the last pose's value (keyed by the bytes of a and b): for the factors
+    of one instance that each need one row of a quantity computed for every measurement at once (the lifting
+    evaluates every factor at the same pose).  Make one per ``factors(instance)`` call, closing over that
+    instance's data only, so that it lives as long as the instance's factors."""
+    last: list = [None, None]
+
+    def at(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        key = np.asarray(a, float).tobytes() + np.asarray(b, float).tobytes()
+        if last[0] != key:
+            last[0], last[1] = key, fn(a, b)
+        return last[1]
+
+    return at

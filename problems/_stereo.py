@@ -177,9 +177,8 @@ def landmark_constraints(L: Variables, j: int, p: np.ndarray, level: str) -> lis
     return out
 
 
-def lifted(inst: Instance, t: np.ndarray, C: np.ndarray, j: int, level: str) -> np.ndarray:
-    """[u_j(, w_j = vec_row(u_j tᵀ))] at the pose, u_j from every landmark's camera point at once."""
-    u = substitution(inst.measurements["points"] @ C.T + t)[j]
+def lifted(u: np.ndarray, t: np.ndarray, level: str) -> np.ndarray:
+    """[u_j(, w_j = vec_row(u_j tᵀ))] from u_j at the pose."""
     return u if level == "no" else np.concatenate([u, np.outer(u, t).ravel()])
 
 
@@ -191,8 +190,11 @@ def factors(inst: Instance) -> Iterator[Factor | Group]:
     L = local_blocks(d, level)
     M = camera(d)
     blocks = {"u": d} | ({"w": d * d} if level == "urT" else {})
+    # u_j from every landmark's camera point at once (rows of P Cᵀ + t), once per pose for all N factors
+    subst = pv.last_pose(lambda t, C: substitution(P @ C.T + t))
     for j in range(N):
-        aux = Auxiliary(blocks, value=lambda t, C, j=j: lifted(inst, t.x, C.x, j, level), element="{block}{i}")
+        aux = Auxiliary(blocks, value=lambda t, C, j=j: lifted(subst(t.x, C.x)[j].copy(), t.x, level),
+                        element="{block}{i}")
 
         def residual(t: View, C: View, a: View, y: np.ndarray = Y[j]) -> np.ndarray:
             return (y - M @ np.concatenate([a.u[:d - 1], [1.0], a.u[d - 1:]])) / FOCAL
@@ -287,17 +289,8 @@ def residual(inst: Instance, state: dict) -> tuple[np.ndarray, np.ndarray]:
     return np.concatenate(es), np.vstack(Js)
 
 
-def random_state(inst: Instance, rng: np.random.Generator) -> dict:
-    d = inst.measurements["points"].shape[1]
-    return {"C": lt.random_rotation(rng, d), "t": rng.uniform(-1.0, 1.0, d)}
-
-
 def local_solve(inst: Instance, init: dict, max_iter: int = 200) -> LocalResult:
     return pv.pose_gauss_newton(lambda s: residual(inst, s), init, max_iter)
-
-
-def errors(inst: Instance, state: dict) -> dict:
-    return pv.pose_errors(state, inst.truth)
 
 
 def module_parts(name: str, d: int) -> tuple[Callable, ...]:
@@ -306,4 +299,4 @@ def module_parts(name: str, d: int) -> tuple[Callable, ...]:
     def gen(params: dict, rng: np.random.Generator) -> Instance:
         return generate(name, d, params, rng)
 
-    return gen, build, lift, cost, sample, random_state, local_solve, recover, errors
+    return gen, build, lift, cost, sample, pv.random_pose_state, local_solve, recover, pv.errors

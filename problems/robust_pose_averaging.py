@@ -117,6 +117,7 @@ from autotight.graph import Auxiliary, Binary, Euclidean, Factor, Group, Rotatio
 from autotight.model import Model, QuadForm, Variables
 from autotight.problem import Instance, LocalResult, Meta, Param
 
+from . import _pose_vector as pv
 from ._cayley import draw_valid
 from ._pose import POSE_ROLES, XI_ROLES, pose_blocks, unary_cayley, unary_residuals, xi_blocks
 
@@ -291,24 +292,9 @@ def meas_constraints(T_meas: np.ndarray, m: int, lifting: str) -> list[tuple[str
     return out
 
 
-#: the last pose's residuals (T_meas, pose bytes, ξ (M, 6)): ``lift`` asks for them once per measurement factor
-_LAST: list[tuple[np.ndarray, bytes, np.ndarray] | None] = [None]
-
-
-def pose_residuals(T_meas: np.ndarray, C: np.ndarray, r: np.ndarray) -> np.ndarray:
-    """ξ_m = cay⁻¹(T T̃_m⁻¹)^∨ of every measurement at once (M, 6), as ``residuals``; the last pose's kept."""
-    key = np.asarray(C, float).tobytes() + np.asarray(r, float).tobytes()
-    hit = _LAST[0]
-    if hit is None or hit[0] is not T_meas or hit[1] != key:
-        hit = (T_meas, key, unary_residuals(lie.make_pose(C, r), T_meas))
-        _LAST[0] = hit
-    return hit[2]
-
-
-def own_values(inst: Instance, C: np.ndarray, r: np.ndarray, w: float, m: int, lifting: str) -> np.ndarray:
-    """Measurement m's own blocks at a state: u_m = ½(1 + w_m)·ξ_m (gated) or [ξ_m, w_m·ξ_m] (product), ξ_m from
-    every measurement at once (``pose_residuals``)."""
-    xi = pose_residuals(inst.measurements["T_meas"], C, r)[m]
+def own_values(xi: np.ndarray, w: float, lifting: str) -> np.ndarray:
+    """Measurement m's own blocks from its residual ξ_m and label w_m: u_m = ½(1 + w_m)·ξ_m (gated) or
+    [ξ_m, w_m·ξ_m] (product)."""
     if lifting == "gated":
         g = 0.5 * (1.0 + w)
         return np.concatenate([g * xi[:3], g * xi[3:]])
@@ -326,8 +312,10 @@ def factors(inst: Instance) -> Iterator[Factor | Group]:
     T_meas, Ws, beta = inst.measurements["T_meas"], inst.measurements["W"], float(inst.measurements["beta"])
     lifting = lifting_of(inst)
     M = len(T_meas)
+    # ξ_m = cay⁻¹(T T̃_m⁻¹)^∨ of every measurement at once (``residuals``), once per pose for all M factors
+    xi = pv.last_pose(lambda C, r: unary_residuals(lie.make_pose(C, r), T_meas))
     for m in range(M):
-        own = Auxiliary(OWN[lifting], value=lambda C, r, w, m=m: own_values(inst, C.x, r.x, float(w.x), m, lifting))
+        own = Auxiliary(OWN[lifting], value=lambda C, r, w, m=m: own_values(xi(C.x, r.x)[m], float(w.x), lifting))
         weight = block_diag(Ws[m] / (2 * beta ** 2), 0.5)
         yield Factor(("C", "r", w_block(m)), lambda C, r, w, own: tls_residual(w, own, lifting), type="robust_meas",
                      weight=weight, cost=tls_cost(Ws[m], beta, lifting),

@@ -181,7 +181,7 @@ def random_state(inst: Instance, rng: np.random.Generator) -> dict:
 def register(P: np.ndarray, Y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """argmin_{C ∈ SO(d), t} Σ ‖C p_i + t − y_i‖² in closed form (centroids and an SVD)."""
     pm, ym = P.mean(axis=0), Y.mean(axis=0)
-    C = lt.project_rotation((Y - ym).T @ (P - pm))
+    C = Rotation(P.shape[1]).project((Y - ym).T @ (P - pm))
     return C, ym - C @ pm
 
 

@@ -20,7 +20,7 @@ from autotight.constraints import QuadForm, Variables
 from autotight.errors import ParameterError, ProblemDefinitionError, ProblemModuleError, SolverError
 from autotight.graph import Auxiliary, Binary, Euclidean, Factor, Group, Rotation, Variable, derive
 from autotight.graph.assemble import Graph
-from autotight.problem import Instance, Param, load, registered
+from autotight.problem import Instance, Param, available, load, registered
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLE = ROOT / "docs" / "examples" / "range_only_2d.py"
@@ -809,3 +809,20 @@ def test_width_refuses_what_it_cannot_hold():
         derive([Variable("C", Rotation(2)), lifted], _pose_prior_factors(2), width=lambda i: 2).build(inst)
     with pytest.raises(ProblemDefinitionError, match="roles must be distinct"):
         Factor("C0", lambda C: C.x.ravel(), roles=("h",))
+
+
+@pytest.mark.parametrize("name", available())
+def test_a_module_keeps_no_instance_alive(name):
+    """The layer caches each instance's graph under a weak reference: once the caller drops an instance, nothing
+    (a factor's closure, a module-level memo) keeps it, so a discovery's many instances are freed."""
+    import gc
+    import weakref
+
+    prob = load(name)
+    inst = prob.generate(prob.parse_params({}), 3)
+    prob.lift(inst, inst.truth)
+    prob.build(inst)
+    ref = weakref.ref(inst)
+    del inst
+    gc.collect()
+    assert ref() is None

@@ -164,7 +164,6 @@ def derive(variables: Sequence[Variable] | Callable[[Any], Sequence[Variable]],
         return res
 
     def recover(inst: Any, Theta: np.ndarray) -> dict:
-        L = graph(inst).layout
-        return L.recover(np.asarray(Theta, float) if L.width is not None else np.asarray(Theta, float).reshape(-1))
+        return graph(inst).layout.recover(Theta)  # ``Layout.raw`` shapes Θ or x
 
     return Parts(build, lift, cost, sample, local_solve, recover)

@@ -109,8 +109,8 @@ class Term:
             self.M = None
             self.m = self.residual(layout.truth_values).size
         self.W = self._weight(self.m)
-        for nm, C in factor.constraints:
-            self._local(C, f"constraint {nm!r}")
+        #: the declared constraints on the local columns, checked and converted once
+        self._declared = [(nm, self._local(C, f"constraint {nm!r}")) for nm, C in factor.constraints]
         #: the local columns of cost-only variables (``Variable.cost_only``), which its constraints must not touch
         starts = np.cumsum([1] + self.sizes)
         self.cost_only = np.concatenate([np.zeros(0, int)] + [np.arange(starts[i], starts[i + 1])
@@ -262,8 +262,7 @@ class Term:
 
     def local_constraints(self) -> list[tuple[str, np.ndarray]]:
         """The declared constraints, then the auxiliary's fitted equations."""
-        return [(nm, self._local(C, f"constraint {nm!r}")) for nm, C in self.factor.constraints] + \
-            self._aux_constraints
+        return self._declared + self._aux_constraints
 
     # ------------------------------------------------------------------ at a state
     def own(self, values: Sequence[np.ndarray]) -> list[np.ndarray]:
