@@ -15,7 +15,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import breadth_first_order, minimum_spanning_tree
 
-from ..svec import triu_entries
+from ..svec import stored_entries
 
 
 def incidence(cliques: Sequence[np.ndarray], N: int | None = None) -> sp.csr_array:
@@ -250,11 +250,11 @@ def block_cliques(sizes: Sequence[int], rows: np.ndarray, cols: np.ndarray) -> l
 def nonzeros(matrices: Sequence[sp.sparray]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(matrix index, row, column) of the stored upper-triangle entries (row ≤ column) of a list of
     symmetric sparse matrices."""
-    if not matrices:
+    if not len(matrices):
         return (np.zeros(0, np.int64),) * 3
-    entries = [triu_entries(A)[:2] for A in matrices]
-    owner = np.repeat(np.arange(len(entries)), [r.size for r, _ in entries])
-    return owner, np.concatenate([r for r, _ in entries]), np.concatenate([c for _, c in entries])
+    rows, cols, _, owner = stored_entries(matrices)  # one pass, no per-matrix arrays but the stored ones
+    keep = rows <= cols
+    return owner[keep].astype(np.int64), rows[keep].astype(np.int64), cols[keep].astype(np.int64)
 
 
 def support_matrix(rows: np.ndarray, cols: np.ndarray, owner: np.ndarray, N: int, m: int) -> sp.csr_array:
