@@ -267,22 +267,38 @@ def test_a_heldout_instance_taken_in_keeps_the_constraints_its_check_solved():
     assert np.isclose(plain.local.best.cost, taken.local.best.cost)
 
 
-def test_a_clean_first_batch_is_confirmed_by_a_second_fresh_one():
+def test_the_confirmation_bounds_the_chance_that_a_set_at_the_threshold_passes_it():
+    """A set tight on each instance with probability just min_fraction passes confirm_count clean instances with
+    probability ≤ CONFIRM_RISK, while one batch fewer would let it through more often (above the two-batch
+    minimum); at 0.9 with batches of 10 that is 30 instances: 0.9²⁰ = 0.12 let a 90 % set through."""
+    from autotight.discovery.engine import CONFIRM_RISK, MIN_CONFIRM_BATCHES, confirm_count
+
+    assert confirm_count(0.9, 10) == 30 and 0.9 ** 20 > 0.1
+    for f in (0.5, 0.8, 0.9, 0.93, 0.95):
+        for n in (1, 4, 10):
+            need = confirm_count(f, n)
+            assert need % n == 0 and need >= MIN_CONFIRM_BATCHES * n and f ** need <= CONFIRM_RISK
+            assert need == MIN_CONFIRM_BATCHES * n or f ** (need - n) > CONFIRM_RISK
+    assert confirm_count(1.0, 10) == confirm_count(0.0, 10) == MIN_CONFIRM_BATCHES * 10
+
+
+def test_a_clean_first_batch_is_confirmed_by_more_fresh_ones():
     """Pose averaging M = 3 (tight on every instance at σ = 0.1): the first fresh batch of 4 has no failing
-    instance, yet the point holds 4 < 2·4 tight held-out instances, so a second fresh batch confirms it; with one
-    round allowed the set is validated with a message that says the confirmation is short."""
-    from autotight.discovery.engine import CONFIRM_BATCHES
+    instance, yet the point holds 4 < confirm_count tight held-out instances, so fresh batches follow until it
+    holds them; with one round allowed the set is validated with a message that says the confirmation is short."""
+    from autotight.discovery.engine import confirm_count
 
     prob = at.load_problem("pose_averaging")
-    res = discover(prob, {"M": 3}, 0, n_heldout=4, compare=False)
+    need = confirm_count(0.5, 4)
+    res = discover(prob, {"M": 3}, 0, n_heldout=4, min_fraction=0.5, compare=False)
     rounds = res.validation["rounds"]
-    assert res.validated and len(rounds) == CONFIRM_BATCHES
-    assert [r["tight_since_last_failure"][0] for r in rounds] == [4 * (k + 1) for k in range(CONFIRM_BATCHES)]
+    assert res.validated and len(rounds) == need // 4 > 1 and res.validation["confirm"] == need
+    assert [r["tight_since_last_failure"][0] for r in rounds] == [4 * (k + 1) for k in range(need // 4)]
     seen = [heldout_seed(0, 0, t) for t in range(4 * len(rounds))]
-    assert len(set(seen)) == len(seen) and "at least 8 decided" in res.validation["message"]
+    assert len(set(seen)) == len(seen) and f"at least {need} decided" in res.validation["message"]
     short = discover(prob, {"M": 3}, 0, n_heldout=4, max_rounds=1, compare=False)
     assert short.validated and len(short.validation["rounds"]) == 1
-    assert "short of the 8" in short.validation["message"]
+    assert f"short of the {confirm_count(0.9, 4)}" in short.validation["message"]
 
 
 def test_a_spent_budget_exits_1_records_the_failure_and_solve_warns(tmp_path, capsys):
@@ -347,14 +363,14 @@ def test_a_training_instance_no_candidate_makes_tight_is_set_aside_and_replaced(
 def test_failing_instances_no_candidate_makes_tight_count_against_the_fraction_without_restarting_it():
     """±1 programs, loose on about a third of the instances whatever the set: at min_fraction 0.5 each batch's
     loose instances are taken in, none is reached, the set stays as it was, and the point is confirmed after
-    CONFIRM_BATCHES batches instead of restarting its count at every failure."""
-    from autotight.discovery.engine import CONFIRM_BATCHES
+    confirm_count batches instead of restarting its count at every failure."""
+    from autotight.discovery.engine import confirm_count
 
     s0 = next(s for s in range(40) if at.solve(BINARY, {}, s, constraints="primary").verdict.rel_gap < 1e-6)
     res = discover(BINARY, {}, s0, n_heldout=10, min_fraction=0.5, compare=False)
     rounds = res.validation["rounds"]
     taken = [tr for tr in res.trainers if tr.origin == "held-out"]
-    assert res.validated and len(rounds) == CONFIRM_BATCHES and res.pairs == []
+    assert res.validated and len(rounds) == confirm_count(0.5, 10) // 10 and res.pairs == []
     assert taken and not any(tr.reached for tr in taken)
     loose = rounds[-1]["loose_since_last_failure"][0]
     assert loose == len(taken) == sum(p["not_tight"] for r in rounds for p in r["points"])

@@ -33,11 +33,13 @@ those sizes as well.
    them to fit the new instances would lose what the earlier batches showed; the added pairs are reduced
    over all training instances), and the points with a failing instance get a fresh batch (the set only
    grows and tightness is monotone in the set, so a batch without failures stays tight).
-   **Confirm**: a point is done once it holds ``CONFIRM_BATCHES``·``n_heldout`` decided held-out instances
-   since the last failing one the set was grown to fix, tight at ``min_fraction`` or more (``done``; solved
-   with the set or a smaller one: by monotonicity those tight then are tight with the set), so a point whose
-   first fresh batch is clean gets a second one.  One clean batch of 10 lets a set that fails one instance in
-   5 through with probability 0.8¹⁰ = 0.11; 20 clean instances, with probability 0.012.  A failing instance
+   **Confirm**: a point is done once it holds ``confirm_count(min_fraction, n_heldout)`` decided held-out
+   instances since the last failing one the set was grown to fix, tight at ``min_fraction`` or more (``done``;
+   solved with the set or a smaller one: by monotonicity those tight then are tight with the set): whole
+   batches, at least ``MIN_CONFIRM_BATCHES``, enough that a set tight on a share of just ``min_fraction`` of
+   the instances is confirmed with probability at most ``CONFIRM_RISK``.  So a point whose first fresh batch is
+   clean gets more.  At 0.9 that is 30 instances (0.9³⁰ = 0.04): with 20, a set failing one instance in 10
+   passed with probability 0.12 and then failed ``check``'s 10 instances one time in four.  A failing instance
    that no candidate makes tight (taken in, not reached: the lifting cannot make it tight) leaves the set as
    it was: it counts against the fraction and does not restart the count, so a problem with such instances
    below 1 − ``min_fraction`` is confirmed instead of spending its budget.  It stops when every point is done
@@ -54,6 +56,7 @@ counting on over the rounds, so every batch is fresh and none is one of ``check`
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import asdict
@@ -78,8 +81,11 @@ from .result import DiscoveryResult, PointRecord, round_record
 from .select import reduce, tighten, tighten_each
 from .trainers import Solves, Trainer, candidates, heldout_seed, learned_source, make_trainer, training_seed
 
-#: held-out batches' worth of tight instances a point needs since its last failing one (module docstring)
-CONFIRM_BATCHES = 2
+#: the probability at most that a set tight on a share of just ``min_fraction`` of the instances is confirmed
+#: (module docstring, step 5)
+CONFIRM_RISK = 0.05
+#: held-out batches a point needs at least since its last failing one, whatever ``min_fraction``
+MIN_CONFIRM_BATCHES = 2
 #: training instances a point may set aside and replace by fresh ones (module docstring, step 3)
 MAX_SET_ASIDE = 3
 
@@ -98,6 +104,21 @@ def _parsed(prob: Problem, values: dict[str, Any]) -> dict[str, Any]:
     """Only the given parameters, each validated and parsed (``Problem.parse_params`` checks the names)."""
     prob.parse_params(values)
     return {k: prob.params[k].parse(k, v) for k, v in values.items()}
+
+
+def confirm_count(min_fraction: float, n_heldout: int) -> int:
+    """Decided held-out instances a point needs since its last failing one (module docstring, step 5).
+
+    Whole batches of ``n_heldout``, at least ``MIN_CONFIRM_BATCHES``, holding n ≥ log(CONFIRM_RISK) /
+    log(min_fraction) instances: a set tight on each instance independently with probability ``min_fraction``
+    is tight on all n with probability min_fraction^n ≤ CONFIRM_RISK.  With min_fraction = 1 (every instance must
+    pass) or 0, the minimum: no count of clean instances bounds that risk, and any failure restarts the count.
+    """
+    batches = MIN_CONFIRM_BATCHES
+    if 0.0 < min_fraction < 1.0 and n_heldout > 0:
+        n = math.log(CONFIRM_RISK) / math.log(min_fraction)
+        batches = max(batches, math.ceil(n / n_heldout - 1e-9))
+    return batches * n_heldout
 
 
 def _count(name: str, v: Any, low: int) -> int:
@@ -226,7 +247,7 @@ def discover(problem: Problem | str, params: Mapping[str, Any] | None = None, se
     with_paper = bool(compare and trainers[0].model.paper)
     paper: list[Any] = [None] * len(check_points)
     kept: list[list[int]] = [[] for _ in check_points]  # the seeds of each point's latest batch
-    need = CONFIRM_BATCHES * n_heldout
+    need = confirm_count(float(min_fraction), n_heldout)
     # per point, the decided held-out instances since the last failing one the set was grown to fix (``clean``),
     # and how many of them no candidate makes tight (``loose``: taken in, not reached)
     clean = [0] * len(check_points)
