@@ -46,7 +46,8 @@ in the metric of its system's column norms (``_certify_projected``).  Without D 
 LSQR refinement of the stationarity residual (``LSQR_REFINE_ITER`` iterations at most; the min-norm
 polish alone leaves ‖H Θ̂ᵀ‖ at 1e-6 relative at discrete K = 1000, a relative bound of 5e-5).  Where that
 does not certify, or below PROJECTION_MIN_N columns, the barrier runs if its Newton matrix fits (at
-most ``NEWTON_MAX_ENTRIES`` entries); if it does not and N < ``FALLBACK_MAX_N`` (continuous time,
+most ``NEWTON_MAX_ENTRIES`` entries) and its factorisation is cheap enough (``newton_flops``, at most
+``NEWTON_MAX_FLOPS``); if it does not and N < ``FALLBACK_MAX_N`` (continuous time,
 whose cliques of up to 67 columns share thousands of transfers, and where Douglas–Rachford stalls at
 a margin of −0.04), certify solves the full SDP, polishes its y as the pipeline does
 (``dual_polish.polished``) and certifies it the same way: the verdict stays right, without the
@@ -88,6 +89,10 @@ CENTRED_DECREMENT = 1.0
 #: above this many entries (``newton_size``) in the Newton matrix, the barrier is not run (module docstring, Scope)
 #: (discrete K = 100: 1.2e6; continuous time K = 11 on the default cover: 3.3e8)
 NEWTON_MAX_ENTRIES = 10_000_000
+#: … nor above this estimate of one Newton step's factorisation (``newton_flops``): continuous time K = 21 with a
+#: learned 2-pair set has 6.2e6 entries but 2.0e10 (a step took 9.7 s, its full SDP 9 s); robust pose averaging M = 6
+#: with its learned set 7.3e8 (0.13 s a step), discrete K = 20 and pose averaging M = 10 with the paper's 1.6e7
+NEWTON_MAX_FLOPS = 2e9
 #: below this many columns, a large program that Douglas–Rachford does not certify falls back to the full SDP's
 #: y (continuous time, K = 21: N = 517); above it Douglas–Rachford's certificate is the answer (no barrier, no
 #: full SDP: module docstring, Scope)
@@ -117,11 +122,25 @@ def default_cliques(Q: sp.sparray, As: Sequence[sp.sparray], d: int) -> list[np.
     return merge_small(column_cliques(Q.shape[0], [Q, *As], always=range(d)), 32)
 
 
+def newton_incidence(prog) -> list[np.ndarray]:
+    """Per clique block k, the variables touching it (F's columns in the block's rows), sorted."""
+    F = sp.csr_array(prog.F)
+    return [np.unique(F.indices[F.indptr[prog.start[k]]:F.indptr[prog.start[k + 1]]]) for k in range(len(prog.cliques))]
+
+
 def newton_size(prog) -> int:
     """Σ_k m_k², m_k the variables touching block k: about the entries of the Newton matrix."""
-    F = sp.csr_array(prog.F)
-    return int(sum(np.unique(F.indices[F.indptr[prog.start[k]]:F.indptr[prog.start[k + 1]]]).size ** 2
-                   for k in range(len(prog.cliques))))
+    return int(sum(i.size ** 2 for i in newton_incidence(prog)))
+
+
+def newton_flops(prog) -> float:
+    """M·b²: the flops of a band Cholesky of the Newton matrix (M variables) in the order of
+    ``schur_ipm.band_order``, b its half bandwidth there; an estimate of one Newton step's factorisation, whose
+    fill ``newton_size`` does not see (it has the same pattern as the IPM's Schur complement)."""
+    from .sdp.schur_ipm import band_order
+
+    M = int(prog.F.shape[1])
+    return float(M) * float(band_order(newton_incidence(prog), M)[1]) ** 2
 
 
 @dataclass
@@ -312,7 +331,7 @@ def certify(Q: sp.sparray, constraints: Sequence[Constraint], theta_hat: np.ndar
         cliques = default_cliques(Q, As, d)
     prog = clique_program(Q, As, b, [np.asarray(C) for C in cliques])
     load = newton_size(prog)
-    big = load > NEWTON_MAX_ENTRIES
+    big = load > NEWTON_MAX_ENTRIES or newton_flops(prog) > NEWTON_MAX_FLOPS
     tried = ""
     if method == "projection" or (method == "auto" and Q.shape[0] >= PROJECTION_MIN_N):
         cert = _certify_projected(Q, As, constraints, prog, Th, d=d, tol=tol, floor=floor, trace=trace,

@@ -70,6 +70,48 @@ def test_above_the_barriers_size_douglas_rachford_decides_only_where_the_full_sd
         assert certified_tight(model, cons, prob.lift(inst, loc.best.state), Criteria()) is None
 
 
+def test_the_barrier_is_not_run_where_its_factorisation_would_cost_more_than_it_saves(monkeypatch):
+    """``certifier.newton_flops`` is M·b² for the Newton matrix's pattern (each clique block's variables, all pairs)
+    in ``band_order``'s order, b its half bandwidth there; the shortcut declines a program whose estimate is above
+    ``NEWTON_MAX_FLOPS`` without one Newton step (continuous time K = 21 with a learned 2-pair set: 9.7 s a step,
+    the full SDP 9 s), and runs the barrier below it."""
+    import scipy.sparse as sp
+
+    import autotight.discovery.shortcut as shortcut
+    from autotight.certificate import stack
+    from autotight.certifier import default_cliques, newton_flops, newton_incidence
+    from autotight.sdp.clique_program import clique_program
+    from autotight.sdp.schur_ipm import band_order
+
+    prob = load("continuous_trajectory")
+    inst, model, loc, cons = _case(prob, {"K": 6}, 0, "paper")
+    As, b = stack(cons)
+    Q = sp.csr_array(model.Q)
+    prog = clique_program(Q, As, b, [np.asarray(c) for c in default_cliques(Q, As, model.d)])
+    inc = newton_incidence(prog)
+    M = prog.F.shape[1]
+    pos = band_order(inc, M)[0]
+    rows = np.concatenate([np.repeat(i, i.size) for i in inc])
+    cols = np.concatenate([np.tile(i, i.size) for i in inc])
+    width = int(np.max(np.abs(pos[rows] - pos[cols])))
+    flops = newton_flops(prog)
+    assert width > 0 and flops == float(M) * width ** 2
+    calls = []
+    run = shortcut.phase_one
+
+    def counted(*a, **k):
+        calls.append(1)
+        return run(*a, **k)
+
+    monkeypatch.setattr(shortcut, "phase_one", counted)
+    theta = prob.lift(inst, loc.best.state)
+    monkeypatch.setattr(shortcut, "NEWTON_MAX_FLOPS", flops / 2)
+    assert certified_tight(model, cons, theta, Criteria()) is None and calls == []
+    monkeypatch.setattr(shortcut, "NEWTON_MAX_FLOPS", flops * 2)
+    certified_tight(model, cons, theta, Criteria())
+    assert calls == [1]
+
+
 def test_a_held_out_batch_has_the_same_outcomes_with_and_without_the_shortcut(pose):
     points = [(pose.parse_params({"M": 4}), {})]
     kw = dict(min_fraction=0.9, criteria=Criteria(), config=SolverConfig())

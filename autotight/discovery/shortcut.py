@@ -16,7 +16,7 @@ cheaper), and then decides by exact tests only:
    the full SDP, solved to g, is rank d with log SVR above ``Criteria.min_log_svr`` + ``SPARE``.
 
 Only "tight" is ever decided here.  Anything else (not certified, a smaller λ_{d+1}, recession columns,
-a Newton matrix too large) returns None, and
+a Newton matrix too large or too costly to factorise) returns None, and
 the caller solves the full SDP, so an instance that fails validation is always one the full SDP judged.
 """
 
@@ -30,7 +30,8 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..certificate import certificate, dual_matrix, negative_pivots, polish_dual, stack
-from ..certifier import NEWTON_MAX_ENTRIES, default_cliques, model_cliques, newton_size, phase_one, projected_dual
+from ..certifier import (NEWTON_MAX_ENTRIES, NEWTON_MAX_FLOPS, default_cliques, model_cliques, newton_flops,
+                         newton_size, phase_one, projected_dual)
 from ..sdp.scaling import block_scale
 from ..model import Constraint, Model
 from ..tightness import Criteria
@@ -99,8 +100,8 @@ def certified_tight(model: Model, constraints: Sequence[Constraint], theta_hat: 
             prog = clique_program(Q, As, b, [np.asarray(C) for C in default_cliques(Q, As, d)])
         except ValueError:  # no clique tree of the data's pattern
             return None
-        if newton_size(prog) > NEWTON_MAX_ENTRIES:
-            return None
+        if newton_size(prog) > NEWTON_MAX_ENTRIES or newton_flops(prog) > NEWTON_MAX_FLOPS:
+            return None  # the barrier's steps would cost more than the full SDP they are meant to save
         # the barrier's own margin is clique-wise and pessimistic (discrete K = 100: −1e-3 after 12 steps, where
         # the exact tests below pass): whatever it ends with, its y is polished and tested
         ph = phase_one(prog, Th, target=min(max(2 * mu / scale, 1e-6), 0.1), max_iter=MAX_ITER)
