@@ -420,20 +420,33 @@ def jac_cay_se3_inv_batch(xi: np.ndarray) -> np.ndarray:
     return _jac_cay_se3_inv_batch(np.asarray(xi, dtype=float))
 
 
-def residuals_se3(T: np.ndarray, T_meas: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``residual_se3`` on stacks: T, T_meas (B, 4, 4) → ξ (B, 6), 𝒥_c(ξ)⁻¹ (B, 6, 6)."""
-    T, Tm = _poses(T, "T"), _poses(T_meas, "T_meas")
-    xi = _cay_inv_se3_batch(_poses(T @ _inv_se3_batch(Tm), "T T_meas⁻¹"))
+def check_poses(T: np.ndarray, name: str = "T") -> np.ndarray:
+    """T as a (B, 4, 4) float stack of finite poses with rotation blocks; ValueError naming ``name`` (and the
+    pose's index) otherwise."""
+    return _poses(T, name)
+
+
+def _checked(T: np.ndarray, name: str, checked: bool) -> np.ndarray:
+    return np.asarray(T, dtype=float) if checked else _poses(T, name)
+
+
+def residuals_se3(T: np.ndarray, T_meas: np.ndarray, *, checked: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """``residual_se3`` on stacks: T, T_meas (B, 4, 4) → ξ (B, 6), 𝒥_c(ξ)⁻¹ (B, 6, 6).  checked: T and T_meas are
+    known to be poses (``check_poses``: a solver's measurements and start checked once, its iterates its own
+    retractions of them), so neither they nor their products are checked again (the same arithmetic)."""
+    T, Tm = _checked(T, "T", checked), _checked(T_meas, "T_meas", checked)
+    xi = _cay_inv_se3_batch(_checked(T @ _inv_se3_batch(Tm), "T T_meas⁻¹", checked))
     return xi, _jac_cay_se3_inv_batch(xi)
 
 
-def residuals_se3_binary(T1: np.ndarray, T2: np.ndarray, T_meas: np.ndarray | None = None
+def residuals_se3_binary(T1: np.ndarray, T2: np.ndarray, T_meas: np.ndarray | None = None, *, checked: bool = False
                          ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """``residual_se3_binary`` on stacks: T1, T2, T_meas (B, 4, 4) → ξ (B, 6), ∂ξ/∂ε₁, ∂ξ/∂ε₂ (B, 6, 6)."""
-    T1, T2 = _poses(T1, "T1"), _poses(T2, "T2")
+    """``residual_se3_binary`` on stacks: T1, T2, T_meas (B, 4, 4) → ξ (B, 6), ∂ξ/∂ε₁, ∂ξ/∂ε₂ (B, 6, 6).
+    checked: as ``residuals_se3``."""
+    T1, T2 = _checked(T1, "T1", checked), _checked(T2, "T2", checked)
     T21 = T2 @ _inv_se3_batch(T1)
-    M = T21 if T_meas is None else T21 @ _inv_se3_batch(_poses(T_meas, "T_meas"))
-    xi = _cay_inv_se3_batch(_poses(M, "T2 T1⁻¹ T_meas⁻¹"))
+    M = T21 if T_meas is None else T21 @ _inv_se3_batch(_checked(T_meas, "T_meas", checked))
+    xi = _cay_inv_se3_batch(_checked(M, "T2 T1⁻¹ T_meas⁻¹", checked))
     Jinv = _jac_cay_se3_inv_batch(xi)
     C, r = T21[:, :3, :3], T21[:, :3, 3]
     Ad = np.zeros_like(Jinv)

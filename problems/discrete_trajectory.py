@@ -339,11 +339,13 @@ def linearize_blocks(inst: Instance, Ts: np.ndarray, W: sp.csr_array, pattern: B
                      ) -> tuple[np.ndarray, BlockJacobian, sp.csr_array]:
     """``linearize`` with the Jacobian as its 6 × 6 blocks and the weight blocks (``BlockJacobian`` on
     ``block_pattern(K)``), from which Gauss-Newton forms the block-tridiagonal normal equations directly;
-    W: ``weight(inst)``."""
+    W: ``weight(inst)``.  The poses are not checked again (``lie.residuals_se3(checked=True)``): ``local_solve``
+    checks the measurements and the start once, and the iterates are its retractions of them."""
     m = inst.measurements
     Ts = np.asarray(Ts)
-    xi_u, J_u = lie.residuals_se3(Ts, np.asarray(m["T_meas"]))
-    xi_b, J1, J2 = lie.residuals_se3_binary(Ts[:-1], Ts[1:], np.asarray(m["T_rel"]))
+    # the measurements and the start are checked once by ``local_solve``, the iterates are its own retractions
+    xi_u, J_u = lie.residuals_se3(Ts, np.asarray(m["T_meas"]), checked=True)
+    xi_b, J1, J2 = lie.residuals_se3_binary(Ts[:-1], Ts[1:], np.asarray(m["T_rel"]), checked=True)
     weights = np.concatenate([np.asarray(m["W"], float), np.asarray(m["W_rel"], float)])
     J = BlockJacobian(pattern, np.concatenate([J_u, J1, J2]), weights)
     return np.concatenate([xi_u.ravel(), xi_b.ravel()]), J, W
@@ -358,7 +360,11 @@ def local_solve(inst: Instance, init: dict, max_iter: int = 200) -> LocalResult:
     """Gauss-Newton (App. A.4, LM-damped) on the sparse stacked system (HᵀWH) ε = −HᵀW e."""
     pattern = block_pattern(_count(inst))
     W = weight(inst)  # the same at every iterate, as the Jacobian's block pattern
-    res = gauss_newton(lambda Ts: linearize_blocks(inst, Ts, W, pattern), retract, _poses(init), max_iter=max_iter)
+    m = inst.measurements
+    lie.check_poses(m["T_meas"], "T_meas")
+    lie.check_poses(m["T_rel"], "T_rel")
+    start = lie.check_poses(_poses(init), "start")
+    res = gauss_newton(lambda Ts: linearize_blocks(inst, Ts, W, pattern), retract, start, max_iter=max_iter)
     res.state = _state(res.state)
     return res
 

@@ -312,6 +312,37 @@ def test_batched_residuals_raise_the_single_pose_errors() -> None:
         lie.residuals_se3(T[0], T[0])
 
 
+def test_checked_residuals_are_the_same_arithmetic_without_the_checks() -> None:
+    """``checked=True`` skips the pose checks only: on poses the residuals and Jacobians are equal to the last bit
+    (the local solver's results must not move), and a matrix that is not a pose passes unnoticed, which is why the
+    discrete trajectory's solver checks its measurements and its start once, by name."""
+    rng = np.random.default_rng(10)
+    T1, T2, Tm = _random_poses(rng, 30), _random_poses(rng, 30), _random_poses(rng, 30)
+    for got, want in zip(lie.residuals_se3(T1, Tm, checked=True), lie.residuals_se3(T1, Tm)):
+        assert np.array_equal(got, want)
+    for got, want in zip(lie.residuals_se3_binary(T1, T2, Tm, checked=True), lie.residuals_se3_binary(T1, T2, Tm)):
+        assert np.array_equal(got, want)
+    bad = T1.copy()
+    bad[4, :3, :3] *= 1.1
+    lie.residuals_se3(bad, Tm, checked=True)  # no check: no error
+    with pytest.raises(ValueError, match=r"T\[4\]\[:3, :3\] is not a rotation"):
+        lie.residuals_se3(bad, Tm)
+    import problems.discrete_trajectory as dt
+    from autotight.problem import load
+
+    prob = load("discrete_trajectory")
+    inst = prob.generate(prob.parse_params({"K": 5}), 0)
+    start = {k: np.array(v, dtype=float) for k, v in inst.truth.items()}
+    start["C"][2] *= 1.1
+    with pytest.raises(ValueError, match=r"start\[2\]\[:3, :3\] is not a rotation"):
+        dt.local_solve(inst, start)
+    meas = np.array(inst.measurements["T_rel"], dtype=float)
+    meas[1, :3, :3] *= 1.1
+    inst.measurements["T_rel"] = meas
+    with pytest.raises(ValueError, match=r"T_rel\[1\]\[:3, :3\] is not a rotation"):
+        dt.local_solve(inst, inst.truth)
+
+
 def test_batched_exp_and_inverse_cayley_equal_the_single_pose_ones() -> None:
     """exp_se3_batch, cay_inv_se3_batch and inv_se3_batch repeat the single-pose operations in the same
     order: equal to the last bit here (sampling for discovery must not move a committed result), on
