@@ -343,7 +343,6 @@ def linearize_blocks(inst: Instance, Ts: np.ndarray, W: sp.csr_array, pattern: B
     checks the measurements and the start once, and the iterates are its retractions of them."""
     m = inst.measurements
     Ts = np.asarray(Ts)
-    # the measurements and the start are checked once by ``local_solve``, the iterates are its own retractions
     xi_u, J_u = lie.residuals_se3(Ts, np.asarray(m["T_meas"]), checked=True)
     xi_b, J1, J2 = lie.residuals_se3_binary(Ts[:-1], Ts[1:], np.asarray(m["T_rel"]), checked=True)
     weights = np.concatenate([np.asarray(m["W"], float), np.asarray(m["W_rel"], float)])
