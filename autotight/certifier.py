@@ -128,19 +128,29 @@ def newton_incidence(prog) -> list[np.ndarray]:
     return [np.unique(F.indices[F.indptr[prog.start[k]]:F.indptr[prog.start[k + 1]]]) for k in range(len(prog.cliques))]
 
 
-def newton_size(prog) -> int:
-    """Σ_k m_k², m_k the variables touching block k: about the entries of the Newton matrix."""
-    return int(sum(i.size ** 2 for i in newton_incidence(prog)))
+def newton_size(prog, inc: Sequence[np.ndarray] | None = None) -> int:
+    """Σ_k m_k², m_k the variables touching block k: about the entries of the Newton matrix.  inc:
+    ``newton_incidence(prog)`` when known."""
+    return int(sum(i.size ** 2 for i in (newton_incidence(prog) if inc is None else inc)))
 
 
-def newton_flops(prog) -> float:
+def newton_flops(prog, inc: Sequence[np.ndarray] | None = None) -> float:
     """M·b²: the flops of a band Cholesky of the Newton matrix (M variables) in the order of
     ``schur_ipm.band_order``, b its half bandwidth there; an estimate of one Newton step's factorisation, whose
-    fill ``newton_size`` does not see (it has the same pattern as the IPM's Schur complement)."""
+    fill ``newton_size`` does not see (it has the same pattern as the IPM's Schur complement).  inc:
+    ``newton_incidence(prog)`` when known."""
     from .sdp.schur_ipm import band_order
 
     M = int(prog.F.shape[1])
-    return float(M) * float(band_order(newton_incidence(prog), M)[1]) ** 2
+    return float(M) * float(band_order(newton_incidence(prog) if inc is None else inc, M)[1]) ** 2
+
+
+def barrier_too_costly(prog) -> tuple[int, float, bool]:
+    """(``newton_size``, ``newton_flops``, whether either is above its limit, ``NEWTON_MAX_ENTRIES`` or
+    ``NEWTON_MAX_FLOPS``): the barrier is then not run."""
+    inc = newton_incidence(prog)
+    size, flops = newton_size(prog, inc), newton_flops(prog, inc)
+    return size, flops, size > NEWTON_MAX_ENTRIES or flops > NEWTON_MAX_FLOPS
 
 
 @dataclass
@@ -330,8 +340,7 @@ def certify(Q: sp.sparray, constraints: Sequence[Constraint], theta_hat: np.ndar
     if cliques is None:
         cliques = default_cliques(Q, As, d)
     prog = clique_program(Q, As, b, [np.asarray(C) for C in cliques])
-    load = newton_size(prog)
-    big = load > NEWTON_MAX_ENTRIES or newton_flops(prog) > NEWTON_MAX_FLOPS
+    load, flops, big = barrier_too_costly(prog)
     tried = ""
     if method == "projection" or (method == "auto" and Q.shape[0] >= PROJECTION_MIN_N):
         cert = _certify_projected(Q, As, constraints, prog, Th, d=d, tol=tol, floor=floor, trace=trace,
@@ -349,7 +358,8 @@ def certify(Q: sp.sparray, constraints: Sequence[Constraint], theta_hat: np.ndar
 
         res = sdp.solve(Q, constraints, d=d, scale=scale)
         note = (f"{tried}full SDP ({res.solver} {res.status}): the Newton matrix would have ~{load:.1e} "
-                f"entries (> {NEWTON_MAX_ENTRIES:.0e})")
+                f"entries (at most {NEWTON_MAX_ENTRIES:.0e}) and ~{flops:.1e} flops a factorisation (at most "
+                f"{NEWTON_MAX_FLOPS:.0e})")
         res, polished_cert = polished(Q, constraints, res, Th, d=d, tol=tol, floor=floor)  # as the pipeline's y
         cert = polished_cert if polished_cert is not None else certificate(
             Q, constraints, np.zeros(len(As)), Th, d=d, tol=tol, floor=floor, trace=trace,

@@ -77,6 +77,7 @@ def test_the_barrier_is_not_run_where_its_factorisation_would_cost_more_than_it_
     the full SDP 9 s), and runs the barrier below it."""
     import scipy.sparse as sp
 
+    import autotight.certifier as certifier
     import autotight.discovery.shortcut as shortcut
     from autotight.certificate import stack
     from autotight.certifier import default_cliques, newton_flops, newton_incidence
@@ -105,9 +106,9 @@ def test_the_barrier_is_not_run_where_its_factorisation_would_cost_more_than_it_
 
     monkeypatch.setattr(shortcut, "phase_one", counted)
     theta = prob.lift(inst, loc.best.state)
-    monkeypatch.setattr(shortcut, "NEWTON_MAX_FLOPS", flops / 2)
+    monkeypatch.setattr(certifier, "NEWTON_MAX_FLOPS", flops / 2)
     assert certified_tight(model, cons, theta, Criteria()) is None and calls == []
-    monkeypatch.setattr(shortcut, "NEWTON_MAX_FLOPS", flops * 2)
+    monkeypatch.setattr(certifier, "NEWTON_MAX_FLOPS", flops * 2)
     certified_tight(model, cons, theta, Criteria())
     assert calls == [1]
 

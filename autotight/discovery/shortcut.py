@@ -30,8 +30,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..certificate import certificate, dual_matrix, negative_pivots, polish_dual, stack
-from ..certifier import (NEWTON_MAX_ENTRIES, NEWTON_MAX_FLOPS, default_cliques, model_cliques, newton_flops,
-                         newton_size, phase_one, projected_dual)
+from ..certifier import barrier_too_costly, default_cliques, model_cliques, phase_one, projected_dual
 from ..sdp.scaling import block_scale
 from ..model import Constraint, Model
 from ..tightness import Criteria
@@ -100,7 +99,7 @@ def certified_tight(model: Model, constraints: Sequence[Constraint], theta_hat: 
             prog = clique_program(Q, As, b, [np.asarray(C) for C in default_cliques(Q, As, d)])
         except ValueError:  # no clique tree of the data's pattern
             return None
-        if newton_size(prog) > NEWTON_MAX_ENTRIES or newton_flops(prog) > NEWTON_MAX_FLOPS:
+        if barrier_too_costly(prog)[2]:
             return None  # the barrier's steps would cost more than the full SDP they are meant to save
         # the barrier's own margin is clique-wise and pessimistic (discrete K = 100: −1e-3 after 12 steps, where
         # the exact tests below pass): whatever it ends with, its y is polished and tested

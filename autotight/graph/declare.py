@@ -79,6 +79,12 @@ ROUNDING = 32 * np.finfo(float).eps
 View = SimpleNamespace
 
 
+
+def _distinct_names(names: Sequence[Any], *excluded: str) -> bool:
+    """Whether ``names`` are distinct non-empty strings, none of them in ``excluded``."""
+    return (all(isinstance(n, str) and n and n not in excluded for n in names)
+            and len(set(names)) == len(names))
+
 @dataclass
 class LiftingFit:
     """One lifting block z = c0 + G v + [vᵀ S_e v]_e as a polynomial in the embedding v (size p):
@@ -413,8 +419,7 @@ class Factor:
         self.variables = (self.variables,) if isinstance(self.variables, str) else tuple(self.variables)
         if self.roles is not None:
             self.roles = tuple(self.roles)
-            if (not all(isinstance(r, str) and r for r in self.roles)
-                    or len(set(self.roles) | {"h"}) != len(self.roles) + 1):
+            if not _distinct_names(self.roles, "h"):
                 raise ProblemDefinitionError(f"factor on {self.variables}: roles must be distinct non-empty strings "
                                              f"other than 'h', got {self.roles}")
         if not self.variables or len(set(self.variables)) != len(self.variables):
@@ -514,8 +519,7 @@ class Family:
                 raise ProblemDefinitionError(f"{where}: paper_labels names families not in paper")
         if self.names is not None:
             self.names = list(self.names)
-            if len(self.names) != F or len(set(self.names)) != F or not all(isinstance(n, str) and n
-                                                                            for n in self.names):
+            if len(self.names) != F or not _distinct_names(self.names):
                 raise ProblemDefinitionError(f"{where}: names must be {F} distinct non-empty strings")
         if self.degree not in (1, 2):
             raise ProblemDefinitionError(f"{where}: degree must be 1 or 2, got {self.degree!r}")
@@ -526,7 +530,7 @@ class Family:
                                              "auxiliary blocks")
         if self.roles is not None:
             self.roles = tuple(self.roles)
-            if not all(isinstance(r, str) and r for r in self.roles) or len(set(self.roles)) != len(self.roles):
+            if not _distinct_names(self.roles):
                 raise ProblemDefinitionError(f"{where}: roles must be distinct non-empty strings, got {self.roles}")
 
     @property
@@ -558,12 +562,10 @@ class Group:
         where = f"group on {self.blocks}"
         if not isinstance(self.type, str) or not self.type:
             raise ProblemDefinitionError(f"{where}: type must be a non-empty string, got {self.type!r}")
-        if (not self.blocks or len(set(self.blocks)) != len(self.blocks)
-                or not all(isinstance(b, str) and b and b != "h" for b in self.blocks)):
+        if not self.blocks or not _distinct_names(self.blocks, "h"):
             raise ProblemDefinitionError(f"{where}: blocks must be distinct block names other than 'h'")
         self.roles = self.blocks if self.roles is None else tuple(self.roles)
-        if (len(self.roles) != len(self.blocks) or len(set(self.roles) | {"h"}) != len(self.roles) + 1
-                or not all(isinstance(r, str) and r for r in self.roles)):
+        if len(self.roles) != len(self.blocks) or not _distinct_names(self.roles, "h"):
             raise ProblemDefinitionError(f"{where}: roles must be {len(self.blocks)} distinct non-empty strings "
                                          f"other than 'h', got {self.roles}")
         if self.data is not None:

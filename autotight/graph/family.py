@@ -25,7 +25,7 @@ import scipy.sparse as sp
 from ..errors import ProblemDefinitionError
 from ..factor_batch import coefficients, features, probe_points, relocated
 from .declare import ROUNDING, Auxiliary, Family, Variable, View
-from .layout import Element, Layout
+from .layout import Element, Layout, cost_only_columns
 from .manifolds import Euclidean, Rotation
 from .terms import AFFINE_RTOL, EQUATION_RTOL, FD_STEP, check_point
 
@@ -184,10 +184,8 @@ class FamilyTerm:
             Fit(self._caller(self.aux.equations), self.n - 1, self.data, fam.degree, where, "auxiliary's equations")
         self.paper = {name: Fit(self._caller(fn), self.n - 1, self.data, fam.degree, where, f"paper rows {name!r}")
                       for name, fn in fam.paper.items()}
-        starts = np.cumsum([1] + self.sizes)
         #: the local columns of cost-only variables (``Variable.cost_only``): in the cost, in no constraint
-        self.cost_only = np.concatenate([np.zeros(0, int)] + [np.arange(starts[k], starts[k + 1])
-                                                               for k, var in enumerate(self.vars) if var.cost_only])
+        self.cost_only = cost_only_columns(self.sizes, self.vars)
         fits = ([self.equations] if self.equations is not None else []) + list(self.paper.values())
         if self.cost_only.size and any(np.isin(fit.columns(), self.cost_only).any() for fit in fits):
             raise ProblemDefinitionError(f"{where}: its equations or paper rows involve a cost-only variable")

@@ -29,7 +29,7 @@ import scipy.sparse as sp
 
 from ..errors import ProblemDefinitionError
 from .declare import Auxiliary, Factor, View, fit_quadratic, quadratic_forms
-from .layout import Element, Layout
+from .layout import Element, Layout, cost_only_columns
 
 #: an affine residual must match its read-off map at a random point to this relative accuracy
 AFFINE_RTOL = 1e-9
@@ -112,10 +112,7 @@ class Term:
         #: the declared constraints on the local columns, checked and converted once
         self._declared = [(nm, self._local(C, f"constraint {nm!r}")) for nm, C in factor.constraints]
         #: the local columns of cost-only variables (``Variable.cost_only``), which its constraints must not touch
-        starts = np.cumsum([1] + self.sizes)
-        self.cost_only = np.concatenate([np.zeros(0, int)] + [np.arange(starts[i], starts[i + 1])
-                                                               for i, el in enumerate(self.elements)
-                                                               if el.var.cost_only])
+        self.cost_only = cost_only_columns(self.sizes, [el.var for el in self.elements])
         if self.cost_only.size and any(np.any(M[self.cost_only]) for _, M in self.local_constraints()):
             raise ProblemDefinitionError(f"{self.where}: its constraints involve a cost-only variable")
 
