@@ -36,6 +36,8 @@ def jsonable(obj: Any) -> Any:
     if isinstance(obj, (list, tuple)):
         return [jsonable(v) for v in obj]
     if isinstance(obj, np.ndarray):
+        if obj.dtype.kind in "biu" or (obj.dtype.kind == "f" and np.isfinite(obj).all()):
+            return obj.tolist()  # Python ints, floats and bools already
         return jsonable(obj.tolist())
     if isinstance(obj, (np.floating, float)):
         f = float(obj)

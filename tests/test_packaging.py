@@ -139,3 +139,18 @@ def test_every_shipped_problem_module_is_registered_as_an_entry_point():
     from autotight.problem import available
 
     assert available() == sorted(files)  # the installed metadata is the declared one (reinstall after editing)
+
+
+def test_jsonable_keeps_every_value_and_names_non_finite_floats():
+    """Arrays become nested lists of Python numbers (finite float, int and bool arrays in one step), and a
+    non-finite float, alone or in an array, becomes its string."""
+    import json
+
+    from autotight.io import jsonable
+
+    out = jsonable({"a": np.arange(6.0).reshape(2, 3) / 3, "i": np.arange(3, dtype=np.int32), "b": np.array([True]),
+                    "bad": np.array([1.0, np.nan, -np.inf]), "x": np.float32(0.5), "n": np.int64(7)})
+    assert out == {"a": (np.arange(6.0).reshape(2, 3) / 3).tolist(), "i": [0, 1, 2], "b": [True],
+                   "bad": [1.0, "nan", "-inf"], "x": 0.5, "n": 7}
+    assert type(out["a"][0][1]) is float and type(out["i"][0]) is int and type(out["b"][0]) is bool
+    json.dumps(out, allow_nan=False)

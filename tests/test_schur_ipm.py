@@ -151,9 +151,9 @@ def test_ipm_equals_clarabel_on_a_chain_sdp_far_from_rank_one(factor, search, co
     if factor == "band-lu":
         band_factor = schur_ipm._BandSchur.factor
 
-        def pivoting(self, ab, reg):
+        def pivoting(self, ab, reg, par=None):
             self.pivoting = True
-            return band_factor(self, ab, reg)
+            return band_factor(self, ab, reg, par)
 
         monkeypatch.setattr(schur_ipm._BandSchur, "factor", pivoting)
     Q, cons, cl = _chain_maxcut(np.random.default_rng(0), 12, 6)
@@ -673,3 +673,95 @@ def test_a_solve_that_jams_once_almost_solved_stops_with_its_best_iterate(monkey
     assert res.iterations == seen[0] + schur_ipm.JAM_ITERATIONS
     f = free.primal_cost
     assert abs(res.primal_cost - f) <= schur_ipm.REDUCED_TOL_GAP * abs(f)
+
+
+def test_block_threads_split_each_stack_and_give_every_block_the_unsplit_result():
+    """``BlockThreads.each`` runs a per-block function on slices of each stack in two threads: every block's
+    result equals the one-call result to the bit (tuples too), and a stack below ``MIN_SPLIT_BLOCKS`` stays
+    whole; ``submit`` without workers runs at once."""
+    from autotight.sdp.block_threads import MIN_SPLIT_BLOCKS, BlockThreads
+
+    rng = np.random.default_rng(4)
+    stacks = [_spd_blocks(rng, 3 * MIN_SPLIT_BLOCKS + 1, 7, 0.1), _spd_blocks(rng, MIN_SPLIT_BLOCKS - 1, 5, 0.1)]
+    def factors(S):
+        L = np.linalg.cholesky(S)
+        return L, np.linalg.inv(L)
+
+    whole = [factors(S) for S in stacks]
+    seen = []
+
+    def recording(S):
+        seen.append(S.shape[0])
+        return factors(S)
+
+    with BlockThreads(2) as par:
+        split = par.each(recording, stacks)
+        assert par.submit(np.add, 1, 2).result() == 3
+    assert sorted(seen) == sorted([MIN_SPLIT_BLOCKS - 1, (3 * MIN_SPLIT_BLOCKS + 1) // 2,
+                                   3 * MIN_SPLIT_BLOCKS + 1 - (3 * MIN_SPLIT_BLOCKS + 1) // 2])
+    for (L, Li), (L2, Li2) in zip(whole, split):
+        assert np.array_equal(L, L2) and np.array_equal(Li, Li2)
+    one = BlockThreads(1)
+    assert one.submit(np.add, 1, 2).result() == 3 and one.each(np.linalg.inv, stacks[:1])[0].shape == stacks[0].shape
+
+
+def test_threaded_assembly_and_band_scaling_equal_the_sequential_ones():
+    """The compiled assembly of S cut into two output ranges (one per thread) and the band's scaling by
+    column ranges give the same entries to the bit as one thread; the general band storage written in one
+    pass equals ``_full_band`` of the scaled band."""
+    from autotight.sdp import schur_kernel
+    from autotight.sdp.block_threads import BlockThreads
+
+    rng = np.random.default_rng(6)
+    _, _, prog, blocks, _ = _chain_schur(rng, 40, 6)
+    band = schur_ipm._BandSchur.make(sp.csr_array(schur_ipm.svec_to_vec(prog.sizes) @ prog.F), blocks, compiled=True)
+    assert band is not None and band.compiled is not None and band.compiled._plan() is not None
+    W = [b @ np.swapaxes(b, 1, 2) + b.shape[-1] * np.eye(b.shape[-1])
+         for b in (rng.standard_normal((ids.size, n, n)) for n, ids, _ in blocks.groups)]
+    one = band.assemble(W, W).copy()
+    with BlockThreads(2) as par:
+        two = band.assemble(W, W, par).copy()
+        assert np.array_equal(one, two) and np.abs(one).max() > 0
+        dsc = 1 / np.sqrt(one[0])
+        scaled = schur_kernel.scaled_band(one, dsc, 1e-12)
+        assert np.array_equal(scaled, schur_kernel.scaled_band(one, dsc, 1e-12, par=par))
+        full = schur_kernel.scaled_full_band(one, dsc, 1e-12, par=par)
+    assert np.array_equal(full, band._full_band(scaled))
+    assert np.array_equal(full, schur_kernel.scaled_full_band(one, dsc, 1e-12))
+
+
+@pytest.mark.parametrize("search,lu", [("nt", False), ("nt", True), ("hkm", False)])
+def test_two_threads_leave_the_iterates_unchanged_to_the_bit(search, lu, monkeypatch):
+    """A 160-block chain (compiled kernels) solved with one thread and with two (the slices' threshold
+    lowered so that every threaded path runs: per-block slices, the assembly's two ranges, both step lengths
+    at once, the band's scaling for banded Cholesky, or into the general band storage for LU with pivoting
+    from the first iteration) ends with the same iterate, costs and multipliers, bit for bit."""
+    from autotight.sdp import block_threads
+
+    monkeypatch.setattr(block_threads, "MIN_SPLIT_BLOCKS", 4)
+    if lu:
+        band_factor = schur_ipm._BandSchur.factor
+
+        def pivoting(self, ab, reg, par=None):
+            assert self.compiled is not None and self.compiled._plan() is not None  # the split assembly runs
+            self.pivoting = True
+            return band_factor(self, ab, reg, par)
+
+        monkeypatch.setattr(schur_ipm._BandSchur, "factor", pivoting)
+    Q, cons, cl = _chain_maxcut(np.random.default_rng(8), 160, 6)
+    out = {t: schur_ipm.solve_ipm(*_data(Q, cons), 1, cl, SolverConfig(backend="ipm",
+                                                                    ipm=IpmOptions(search=search, threads=t)))
+           for t in (1, 2)}
+    a, b = out[1], out[2]
+    assert a.status in ("Solved", "AlmostSolved"), a.summary()
+    assert (a.status, a.iterations, a.primal_cost, a.dual_cost) == (b.status, b.iterations, b.primal_cost, b.dual_cost)
+    assert np.array_equal(a.y, b.y) and np.array_equal(np.asarray(a.X), np.asarray(b.X))
+
+
+def test_ipm_threads_option_is_checked():
+    from autotight.errors import SolverConfigError
+
+    for bad in (0, 3, True, 1.5, "2"):
+        with pytest.raises(SolverConfigError, match="IpmOptions.threads"):
+            IpmOptions(threads=bad)
+    assert IpmOptions(threads=1).threads == 1 and IpmOptions().threads is None

@@ -7,17 +7,18 @@ import numpy as np
 from numba import njit
 
 
-@njit(cache=True)
-def accumulate_group(out, ids, P, Q, same, lower, row_off, nz_off, sup_off, tgt_off, indptr, indices, data, a, b,
-                     targets, m_max, s_max):  # pragma: no cover - compiled
-    """For each block ids[j] (data P[j], Q[j]): K = the kernel on its support, Y = G K, and
-    S_il = (G Yᵀ)_il added to out at its target, for i ≥ l (lower: targets packed row-major over i ≥ l)
-    or for every (i, l) (targets row-major over all m² entries)."""
+@njit(cache=True, nogil=True)
+def accumulate_group(out, ids, sel, lo, hi, P, Q, same, lower, row_off, nz_off, sup_off, tgt_off, indptr, indices, data,
+                     a, b, targets, m_max, s_max):  # pragma: no cover - compiled
+    """For each block ids[j], j in sel (data P[j], Q[j]): K = the kernel on its support, Y = G K, and
+    S_il = (G Yᵀ)_il added to out at its target when lo ≤ target < hi, for i ≥ l (lower: targets packed
+    row-major over i ≥ l) or for every (i, l) (targets row-major over all m² entries)."""
     K = np.empty((s_max, s_max))
     Y = np.empty((m_max, s_max))
     Yt = np.empty((s_max, m_max))
     row = np.empty(m_max)
-    for j in range(ids.size):
+    for jj in range(sel.size):
+        j = sel[jj]
         k = ids[j]
         Pk = P[j]
         Qk = Q[j]
@@ -73,10 +74,12 @@ def accumulate_group(out, ids, P, Q, same, lower, row_off, nz_off, sup_off, tgt_
                     row[l] += g * Yt[u, l]
             t = t0 + (i * (i + 1) // 2 if lower else i * m)
             for l in range(n_l):
-                out[targets[t + l]] += row[l]
+                tg = targets[t + l]
+                if lo <= tg < hi:
+                    out[tg] += row[l]
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def first_not_above(M, order, lam, start):  # pragma: no cover - compiled
     """The first position p ≥ start of ``order`` whose block M[order[p]] − lam·I is not positive definite
     (its Cholesky factorisation meets a pivot ≤ 0), or order.size when there is none."""
@@ -100,26 +103,28 @@ def first_not_above(M, order, lam, start):  # pragma: no cover - compiled
     return order.size
 
 
-@njit(cache=True)
-def full_band(low, ab):  # pragma: no cover - compiled
-    """ab (3b + 1, M) ← the general band storage of the symmetric matrix with lower band ``low`` (b + 1, M):
-    rows 0 … b − 1 zero (the LU's fill), ab[2b − t, j] = low[t, j − t] (0 for j < t), ab[2b + t, j] = low[t, j]."""
-    b = low.shape[0] - 1
-    for j in range(low.shape[1]):
-        for r in range(b):
-            ab[r, j] = 0.0
-        for t in range(b, 0, -1):
-            ab[2 * b - t, j] = low[t, j - t] if j >= t else 0.0
-        for t in range(b + 1):
-            ab[2 * b + t, j] = low[t, j]
-
-
-@njit(cache=True)
-def scaled_band(ab, dsc, reg, out):  # pragma: no cover - compiled
-    """out[t, j] = ab[t, j]·dsc[j]·dsc[j + t] (0 where j + t ≥ M), plus reg on t = 0."""
+@njit(cache=True, nogil=True)
+def scaled_band(ab, dsc, reg, out, j0, j1):  # pragma: no cover - compiled
+    """out[t, j] = ab[t, j]·dsc[j]·dsc[j + t] (0 where j + t ≥ M), plus reg on t = 0, for columns j0 ≤ j < j1."""
     bp1, M = ab.shape
-    for j in range(M):
+    for j in range(j0, j1):
         for t in range(bp1):
             out[t, j] = ab[t, j] * dsc[j] * dsc[j + t] if j + t < M else 0.0
         out[0, j] += reg
 
+
+@njit(cache=True, nogil=True)
+def scaled_full_band(ab, dsc, reg, out, j0, j1):  # pragma: no cover - compiled
+    """The general band storage of ``scaled_band``'s output in one pass, for columns j0 ≤ j < j1: rows 0 … b − 1 zero,
+    out[2b + t, j] = the scaled entry (t, j), out[2b − t, j] = the scaled entry (t, j − t) (0 for j < t)."""
+    bp1, M = ab.shape
+    b = bp1 - 1
+    for j in range(j0, j1):
+        for r in range(b):
+            out[r, j] = 0.0
+        for t in range(b, 0, -1):
+            c = j - t
+            out[2 * b - t, j] = ab[t, c] * dsc[c] * dsc[c + t] if c >= 0 else 0.0
+        for t in range(bp1):
+            out[2 * b + t, j] = ab[t, j] * dsc[j] * dsc[j + t] if j + t < M else 0.0
+        out[2 * b, j] += reg

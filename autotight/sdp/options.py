@@ -58,10 +58,13 @@ class IpmOptions:
     search: the search direction, "nt" (Nesterov–Todd, default) or "hkm" (see the module docstring).
     step_fraction: each step goes this fraction (in (0, 1)) of the way to the cone's boundary; None
         (default): SDPT3's rule, 0.9 and then 0.9 + 0.09·min(α_p, α_d) after steps of lengths α_p, α_d.
+    threads: threads for the per-block work of large programs (``block_threads``), 1 or 2; None (default):
+        2 where the process may use two CPUs.  The iterates are the same to the bit for every value.
     """
 
     search: str = "nt"
     step_fraction: float | None = None
+    threads: int | None = None
 
     def __post_init__(self) -> None:
         if self.search not in SEARCH_DIRECTIONS:
@@ -70,3 +73,6 @@ class IpmOptions:
         f = self.step_fraction
         if f is not None and (isinstance(f, bool) or not isinstance(f, (int, float)) or not 0 < f < 1):
             raise SolverConfigError(f"IpmOptions.step_fraction must be None or a number in (0, 1), got {f!r}")
+        t = self.threads
+        if t is not None and (isinstance(t, bool) or t not in (1, 2)):
+            raise SolverConfigError(f"IpmOptions.threads must be None, 1 or 2, got {t!r}")

@@ -38,8 +38,12 @@ LDLᵀ (qdldl, Apache-2.0: AMD ordering and symbolic analysis once per solve, a 
 per iteration), with SuperLU's partial pivoting for the rest of the solve once a pivot is not positive.
 Refinement steps against S are kept while they lower the residual (``refined_solve``).  From
 ``COMPILED_MIN_BLOCKS`` blocks on, S's assembly, the step lengths and the band's scaling and full storage
-run as compiled kernels (``schur_kernel``, numba) with the same arithmetic as the numpy code here.  Per
-iteration this costs about ``iteration_cost`` (a ranking used to choose the cover, not a prediction).
+run as compiled kernels (``schur_kernel``, numba) with the same arithmetic as the numpy code here.  Programs
+with Σ n_k³ ≥ ``block_threads.THREADED_MIN_WORK`` use two threads where the process may (``IpmOptions.threads``):
+the per-block dense algebra on two slices of each stack, the X and Z factors and step lengths side by side,
+the assembly and the band's scaling on two ranges of S; every value is the one thread's, bit for bit
+(discrete trajectory K = 1000: 0.8 of the one-thread solve time).  Per iteration this costs about
+``iteration_cost`` (a ranking used to choose the cover, not a prediction).
 Everything works on full row-major vec(·) of each block; the svec data of ``clique_program`` is mapped once
 by ``svec_to_vec``.
 Measurements and the variants tried are in benchmarks/README.md.
@@ -49,6 +53,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, replace
+from functools import partial
 from typing import Any, Callable, Iterator, Sequence
 
 import numpy as np
@@ -64,6 +69,7 @@ from .options import SEARCH_DIRECTIONS
 from .result import SDPResult, Status, finish
 from . import schur_kernel
 from .schur_kernel import COMPILED_MIN_BLOCKS, BlockProducts, max_step
+from .block_threads import BlockThreads, threaded
 
 #: the stall clock's patience grows (STALL_ITERATIONS_ALMOST) once every relative residual is below this
 ALMOST_TOL = 1e-6
@@ -206,14 +212,39 @@ def _sym(X: np.ndarray) -> np.ndarray:
     return 0.5 * (X + np.swapaxes(X, -1, -2))
 
 
+def _primal_direction(H: np.ndarray, a: np.ndarray, dZ: np.ndarray, b: np.ndarray) -> np.ndarray:
+    return _sym(H - a @ dZ @ b)
+
+
 def _inner(X: list[np.ndarray], Z: list[np.ndarray]) -> float:
     return sum(float(np.einsum("bij,bij->", a, b)) for a, b in zip(X, Z))
+
+
+def _mehrotra(G: np.ndarray, Ginv: np.ndarray, lam: np.ndarray, dX: np.ndarray, dZ: np.ndarray,
+              target: float) -> np.ndarray:
+    """NT's corrector right side G V Gᵀ with Λ∘V = target·I − Λ² − sym(ΔX̃ ΔZ̃) in the scaled space."""
+    dXs = Ginv @ dX @ np.swapaxes(Ginv, -1, -2)
+    dZs = np.swapaxes(G, -1, -2) @ dZ @ G
+    R = -_sym(dXs @ dZs)
+    n = lam.shape[-1]
+    R[:, np.arange(n), np.arange(n)] += target - lam ** 2
+    V = 2 * R / (lam[:, :, None] + lam[:, None, :])
+    return G @ V @ np.swapaxes(G, -1, -2)
 
 
 def _inverse_factors(X: list[np.ndarray]) -> tuple[list[np.ndarray], list[np.ndarray]]:
     """(L, L⁻¹) per block, X = L Lᵀ (Cholesky); LinAlgError when a block is not positive definite."""
     L = [np.linalg.cholesky(Xg) for Xg in X]
     return L, [np.linalg.inv(Lg) for Lg in L]
+
+
+def _nt_scaling(L: np.ndarray, Z: np.ndarray, LXi: np.ndarray) -> tuple[np.ndarray, ...]:
+    """NT scaling of one stack: Lᵀ Z L = U Λ² Uᵀ, G = L U Λ^(−1/2), G⁻¹ and W = G Gᵀ; returns (λ, G, G⁻¹, W)."""
+    lam2, U = np.linalg.eigh(np.swapaxes(L, -1, -2) @ Z @ L)
+    lam = np.sqrt(np.maximum(lam2, 1e-300))  # Lᵀ Z L ≻ 0 in exact arithmetic
+    G = L @ U / np.sqrt(lam)[:, None, :]
+    Ginv = np.sqrt(lam)[:, :, None] * np.swapaxes(U, -1, -2) @ LXi
+    return lam, G, Ginv, G @ np.swapaxes(G, -1, -2)
 
 
 def _max_step(Linv: list[np.ndarray], dX: list[np.ndarray]) -> float:
@@ -355,7 +386,7 @@ class _Schur:
         self._ldl = _LDLPattern(self.rows[self.upper], self.cols[self.upper], M)
         self.pivoting = False  # LDLᵀ has failed: SuperLU with pivoting for the rest of the solve
 
-    def assemble(self, P: list[np.ndarray], Q: list[np.ndarray]) -> np.ndarray:
+    def assemble(self, P: list[np.ndarray], Q: list[np.ndarray], par: BlockThreads | None = None) -> np.ndarray:
         """The values of S = Σ_k G_kᵀ (P_k ⊗ Q_k) G_k on the pattern (CSR order); P_k, Q_k symmetric.
 
         Only the entries that block k's constraints touch enter, in half form: for support entries
@@ -366,14 +397,15 @@ class _Schur:
         instead of n⁴.  (The Gram form B_kᵀB_k, b_i = vec(L_Pᵀ A_i L_Q), was less accurate.)"""
         if self.compiled is not None:
             out = np.zeros(self.rows.size)
-            self.compiled.accumulate(out, P, Q)
+            self.compiled.accumulate(out, P, Q, par)
             return out
         parts: list[np.ndarray] = [np.zeros(0)] * len(self.per_block)
         for k, part in block_products(self.per_block, self.support, self.blocks, P, Q):
             parts[k] = part
         return np.bincount(self.inverse, weights=np.concatenate(parts), minlength=self.rows.size)
 
-    def factor(self, vals: np.ndarray, reg: float) -> Callable[[np.ndarray], np.ndarray]:
+    def factor(self, vals: np.ndarray, reg: float,
+               par: BlockThreads | None = None) -> Callable[[np.ndarray], np.ndarray]:
         """A solver for S Δy = r: D(DSD + reg·I)⁻¹D with D = diag(S)^(−1/2), by sparse LDLᵀ
         (``_LDLPattern``), or by SuperLU (partial pivoting) when a pivot of LDLᵀ is not positive;
         then refined against S (``refined_solve``).  Raises
@@ -518,13 +550,17 @@ class _BandSchur:
             return None
         return cls(per_block, support, inc, blocks, pos, b, compiled)
 
-    def assemble(self, P: list[np.ndarray], Q: list[np.ndarray]) -> np.ndarray:
+    def assemble(self, P: list[np.ndarray], Q: list[np.ndarray], par: BlockThreads | None = None) -> np.ndarray:
         """S (see ``_Schur.assemble``) in band storage: a (b + 1) × M array, Fortran order.  The solver of the
         previous ``factor`` is invalid from here on (its arrays are released: a few bands at a time)."""
         self._held.clear()
-        flat = np.zeros(self.size + 1)  # the last entry collects the upper triangle
+        flat = self._buffers.get("flat")  # the last entry collects the upper triangle
+        if flat is None:
+            flat = self._buffers["flat"] = np.zeros(self.size + 1)
+        else:  # the previous S (held by the previous factorisation, now released): cleared, not reallocated
+            flat.fill(0.0)
         if self.compiled is not None:
-            self.compiled.accumulate(flat, P, Q)
+            self.compiled.accumulate(flat, P, Q, par)
             return flat[:self.size].reshape(self.M, self.b + 1).T
         for k, part in block_products(self.per_block, self.support, self.blocks, P, Q):
             np.add.at(flat, self.targets[k], part)
@@ -541,20 +577,17 @@ class _BandSchur:
         """LAPACK's general band storage (kl = ku = b, with b more rows for the LU's fill) of the
         symmetric matrix whose lower band is ``low``: A[i, j] at row 2b + i − j."""
         b, M = self.b, self.M
-        if self.compiled is not None:
-            self._buffers["full"] = schur_kernel.full_band(low, self._buffers.get("full"))
-            return self._buffers["full"]
         ab = np.zeros((3 * b + 1, M), order="F")
         ab[2 * b:, :] = low
         for t in range(1, b + 1):
             ab[2 * b - t, t:] = low[t, :M - t]
         return ab
 
-    def factor(self, ab: np.ndarray, reg: float) -> Callable[[np.ndarray], np.ndarray]:
+    def factor(self, ab: np.ndarray, reg: float, par: BlockThreads | None = None) -> Callable[[np.ndarray], np.ndarray]:
         """As ``_Schur.factor``: D(DSD + reg·I)⁻¹D with D = diag(S)^(−1/2) by banded Cholesky, or banded
         LU with partial pivoting once a pivot is not positive, then refined against S (``refined_solve``).
         np.linalg.LinAlgError when diag(S) is not positive or S is
-        exactly singular."""
+        exactly singular.  ``par``: threads for the compiled scaling (the same entries)."""
         from scipy.linalg.blas import dsbmv
         from scipy.linalg.lapack import dgbtrf, dgbtrs, dpbtrf, dpbtrs
 
@@ -566,7 +599,7 @@ class _BandSchur:
 
         def scaled() -> np.ndarray:
             if self.compiled is not None:  # into the last factorisation's buffer (released by ``assemble``)
-                self._buffers["scaled"] = schur_kernel.scaled_band(ab, dsc, reg, self._buffers.get("scaled"))
+                self._buffers["scaled"] = schur_kernel.scaled_band(ab, dsc, reg, self._buffers.get("scaled"), par)
                 return self._buffers["scaled"]
             out = self._scaled(ab, dsc)
             out[0] += reg
@@ -580,7 +613,12 @@ class _BandSchur:
                 self.pivoting = True
                 held.clear()
         if inner is None:
-            held["lu"], held["piv"], info = dgbtrf(self._full_band(scaled()), b, b, overwrite_ab=1)
+            if self.compiled is not None:  # scaled straight into the general band storage
+                self._buffers["full"] = schur_kernel.scaled_full_band(ab, dsc, reg, self._buffers.get("full"), par)
+                full = self._buffers["full"]
+            else:
+                full = self._full_band(scaled())
+            held["lu"], held["piv"], info = dgbtrf(full, b, b, overwrite_ab=1)
             if info > 0:
                 raise np.linalg.LinAlgError("Schur complement is exactly singular")
             inner = lambda r: dgbtrs(held["lu"], b, b, r, held["piv"])[0]  # noqa: E731
@@ -602,7 +640,7 @@ class _BandSchur:
 @single_blas_thread
 def solve_blocks(F: sp.csc_matrix, c: np.ndarray, g: np.ndarray, sizes: list[int], *, tol: float = 1e-7,
                  max_iter: int = 100, time_limit: float = np.inf, verbose: bool = False,
-                 search: str = "nt", step_fraction: float | None = None) -> IPMSolution:
+                 search: str = "nt", step_fraction: float | None = None, threads: int | None = None) -> IPMSolution:
     """Solve the block SDP with svec data: cost c (R,), constraint columns F (R × M), right side g (M,),
     block sizes n_k (R = Σ svec(n_k)).  Solved: gap, pinf and dinf (see IPMSolution) all ≤ tol.
     search: "nt" (Nesterov–Todd, default) or "hkm" (HKM) direction.  step_fraction: each step goes this
@@ -638,104 +676,104 @@ def solve_blocks(F: sp.csc_matrix, c: np.ndarray, g: np.ndarray, sizes: list[int
     best: tuple | None = None
     clock = _StallClock(tol)
     jammed = 0  # jammed steps in a row (JAM_STEP)
-    for it in range(max_iter + 1):
-        rp = g - A(X)
-        Rd = [Cg - Ag - Zg for Cg, Ag, Zg in zip(C, At(y), Z)]
-        pobj, dobj = float(cv @ blocks.join(X)), float(g @ y)
-        mu = _inner(X, Z) / blocks.order
-        gap = abs(pobj - dobj) / max(abs(pobj), abs(dobj), GAP_FLOOR)
-        pinf = float(np.max(np.abs(rp), initial=0.0)) / nrm_g
-        dinf = max(float(np.max(np.abs(R), initial=0.0)) for R in Rd) / nrm_c
-        err = max(gap, pinf, dinf)
-        if verbose:
-            print(f"{it:3d} pobj {pobj:+.10e} dobj {dobj:+.10e} gap {gap:.1e} pinf {pinf:.1e} dinf {dinf:.1e}")
-        if best is None or err < best[0]:
-            best = (err, [x.copy() for x in X], y.copy(), pobj, dobj, gap, pinf, dinf, it)
-        clock.tick(it, err, abs(pobj - dobj), gap, pinf, dinf)
-        if err <= tol:
-            status = Status.SOLVED
-            break
-        if it == max_iter:
-            break
-        if time.perf_counter() - t0 > time_limit:
-            status = Status.MAX_TIME
-            break
-        stall = clock.stalled(it)
-        if stall:
-            status, message = Status.INSUFFICIENT_PROGRESS, f"no progress in {stall} iterations"
-            break
-        if jammed >= JAM_ITERATIONS and almost_solved(Status.INSUFFICIENT_PROGRESS, *best[5:8]):
-            status, message = Status.INSUFFICIENT_PROGRESS, f"{jammed} jammed steps (< {JAM_STEP:g})"
-            break
-        try:
-            # the (inverse) Cholesky factors of X and Z: the step lengths of every direction of this
-            # iteration, NT's scaling and Z⁻¹ = L_Z⁻ᵀ L_Z⁻¹ (one factorisation per block and iteration)
-            (L, LXi), (_, LZi) = _inverse_factors(X), _inverse_factors(Z)
+    par = BlockThreads(threads if threads is not None else (None if threaded(sizes) else 1))
 
-            def z_inverse() -> list[np.ndarray]:
-                return [np.swapaxes(Li, -1, -2) @ Li for Li in LZi]
+    def steps(dX: list[np.ndarray], dZ: list[np.ndarray]) -> tuple[float, float]:
+        """The primal and dual step lengths, side by side."""
+        fp = par.submit(step, LXi, dX, gamma)
+        ad = step(LZi, dZ, gamma)
+        return fp.result(), ad
 
-            Zinv = z_inverse() if search == "hkm" else None  # NT needs it only when the corrector falls back
-            if search == "nt":
-                # NT scaling: X = L Lᵀ, Lᵀ Z L = U Λ² Uᵀ, G = L U Λ^(−1/2), W = G Gᵀ (W Z W = X);
-                # in the scaled space G⁻¹ X G⁻ᵀ = Gᵀ Z G = Λ
-                lam2, U = zip(*[np.linalg.eigh(np.swapaxes(Lg, -1, -2) @ Zg @ Lg) for Lg, Zg in zip(L, Z)])
-                lam = [np.sqrt(np.maximum(l2, 1e-300)) for l2 in lam2]  # Lᵀ Z L ≻ 0 in exact arithmetic
-                G = [Lg @ Ug / np.sqrt(lg)[:, None, :] for Lg, Ug, lg in zip(L, U, lam)]
-                Ginv = [np.sqrt(lg)[:, :, None] * np.swapaxes(Ug, -1, -2) @ Li for Ug, lg, Li in zip(U, lam, LXi)]
-                W = [Gg @ np.swapaxes(Gg, -1, -2) for Gg in G]
-                left, right = W, W
-            else:  # HKM: ΔX = H − X ΔZ Z⁻¹
-                assert Zinv is not None
-                left, right = X, Zinv
-            solve = schur.factor(schur.assemble(left, right), SCHUR_REG)
-            KRd = [a @ Rg @ b for a, Rg, b in zip(left, Rd, right)]
+    with par:
+        for it in range(max_iter + 1):
+            rp = g - A(X)
+            Rd = [Cg - Ag - Zg for Cg, Ag, Zg in zip(C, At(y), Z)]
+            pobj, dobj = float(cv @ blocks.join(X)), float(g @ y)
+            mu = _inner(X, Z) / blocks.order
+            gap = abs(pobj - dobj) / max(abs(pobj), abs(dobj), GAP_FLOOR)
+            pinf = float(np.max(np.abs(rp), initial=0.0)) / nrm_g
+            dinf = max(float(np.max(np.abs(R), initial=0.0)) for R in Rd) / nrm_c
+            err = max(gap, pinf, dinf)
+            if verbose:
+                print(f"{it:3d} pobj {pobj:+.10e} dobj {dobj:+.10e} gap {gap:.1e} pinf {pinf:.1e} dinf {dinf:.1e}")
+            if best is None or err < best[0]:
+                best = (err, [x.copy() for x in X], y.copy(), pobj, dobj, gap, pinf, dinf, it)
+            clock.tick(it, err, abs(pobj - dobj), gap, pinf, dinf)
+            if err <= tol:
+                status = Status.SOLVED
+                break
+            if it == max_iter:
+                break
+            if time.perf_counter() - t0 > time_limit:
+                status = Status.MAX_TIME
+                break
+            stall = clock.stalled(it)
+            if stall:
+                status, message = Status.INSUFFICIENT_PROGRESS, f"no progress in {stall} iterations"
+                break
+            if jammed >= JAM_ITERATIONS and almost_solved(Status.INSUFFICIENT_PROGRESS, *best[5:8]):
+                status, message = Status.INSUFFICIENT_PROGRESS, f"{jammed} jammed steps (< {JAM_STEP:g})"
+                break
+            try:
+                # the (inverse) Cholesky factors of X and Z: the step lengths of every direction of this
+                # iteration, NT's scaling and Z⁻¹ = L_Z⁻ᵀ L_Z⁻¹ (one factorisation per block and iteration)
+                fz = par.submit(_inverse_factors, Z)
+                L, LXi = _inverse_factors(X)
+                _, LZi = fz.result()
 
-            def direction(H: list[np.ndarray]) -> tuple[list[np.ndarray], np.ndarray, list[np.ndarray]]:
-                """(ΔX, Δy, ΔZ) with ΔX = sym(H − 𝒦(ΔZ)), ΔZ = Rd − A*(Δy), A(ΔX) = rp;
-                𝒦(R) = X R Z⁻¹ (HKM) or W R W (NT)."""
-                dy = solve(rp - A([Hg - Kg for Hg, Kg in zip(H, KRd)]))
-                dZ = [Rg - Ag for Rg, Ag in zip(Rd, At(dy))]
-                dX = [_sym(Hg - a @ dZg @ b) for Hg, a, dZg, b in zip(H, left, dZ, right)]
-                return dX, dy, dZ
+                def z_inverse() -> list[np.ndarray]:
+                    return [np.swapaxes(Li, -1, -2) @ Li for Li in LZi]
 
-            dX, dy, dZ = direction([-Xg for Xg in X])  # predictor: σ = 0
-            ap, ad = step(LXi, dX, gamma), step(LZi, dZ, gamma)
-            mu_aff = _inner([Xg + ap * a for Xg, a in zip(X, dX)], [Zg + ad * b for Zg, b in zip(Z, dZ)])
-            sigma = min(1.0, (mu_aff / blocks.order / mu) ** max(1.0, 3 * min(ap, ad) ** 2))
-            pred = min(ap, ad)
-            if search == "nt":  # Mehrotra's term in the scaled space, Λ∘V = σμI − Λ² − sym(ΔX̃ ΔZ̃)
-                H = []
-                for Gg, Gi, lg, a, b in zip(G, Ginv, lam, dX, dZ):
-                    dXs = Gi @ a @ np.swapaxes(Gi, -1, -2)
-                    dZs = np.swapaxes(Gg, -1, -2) @ b @ Gg
-                    R = -_sym(dXs @ dZs)
-                    n = lg.shape[-1]
-                    R[:, np.arange(n), np.arange(n)] += sigma * mu - lg ** 2
-                    V = 2 * R / (lg[:, :, None] + lg[:, None, :])
-                    H.append(Gg @ V @ np.swapaxes(Gg, -1, -2))
-            else:
-                assert Zinv is not None
-                H = [sigma * mu * Zi - Xg - a @ b @ Zi for Zi, Xg, a, b in zip(Zinv, X, dX, dZ)]
-            dX, dy, dZ = direction(H)  # corrector
-            ap, ad = step(LXi, dX, gamma), step(LZi, dZ, gamma)
-            if min(ap, ad) < CORRECTOR_FALLBACK * pred:
-                # the second-order term hurts (seen near degenerate optima): centre without it
-                Zinv = Zinv if Zinv is not None else z_inverse()
-                dX1, dy1, dZ1 = direction([sigma * mu * Zi - Xg for Zi, Xg in zip(Zinv, X)])
-                ap1, ad1 = step(LXi, dX1, gamma), step(LZi, dZ1, gamma)
-                if min(ap1, ad1) > min(ap, ad):
-                    dX, dy, dZ, ap, ad = dX1, dy1, dZ1, ap1, ad1
-        except np.linalg.LinAlgError as e:  # the factorisation broke down (raised by _Schur.factor)
-            status, message = Status.NUMERICAL_ERROR, str(e)
-            break
-        if verbose:
-            print(f"    σ {sigma:.1e}  steps {ap:.2e} {ad:.2e}")
-        jammed = jammed + 1 if max(ap, ad) < JAM_STEP else 0
-        X = [Xg + ap * a for Xg, a in zip(X, dX)]
-        y = y + ad * dy
-        Z = [Zg + ad * b for Zg, b in zip(Z, dZ)]
-        gamma = GAMMA_START + GAMMA_GAIN * min(ap, ad) if step_fraction is None else step_fraction
+                Zinv = z_inverse() if search == "hkm" else None  # NT needs it only when the corrector falls back
+                if search == "nt":
+                    # NT scaling: X = L Lᵀ, Lᵀ Z L = U Λ² Uᵀ, G = L U Λ^(−1/2), W = G Gᵀ (W Z W = X);
+                    # in the scaled space G⁻¹ X G⁻ᵀ = Gᵀ Z G = Λ
+                    lam, G, Ginv, W = (list(t) for t in zip(*par.each(_nt_scaling, L, Z, LXi)))
+                    left, right = W, W
+                else:  # HKM: ΔX = H − X ΔZ Z⁻¹
+                    assert Zinv is not None
+                    left, right = X, Zinv
+                fk = par.submit(lambda: [a @ Rg @ b for a, Rg, b in zip(left, Rd, right)])
+                solve = schur.factor(schur.assemble(left, right, par), SCHUR_REG, par)
+                KRd = fk.result()
+
+                def direction(H: list[np.ndarray]) -> tuple[list[np.ndarray], np.ndarray, list[np.ndarray]]:
+                    """(ΔX, Δy, ΔZ) with ΔX = sym(H − 𝒦(ΔZ)), ΔZ = Rd − A*(Δy), A(ΔX) = rp;
+                    𝒦(R) = X R Z⁻¹ (HKM) or W R W (NT)."""
+                    dy = solve(rp - A([Hg - Kg for Hg, Kg in zip(H, KRd)]))
+                    dZ = [Rg - Ag for Rg, Ag in zip(Rd, At(dy))]
+                    dX = par.each(_primal_direction, H, left, dZ, right)
+                    return dX, dy, dZ
+
+                dX, dy, dZ = direction([-Xg for Xg in X])  # predictor: σ = 0
+                ap, ad = steps(dX, dZ)
+                mu_aff = _inner([Xg + ap * a for Xg, a in zip(X, dX)], [Zg + ad * b for Zg, b in zip(Z, dZ)])
+                sigma = min(1.0, (mu_aff / blocks.order / mu) ** max(1.0, 3 * min(ap, ad) ** 2))
+                pred = min(ap, ad)
+                if search == "nt":  # Mehrotra's term in the scaled space, Λ∘V = σμI − Λ² − sym(ΔX̃ ΔZ̃)
+                    H = par.each(partial(_mehrotra, target=sigma * mu), G, Ginv, lam, dX, dZ)
+                else:
+                    assert Zinv is not None
+                    H = [sigma * mu * Zi - Xg - a @ b @ Zi for Zi, Xg, a, b in zip(Zinv, X, dX, dZ)]
+                dX, dy, dZ = direction(H)  # corrector
+                ap, ad = steps(dX, dZ)
+                if min(ap, ad) < CORRECTOR_FALLBACK * pred:
+                    # the second-order term hurts (seen near degenerate optima): centre without it
+                    Zinv = Zinv if Zinv is not None else z_inverse()
+                    dX1, dy1, dZ1 = direction([sigma * mu * Zi - Xg for Zi, Xg in zip(Zinv, X)])
+                    ap1, ad1 = steps(dX1, dZ1)
+                    if min(ap1, ad1) > min(ap, ad):
+                        dX, dy, dZ, ap, ad = dX1, dy1, dZ1, ap1, ad1
+            except np.linalg.LinAlgError as e:  # the factorisation broke down (raised by _Schur.factor)
+                status, message = Status.NUMERICAL_ERROR, str(e)
+                break
+            if verbose:
+                print(f"    σ {sigma:.1e}  steps {ap:.2e} {ad:.2e}")
+            jammed = jammed + 1 if max(ap, ad) < JAM_STEP else 0
+            X = [Xg + ap * a for Xg, a in zip(X, dX)]
+            y = y + ad * dy
+            Z = [Zg + ad * b for Zg, b in zip(Z, dZ)]
+            gamma = GAMMA_START + GAMMA_GAIN * min(ap, ad) if step_fraction is None else step_fraction
     assert best is not None  # the loop body runs at least once
     err, Xb, yb, pobj, dobj, gap, pinf, dinf, _ = best
     if almost_solved(status, gap, pinf, dinf):
@@ -781,7 +819,7 @@ def solve_ipm(Q: sp.csr_array, As: Sequence[sp.csr_array], b: np.ndarray, d: int
     t1 = time.perf_counter()
     sol = solve_blocks(prog.F, prog.c, prog.g, prog.sizes, tol=max(opts.tol, IPM_MIN_TOL),
                        max_iter=opts.max_iter, time_limit=opts.time_limit, verbose=opts.verbose,
-                       search=opts.ipm.search, step_fraction=opts.ipm.step_fraction)
+                       search=opts.ipm.search, step_fraction=opts.ipm.step_fraction, threads=opts.ipm.threads)
     X, svrs, completion = complete_auto(prog, sol.z, d)
     y = sol.y[:prog.m] / prog.scale
     res = SDPResult(status=sol.status, solver="autotight-ipm", d=d, X=X, y=y,
