@@ -417,10 +417,17 @@ def projected_dual(Q, As, constraints, prog, Th, *, d: int, tol: float, floor: f
     first = MAX_ITER if rounds is None else rounds
     mus = CLIPS if clips is None else clips
 
+    known = [trace]  # the trace bound, once a certificate has derived it (the same data and x̂ in both frames)
+
     def judged(pr, y: np.ndarray, frame: str) -> tuple[Certificate, np.ndarray]:
-        return certificate(Q, constraints, y, Th, d=d, tol=tol, floor=floor, trace=trace, estimate_lambda=False,
+        cert = certificate(Q, constraints, y, Th, d=d, tol=tol, floor=floor, trace=known[0], estimate_lambda=False,
                            method=f"clique Douglas–Rachford ({frame}{pr.status}, {pr.iterations} rounds, margin "
-                                  f"{pr.margin:.2e} of max|Q|, {len(prog.cliques)} cliques ≤ {max(prog.sizes)})"), y
+                                  f"{pr.margin:.2e} of max|Q|, {len(prog.cliques)} cliques ≤ {max(prog.sizes)})")
+        if known[0] is None:
+            known[0] = cert.trace
+        elif trace is None and cert.argument != "trace bound":  # reported only where it was derived and used
+            cert = replace(cert, trace=None)
+        return cert, y
 
     def unscaled(clips: tuple[float, ...], frame: str, max_rounds: int) -> tuple[Certificate, np.ndarray]:
         pr = project_multipliers(prog, Th, clips=clips, max_iter=max_rounds)

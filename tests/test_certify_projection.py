@@ -184,3 +184,47 @@ def test_from_the_fallback_size_on_a_failed_projection_is_the_answer(monkeypatch
     assert model.variables.N >= certifier.PROJECTION_MIN_N
     assert not cert.certified and cert.bound > 1e-3 * abs(cert.cost)
     assert "Douglas–Rachford" in cert.method and "`autotight solve` decides" in cert.method
+
+
+def test_both_frames_share_one_trace_bound(monkeypatch):
+    """When neither frame's multipliers prove H ⪰ 0 (the strict dual and the λ_min estimate made to fail), the
+    certificate falls back on the trace bound in both: the bound (the same data and x̂) is derived once and the
+    second frame reuses it."""
+    from pathlib import Path
+    from types import SimpleNamespace
+
+    import autotight.certificate as certificate_module
+    import autotight.strict_dual as strict_dual_module
+    from autotight.constraint_set import ConstraintSet, resolve
+    from autotight.pipeline import seeds
+
+    calls = []
+    trace_bound = certificate_module.trace_bound
+
+    def counted(*a, **k):
+        calls.append(trace_bound(*a, **k))
+        return calls[-1]
+
+    monkeypatch.setattr(certificate_module, "trace_bound", counted)
+    monkeypatch.setattr(strict_dual_module, "strict_dual", lambda *a, **k: SimpleNamespace(ok=False, message="off"))
+    monkeypatch.setattr(certificate_module, "lambda_min", lambda H: (-1e-6, -1e-6, "forced"))
+    import autotight.certifier as certifier_module
+
+    judged = []
+    certify = certifier_module.certificate
+
+    def recorded(*a, **k):
+        judged.append(certify(*a, **k))
+        return judged[-1]
+
+    monkeypatch.setattr(certifier_module, "certificate", recorded)
+    p = load("discrete_trajectory")
+    inst = p.generate(p.parse_params({"K": 50}), 3)
+    model = p.build(inst)
+    path = Path(__file__).resolve().parents[1] / "benchmarks" / "results" / "discrete_carry_set.json"
+    cons = resolve(ConstraintSet.load(path), p, inst, model, seeds(3).constraints())
+    loc = p.local_solve(inst, inst.truth)
+    cert = certify_model(model, cons, p.lift(inst, loc.state), method="projection")
+    assert len(judged) == 2 and all(c.argument == "trace bound" and not c.certified for c in judged)
+    assert not cert.certified and len(calls) == 1 and calls[0] is not None
+    assert judged[0].trace == judged[1].trace == calls[0]

@@ -765,3 +765,19 @@ def test_ipm_threads_option_is_checked():
         with pytest.raises(SolverConfigError, match="IpmOptions.threads"):
             IpmOptions(threads=bad)
     assert IpmOptions(threads=1).threads == 1 and IpmOptions().threads is None
+
+
+def test_default_threads_follow_the_cpus_and_omp_num_threads(monkeypatch):
+    """Two threads where the process may use two CPUs; one when OMP_NUM_THREADS says one (a parallel worker),
+    and a value that is not a positive integer is ignored."""
+    from autotight.sdp import block_threads
+
+    monkeypatch.setattr(block_threads.os, "sched_getaffinity", lambda pid: {0, 1, 2}, raising=False)
+    monkeypatch.delenv("OMP_NUM_THREADS", raising=False)
+    assert block_threads.default_workers() == 2
+    monkeypatch.setenv("OMP_NUM_THREADS", "1")
+    assert block_threads.default_workers() == 1
+    monkeypatch.setenv("OMP_NUM_THREADS", "x")
+    assert block_threads.default_workers() == 2
+    monkeypatch.setattr(block_threads.os, "sched_getaffinity", lambda pid: {0}, raising=False)
+    assert block_threads.default_workers() == 1

@@ -29,11 +29,15 @@ def threaded(sizes: Sequence[int]) -> bool:
 
 
 def default_workers() -> int:
-    """The CPUs this process may use (``os.sched_getaffinity`` where it exists), at most 2."""
+    """The CPUs this process may use (``os.sched_getaffinity`` where it exists), capped by ``OMP_NUM_THREADS``
+    when that is set to a positive integer (parallel workers, e.g. joblib's, set it to 1), at most 2."""
     try:
         n = len(os.sched_getaffinity(0))
     except AttributeError:  # pragma: no cover - not Linux
         n = os.cpu_count() or 1
+    omp = os.environ.get("OMP_NUM_THREADS", "").strip()
+    if omp.isdigit() and int(omp) > 0:
+        n = min(n, int(omp))
     return max(1, min(2, n))
 
 
