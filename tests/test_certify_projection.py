@@ -130,26 +130,33 @@ def test_certificate_without_a_lambda_estimate_states_a_valid_bound():
     assert quick.lambda_lower <= lam + 1e-12 * abs(model.Q).max()
 
 
-def test_a_thin_set_is_certified_in_the_unscaled_frame_where_the_full_sdp_says_tight():
-    """The 5-pair set ``discover discrete_trajectory`` hands back (benchmarks/results/discrete_carry_set.json)
-    leaves few multipliers: at K = 50 Douglas–Rachford in the scaled frame does not reach the cone, the unscaled
-    frame with a small μ does, and the certificate agrees with the full SDP's verdict and bound."""
+def _carry_set_k50():
+    """Discrete trajectory K = 50 (seed 3) with the 5-pair set ``discover discrete_trajectory`` hands back
+    (benchmarks/results/discrete_carry_set.json): problem, instance, model, constraints, local solution."""
     from pathlib import Path
 
-    from autotight.certificate import stack
-    from autotight.certifier import model_cliques
     from autotight.constraint_set import ConstraintSet, resolve
-    from autotight.dual_projection import project_multipliers
     from autotight.pipeline import seeds
-    from autotight.sdp.clique_program import clique_program
-    from autotight.sdp.scaling import block_scale
 
     p = load("discrete_trajectory")
     inst = p.generate(p.parse_params({"K": 50}), 3)
     model = p.build(inst)
     path = Path(__file__).resolve().parents[1] / "benchmarks" / "results" / "discrete_carry_set.json"
     cons = resolve(ConstraintSet.load(path), p, inst, model, seeds(3).constraints())
-    loc = p.local_solve(inst, inst.truth)
+    return p, inst, model, cons, p.local_solve(inst, inst.truth)
+
+
+def test_a_thin_set_is_certified_in_the_unscaled_frame_where_the_full_sdp_says_tight():
+    """The 5-pair set ``discover discrete_trajectory`` hands back (benchmarks/results/discrete_carry_set.json)
+    leaves few multipliers: at K = 50 Douglas–Rachford in the scaled frame does not reach the cone, the unscaled
+    frame with a small μ does, and the certificate agrees with the full SDP's verdict and bound."""
+    from autotight.certificate import stack
+    from autotight.certifier import model_cliques
+    from autotight.dual_projection import project_multipliers
+    from autotight.sdp.clique_program import clique_program
+    from autotight.sdp.scaling import block_scale
+
+    p, inst, model, cons, loc = _carry_set_k50()
     theta = p.lift(inst, loc.state)
     cert = certify_model(model, cons, theta, method="projection")
     assert cert.certified and cert.rel_bound <= 1e-6 and "unscaled frame" in cert.method
@@ -190,40 +197,27 @@ def test_both_frames_share_one_trace_bound(monkeypatch):
     """When neither frame's multipliers prove H ⪰ 0 (the strict dual and the λ_min estimate made to fail), the
     certificate falls back on the trace bound in both: the bound (the same data and x̂) is derived once and the
     second frame reuses it."""
-    from pathlib import Path
     from types import SimpleNamespace
 
     import autotight.certificate as certificate_module
+    import autotight.certifier as certifier_module
     import autotight.strict_dual as strict_dual_module
-    from autotight.constraint_set import ConstraintSet, resolve
-    from autotight.pipeline import seeds
 
-    calls = []
-    trace_bound = certificate_module.trace_bound
+    def recording(module, name: str) -> list:
+        """Every value ``module.name`` returns, in a list, from here on."""
+        seen, fn = [], getattr(module, name)
 
-    def counted(*a, **k):
-        calls.append(trace_bound(*a, **k))
-        return calls[-1]
+        def recorded(*a, **k):
+            seen.append(fn(*a, **k))
+            return seen[-1]
 
-    monkeypatch.setattr(certificate_module, "trace_bound", counted)
+        monkeypatch.setattr(module, name, recorded)
+        return seen
+
+    calls, judged = recording(certificate_module, "trace_bound"), recording(certifier_module, "certificate")
     monkeypatch.setattr(strict_dual_module, "strict_dual", lambda *a, **k: SimpleNamespace(ok=False, message="off"))
     monkeypatch.setattr(certificate_module, "lambda_min", lambda H: (-1e-6, -1e-6, "forced"))
-    import autotight.certifier as certifier_module
-
-    judged = []
-    certify = certifier_module.certificate
-
-    def recorded(*a, **k):
-        judged.append(certify(*a, **k))
-        return judged[-1]
-
-    monkeypatch.setattr(certifier_module, "certificate", recorded)
-    p = load("discrete_trajectory")
-    inst = p.generate(p.parse_params({"K": 50}), 3)
-    model = p.build(inst)
-    path = Path(__file__).resolve().parents[1] / "benchmarks" / "results" / "discrete_carry_set.json"
-    cons = resolve(ConstraintSet.load(path), p, inst, model, seeds(3).constraints())
-    loc = p.local_solve(inst, inst.truth)
+    p, inst, model, cons, loc = _carry_set_k50()
     cert = certify_model(model, cons, p.lift(inst, loc.state), method="projection")
     assert len(judged) == 2 and all(c.argument == "trace bound" and not c.certified for c in judged)
     assert not cert.certified and len(calls) == 1 and calls[0] is not None
