@@ -417,14 +417,15 @@ def projected_dual(Q, As, constraints, prog, Th, *, d: int, tol: float, floor: f
     first = MAX_ITER if rounds is None else rounds
     mus = CLIPS if clips is None else clips
 
-    known = [trace]  # the trace bound, once a certificate has derived it (the same data and x̂ in both frames)
+    known = trace  # the trace bound, once a certificate has derived it (the same data and x̂ in both frames)
 
     def judged(pr, y: np.ndarray, frame: str) -> tuple[Certificate, np.ndarray]:
-        cert = certificate(Q, constraints, y, Th, d=d, tol=tol, floor=floor, trace=known[0], estimate_lambda=False,
+        nonlocal known
+        cert = certificate(Q, constraints, y, Th, d=d, tol=tol, floor=floor, trace=known, estimate_lambda=False,
                            method=f"clique Douglas–Rachford ({frame}{pr.status}, {pr.iterations} rounds, margin "
                                   f"{pr.margin:.2e} of max|Q|, {len(prog.cliques)} cliques ≤ {max(prog.sizes)})")
-        if known[0] is None:
-            known[0] = cert.trace
+        if known is None:
+            known = cert.trace
         elif trace is None and cert.argument != "trace bound":  # reported only where it was derived and used
             cert = replace(cert, trace=None)
         return cert, y

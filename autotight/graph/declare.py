@@ -79,11 +79,11 @@ ROUNDING = 32 * np.finfo(float).eps
 View = SimpleNamespace
 
 
-
 def _distinct_names(names: Sequence[Any], *excluded: str) -> bool:
     """Whether ``names`` are distinct non-empty strings, none of them in ``excluded``."""
     return (all(isinstance(n, str) and n and n not in excluded for n in names)
             and len(set(names)) == len(names))
+
 
 @dataclass
 class LiftingFit:

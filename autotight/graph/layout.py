@@ -35,13 +35,13 @@ from .declare import Variable
 from .manifolds import Rotation
 
 
-
 def cost_only_columns(sizes: Sequence[int], variables: Sequence[Variable]) -> np.ndarray:
     """The local columns (h is column 0, then blocks of ``sizes`` in order, one per variable) of the cost-only
     variables (``Variable.cost_only``), sorted."""
     starts = np.cumsum([1, *sizes])
     return np.concatenate([np.zeros(0, int)] + [np.arange(starts[k], starts[k + 1])
                                                 for k, var in enumerate(variables) if var.cost_only])
+
 
 @dataclass
 class Element:

@@ -60,11 +60,17 @@ class BlockThreads:
             self._pool.shutdown(wait=True)
             self._pool = None
 
-    def submit(self, fn: Callable[..., Any], *args: Any) -> "Future[Any] | _Done":
-        """fn(*args) in a worker thread (or now, without workers); ``.result()`` gives its value."""
-        if self._pool is None:
-            return _Done(fn(*args))
-        return self._pool.submit(fn, *args)
+    def submit(self, fn: Callable[..., Any], *args: Any) -> "Future[Any]":
+        """fn(*args) in a worker thread (or now, without workers: a finished future); ``.result()`` gives its
+        value or raises its exception."""
+        if self._pool is not None:
+            return self._pool.submit(fn, *args)
+        done: Future[Any] = Future()
+        try:
+            done.set_result(fn(*args))
+        except BaseException as e:  # as the pool's future would hold it
+            done.set_exception(e)
+        return done
 
     def each(self, fn: Callable[..., Any], *groups: Sequence[np.ndarray]) -> list[Any]:
         """[fn(*args) for args in zip(*groups)], each call split along axis 0 of its stacks into
@@ -83,13 +89,3 @@ class BlockThreads:
         if isinstance(first, tuple):
             return tuple(np.concatenate(cols) for cols in zip(first, *rest))
         return np.concatenate([first, *rest])
-
-
-class _Done:
-    """A finished value with a Future's ``result``."""
-
-    def __init__(self, value: Any):
-        self.value = value
-
-    def result(self) -> Any:
-        return self.value

@@ -105,9 +105,10 @@ class BlockProducts:
         symmetric blocks; ``P is Q`` (NT) uses the folded kernel 2(P_ac P_bd + P_ad P_bc).  With ``par``
         (two or more workers) in two threads, each on one range of ``out`` (the same sums)."""
         same = P is Q
-        data = [(np.ascontiguousarray(Pg, dtype=np.float64), ids) for ids, Pg in zip(self.groups, P)]
-        stacks = [(Pc, Pc if same else np.ascontiguousarray(Qg, dtype=np.float64), ids)
-                  for (Pc, ids), Qg in zip(data, Q)]
+        stacks = []  # per size group: P, Q (C-contiguous) and the block ids
+        for ids, Pg, Qg in zip(self.groups, P, Q):
+            Pc = np.ascontiguousarray(Pg, dtype=np.float64)
+            stacks.append((Pc, Pc if same else np.ascontiguousarray(Qg, dtype=np.float64), ids))
         cut = self._plan() if par is not None and par.workers > 1 else None
         if cut is None:
             self._add(out, stacks, same, None, 0, np.iinfo(np.int64).max)
