@@ -73,6 +73,7 @@ import scipy.sparse.linalg as spla
 from .certificate import Certificate, certificate, entries, polish_dual, stack
 from .dual_polish import closes
 from .model import Constraint, Model
+from .svec import reusing_entries
 from .threads import single_blas_thread
 
 if TYPE_CHECKING:
@@ -536,7 +537,8 @@ def certify_instance(problem, inst, constraints=None, *, start="truth", criteria
     else:
         raise ParameterError(f"start must be 'truth', 'random' or a state dict, got {type(start).__name__}")
     local = problem.local_solve(inst, init)
-    check_valid(problem.name, cons, feasible_points(problem, inst, LocalSearch(local, []), s.validity()))
-    cert = certify_model(model, cons, problem.lift(inst, local.state), tol=criteria.gap_tol,
-                         floor=criteria.cost_atol / criteria.gap_tol, max_iter=max_iter)
+    with reusing_entries():  # the check and the certificate read the same stacked entries
+        check_valid(problem.name, cons, feasible_points(problem, inst, LocalSearch(local, []), s.validity()))
+        cert = certify_model(model, cons, problem.lift(inst, local.state), tol=criteria.gap_tol,
+                             floor=criteria.cost_atol / criteria.gap_tol, max_iter=max_iter)
     return CertifyRun(inst, set_name(constraints, model), cons, label, local, cert)

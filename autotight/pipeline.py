@@ -24,11 +24,11 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field, replace
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 
-from .certificate import Certificate
+from .certificate import Certificate, certificate
 from .constraint_set import ConstraintsLike, resolve, set_name
 from .dual_polish import polished
 from .errors import ProblemModuleError
@@ -40,6 +40,7 @@ import autotight.sdp as sdp
 from .sdp.config import SolverConfig
 from .sdp.result import SDPResult, Status
 from .sdp.scaling import block_scale
+from .svec import reusing_entries
 from .threads import single_blas_thread
 from .tightness import Criteria, Verdict, judge
 from .unbounded import UnboundedRelaxation, is_unbounded, unbounded_blocks, unbounded_message
@@ -202,6 +203,24 @@ def dual_certificate(problem: Problem, inst: Instance, model: Model, cons: list,
                     names=column_names(model.variables))
 
 
+def certifies_local(problem: Problem, inst: Instance, model: Model, cons: list, best: LocalResult,
+                    criteria: Criteria) -> Callable[[np.ndarray], bool]:
+    """The SDP solve's stop rule (``sdp.solve``'s ``stop``): whether multipliers y certify the best local solution
+    x̂ (``certificate.certificate`` at its lifting, with the bracket's tolerances).  Then x̂ is globally optimal
+    to the certificate's bound, the relaxation's optimum is f(x̂) to that bound, and more accuracy of the solve
+    cannot move the verdict's bracket; the verdict itself is still judged as usual from the iterate returned."""
+    Th = problem.lift(inst, best.state)
+
+    def rule(y: np.ndarray) -> bool:
+        if not np.all(np.isfinite(y)):
+            return False
+        cert = certificate(model.Q, cons, y, Th, d=model.d, tol=criteria.gap_tol,
+                           floor=criteria.cost_atol / criteria.gap_tol)
+        return bool(cert.certified)
+
+    return rule
+
+
 #: fresh feasible states (the module's sampler around the truth) on which every constraint is checked
 N_VALIDITY_SAMPLES = 2
 
@@ -295,12 +314,14 @@ def solve_relaxation(problem: Problem, inst: Instance, prep: Prepared, *, raise_
     ``raise_unbounded``."""
     model, cons, config = prep.model, prep.constraints, prep.config
     scale = block_scale_at(problem, inst, model, prep.local.best.state, config)
-    res = sdp.solve_model(model, cons, config, scale)
+    stop = certifies_local(problem, inst, model, cons, prep.local.best, criteria)
+    res = sdp.solve_model(model, cons, config, scale, stop=stop)
     unscaled, certified = None, None
     if not res.usable and res.y is not None and not is_unbounded(res):
         certified = dual_certificate(problem, inst, model, cons, res, prep.local.best, criteria)
     if scale is not None and not res.usable and not (certified and certified[1] and certified[1].certified):
-        unscaled = sdp.solve_model(model, cons, config, None)  # the scaling did not help this solve: the plain data
+        # the scaling did not help this solve: the plain data
+        unscaled = sdp.solve_model(model, cons, config, None, stop=stop)
         if unscaled.usable:
             res, unscaled, certified = unscaled, res, None
     ray = next((r for r in (res, unscaled) if r is not None and is_unbounded(r)), None)
@@ -419,10 +440,11 @@ def solve_instance(problem: Problem, inst: Instance, constraints: ConstraintsLik
     SDP) → ``recover_estimate`` (estimate, refinement, U) → ``judge_relaxation`` (polish, certificate,
     verdict, the retry).
     """
-    prep = prepare(problem, inst, constraints, config=config, n_random=n_random, model=model, local=local,
-                   rng_local=rng_local, rng_constraints=rng_constraints)
-    return solve_prepared(problem, inst, prep, set_name(constraints, prep.model), criteria=criteria,
-                          raise_unbounded=raise_unbounded)
+    with reusing_entries():  # the checks, the SDP's cover and the certificate read the same stacked entries
+        prep = prepare(problem, inst, constraints, config=config, n_random=n_random, model=model, local=local,
+                       rng_local=rng_local, rng_constraints=rng_constraints)
+        return solve_prepared(problem, inst, prep, set_name(constraints, prep.model), criteria=criteria,
+                              raise_unbounded=raise_unbounded)
 
 
 @single_blas_thread

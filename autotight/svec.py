@@ -12,8 +12,10 @@ the √2, so a coefficient vector p with p · m(x) = 0 reads directly as a polyn
 
 from __future__ import annotations
 
+from contextlib import contextmanager
+from contextvars import ContextVar
 from functools import lru_cache
-from typing import Sequence
+from typing import Iterator, Sequence
 
 import numpy as np
 import scipy.sparse as sp
@@ -70,12 +72,45 @@ def triu_entries(A: sp.spmatrix | sp.sparray) -> tuple[np.ndarray, np.ndarray, n
     return r[keep], c[keep], A.data[keep]
 
 
-def stored_entries(As: Sequence[sp.spmatrix | sp.sparray]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+Entries = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]
+#: within ``reusing_entries``: {ids of the matrices: (the matrices, their ``stored_entries``)}
+_REUSED: ContextVar[dict[tuple[int, ...], tuple[list, Entries]] | None] = ContextVar("reused_entries", default=None)
+
+
+@contextmanager
+def reusing_entries() -> Iterator[None]:
+    """Within this block, ``stored_entries`` of the same matrices (the same objects, in the same order) is
+    computed once and returned read-only.  The matrices must not change in place meanwhile.  Nested blocks
+    share the outermost one's results; they are dropped when it ends."""
+    token = _REUSED.set({}) if _REUSED.get() is None else None
+    try:
+        yield
+    finally:
+        if token is not None:
+            _REUSED.reset(token)
+
+
+def stored_entries(As: Sequence[sp.spmatrix | sp.sparray]) -> Entries:
     """Every stored entry of the matrices in one pass: (row, col, value, i) arrays, i the matrix holding the
-    entry.  COO and CSR as they are (no N + 1 index array per COO matrix); other formats through COO."""
+    entry.  COO and CSR as they are (no N + 1 index array per COO matrix); other formats through COO.
+    Inside ``reusing_entries``, the arrays are shared between calls and read-only."""
     if not len(As):
         z = np.zeros(0, dtype=np.int64)
         return z, z, np.zeros(0), z
+    reused = _REUSED.get()
+    if reused is None:
+        return _stored_entries(As)
+    key = tuple(map(id, As))  # the cache holds the matrices: their ids are not reused while it lives
+    hit = reused.get(key)
+    if hit is None:
+        out = _stored_entries(As)
+        for a in out:
+            a.flags.writeable = False
+        hit = reused[key] = (list(As), out)
+    return hit[1]
+
+
+def _stored_entries(As: Sequence[sp.spmatrix | sp.sparray]) -> Entries:
     rows, cols, vals, counts = [], [], [], []
     for A in As:
         if type(A) is sp.coo_array:  # the common case first: ``coords`` without the ``row``/``col`` properties

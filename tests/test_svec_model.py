@@ -14,7 +14,8 @@ import scipy.sparse as sp
 from autotight.affine import LEVI, Affine, const, cross_rows, cayley_rows, quad, var
 from autotight.errors import ProblemDefinitionError
 from autotight.model import Constraint, Factor, Model, QuadForm, Variables
-from autotight.svec import monomials, poly_to_sym, smat, svec, svec_dim, svec_sparse, sym_to_poly, triu_indices
+from autotight.svec import (monomials, poly_to_sym, reusing_entries, smat, stored_entries, svec, svec_dim, svec_sparse,
+                            sym_to_poly, triu_indices)
 from autotight import sdp
 
 REL = 1e-12
@@ -62,6 +63,27 @@ def test_svec_is_an_isometry_for_sparse_symmetric():
             np.testing.assert_allclose(col.toarray().ravel(), svec(A.toarray()), rtol=0, atol=REL)
             # Frobenius norm is preserved
             assert abs(np.linalg.norm(svec(X)) - np.linalg.norm(X)) <= REL * np.linalg.norm(X)
+
+
+def test_reused_entries_are_the_same_sums_and_read_only():
+    rng = np.random.default_rng(3)
+    As = [sp.coo_array(sp.random_array((6, 6), density=0.3, rng=rng)) for _ in range(5)]
+    As = [sp.coo_array(A + A.T) for A in As] + [sp.csr_array(np.eye(6))]
+    fresh = stored_entries(As)
+    with reusing_entries():
+        first = stored_entries(As)
+        again = stored_entries(list(As))  # another list of the same matrices
+        other = stored_entries(As[:3])
+        with reusing_entries():  # nested: the outer block's results
+            inner = stored_entries(As)
+    for a, b, c, d in zip(fresh, first, again, inner):
+        np.testing.assert_array_equal(a, b)
+        assert c is b and d is b
+    assert other[3].max() == 2 and other[0].size < first[0].size
+    with pytest.raises(ValueError):
+        first[2][0] = 1.0  # shared between calls: read-only
+    after = stored_entries(As)  # the block has ended: computed afresh, writable
+    assert after[2] is not first[2] and after[2].flags.writeable
 
 
 def test_svec_order_is_column_major_upper_triangle():
