@@ -313,6 +313,20 @@ def test_merge_small_respects_the_cap_and_keeps_a_clique_tree():
     assert len(merge_small(cl, 6)) == len(cl)  # no union fits: unchanged
 
 
+def test_merged_covers_equal_merge_small_at_every_cap():
+    """The caps below every union with the parent skip the merging pass and share one list: the same cover."""
+    from autotight.sdp.chordal import merge_small, merged_covers
+
+    cl = _chain_cliques(8, 5)  # unions of neighbours: 9 columns
+    caps = (0, 6, 8, 9, 14, 40)
+    covers = merged_covers(cl, caps)
+    for cap in caps:
+        want = merge_small(cl, cap)
+        assert [c.tolist() for c in covers[cap]] == [c.tolist() for c in want]
+    assert covers[0] is covers[6] is covers[8]  # nothing merges below 9
+    assert len(covers[9]) < len(cl)
+
+
 def test_entry_cliques_are_the_maximal_cliques_of_a_chordal_extension():
     """On random graphs: every edge lies in a clique, no clique lies inside another, the cliques form a clique
     tree, and they equal the pairwise ``maximal`` of all elimination cliques (the linear test agrees)."""

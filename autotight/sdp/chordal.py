@@ -121,9 +121,22 @@ def merge_small(cliques: Sequence[np.ndarray], max_size: int,
 
 
 def merged_covers(cliques: Sequence[np.ndarray], caps: Sequence[int]) -> dict[int, list[np.ndarray]]:
-    """{cap: ``merge_small(cliques, cap)``} for every cap, on one clique tree (cap 0: unmerged)."""
+    """{cap: ``merge_small(cliques, cap)``} for every cap, on one clique tree (cap 0: unmerged).
+
+    A cap below every clique's union with its tree parent merges nothing: a clique and its parent only grow
+    as others merge into them, so such a pair never merges later.  Those caps get ``cliques`` itself (one
+    list object, unmerged), without the merging pass."""
     tree = _tree(cliques)
-    return {cap: merge_small(cliques, cap, tree) for cap in caps}
+    parent = tree[0]
+    child = np.flatnonzero(parent >= 0)
+    smallest = np.inf
+    if child.size:
+        B = sp.csr_array(incidence(cliques))
+        size = np.diff(B.indptr)
+        overlap = np.asarray(B[child].multiply(B[parent[child]]).sum(axis=1)).ravel()
+        smallest = float(np.min(size[child] + size[parent[child]] - overlap))
+    unmerged = [np.array(sorted(set(np.asarray(c).tolist())), dtype=np.int64) for c in cliques]
+    return {cap: unmerged if cap < smallest else merge_small(cliques, cap, tree) for cap in caps}
 
 
 def maximal(cliques: Sequence[np.ndarray]) -> list[np.ndarray]:

@@ -85,8 +85,11 @@ class CliqueCovers:
         candidates = ([self.blocks[c] for c in (0,) + IPM_MERGE_CAPS] if self.blocks
                       else [self.columns[c] for c in IPM_MERGE_CAPS]) + list(self.own_merged.values())
         unique: dict[tuple, list[np.ndarray]] = {}  # equal covers (caps that merge nothing more) once
+        seen: set[int] = set()  # caps below every merge share one list object (``chordal.merged_covers``)
         for cl in candidates:
-            unique.setdefault(tuple(tuple(c.tolist()) for c in cl), cl)
+            if id(cl) not in seen:
+                seen.add(id(cl))
+                unique.setdefault(tuple(tuple(c.tolist()) for c in cl), cl)
         return min(list(unique.values()),
                    key=lambda cl: iteration_cost([len(c) for c in cl], *block_incidence(cl, self.support)))
 
