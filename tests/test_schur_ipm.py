@@ -675,6 +675,77 @@ def test_a_solve_that_jams_once_almost_solved_stops_with_its_best_iterate(monkey
     assert abs(res.primal_cost - f) <= schur_ipm.REDUCED_TOL_GAP * abs(f)
 
 
+def test_a_stop_rule_is_asked_after_a_jam_and_ends_the_solve_at_its_best_iterate(monkeypatch):
+    """Steps forced to 1e-3 once AlmostSolved, as above.  A rule that says False is asked once (the jammed steps
+    leave the best iterate where it is) and changes nothing: the same iterations and y.  A rule that says True
+    ends the solve after the first jammed step, AlmostSolved and saying why; it was given that iterate's
+    multipliers of the constraints as given, which the result returns."""
+    monkeypatch.setattr(schur_ipm, "COMPILED_MIN_BLOCKS", 10 ** 9)
+    Q, cons, cl = _chain_maxcut(np.random.default_rng(0), 12, 6)
+    seen: list[int] = []
+    tick = schur_ipm._StallClock.tick
+
+    def watch(self, it, err, diff, gap, pinf, dinf):
+        if gap <= schur_ipm.REDUCED_TOL_GAP and max(pinf, dinf) <= schur_ipm.REDUCED_TOL_FEAS and not seen:
+            seen.append(it)
+        return tick(self, it, err, diff, gap, pinf, dinf)
+
+    monkeypatch.setattr(schur_ipm._StallClock, "tick", watch)
+    step = schur_ipm._step
+    monkeypatch.setattr(schur_ipm, "_step", lambda Linv, dX, gamma: 1e-3 if seen else step(Linv, dX, gamma))
+    plain = schur_ipm.solve_ipm(*_data(Q, cons), 1, cl, IPM)
+    seen.clear()
+    asked: list[np.ndarray] = []
+
+    def rule(answer):
+        def ask(y):
+            asked.append(y.copy())
+            return answer
+        return ask
+
+    no = schur_ipm.solve_ipm(*_data(Q, cons), 1, cl, IPM, stop=rule(False))
+    assert len(asked) == 1 and asked[0].shape == (len(cons),)
+    assert no.iterations == plain.iterations and no.status == plain.status
+    np.testing.assert_array_equal(no.y, plain.y)
+    seen.clear()
+    asked.clear()
+    yes = schur_ipm.solve_ipm(*_data(Q, cons), 1, cl, IPM, stop=rule(True))
+    assert yes.status == "AlmostSolved" and "stopped by the caller's test of y" in yes.message
+    assert yes.iterations == seen[0] + 1 < plain.iterations
+    assert len(asked) == 1
+    np.testing.assert_array_equal(asked[0], yes.y)
+    f = plain.primal_cost
+    assert abs(yes.primal_cost - f) <= schur_ipm.REDUCED_TOL_GAP * abs(f)
+
+
+def test_the_pipeline_stops_the_sdp_once_its_multipliers_certify_the_local_solution(monkeypatch):
+    """Every step counts as jammed (JAM_STEP = 1, the jam rule itself off): the pipeline's rule is asked at each
+    new best iterate once AlmostSolved, and the solve ends at the first whose y certifies the local solution.
+    The verdict is the one of the solve run to its end (tight and certified), at fewer or as many iterations,
+    its cost within the reduced accuracy; the rule says no to multipliers that certify nothing."""
+    import autotight as at
+    from autotight import pipeline
+
+    monkeypatch.setattr(schur_ipm, "JAM_STEP", 1.0)
+    monkeypatch.setattr(schur_ipm, "JAM_ITERATIONS", 10 ** 6)
+    stopped = at.solve("discrete_trajectory", {"K": 10}, 0, solver="ipm")
+    rule = pipeline.certifies_local
+    monkeypatch.setattr(pipeline, "certifies_local", lambda *a, **k: (lambda y: False))
+    full = at.solve("discrete_trajectory", {"K": 10}, 0, solver="ipm")
+    assert "stopped by the caller's test of y" in stopped.sdp.message
+    assert "stopped" not in full.sdp.message
+    assert stopped.sdp.iterations <= full.sdp.iterations
+    assert stopped.outcome == full.outcome == "tight"
+    assert stopped.certificate.certified and full.certificate.certified
+    f = full.sdp.primal_cost
+    assert abs(stopped.sdp.primal_cost - f) <= schur_ipm.REDUCED_TOL_GAP * abs(f)
+    prob = load("discrete_trajectory")
+    inst = prob.generate(prob.parse_params({"K": 10}), 0)
+    model = prob.build(inst)
+    cons = model.homogenisation() + model.primary()
+    assert not rule(prob, inst, model, cons, full.local.best, at.Criteria())(np.zeros(len(cons)))
+
+
 def test_block_threads_split_each_stack_and_give_every_block_the_unsplit_result():
     """``BlockThreads.each`` runs a per-block function on slices of each stack in two threads: every block's
     result equals the one-call result to the bit (tuples too), and a stack below ``MIN_SPLIT_BLOCKS`` stays

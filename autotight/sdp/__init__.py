@@ -60,7 +60,7 @@ from .config import (AUTO, FALLBACK_MAX_N, ClarabelOptions, IpmOptions, SolverCo
 from .covers import IPM_MERGE_CAPS, MERGE_MAX_SIZE, CliqueCovers
 from .clarabel_direct import ClarabelBackend
 from .cvxpy_path import CvxpyBackend
-from .backend import Backend
+from .backend import Backend, StopRule
 from .registry import BACKENDS
 from .schur_ipm import IPMBackend
 from .result import SDPResult, Status, finish, log_svr, rank_d_factor
@@ -93,10 +93,14 @@ class _Attempt:
 
 
 def _call(backend: Backend, why: str, Q: sp.csr_array, As: list[sp.csr_array], b: np.ndarray, d: int,
-          cliques: list[np.ndarray] | None, config: SolverConfig, log: list[_Attempt]) -> SDPResult:
+          cliques: list[np.ndarray] | None, config: SolverConfig, log: list[_Attempt],
+          stop: StopRule | None = None) -> SDPResult:
     """One solver call, logged; an exception the backend declares becomes a "Failed" status."""
     try:
-        res = backend.solve(Q, As, b, d, cliques, config)
+        if stop is not None and getattr(backend, "stops_early", False):
+            res = backend.solve(Q, As, b, d, cliques, config, stop)  # type: ignore[call-arg]
+        else:
+            res = backend.solve(Q, As, b, d, cliques, config)
     except backend.errors as e:
         res = SDPResult(status=f"Failed: {type(e).__name__}: {e}".splitlines()[0], solver=backend.name, d=d,
                         X=None, y=None, primal_cost=float("nan"), dual_cost=float("nan"), solve_time_s=0.0,
@@ -106,12 +110,13 @@ def _call(backend: Backend, why: str, Q: sp.csr_array, As: list[sp.csr_array], b
 
 
 def _with_retries(backend: Backend, why: str, Q: sp.csr_array, As: list[sp.csr_array], b: np.ndarray, d: int,
-                  cliques: list[np.ndarray] | None, config: SolverConfig, log: list[_Attempt]) -> SDPResult:
-    res = _call(backend, why, Q, As, b, d, cliques, config, log)
+                  cliques: list[np.ndarray] | None, config: SolverConfig, log: list[_Attempt],
+                  stop: StopRule | None = None) -> SDPResult:
+    res = _call(backend, why, Q, As, b, d, cliques, config, log, stop)
     for what, cfg, statuses in backend.retries(config, cliques is not None, Q.shape[0]):
         if res.status not in statuses:
             continue
-        retry = _call(backend, f"retried with {what}", Q, As, b, d, cliques, cfg, log)
+        retry = _call(backend, f"retried with {what}", Q, As, b, d, cliques, cfg, log, stop)
         if retry.status == Status.SOLVED or not res.usable:
             res = retry
     return res
@@ -194,7 +199,7 @@ def congruence(A: sp.sparray, D: np.ndarray) -> sp.sparray:
 
 def _solve(Q: sp.spmatrix | sp.sparray, constraints: Sequence[Constraint], d: int, config: SolverConfig | None,
            cliques: Sequence[np.ndarray] | None, scale: np.ndarray | None,
-           block_sizes: Sequence[int] | None) -> SDPResult:
+           block_sizes: Sequence[int] | None, stop: StopRule | None = None) -> SDPResult:
     config = SolverConfig() if config is None else config
     Q = sp.csr_array(Q)
     N = Q.shape[0]
@@ -223,7 +228,7 @@ def _solve(Q: sp.spmatrix | sp.sparray, constraints: Sequence[Constraint], d: in
     needs_cover = decompose and (backend.cover is not None or (fb is not None and fb.cover is not None))
     covers = CliqueCovers(Qs, As_s, d, block_sizes, cliques) if needs_cover else None
     log: list[_Attempt] = []
-    res = _with_retries(backend, "", Qs, As_s, b, d, _cover(backend, decompose, covers), config, log)
+    res = _with_retries(backend, "", Qs, As_s, b, d, _cover(backend, decompose, covers), config, log, stop)
     skipped = ""
     if not res.usable and fb is not None and N > FALLBACK_MAX_N:
         skipped = (f"; not solved again by {fb.name}: N = {N} columns > {FALLBACK_MAX_N} (its memory grows faster "
@@ -231,7 +236,7 @@ def _solve(Q: sp.spmatrix | sp.sparray, constraints: Sequence[Constraint], d: in
     elif not res.usable and fb is not None:
         # the backend's attainable accuracy was not enough: the fallback on its own cover
         fb_cover = _cover(fb, decompose, covers)
-        res = _with_retries(fb, f"solved again by {fb.name}", Qs, As_s, b, d, fb_cover, config, log)
+        res = _with_retries(fb, f"solved again by {fb.name}", Qs, As_s, b, d, fb_cover, config, log, stop)
     message = "; ".join(a.describe(k + 1) for k, a in enumerate(log)) + skipped  # before res is changed
     solve_s, setup_s = sum(a.res.solve_time_s for a in log), sum(a.res.setup_time_s for a in log)
     res.n_calls, res.solve_time_s, res.setup_time_s, res.message = len(log), solve_s, setup_s, message
@@ -247,7 +252,7 @@ def _solve(Q: sp.spmatrix | sp.sparray, constraints: Sequence[Constraint], d: in
 @single_blas_thread
 def solve(Q: sp.spmatrix | sp.sparray, constraints: Sequence[Constraint], *, d: int = 1,
           config: SolverConfig | None = None, cliques: Sequence[np.ndarray] | None = None,
-          scale: np.ndarray | None = None) -> SDPResult:
+          scale: np.ndarray | None = None, stop: StopRule | None = None) -> SDPResult:
     """Solve the SDP; ``constraints`` are ``Constraint`` objects (A sparse symmetric N×N, b).
 
     d: the lifting width (h is the first d columns).  cliques: the model's own clique cover (column
@@ -256,10 +261,14 @@ def solve(Q: sp.spmatrix | sp.sparray, constraints: Sequence[Constraint], *, d: 
     min ⟨DQD, X'⟩ s.t. ⟨DAᵢD, X'⟩ = bᵢ, X' ⪰ 0 and returns X = D X' D, with the costs and y unchanged;
     eigenvalues, log SVR (also per clique), and Θ are read from the unscaled X.  Ignored when
     ``config.scale == "none"``.
+    stop: a test of the multipliers y (one per constraint, as given) that may end an iterative backend's solve
+    at its best iterate once that is within reduced accuracy (a backend with ``stops_early``, ``backend.Backend``:
+    our IPM asks it after a jammed step; the others run to their end).  The result is then AlmostSolved and its
+    message says so.
     Returns the last attempt's result (see the module docstring for retries and fallback) with
     ``n_calls``, the summed times and every attempt in ``message``.  ValueError on bad input.
     """
-    return _solve(Q, constraints, d, config, cliques, scale, None)
+    return _solve(Q, constraints, d, config, cliques, scale, None, stop)
 
 
 @single_blas_thread
@@ -274,12 +283,12 @@ def model_cover(model: Model, constraints: Sequence[Constraint], policy: str = "
 
 @single_blas_thread
 def solve_model(model: Model, constraints: Sequence[Constraint], config: SolverConfig | None = None,
-                scale: np.ndarray | None = None) -> SDPResult:
+                scale: np.ndarray | None = None, stop: StopRule | None = None) -> SDPResult:
     """``solve`` for a model: its Q and d, its own clique cover as the hint, and its variable blocks
-    for the block cover (``covers.CliqueCovers``)."""
+    for the block cover (``covers.CliqueCovers``); ``stop`` as for ``solve``."""
     V = model.variables
     hint = model.clique_indices() if model.cliques else None
     config = (config or SolverConfig()).for_size(V.N)
     if config.decompose is None and model.decompose is not None and BACKENDS[config.backend_name].cover is not None:
         config = replace(config, decompose=model.decompose)  # the module's advice, when the user left it open
-    return _solve(model.Q, constraints, model.d, config, hint, scale, [V.sizes[n] for n in V.names])
+    return _solve(model.Q, constraints, model.d, config, hint, scale, [V.sizes[n] for n in V.names], stop)

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import Protocol, Sequence
+from typing import Callable, Protocol, Sequence
 
 import numpy as np
 import scipy.sparse as sp
@@ -10,11 +10,20 @@ import scipy.sparse as sp
 from .config import Retries, SolverConfig
 from .result import SDPResult
 
+#: a caller's test of a solve's multipliers y (m,) (those of the constraints as given, unscaled): True ends an
+#: iterative solve at the iterate they came from (``Backend.solve``'s ``stop``)
+StopRule = Callable[[np.ndarray], bool]
+
 
 class Backend(Protocol):
     """What a solver backend provides: its name, whether solves decompose by default, the clique-cover
     policy it takes (None: none), the backend that re-solves an unusable result (None: none), the
-    exceptions that mean a failed solve, and ``check``, ``solve`` and ``retries``."""
+    exceptions that mean a failed solve, and ``check``, ``solve`` and ``retries``.
+
+    A backend that can end a solve early on the caller's word sets the optional attribute ``stops_early = True``;
+    its ``solve`` then also takes ``stop`` (a ``StopRule``, or None): it asks the rule with the multipliers of its
+    best iterate once that iterate is within reduced accuracy and progress has stalled (our IPM: after a jammed
+    step), and returns that iterate when the rule says True.  The SDP layer passes ``stop`` to those only."""
 
     @property
     def name(self) -> str: ...

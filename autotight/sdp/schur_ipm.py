@@ -64,6 +64,7 @@ from ..svec import SQRT2, triu_indices
 from .clique_program import clique_program, complete_auto
 from ..errors import SolverConfigError
 from ..threads import single_blas_thread
+from .backend import StopRule
 from .config import FALLBACK_MAX_N, Retries, SolverConfig
 from .options import SEARCH_DIRECTIONS
 from .result import SDPResult, Status, finish
@@ -640,11 +641,17 @@ class _BandSchur:
 @single_blas_thread
 def solve_blocks(F: sp.csc_matrix, c: np.ndarray, g: np.ndarray, sizes: list[int], *, tol: float = 1e-7,
                  max_iter: int = 100, time_limit: float = np.inf, verbose: bool = False,
-                 search: str = "nt", step_fraction: float | None = None, threads: int | None = None) -> IPMSolution:
+                 search: str = "nt", step_fraction: float | None = None, threads: int | None = None,
+                 stop: Callable[[np.ndarray], bool] | None = None) -> IPMSolution:
     """Solve the block SDP with svec data: cost c (R,), constraint columns F (R × M), right side g (M,),
     block sizes n_k (R = Σ svec(n_k)).  Solved: gap, pinf and dinf (see IPMSolution) all ≤ tol.
     search: "nt" (Nesterov–Todd, default) or "hkm" (HKM) direction.  step_fraction: each step goes this
     fraction of the way to the cone's boundary; None (default): SDPT3's GAMMA_START + GAMMA_GAIN·min(α_p, α_d).
+    stop: asked with the best iterate's y (M,) after a jammed step (``JAM_STEP``) once that iterate is
+    AlmostSolved, at most once per best iterate; True ends the solve there (AlmostSolved, "stopped by the
+    caller's test of y").  An iterate that a jam stalls is where SDPT3's steps may stay short for several
+    iterations; the caller's test (the pipeline: y certifies the local solution) decides whether more
+    accuracy can change anything.
     Never raises on a numerical failure: the status says what happened."""
     if search not in SEARCH_DIRECTIONS:
         raise ValueError(f"unknown search direction {search!r}; use " + " or ".join(map(repr, SEARCH_DIRECTIONS)))
@@ -676,6 +683,7 @@ def solve_blocks(F: sp.csc_matrix, c: np.ndarray, g: np.ndarray, sizes: list[int
     best: tuple | None = None
     clock = _StallClock(tol)
     jammed = 0  # jammed steps in a row (JAM_STEP)
+    asked = -1  # the best iterate ``stop`` was last asked about
     par = BlockThreads(threads if threads is not None else (None if threaded(sizes) else 1))
 
     def steps(dX: list[np.ndarray], dZ: list[np.ndarray]) -> tuple[float, float]:
@@ -714,6 +722,13 @@ def solve_blocks(F: sp.csc_matrix, c: np.ndarray, g: np.ndarray, sizes: list[int
             if jammed >= JAM_ITERATIONS and almost_solved(Status.INSUFFICIENT_PROGRESS, *best[5:8]):
                 status, message = Status.INSUFFICIENT_PROGRESS, f"{jammed} jammed steps (< {JAM_STEP:g})"
                 break
+            if (stop is not None and jammed and best[8] != asked
+                    and almost_solved(Status.INSUFFICIENT_PROGRESS, *best[5:8])):
+                asked = best[8]
+                if stop(best[2]):
+                    status = Status.INSUFFICIENT_PROGRESS
+                    message = f"stopped by the caller's test of y (iteration {asked})"
+                    break
             try:
                 # the (inverse) Cholesky factors of X and Z: the step lengths of every direction of this
                 # iteration, NT's scaling and Z⁻¹ = L_Z⁻ᵀ L_Z⁻¹ (one factorisation per block and iteration)
@@ -809,17 +824,21 @@ IPM_MIN_TOL = 1e-7
 
 
 def solve_ipm(Q: sp.csr_array, As: Sequence[sp.csr_array], b: np.ndarray, d: int,
-              cliques: Sequence[np.ndarray] | None, opts: SolverConfig, finished: bool = True) -> SDPResult:
+              cliques: Sequence[np.ndarray] | None, opts: SolverConfig, finished: bool = True,
+              stop: StopRule | None = None) -> SDPResult:
     """The Shor SDP by our IPM on the clique blocks of ``clique_program`` (one block of all N
     columns when ``cliques`` is None), with ``opts.ipm``'s search direction.  X is completed from the
     blocks' rank-d factors.  ``finished``: with X's eigenvalues, log SVR and Θ (``result.finish``); False
-    leaves them to the caller (the SDP layer, which finishes once, after undoing its scaling)."""
+    leaves them to the caller (the SDP layer, which finishes once, after undoing its scaling).  ``stop``: see
+    ``solve_blocks``, given the multipliers of the constraints As (m,)."""
     t0 = time.perf_counter()
     prog = clique_program(Q, As, b, cliques if cliques is not None else [np.arange(Q.shape[0])])
     t1 = time.perf_counter()
+    blocks_stop = None if stop is None else (lambda y: stop(y[:prog.m] / prog.scale))  # y as ``res.y`` below
     sol = solve_blocks(prog.F, prog.c, prog.g, prog.sizes, tol=max(opts.tol, IPM_MIN_TOL),
                        max_iter=opts.max_iter, time_limit=opts.time_limit, verbose=opts.verbose,
-                       search=opts.ipm.search, step_fraction=opts.ipm.step_fraction, threads=opts.ipm.threads)
+                       search=opts.ipm.search, step_fraction=opts.ipm.step_fraction, threads=opts.ipm.threads,
+                       stop=blocks_stop)
     X, svrs, completion = complete_auto(prog, sol.z, d)
     y = sol.y[:prog.m] / prog.scale
     res = SDPResult(status=sol.status, solver="autotight-ipm", d=d, X=X, y=y,
@@ -854,6 +873,7 @@ class IPMBackend:
     cover = "ipm"
     fallback = "clarabel"
     min_tol = IPM_MIN_TOL  # a tighter SolverConfig.tol solves to this (``sdp.effective_tol``)
+    stops_early = True  # ``solve`` takes a stop rule (``backend.Backend``)
     errors: tuple[type[BaseException], ...] = ()  # a breakdown of S's factorisation is a status already
 
     def check(self, arg: str | None) -> None:
@@ -861,8 +881,8 @@ class IPMBackend:
             raise SolverConfigError(f"backend 'ipm' takes no argument, got 'ipm:{arg}'")
 
     def solve(self, Q: sp.csr_array, As: Sequence[sp.csr_array], b: np.ndarray, d: int,
-              cliques: Sequence[np.ndarray] | None, config: SolverConfig) -> SDPResult:
-        return solve_ipm(Q, As, b, d, cliques, config, finished=False)  # the layer finishes (``sdp._solve``)
+              cliques: Sequence[np.ndarray] | None, config: SolverConfig, stop: StopRule | None = None) -> SDPResult:
+        return solve_ipm(Q, As, b, d, cliques, config, finished=False, stop=stop)  # the layer finishes (``sdp._solve``)
 
     def retries(self, config: SolverConfig, decomposed: bool, N: int) -> Retries:
         if config.ipm.step_fraction is not None or N > RETRY_MAX_N:
