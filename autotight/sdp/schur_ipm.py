@@ -18,7 +18,8 @@ Contract.
 - Giving up: after ``max_iter`` iterations (MaxIterations), ``time_limit`` seconds (MaxTime),
   ``STALL_ITERATIONS`` iterations without progress (InsufficientProgress; ``STALL_ITERATIONS_ALMOST``
   once the best iterate is within ``ALMOST_TOL``), ``JAM_ITERATIONS`` jammed steps once the best iterate is
-  AlmostSolved (InsufficientProgress), or a factorisation that breaks down (NumericalError).  A run that
+  AlmostSolved (InsufficientProgress), the caller's stop rule accepting the best iterate's multipliers after a
+  jammed step (``solve_blocks``'s ``stop``), or a factorisation that breaks down (NumericalError).  A run that
   stops with a relative gap ≤ ``REDUCED_TOL_GAP`` and pinf, dinf ≤ ``REDUCED_TOL_FEAS`` (Clarabel's reduced
   accuracy) is AlmostSolved.  There is no infeasibility detection: an infeasible or unbounded SDP ends with
   one of those statuses.  It never raises on a numerical failure.  A result that is not usable is solved
