@@ -675,12 +675,14 @@ def test_a_solve_that_jams_once_almost_solved_stops_with_its_best_iterate(monkey
     assert abs(res.primal_cost - f) <= schur_ipm.REDUCED_TOL_GAP * abs(f)
 
 
-def test_a_stop_rule_is_asked_after_a_jam_and_ends_the_solve_at_its_best_iterate(monkeypatch):
-    """Steps forced to 1e-3 once AlmostSolved, as above.  A rule that says False is asked once (the jammed steps
-    leave the best iterate where it is) and changes nothing: the same iterations and y.  A rule that says True
-    ends the solve after the first jammed step, AlmostSolved and saying why; it was given that iterate's
-    multipliers of the constraints as given, which the result returns."""
+def test_a_stop_rule_is_asked_once_progress_stalls_and_ends_the_solve_at_its_best_iterate(monkeypatch):
+    """Steps forced to 1e-3 once AlmostSolved, as above, the jam rule off.  A rule that says False is asked once
+    (the short steps leave the best iterate where it is) and changes nothing: the same iterations and y, to the
+    stall limit.  A rule that says True ends the solve STOP_ASK_ITERATIONS iterations after the last progress,
+    AlmostSolved and saying why; it was given that iterate's multipliers of the constraints as given, which the
+    result returns."""
     monkeypatch.setattr(schur_ipm, "COMPILED_MIN_BLOCKS", 10 ** 9)
+    monkeypatch.setattr(schur_ipm, "JAM_ITERATIONS", 10 ** 6)
     Q, cons, cl = _chain_maxcut(np.random.default_rng(0), 12, 6)
     seen: list[int] = []
     tick = schur_ipm._StallClock.tick
@@ -705,13 +707,14 @@ def test_a_stop_rule_is_asked_after_a_jam_and_ends_the_solve_at_its_best_iterate
 
     no = schur_ipm.solve_ipm(*_data(Q, cons), 1, cl, IPM, stop=rule(False))
     assert len(asked) == 1 and asked[0].shape == (len(cons),)
-    assert no.iterations == plain.iterations and no.status == plain.status
+    assert no.iterations == plain.iterations and no.status == plain.status == "AlmostSolved"
+    assert "no progress" in plain.message
     np.testing.assert_array_equal(no.y, plain.y)
     seen.clear()
     asked.clear()
     yes = schur_ipm.solve_ipm(*_data(Q, cons), 1, cl, IPM, stop=rule(True))
     assert yes.status == "AlmostSolved" and "stopped by the caller's test of y" in yes.message
-    assert yes.iterations == seen[0] + 1 < plain.iterations
+    assert yes.iterations <= seen[0] + schur_ipm.STOP_ASK_ITERATIONS < plain.iterations
     assert len(asked) == 1
     np.testing.assert_array_equal(asked[0], yes.y)
     f = plain.primal_cost
@@ -719,15 +722,14 @@ def test_a_stop_rule_is_asked_after_a_jam_and_ends_the_solve_at_its_best_iterate
 
 
 def test_the_pipeline_stops_the_sdp_once_its_multipliers_certify_the_local_solution(monkeypatch):
-    """Every step counts as jammed (JAM_STEP = 1, the jam rule itself off): the pipeline's rule is asked at each
-    new best iterate once AlmostSolved, and the solve ends at the first whose y certifies the local solution.
+    """With STOP_ASK_ITERATIONS = 0 the pipeline's rule is asked at each new best iterate once AlmostSolved, and
+    the solve ends at the first whose y certifies the local solution.
     The verdict is the one of the solve run to its end (tight and certified), at fewer or as many iterations,
     its cost within the reduced accuracy; the rule says no to multipliers that certify nothing."""
     import autotight as at
     from autotight import pipeline
 
-    monkeypatch.setattr(schur_ipm, "JAM_STEP", 1.0)
-    monkeypatch.setattr(schur_ipm, "JAM_ITERATIONS", 10 ** 6)
+    monkeypatch.setattr(schur_ipm, "STOP_ASK_ITERATIONS", 0)
     stopped = at.solve("discrete_trajectory", {"K": 10}, 0, solver="ipm")
     rule = pipeline.certifies_local
     monkeypatch.setattr(pipeline, "certifies_local", lambda *a, **k: (lambda y: False))

@@ -263,7 +263,7 @@ def solve(Q: sp.spmatrix | sp.sparray, constraints: Sequence[Constraint], *, d: 
     ``config.scale == "none"``.
     stop: a test of the multipliers y (one per constraint, as given) that may end an iterative backend's solve
     at its best iterate once that is within reduced accuracy (a backend with ``stops_early``, ``backend.Backend``:
-    our IPM asks it after a jammed step; the others run to their end).  The result is then AlmostSolved and its
+    our IPM asks it once its progress stalls; the others run to their end).  The result is then AlmostSolved and its
     message says so.
     Returns the last attempt's result (see the module docstring for retries and fallback) with
     ``n_calls``, the summed times and every attempt in ``message``.  ValueError on bad input.
