@@ -23,7 +23,7 @@ class Backend(Protocol):
     A backend that can end a solve early on the caller's word sets the optional attribute ``stops_early = True``;
     its ``solve`` then also takes ``stop`` (a ``StopRule``, or None): it asks the rule with the multipliers of its
     best iterate once that iterate is within reduced accuracy and progress has stalled (our IPM: two iterations
-    without progress), and returns that iterate when the rule says True.  The SDP layer passes ``stop`` to those
+    without a better one), and returns that iterate when the rule says True.  The SDP layer passes ``stop`` to those
     only."""
 
     @property

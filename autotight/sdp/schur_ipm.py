@@ -18,8 +18,8 @@ Contract.
 - Giving up: after ``max_iter`` iterations (MaxIterations), ``time_limit`` seconds (MaxTime),
   ``STALL_ITERATIONS`` iterations without progress (InsufficientProgress; ``STALL_ITERATIONS_ALMOST``
   once the best iterate is within ``ALMOST_TOL``), ``JAM_ITERATIONS`` jammed steps once the best iterate is
-  AlmostSolved (InsufficientProgress), the caller's stop rule accepting the best iterate's multipliers after
-  ``STOP_ASK_ITERATIONS`` iterations without progress (``solve_blocks``'s ``stop``), or a factorisation that
+  AlmostSolved (InsufficientProgress), the caller's stop rule accepting the best iterate's multipliers once
+  ``STOP_ASK_ITERATIONS`` iterations have not bettered it (``solve_blocks``'s ``stop``), or a factorisation that
   breaks down (NumericalError).  A run that
   stops with a relative gap ≤ ``REDUCED_TOL_GAP`` and pinf, dinf ≤ ``REDUCED_TOL_FEAS`` (Clarabel's reduced
   accuracy) is AlmostSolved.  There is no infeasibility detection: an infeasible or unbounded SDP ends with
@@ -109,9 +109,10 @@ STALL_ITERATIONS_ALMOST = 6
 #: the set learned at K = 5: gap 6.1e-6 from iteration 15 on, pinf 7e-7 → 9e-5, five more iterations)
 JAM_STEP = 0.05
 JAM_ITERATIONS = 2
-#: iterations without progress after which ``solve_blocks`` asks its caller's stop rule about an AlmostSolved best
-#: iterate.  One is not enough: after a single jammed step the residuals may fall again (discrete trajectory
-#: K = 100, seed 2, K = 5 set: Solved three iterations after it, at a cost 1.6e-5 lower)
+#: iterations without a better iterate after which ``solve_blocks`` asks its caller's stop rule about an
+#: AlmostSolved best iterate.  One is not enough: after a single jammed step the residuals may fall again (discrete
+#: trajectory K = 100, seed 2, K = 5 set: Solved three iterations after it, at a cost 1.6e-5 lower).  Not the stall
+#: clock's progress, which counts any one measure falling (the gap alone falls while pinf grows: K = 1000, seed 1)
 STOP_ASK_ITERATIONS = 2
 
 
@@ -653,10 +654,10 @@ def solve_blocks(F: sp.csc_matrix, c: np.ndarray, g: np.ndarray, sizes: list[int
     block sizes n_k (R = Σ svec(n_k)).  Solved: gap, pinf and dinf (see IPMSolution) all ≤ tol.
     search: "nt" (Nesterov–Todd, default) or "hkm" (HKM) direction.  step_fraction: each step goes this
     fraction of the way to the cone's boundary; None (default): SDPT3's GAMMA_START + GAMMA_GAIN·min(α_p, α_d).
-    stop: asked with the best iterate's y (M,) after ``STOP_ASK_ITERATIONS`` iterations without progress
-    (``_StallClock``) once that iterate is AlmostSolved, once per stall (again only after progress); True ends the
-    solve there (AlmostSolved, "stopped by the caller's test of y").  The caller's test (the pipeline: y certifies
-    the local solution) decides whether more accuracy can change anything.
+    stop: asked with the best iterate's y (M,) once that iterate is AlmostSolved and ``STOP_ASK_ITERATIONS``
+    iterations have not found a better one (smaller max residual), once per best iterate; True ends the solve
+    there (AlmostSolved, "stopped by the caller's test of y").  The caller's test (the pipeline: y certifies the
+    local solution) decides whether more accuracy can change anything.
     Never raises on a numerical failure: the status says what happened."""
     if search not in SEARCH_DIRECTIONS:
         raise ValueError(f"unknown search direction {search!r}; use " + " or ".join(map(repr, SEARCH_DIRECTIONS)))
@@ -688,7 +689,7 @@ def solve_blocks(F: sp.csc_matrix, c: np.ndarray, g: np.ndarray, sizes: list[int
     best: tuple | None = None
     clock = _StallClock(tol)
     jammed = 0  # jammed steps in a row (JAM_STEP)
-    asked = -1  # the iteration of the last progress when ``stop`` was last asked
+    asked = -1  # the best iterate ``stop`` was last asked about
     par = BlockThreads(threads if threads is not None else (None if threaded(sizes) else 1))
 
     def steps(dX: list[np.ndarray], dZ: list[np.ndarray]) -> tuple[float, float]:
@@ -727,12 +728,12 @@ def solve_blocks(F: sp.csc_matrix, c: np.ndarray, g: np.ndarray, sizes: list[int
             if jammed >= JAM_ITERATIONS and almost_solved(Status.INSUFFICIENT_PROGRESS, *best[5:8]):
                 status, message = Status.INSUFFICIENT_PROGRESS, f"{jammed} jammed steps (< {JAM_STEP:g})"
                 break
-            if (stop is not None and it - clock.last >= STOP_ASK_ITERATIONS and clock.last != asked
+            if (stop is not None and it - best[8] >= STOP_ASK_ITERATIONS and best[8] != asked
                     and almost_solved(Status.INSUFFICIENT_PROGRESS, *best[5:8])):
-                asked = clock.last
+                asked = best[8]
                 if stop(best[2]):
                     status = Status.INSUFFICIENT_PROGRESS
-                    message = f"stopped by the caller's test of y (iteration {best[8]})"
+                    message = f"stopped by the caller's test of y (iteration {asked})"
                     break
             try:
                 # the (inverse) Cholesky factors of X and Z: the step lengths of every direction of this
