@@ -22,7 +22,7 @@ peak RSS, the outcome, the SDP cost and the load average; the summary holds the 
 consecutive sizes, the ratios new/old and the relative difference of the SDP costs.
 
 --seeds: the instance seeds of every run; --seeds-at: sizes that run with every seed (the others with the
-first).  Without --set the problem's default file is used, and discovered at size 5, seed 0, when it is
+first; with --versus and no --seeds-at, every size runs every seed).  Without --set the problem's default file is used, and discovered at size 5, seed 0, when it is
 missing (another missing --set file is an error).  --set takes any set file of the problem (e.g.
 reports/sets/discrete_trajectory_range.json, saved without a template for its factor type, so its
 "template" route re-learns every factor; ``--retemplate PATH`` learns its templates again first,
@@ -279,9 +279,10 @@ def versus(args: argparse.Namespace) -> None:
     sizes = [int(k) for k in args.sizes.split(",") if k]
     skip_old = {int(k) for k in args.new_only.split(",") if k}
     seeds = [int(s) for s in args.seeds.split(",") if s]
+    every = {int(k) for k in args.seeds_at.split(",") if k}
     rows: list[dict] = []
     for size in sizes:
-        for seed in seeds:
+        for seed in (seeds if not every or size in every else seeds[:1]):
             for version, root, python in (("new", ROOT, sys.executable), ("old", old_root, old_python)):
                 if version == "old" and size in skip_old:
                     continue
