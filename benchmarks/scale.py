@@ -22,14 +22,13 @@ peak RSS, the outcome, the SDP cost and the load average; the summary holds the 
 consecutive sizes, the ratios new/old and the relative difference of the SDP costs.
 
 --seeds: the instance seeds of every run; --seeds-at: sizes that run with every seed (the others with the
-first; with --versus and no --seeds-at, every size runs every seed).  Without --set the problem's default file is used, and discovered at size 5, seed 0, when it is
-missing (another missing --set file is an error).  --set takes any set file of the problem (e.g.
-reports/sets/discrete_trajectory_range.json, saved without a template for its factor type, so its
-"template" route re-learns every factor; ``--retemplate PATH`` learns its templates again first,
-transport templates included), and the JSON records where it was learned (``learned_at``).  Writes
-benchmarks/results/scale.json (pose averaging: scale_pose_averaging.json) with the versions and the
-load average around every run.
-"""
+first; with --versus and no --seeds-at, every size runs every seed). Without --set the problem's default file
+is used, and discovered at size 5, seed 0, when it is missing (another missing --set file is an error). --set
+takes any set file of the problem (e.g. reports/sets/discrete_trajectory_range.json, saved without a template
+for its factor type, so its "template" route re-learns every factor; ``--retemplate PATH`` learns its
+templates again first, transport templates included), and the JSON records where it was learned
+(``learned_at``). Writes benchmarks/results/scale.json (pose averaging: scale_pose_averaging.json) with the
+versions and the load average around every run. """
 
 from __future__ import annotations
 
@@ -37,6 +36,7 @@ import argparse
 import json
 import os
 import resource
+import signal
 import subprocess
 import sys
 import time
@@ -101,10 +101,19 @@ def run_child(problem: str, K: int, route: str, set_path: str, seed: int, timeou
         return {"K": K, "route": route, "seed": seed, "error": f"timeout after {timeout:g} s"}
     wall = time.perf_counter() - t0
     if p.returncode != 0:
-        rec = {"K": K, "route": route, "seed": seed, "error": (p.stderr.strip().splitlines() or ["?"])[-1]}
+        rec = {"K": K, "route": route, "seed": seed, "error": child_error(p)}
     else:
         rec = json.loads(p.stdout.strip().splitlines()[-1])
     return rec | {"process_wall_s": wall, "loadavg_before": load0, "loadavg_after": os.getloadavg()}
+
+
+def child_error(p: subprocess.CompletedProcess) -> str:
+    """The last line of a failed child's stderr, or the signal that ended it (SIGKILL: most likely the kernel's
+    out-of-memory killer, which leaves no message)."""
+    if p.returncode < 0:
+        sig = signal.Signals(-p.returncode).name
+        return f"killed by {sig}" + (" (out of memory?)" if sig == "SIGKILL" else "")
+    return (p.stderr.strip().splitlines() or [f"exit code {p.returncode}, no message"])[-1]
 
 
 def exponent(rows: list[dict], key: str, a: int = 100, b: int = 1000) -> float | None:
@@ -261,7 +270,7 @@ def versus_child(root: Path, python: str, problem: str, size: int, set_path: str
                            env=dict(os.environ, PYTHONPATH=str(root)), cwd=str(root), timeout=timeout)
     except subprocess.TimeoutExpired:
         return {"size": size, "seed": seed, "error": f"timeout after {timeout:g} s"}
-    rec = ({"error": (p.stderr.strip().splitlines() or ["?"])[-1]} if p.returncode != 0
+    rec = ({"error": child_error(p)} if p.returncode != 0
            else json.loads(p.stdout.strip().splitlines()[-1]))
     return {"size": size, "seed": seed} | rec | {"process_wall_s": time.perf_counter() - t0, "loadavg_before": load0,
                                                  "loadavg_after": os.getloadavg()}

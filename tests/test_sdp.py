@@ -542,3 +542,29 @@ def test_home_cliques_is_the_clique_holding_most_columns_lowest_on_ties():
         count = np.array([[np.intersect1d(c, s).size for s in cols] for c in cliques])  # (p, m)
         want = np.argmax(count, axis=0)  # the first maximum: the lowest clique index
         assert np.array_equal(home_cliques(cliques, support), want)
+
+
+
+def test_home_cliques_with_several_hub_patterns_equals_the_direct_count():
+    """Hub columns each in a different half or more of the cliques (several hub patterns, as a block cover of
+    pose averaging has), constraints mostly on hub columns (so that a pattern's lowest clique often holds other
+    columns of the constraint too), ties everywhere: the direct count's first maximum."""
+    from autotight.sdp.chordal import home_cliques, support_matrix
+
+    for seed in range(40):
+        rng = np.random.default_rng(seed)
+        N, p, m = 24, int(rng.integers(2, 14)), 60
+        hub = np.arange(1, 7)
+        cliques = []
+        for k in range(p):
+            held = hub[rng.random(hub.size) < 0.7]
+            cliques.append(np.unique(np.r_[0, held, rng.choice(np.arange(7, N), 3, replace=False)]).astype(np.int64))
+        cols = [np.unique(np.r_[rng.choice(hub, rng.integers(0, 4), replace=False),
+                                rng.choice(np.arange(N), rng.integers(0, 3), replace=False)]).astype(np.int64)
+                for _ in range(m)]
+        cols = [c if c.size else np.array([0]) for c in cols]
+        rows = np.concatenate(cols)
+        owner = np.repeat(np.arange(m), [c.size for c in cols])
+        support = support_matrix(rows, rows, owner, N, m)
+        count = np.array([[np.intersect1d(c, s).size for s in cols] for c in cliques])
+        assert np.array_equal(home_cliques(cliques, support), np.argmax(count, axis=0)), seed

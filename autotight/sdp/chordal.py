@@ -286,25 +286,54 @@ def column_support(matrices: Sequence[sp.sparray], N: int) -> sp.csr_array:
 
 def home_cliques(cliques: Sequence[np.ndarray], support: sp.csr_array) -> np.ndarray:
     """(m,) each constraint's home clique: the one holding most of its columns (the lowest index on
-    ties), from ``support`` (see ``support_matrix``).  Columns in every clique (h) are left out, which
-    changes no argmax and keeps the p × m product sparse.  Per column of that product: its maximum by
-    one segmented reduction, then the lowest row reaching it by another (no sort: a hub of columns in
-    most cliques, as the pose of pose averaging, makes the product nearly dense)."""
+    ties), from ``support`` (see ``support_matrix``).
+
+    count_k(i) = |cols(i) ∩ C_k| splits over three kinds of column.  Columns in every clique (h) add the same to
+    every k: left out.  Hub columns (in at least half of the cliques: the pose of pose averaging) add
+    |cols(i) ∩ H ∩ C_k|, which depends on k only through its hub pattern C_k ∩ H, of which there are few.  The
+    rest give a sparse p × m product R.  So the maximum over k is the larger of the best clique with R_ki > 0
+    (R + the hub count of its pattern, by segmented reductions over R's columns) and, per pattern, the hub count
+    at its lowest clique (a clique of the pattern with R_ki > 0 counts more, so one without can only win when
+    the lowest has none).  Memory and time ∝ nnz(R) + patterns × m, where the
+    full product is nearly dense with a hub (p × m: 24 GB at pose averaging M = 10 000)."""
     m = support.shape[1]
     if m == 0:
         return np.zeros(0, np.int64)
-    B = incidence(cliques, support.shape[0])
-    shared = np.asarray(B.sum(axis=0)).ravel() == len(cliques)  # h: adds the same count everywhere
-    P = sp.csc_array(B[:, ~shared] @ support[~shared])
-    P.sum_duplicates()
-    counts = np.diff(P.indptr)
+    p = len(cliques)
+    B = sp.csc_array(incidence(cliques, support.shape[0]))
+    held = np.diff(B.indptr)  # cliques holding each column
+    hub = (2 * held >= p) & (held < p)
+    rest = (held > 0) & ~hub & (held < p)
+    R = sp.csc_array(sp.csr_array(B[:, np.flatnonzero(rest)]) @ support[np.flatnonzero(rest)])
+    R.sum_duplicates()
+    R.sort_indices()
+    if hub.any():
+        Bh = B[:, np.flatnonzero(hub)].toarray() > 0
+        patterns, pattern_of = np.unique(Bh, axis=0, return_inverse=True)
+        pattern_of = pattern_of.ravel()
+        hub_count = patterns.astype(np.int64) @ (sp.csr_array(support[np.flatnonzero(hub)]).toarray() > 0)
+    else:
+        pattern_of = np.zeros(p, np.int64)
+        hub_count = np.zeros((1, m), np.int64)
+    counts = np.diff(R.indptr)
+    col = np.repeat(np.arange(m), counts)
+    value = R.data.astype(np.int64) + hub_count[pattern_of[R.indices], col]
+    best = np.full(m, -1, np.int64)
     home = np.zeros(m, np.int64)
     filled = np.flatnonzero(counts > 0)
     if filled.size:
-        starts = P.indptr[filled]  # the segments of the filled columns (an empty one adds no entry)
-        best = np.maximum.reduceat(P.data, starts)
-        rows = np.where(P.data == np.repeat(best, counts[filled]), P.indices, np.iinfo(np.int64).max)
-        home[filled] = np.minimum.reduceat(rows, starts)
+        starts = R.indptr[filled]
+        best[filled] = np.maximum.reduceat(value, starts)
+        at_best = np.where(value == np.repeat(best[filled], counts[filled]), R.indices, np.iinfo(np.int64).max)
+        home[filled] = np.minimum.reduceat(at_best, starts)
+    # per pattern: its lowest clique at the pattern's hub count.  When that clique has rest columns of i, its
+    # count is higher and it is among the filled ones already, which then beat every clique of the pattern
+    first = np.full(hub_count.shape[0], p, np.int64)
+    np.minimum.at(first, pattern_of, np.arange(p))
+    for q in range(hub_count.shape[0]):
+        v, k = hub_count[q], first[q]
+        better = (v > best) | ((v == best) & (k < home))
+        best[better], home[better] = v[better], k
     return home
 
 
