@@ -35,6 +35,14 @@ def _exit_with_parent(parent: int, interval: float = WATCH_INTERVAL_S) -> None:
     threading.Thread(target=watch, name="autotight-parent-watchdog", daemon=True).start()
 
 
+def usable_cpus() -> int:
+    """The CPUs this process may run on (``os.sched_getaffinity`` where it exists, else ``os.cpu_count``)."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # not on Linux
+        return os.cpu_count() or 1
+
+
 def execute(fn: Callable[..., Any], calls: Iterable[tuple], *, jobs: int = 1,
             scheduler: Any = None) -> Iterator[Any]:
     """``fn(*args)`` for every args in ``calls``, yielded in completion order.  ``calls`` is read lazily in

@@ -502,3 +502,25 @@ def test_a_malformed_carry_hint_is_a_definition_error(hint):
         carry_hint(Problem(mod))
     mod.META = Meta(carry_to={"params": {"M": 7}, "solver": "ipm"})
     assert carry_hint(Problem(mod)) == ({"M": 7}, "ipm")
+
+
+def test_held_out_workers_by_default_only_where_the_sdp_is_large(monkeypatch):
+    """``auto_jobs``: every usable CPU from AUTO_JOBS_MIN_N columns at the largest point (discrete trajectory
+    K = 200: N = 4795), one process below it (pose averaging M = 5), on one CPU, and for a problem a worker
+    could not load (no registered name, no module file)."""
+    from autotight import parallel
+    from autotight.discovery import heldout
+    from autotight.problem import load
+
+    monkeypatch.setattr(parallel, "usable_cpus", lambda: 2)
+    dt, pa = load("discrete_trajectory"), load("pose_averaging")
+    big, small = dt.parse_params({"K": 200}), pa.parse_params({"M": 5})
+    assert dt.build(dt.generate(big, 0)).variables.N >= heldout.AUTO_JOBS_MIN_N
+    assert heldout.auto_jobs(dt, [dt.parse_params({"K": 20}), big]) == 2
+    assert heldout.auto_jobs(pa, [small]) == 1
+    assert heldout.auto_jobs(dt, []) == 1
+    monkeypatch.setattr(heldout, "registered_name", lambda prob: None)
+    monkeypatch.setattr(dt, "path", None)
+    assert heldout.auto_jobs(dt, [big]) == 1
+    monkeypatch.setattr(parallel, "usable_cpus", lambda: 1)
+    assert heldout.auto_jobs(dt, [big]) == 1

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import sys
 from pathlib import Path
 from typing import Any, Callable
@@ -12,17 +11,11 @@ from typing import Any, Callable
 from ..extras import require
 from ..io import jsonable
 from ..limits import check_count, check_size
+from ..parallel import usable_cpus
 from ..problem import load, parse_assignments
 from ..tightness import Criteria
 from ..report.spec import SETS, ReportError, make_spec
 from .options import add_accept_arg, check_solver, nonneg_int
-
-
-def _cores() -> int:
-    try:
-        return len(os.sched_getaffinity(0))
-    except AttributeError:  # not on Linux
-        return os.cpu_count() or 1
 
 
 def register(sub: Any, add_problem_args: Callable[[argparse.ArgumentParser], None]) -> None:
@@ -91,8 +84,8 @@ def cmd_report(args: argparse.Namespace) -> int:
         raise ReportError(f"--discovered {args.discovered}: the sweep has no 'discovered' set; add it to --sets "
                           f"(e.g. --sets {','.join(spec.sets)},discovered)")
     out = Path(args.out) if args.out else Path("out") / prob.name
-    jobs = _cores() if args.jobs is None else args.jobs
-    most = max(1, min(_cores(), len(spec.tasks()) if args.limit is None else max(args.limit, 1)))
+    jobs = usable_cpus() if args.jobs is None else args.jobs
+    most = max(1, min(usable_cpus(), len(spec.tasks()) if args.limit is None else max(args.limit, 1)))
     if jobs > most:  # (jobs < 1 is refused by run_sweep)
         if args.jobs is not None:
             print(f"autotight: note: --jobs {args.jobs} capped at {most} (the cores here and the trials to compute)",

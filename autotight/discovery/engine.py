@@ -75,7 +75,7 @@ from ..tightness import Criteria
 from ..unbounded import UnboundedRelaxation
 from .compare import paper_in_span, resemblance
 from .discovered import DiscoveredSet
-from .heldout import solve_batch
+from .heldout import auto_jobs, solve_batch
 from .learn import LearnOptions
 from .result import DiscoveryResult, PointRecord, round_record
 from .select import reduce, tighten, tighten_each
@@ -133,7 +133,7 @@ def discover(problem: Problem | str, params: Mapping[str, Any] | None = None, se
              min_fraction: float = 0.9, max_rounds: int = 5, max_solves: int | None = None,
              carry_to: Mapping[str, Any] | None = None, groups: Any = None,
              learn_options: LearnOptions = LearnOptions(), criteria: Criteria = Criteria(),
-             solver: SolverConfig | None = None, n_random: int = 2, compare: bool = True, jobs: int = 1,
+             solver: SolverConfig | None = None, n_random: int = 2, compare: bool = True, jobs: int | None = None,
              scheduler: Any = None, progress: Callable[[str, str], None] | None = None,
              shortcut: bool = True) -> DiscoveryResult:
     """Discover one set for ``problem`` at ``params`` (over every point of ``over``) that passes validation.
@@ -145,7 +145,9 @@ def discover(problem: Problem | str, params: Mapping[str, Any] | None = None, se
     ``META.carry_to`` hint, if any; ``{}``: none).  groups: learning groups (None: the module's
     ``META.default_groups``, else "factors").  criteria: what counts as tight (``criteria.accept``).  solver: the
     ``SolverConfig`` of every SDP solve.  compare: also solve the paper's families on each point's latest held-out
-    batch (once validation ends).  jobs/scheduler: where held-out instances run (``heldout``).
+    batch (once validation ends).  jobs/scheduler: where held-out instances run (``heldout``; jobs None: every CPU
+    when the largest held-out point has an SDP of ``heldout.AUTO_JOBS_MIN_N`` columns or more, else this process,
+    ``heldout.auto_jobs``; the result does not depend on it).
     shortcut: a held-out instance whose local solution's certificate proves the set tight needs no full SDP
     (``shortcut``; the others are solved in full).  progress(stage, text) is called as work proceeds.
     Raises ``UnboundedRelaxation`` when no learned candidate bounds an unbounded relaxation.
@@ -158,7 +160,8 @@ def discover(problem: Problem | str, params: Mapping[str, Any] | None = None, se
         max_solves = _count("max_solves", max_solves, 1)
     if not 0.0 <= float(min_fraction) <= 1.0:
         raise ParameterError(f"min_fraction must be in [0, 1], got {min_fraction!r}")
-    _count("jobs", jobs, 1)
+    if jobs is not None:
+        _count("jobs", jobs, 1)
     groups = default_groups(prob, groups)
     say = progress or (lambda stage, text: None)
     over_ = parse_over(prob, over)
@@ -173,6 +176,8 @@ def discover(problem: Problem | str, params: Mapping[str, Any] | None = None, se
     carry = {k: v for k, v in carry.items() if any(full[k] != v for full, _ in points)}
     fixed = {k: v for k, v in points[0][0].items() if k not in over_}
     check_points = points + [(full | carry, varied | carry) for full, varied in points] if carry else list(points)
+    if jobs is None:
+        jobs = 1 if scheduler is not None or not n_heldout else auto_jobs(prob, [full for full, _ in check_points])
     t0 = time.perf_counter()
     tm = {"learn_s": 0.0, "tighten_s": 0.0, "reduce_s": 0.0, "templates_s": 0.0, "heldout_s": 0.0}
 

@@ -49,6 +49,27 @@ def problem_ref(prob: Problem, local: bool) -> Problem | str:
     return str(Path(prob.path).resolve())
 
 
+#: columns of the largest held-out point from which ``auto_jobs`` runs the held-out instances in local worker
+#: processes: one solve there takes seconds (discrete trajectory K = 200, N = 4795: 2-5 s), which repays a worker's
+#: start (imports and compiled kernels, about 2 s once per run); below it one process is as fast or faster (pose
+#: averaging M = 10: 40 held-out instances in 1.8 s)
+AUTO_JOBS_MIN_N = 1000
+
+
+def auto_jobs(prob: Problem, points: Sequence[Mapping[str, Any]]) -> int:
+    """The held-out workers when the caller gave none: every CPU this process may use
+    (``parallel.usable_cpus``) when the largest of ``points`` (full parameters) has an SDP of at least
+    ``AUTO_JOBS_MIN_N`` columns (one instance built at seed 0) and a worker can load the problem (a registered
+    name or a module file); else 1.  Results do not depend on it (``solve_batch``)."""
+    from ..parallel import usable_cpus
+
+    cpus = usable_cpus()
+    if cpus < 2 or not points or (registered_name(prob) is None and prob.path is None):
+        return 1
+    N = max(prob.build(prob.generate(dict(p), 0)).variables.N for p in points)
+    return cpus if N >= AUTO_JOBS_MIN_N else 1
+
+
 def solve_one(ref: Problem | str, params: dict[str, Any], seed: int, sets: Mapping[str, ConstraintsLike],
               criteria: Criteria, config: SolverConfig, n_random: int,
               shortcut: bool = False) -> dict[str, dict[str, Any]]:
