@@ -649,13 +649,9 @@ def test_ipm_cover_keeps_variable_blocks_whole_so_constraints_stay_in_one_clique
     assert spilled(chosen) <= 0.1 < 0.9 < spilled(covers.columns[16])
 
 
-def test_a_solve_that_jams_once_almost_solved_stops_with_its_best_iterate(monkeypatch):
-    """Steps forced to 1e-3 once the relative gap and infeasibilities are within AlmostSolved's bounds: the
-    solve stops after JAM_ITERATIONS jammed steps, AlmostSolved and saying why, with the best iterate's costs;
-    the same solve unjammed continues to Solved at those costs up to the reduced accuracy."""
-    monkeypatch.setattr(schur_ipm, "COMPILED_MIN_BLOCKS", 10 ** 9)
-    Q, cons, cl = _chain_maxcut(np.random.default_rng(0), 12, 6)
-    free = schur_ipm.solve_ipm(*_data(Q, cons), 1, cl, IPM)
+def _steps_once_almost_solved(monkeypatch, length: float) -> list[int]:
+    """From the first iterate within AlmostSolved's bounds on, every step has ``length``; returns the list that
+    then holds that iterate's number (clear it before the next solve)."""
     seen: list[int] = []
     tick = schur_ipm._StallClock.tick
 
@@ -666,7 +662,18 @@ def test_a_solve_that_jams_once_almost_solved_stops_with_its_best_iterate(monkey
 
     monkeypatch.setattr(schur_ipm._StallClock, "tick", watch)
     step = schur_ipm._step
-    monkeypatch.setattr(schur_ipm, "_step", lambda Linv, dX, gamma: 1e-3 if seen else step(Linv, dX, gamma))
+    monkeypatch.setattr(schur_ipm, "_step", lambda Linv, dX, gamma: length if seen else step(Linv, dX, gamma))
+    return seen
+
+
+def test_a_solve_that_jams_once_almost_solved_stops_with_its_best_iterate(monkeypatch):
+    """Steps forced to 1e-3 once the relative gap and infeasibilities are within AlmostSolved's bounds: the
+    solve stops after JAM_ITERATIONS jammed steps, AlmostSolved and saying why, with the best iterate's costs;
+    the same solve unjammed continues to Solved at those costs up to the reduced accuracy."""
+    monkeypatch.setattr(schur_ipm, "COMPILED_MIN_BLOCKS", 10 ** 9)
+    Q, cons, cl = _chain_maxcut(np.random.default_rng(0), 12, 6)
+    free = schur_ipm.solve_ipm(*_data(Q, cons), 1, cl, IPM)
+    seen = _steps_once_almost_solved(monkeypatch, 1e-3)
     res = schur_ipm.solve_ipm(*_data(Q, cons), 1, cl, IPM)
     assert free.status == "Solved" and seen and free.iterations > seen[0] + schur_ipm.JAM_ITERATIONS
     assert res.status == "AlmostSolved" and "jammed" in res.message
@@ -683,17 +690,7 @@ def test_a_stop_rule_is_asked_once_the_best_iterate_stands_and_ends_the_solve_th
     monkeypatch.setattr(schur_ipm, "COMPILED_MIN_BLOCKS", 10 ** 9)
     monkeypatch.setattr(schur_ipm, "JAM_ITERATIONS", 10 ** 6)
     Q, cons, cl = _chain_maxcut(np.random.default_rng(0), 12, 6)
-    seen: list[int] = []
-    tick = schur_ipm._StallClock.tick
-
-    def watch(self, it, err, diff, gap, pinf, dinf):
-        if gap <= schur_ipm.REDUCED_TOL_GAP and max(pinf, dinf) <= schur_ipm.REDUCED_TOL_FEAS and not seen:
-            seen.append(it)
-        return tick(self, it, err, diff, gap, pinf, dinf)
-
-    monkeypatch.setattr(schur_ipm._StallClock, "tick", watch)
-    step = schur_ipm._step
-    monkeypatch.setattr(schur_ipm, "_step", lambda Linv, dX, gamma: 0.0 if seen else step(Linv, dX, gamma))
+    seen = _steps_once_almost_solved(monkeypatch, 0.0)
     plain = schur_ipm.solve_ipm(*_data(Q, cons), 1, cl, IPM)
     seen.clear()
     asked: list[np.ndarray] = []
