@@ -253,6 +253,7 @@ def solve_one(problem: str, size: int, set_path: str, seed: int, solver: str) ->
     return {"size": size, "seed": seed, "N": r.sdp.X.shape[0] if r.sdp.X is not None else None,
             "n_constraints": r.n_constraints, "solver": r.sdp.solver, "status": r.sdp.status,
             "outcome": r.outcome, "tight": r.tight, "log_svr": r.log_svr, "sdp_cost": r.sdp.primal_cost,
+            "certified": None if r.certificate is None else bool(r.certificate.certified),
             "sdp_dual_cost": r.sdp.dual_cost, "upper_bound": r.upper, "times": r.times,
             "total_s": time.perf_counter() - t0, "cpu_s": time.process_time(),
             "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}
