@@ -384,3 +384,36 @@ def test_names_and_cost_only_rows_that_do_not_fit_are_one_line_errors(edit, mess
 
     with pytest.raises(ProblemDefinitionError, match=message):
         Graph(MOVING, inst.truth, factors(inst), by_element=True).model()
+
+
+def test_builds_share_the_probe_fits_and_still_check_each_instances_data(monkeypatch):
+    """Two instances of pose averaging: the second build reuses the first one's probe fits (the same read-only
+    arrays) and gives the model a fresh fit gives (cost, primary and paper matrices equal).  A stored fit that
+    does not write a family's rows raises at the next build: each build's check against its data still runs."""
+    from autotight.graph import family
+
+    prob = load("pose_averaging")
+
+    def build(seed):  # a new instance object each time: the layer keeps one graph per instance
+        return prob.build(prob.generate(prob.parse_params({"M": 4}), seed))
+
+    monkeypatch.setattr(family, "_PROBE_FITS", {})
+    fresh = build(1)
+    monkeypatch.setattr(family, "_PROBE_FITS", {})
+    build(0)
+    stored = dict(family._PROBE_FITS)
+    assert len(stored) == 3  # the auxiliary's equations, R1 and R2
+    assert all(not a.flags.writeable for fit in stored.values() for a in fit[1:])
+    reused = build(1)
+    assert family._PROBE_FITS.keys() == stored.keys()
+    assert all(family._PROBE_FITS[k] is stored[k] for k in stored)
+    assert abs(fresh.Q - reused.Q).max() == 0
+    pairs = list(zip(fresh.primary() + fresh.paper_constraints(), reused.primary() + reused.paper_constraints()))
+    assert len(pairs) > len(fresh.primary())
+    for a, b in pairs:
+        assert a.name == b.name and abs(a.A - b.A).max() == 0 and a.b == b.b
+    for key, (k, mono, row, coef) in stored.items():
+        family._PROBE_FITS[key] = (k, mono, row, coef * 2.0)
+        with pytest.raises(ProblemDefinitionError, match="are not polynomials"):
+            build(1)
+        family._PROBE_FITS[key] = (k, mono, row, coef)

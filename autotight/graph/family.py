@@ -6,7 +6,8 @@ columns of each factor as for one factor (``terms``): [h, its variables' blocks,
 
 - The residual, affine in the views' entries, is read off for all F factors in one call (θ = e_h and
   e_h + e_j with each factor's data, checked at ``terms.check_point``): M (F, m, n); lifted costs Mᵀ W M.
-- The auxiliary's equations and the paper rows are fitted once per family (``fit``): a polynomial of degree
+- The auxiliary's equations and the paper rows are fitted once per family and layout (``Fit``; later builds reuse
+  the probe fit, ``_PROBE_FITS``): a polynomial of degree
   ≤ 2 in the n − 1 local entries whose coefficients are polynomials of degree ≤ ``Family.degree`` in the
   data, from exact differences at the probe points of both (``factor_batch``), in one call on the stack
   of every (data probe, entry probe) pair; coefficients at the rounding of the evaluations are zero.  The
@@ -73,27 +74,55 @@ def scatter(values: np.ndarray, group: np.ndarray, rows: np.ndarray, cols: np.nd
     return out
 
 
+#: the probe fits of ``Fit`` by (function, layout key, p, q, degree): the same on every instance of a problem, so
+#: each build after the first reuses them (the check against each build's data still runs).  Bounded: the
+#: oldest entry goes first.
+_PROBE_FITS: dict[tuple, tuple[int, np.ndarray, np.ndarray, np.ndarray]] = {}
+PROBE_FITS_MAX = 256
+
+
+def _probe_fit(call: Callable[[np.ndarray, np.ndarray], np.ndarray], p: int, q: int,
+               degree: int) -> tuple[int, np.ndarray, np.ndarray, np.ndarray]:
+    """(k, mono, row, coef) of ``Fit`` from exact differences at the probe points (module docstring)."""
+    Pe, Pd = probe_points(p, 2), probe_points(q, degree)
+    ne, nd = len(Pe), len(Pd)
+    theta = np.hstack([np.ones((nd * ne, 1)), np.tile(Pe, (nd, 1))])
+    vals = call(theta, np.repeat(Pd, ne, axis=0))
+    k = vals.shape[1]
+    ce = coefficients(vals.reshape(nd, ne, k).transpose(1, 0, 2), p, 2)  # (entry monomials, nd, k)
+    coef = coefficients(ce.transpose(1, 0, 2), q, degree)  # (data monomials, entry monomials, k)
+    coef[np.abs(coef) <= ROUNDING * max(1.0, float(np.abs(vals).max()))] = 0.0
+    used = np.flatnonzero((coef != 0).any(axis=0).ravel())
+    mono, row = np.divmod(used, k)
+    out = (k, mono, row, coef.reshape(coef.shape[0], -1)[:, used])
+    for a in out[1:]:
+        a.flags.writeable = False  # shared by every Fit of the same key
+    return out
+
+
 class Fit:
     """k polynomials of degree ≤ 2 in p local entries (h = 1 first), coefficients polynomials of ``degree`` in q
-    data entries: coef (data monomials, [entry monomial, row] pairs that are nonzero for some datum)."""
+    data entries: coef (data monomials, [entry monomial, row] pairs that are nonzero for some datum).
+
+    ``key``: what ``call`` computes besides its arguments (the family's function and the layout of the views it
+    is called with, ``FamilyTerm._fit_key``); fits of equal keys share the probe fit (``_PROBE_FITS``).  None:
+    fitted afresh."""
 
     def __init__(self, call: Callable[[np.ndarray, np.ndarray], np.ndarray], p: int, data: np.ndarray,
-                 degree: int, where: str, what: str):
+                 degree: int, where: str, what: str, key: tuple | None = None):
         F = data.shape[0]
         D = data.reshape(F, -1)
         q = D.shape[1]
-        Pe, Pd = probe_points(p, 2), probe_points(q, degree)
-        ne, nd = len(Pe), len(Pd)
-        theta = np.hstack([np.ones((nd * ne, 1)), np.tile(Pe, (nd, 1))])
-        vals = call(theta, np.repeat(Pd, ne, axis=0))
-        k = vals.shape[1]
-        ce = coefficients(vals.reshape(nd, ne, k).transpose(1, 0, 2), p, 2)  # (entry monomials, nd, k)
-        coef = coefficients(ce.transpose(1, 0, 2), q, degree)  # (data monomials, entry monomials, k)
-        coef[np.abs(coef) <= ROUNDING * max(1.0, float(np.abs(vals).max()))] = 0.0
-        used = np.flatnonzero((coef != 0).any(axis=0).ravel())
+        full = None if key is None else (key, p, q, degree)
+        probe = _PROBE_FITS.get(full) if full is not None else None
+        if probe is None:
+            probe = _probe_fit(call, p, q, degree)
+            if full is not None:
+                if len(_PROBE_FITS) >= PROBE_FITS_MAX:
+                    _PROBE_FITS.pop(next(iter(_PROBE_FITS)))
+                _PROBE_FITS[full] = probe
+        k, self.mono, self.row, self.coef = probe
         self.p, self.q, self.k, self.degree = p, q, k, degree
-        self.mono, self.row = np.divmod(used, k)
-        self.coef = coef.reshape(coef.shape[0], -1)[:, used]
         # checked at random entries with two random data and with every factor's data
         rng = np.random.default_rng(0)
         Dc = np.vstack([rng.standard_normal((2, q)), D])
@@ -181,8 +210,10 @@ class FamilyTerm:
         self.m = self.M.shape[1]
         self.W = self._weights()
         self.equations = None if self.aux is None or self.aux.equations is None else \
-            Fit(self._caller(self.aux.equations), self.n - 1, self.data, fam.degree, where, "auxiliary's equations")
-        self.paper = {name: Fit(self._caller(fn), self.n - 1, self.data, fam.degree, where, f"paper rows {name!r}")
+            Fit(self._caller(self.aux.equations), self.n - 1, self.data, fam.degree, where, "auxiliary's equations",
+                self._fit_key(self.aux.equations))
+        self.paper = {name: Fit(self._caller(fn), self.n - 1, self.data, fam.degree, where, f"paper rows {name!r}",
+                                self._fit_key(fn))
                       for name, fn in fam.paper.items()}
         #: the local columns of cost-only variables (``Variable.cost_only``): in the cost, in no constraint
         self.cost_only = cost_only_columns(self.sizes, self.vars)
@@ -208,6 +239,25 @@ class FamilyTerm:
         if self.aux is not None:
             out.append(_aux_view(self.aux, theta[:, o:]))
         return out
+
+    def _fit_key(self, fn: Callable[..., Any]) -> tuple | None:
+        """What ``_caller(fn)`` computes besides its arguments: fn itself and the layout ``_views`` reads (each
+        variable's manifold, its lifting blocks' names and sizes, its columns; the auxiliary's blocks) and the
+        data's shape.  None (no reuse) for a manifold outside the shipped kinds, whose embedding may hold more."""
+        parts: list[tuple] = []
+        for var, k in zip(self.vars, self.sizes):
+            man = var.manifold
+            if not isinstance(man, (Euclidean, Rotation)):
+                return None
+            parts.append((type(man).__name__, man.size, tuple(man.shape), k,
+                          tuple((f.name, f.size) for f in var.fits())))
+        aux = None if self.aux is None else tuple(self.aux.blocks.items())
+        key = (fn, tuple(parts), aux, tuple(self.data.shape[1:]))
+        try:
+            hash(key)
+        except TypeError:  # a callable object that cannot be a key
+            return None
+        return key
 
     def _caller(self, fn: Callable[..., Any]) -> Callable[[np.ndarray, np.ndarray], np.ndarray]:
         """fn as a function of (θ (R, n), data (R, q)) -> (R, k), checked."""
