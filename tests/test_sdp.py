@@ -545,11 +545,17 @@ def test_home_cliques_is_the_clique_holding_most_columns_lowest_on_ties():
 
 
 
-def test_home_cliques_with_several_hub_patterns_equals_the_direct_count():
+@pytest.mark.parametrize("counts_max", [None, 0])
+def test_home_cliques_with_several_hub_patterns_equals_the_direct_count(counts_max, monkeypatch):
     """Hub columns each in a different half or more of the cliques (several hub patterns, as a block cover of
     pose averaging has), constraints mostly on hub columns (so that a pattern's lowest clique often holds other
-    columns of the constraint too), ties everywhere: the direct count's first maximum."""
+    columns of the constraint too), ties everywhere: the direct count's first maximum; also with no room for the
+    hub counts (every column through the sparse product)."""
+    from autotight.sdp import chordal
     from autotight.sdp.chordal import home_cliques, support_matrix
+
+    if counts_max is not None:
+        monkeypatch.setattr(chordal, "HUB_COUNTS_MAX", counts_max)
 
     for seed in range(40):
         rng = np.random.default_rng(seed)

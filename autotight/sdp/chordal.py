@@ -284,6 +284,11 @@ def column_support(matrices: Sequence[sp.sparray], N: int) -> sp.csr_array:
     return support_matrix(rows, cols, owner, N, len(matrices))
 
 
+#: the most hub counts (patterns × constraints) ``home_cliques`` holds; beyond, hub columns go through the sparse
+#: product like the others
+HUB_COUNTS_MAX = 50_000_000
+
+
 def home_cliques(cliques: Sequence[np.ndarray], support: sp.csr_array) -> np.ndarray:
     """(m,) each constraint's home clique: the one holding most of its columns (the lowest index on
     ties), from ``support`` (see ``support_matrix``).
@@ -303,18 +308,19 @@ def home_cliques(cliques: Sequence[np.ndarray], support: sp.csr_array) -> np.nda
     B = sp.csc_array(incidence(cliques, support.shape[0]))
     held = np.diff(B.indptr)  # cliques holding each column
     hub = (2 * held >= p) & (held < p)
+    pattern_of, hub_count = np.zeros(p, np.int64), np.zeros((1, m), np.int64)
+    if hub.any():
+        patterns, inverse = np.unique(B[:, np.flatnonzero(hub)].toarray() > 0, axis=0, return_inverse=True)
+        if len(patterns) * m <= HUB_COUNTS_MAX:
+            pattern_of = inverse.ravel()
+            hub_count = np.asarray((sp.csr_array(patterns.astype(np.float64))
+                                    @ sp.csr_array(support[np.flatnonzero(hub)])).toarray(), np.int64)
+        else:  # too many patterns to hold their counts: every column through the sparse product
+            hub[:] = False
     rest = (held > 0) & ~hub & (held < p)
     R = sp.csc_array(sp.csr_array(B[:, np.flatnonzero(rest)]) @ support[np.flatnonzero(rest)])
     R.sum_duplicates()
     R.sort_indices()
-    if hub.any():
-        Bh = B[:, np.flatnonzero(hub)].toarray() > 0
-        patterns, pattern_of = np.unique(Bh, axis=0, return_inverse=True)
-        pattern_of = pattern_of.ravel()
-        hub_count = patterns.astype(np.int64) @ (sp.csr_array(support[np.flatnonzero(hub)]).toarray() > 0)
-    else:
-        pattern_of = np.zeros(p, np.int64)
-        hub_count = np.zeros((1, m), np.int64)
     counts = np.diff(R.indptr)
     col = np.repeat(np.arange(m), counts)
     value = R.data.astype(np.int64) + hub_count[pattern_of[R.indices], col]
