@@ -160,8 +160,7 @@ def discover(problem: Problem | str, params: Mapping[str, Any] | None = None, se
         max_solves = _count("max_solves", max_solves, 1)
     if not 0.0 <= float(min_fraction) <= 1.0:
         raise ParameterError(f"min_fraction must be in [0, 1], got {min_fraction!r}")
-    if jobs is not None:
-        _count("jobs", jobs, 1)
+    jobs = None if jobs is None else _count("jobs", jobs, 1)
     groups = default_groups(prob, groups)
     say = progress or (lambda stage, text: None)
     over_ = parse_over(prob, over)
