@@ -8,10 +8,12 @@ import numpy as np
 import pytest
 
 from autotight import lie
+from autotight.check import PointResult
 from autotight.constraint_set import resolve
 from autotight.discovery import compare
+from autotight.errors import ParameterError
 from autotight.discovery.catalog import learn
-from autotight.discovery.engine import discover
+from autotight.discovery.engine import discover, shortcut_pays
 from autotight.discovery.heldout import hopeless, solve_batch
 from autotight.discovery.shortcut import certified_tight
 from autotight.pipeline import local_search, seeds, solve_instance
@@ -157,6 +159,39 @@ def test_a_hopeless_batch_stops_at_the_same_seed_in_process_and_in_workers(pose)
     assert hopeless(got, 8, 0.9) and not hopeless(got[:-1], 8, 0.9) and len(got) < len(seeds_)
     assert got == full["s"][0].outcomes[:len(got)] and one["s"][0].seeds == seeds_[:len(got)]
     assert two["s"][0].outcomes == got and two["s"][0].seeds == one["s"][0].seeds and n_two == n_one
+
+
+def test_the_shortcut_is_asked_per_point_and_gives_the_full_sdps_outcomes(pose):
+    """The paper set at σ = 0.1: the point that tries the shortcut decides instances by it, without solver calls,
+    and the point that does not solves every one; the outcomes agree."""
+    params = pose.parse_params({"M": 3, "sigma": 0.1})
+    kw = dict(min_fraction=0.9, criteria=Criteria(), config=SolverConfig())
+    seeds_ = [5, 6, 7]
+    got, _ = solve_batch(pose, {"s": "paper"}, [(params, {}), (params, {})], [seeds_, seeds_],
+                         shortcut=[True, False], **kw)
+    quick, full = got["s"]
+    assert quick.statuses.count("certified") >= 2 and "certified" not in full.statuses
+    assert quick.outcomes == full.outcomes == ["tight"] * 3
+    with pytest.raises(ParameterError, match="shortcut has 1 entries for 2 points"):
+        solve_batch(pose, {"s": "paper"}, [(params, {}), (params, {})], [seeds_, seeds_], shortcut=[True], **kw)
+
+
+def _batch(outcomes: list[str], statuses: list[str]) -> PointResult:
+    pr = PointResult({}, {}, 0.9)
+    for s, (o, st) in enumerate(zip(outcomes, statuses)):
+        pr.add(s, {"outcome": o, "log_svr": 0.0, "reason": "", "n_constraints": 1, "status": st, "rel_gap": 0.0})
+    return pr
+
+
+@pytest.mark.parametrize("outcomes, statuses, tried, expected", [
+    (["tight", "tight"], ["Solved", "AlmostSolved"], True, False),  # tried on tight instances, decided none
+    (["tight", "tight"], ["Solved", "certified"], True, True),  # decided one of them
+    (["not tight", "undecided"], ["Solved", "AlmostSolved"], True, True),  # no tight instance: no evidence
+    (["tight", "not tight"], ["Solved", "Solved"], True, False),
+    (["tight"], ["certified"], False, False),  # not tried: stays off until the set grows
+])
+def test_the_shortcut_is_kept_while_it_decides_tight_instances(outcomes, statuses, tried, expected):
+    assert shortcut_pays(_batch(outcomes, statuses), tried) is expected
 
 
 @pytest.mark.slow  # two discoveries (~1 min); the held-out outcomes themselves: the test above

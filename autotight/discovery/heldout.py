@@ -97,23 +97,29 @@ def hopeless(outcomes: Sequence[str], planned: int, min_fraction: float) -> bool
     return failed > 0 and best < (min_fraction - 1e-12) * (best + failed)
 
 
+def _per_point(name: str, flag: bool | Sequence[bool], n: int) -> list[bool]:
+    flags = [bool(flag)] * n if isinstance(flag, bool) else [bool(b) for b in flag]
+    if len(flags) != n:
+        raise ParameterError(f"{name} has {len(flags)} entries for {n} points")
+    return flags
+
+
 def solve_batch(prob: Problem, sets: Mapping[str, ConstraintsLike], points: Sequence[tuple[dict, dict]],
                 batch: Sequence[Sequence[int]], *, min_fraction: float, criteria: Criteria, config: SolverConfig,
-                n_random: int = 1, jobs: int = 1, scheduler: Any = None, shortcut: bool = False,
+                n_random: int = 1, jobs: int = 1, scheduler: Any = None, shortcut: bool | Sequence[bool] = False,
                 stop_hopeless: bool | Sequence[bool] = False) -> tuple[dict[str, list[PointResult]], dict[str, int]]:
     """Solve the seeds ``batch[i]`` at point i with every set (``shortcut``, ``stop_hopeless``: the module
-    docstring); the sets of one instance share its generation, model and local search.  Returns {set name:
-    [PointResult per point]} (instances in seed order) and {set name: SDP solver calls}."""
+    docstring; each True, or per point); the sets of one instance share its generation, model and local search.
+    Returns {set name: [PointResult per point]} (instances in seed order) and {set name: SDP solver calls}."""
     from ..parallel import execute
 
-    stops = [bool(stop_hopeless)] * len(batch) if isinstance(stop_hopeless, bool) else [bool(b) for b in stop_hopeless]
-    if len(stops) != len(batch):
-        raise ParameterError(f"stop_hopeless has {len(stops)} entries for {len(batch)} points")
+    stops, shortcuts = _per_point("stop_hopeless", stop_hopeless, len(batch)), _per_point("shortcut", shortcut,
+                                                                                          len(batch))
     if any(stops) and len(sets) != 1:
         raise ParameterError("stop_hopeless needs exactly one set")
     local = jobs == 1 and scheduler is None
     ref = problem_ref(prob, local)
-    calls = [((i, t), ref, points[i][0], s, dict(sets), criteria, config, n_random, shortcut)
+    calls = [((i, t), ref, points[i][0], s, dict(sets), criteria, config, n_random, shortcuts[i])
              for i, seeds_ in enumerate(batch) for t, s in enumerate(seeds_)]
     done: dict[tuple[int, int], dict[str, dict[str, Any]]] = {}
     end = [len(b) for b in batch]  # per point: the instances that count (a prefix of its seeds)
