@@ -408,7 +408,8 @@ def projected_dual(Q, As, constraints, prog, Th, *, d: int, tol: float, floor: f
     3.8e-7 of ‖g‖ = 12, where the plain metric and the LSQR refinement stopped at 1.8e-3).  Where that does not
     certify, the unscaled frame is tried once more with a small μ (``THIN_CLIPS``, at most ``thin_rounds``
     rounds): a set with few redundant constraints leaves the cone and the affine set barely intersecting, and
-    there the scaled frame does not find the intersection; the better of the two certificates is returned.
+    there the scaled frame does not find the intersection; the better of the two certificates is returned
+    (thin_rounds 0: the scaled frame's alone).
     rounds, clips: Douglas–Rachford's rounds per μ and its μ in the first frame (None: ``dual_projection.MAX_ITER``,
     ``dual_projection.CLIPS``)."""
     from .certificate import stationarity_system
@@ -447,7 +448,7 @@ def projected_dual(Q, As, constraints, prog, Th, *, d: int, tol: float, floor: f
     Gw, gw = sp.csr_array(sp.diags_array(weights) @ G), weights * g
     y = polish_dual(Q, As, pr.w[:congruent.m] / congruent.scale, Th, system=(Gw, gw), equilibrate=True)
     scaled = judged(pr, y, "scaled frame: ")
-    if scaled[0].certified:
+    if scaled[0].certified or thin_rounds <= 0:
         return scaled
     plain = unscaled(THIN_CLIPS, "unscaled frame after the scaled one did not certify: ", thin_rounds)
     return plain if plain[0].certified or plain[0].bound < scaled[0].bound else scaled

@@ -28,8 +28,8 @@ those sizes as well.
    instance of the batch is solved, so that every failing one is taken in: a set tightened on fewer of them
    passed a fresh batch and then failed ``check`` (pose averaging M = 5 over σ ∈ {0.01, 0.1, 1}, seed 1).
    An instance first tries the certificate of its local solution (``shortcut``) instead of the full SDP, until a
-   batch of its point has tight instances and the shortcut decided none of them; a grown set tries it again
-   (``shortcut_pays``).
+   batch of its point has tight instances and the shortcut decided none of them; once the set grows, every point
+   tries it again (``shortcut_pays``).
 5. **Close the loop**: every held-out instance the set fails becomes a training instance (the set's own pairs
    with the very constraints its check solved, ``trainers.make_trainer``'s ``given``); the set is
    tightened from where it is on them, one at a time (``select.tighten_each``; its pairs stay: dropping
@@ -260,7 +260,8 @@ def discover(problem: Problem | str, params: Mapping[str, Any] | None = None, se
     # and how many of them no candidate makes tight (``loose``: taken in, not reached)
     clean = [0] * len(check_points)
     loose = [0] * len(check_points)
-    # per point, whether its held-out instances try the shortcut (``shortcut_pays``)
+    # per point, whether its held-out instances try the shortcut (``shortcut_pays``; every point again once the set
+    # grows)
     quick = [bool(shortcut)] * len(check_points)
 
     def done(i: int) -> bool:
@@ -292,6 +293,7 @@ def discover(problem: Problem | str, params: Mapping[str, Any] | None = None, se
         elif max_solves is not None and run.n_solves >= max_solves:
             spent = f"{run.n_solves} SDP solver calls spent (max_solves {max_solves})"
         grown: set[int] = set()  # points with a failing instance the set was grown to fix
+        changed = False  # the set grew this round
         if failing and not (spent and not passed):
             new = [timed("learn_s", make_trainer, prob, check_points[i][0], i, s, groups, learn_options, n_random,
                          source, "held-out", ds) for i, s in failing]
@@ -307,8 +309,9 @@ def discover(problem: Problem | str, params: Mapping[str, Any] | None = None, se
                 dropped += d2
                 rounds[-1]["n_pairs_after"] = len(pairs)
                 ds = timed("templates_s", make_set, pairs)
+                changed = True
         for i in todo:
-            quick[i] = bool(shortcut) and (i in grown or shortcut_pays(last[i], quick[i]))
+            quick[i] = bool(shortcut) and (changed or shortcut_pays(last[i], quick[i]))
             if i in grown:
                 clean[i] = loose[i] = 0
             else:
