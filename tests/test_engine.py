@@ -20,6 +20,7 @@ from autotight.discovery.select import reduce as _reduce
 from autotight.discovery.trainers import Solves, Trainer, heldout_seed, training_seed
 from autotight.errors import ParameterError
 from autotight.pipeline import solve_instance
+from autotight.problem import load as load_problem
 from autotight.tightness import Criteria
 
 
@@ -442,6 +443,33 @@ def test_jobs_and_a_dask_cluster_give_the_same_set_and_record():
         with distributed.Client(lc) as client:
             dask = jsonable(discover("pose_averaging", {"M": 3}, 2, scheduler=client, **kw).record())
     _same(one, dask)
+
+
+def test_slow_held_out_batches_move_to_workers_and_give_the_same_record(monkeypatch):
+    """With every batch counted slow (``AUTO_JOBS_MIN_S`` = 0) and two CPUs, the discovery that picks its own
+    workers runs its first batch here and the later ones in two workers (``jobs_after``); its record equals the
+    one of ``jobs=1``, times aside."""
+    from autotight import parallel
+    from autotight.discovery import engine, heldout
+    from autotight.io import jsonable
+
+    kw = dict(n_heldout=3, compare=False)
+    one = jsonable(discover("pose_averaging", {"M": 3}, 4, jobs=1, **kw).record())
+    monkeypatch.setattr(parallel, "usable_cpus", lambda: 2)
+    monkeypatch.setattr(heldout, "AUTO_JOBS_MIN_S", 0.0)
+    seen: list[int] = []
+
+    def recorded(*a, **k):
+        seen.append(k["jobs"])
+        return heldout.solve_batch(*a, **k)
+
+    monkeypatch.setattr(engine, "solve_batch", recorded)
+    auto = jsonable(discover("pose_averaging", {"M": 3}, 4, **kw).record())
+    assert seen[0] == 1 and len(seen) > 1 and set(seen[1:]) == {2}
+    _same(one, auto)
+    assert heldout.jobs_after(load_problem("pose_averaging"), 0.0) == 2
+    monkeypatch.setattr(heldout, "AUTO_JOBS_MIN_S", 1.0)
+    assert heldout.jobs_after(load_problem("pose_averaging"), 0.5) == 1
 
 
 @pytest.mark.slow

@@ -52,7 +52,8 @@ def register(sub: argparse._SubParsersAction, add_problem_args: Callable) -> Non
     p.add_argument("--no-carry", action="store_true", help="ignore the problem's META.carry_to hint")
     p.add_argument("--jobs", "-j", type=pos_int, default=None,
                    help="worker processes for the held-out solves (default: every CPU when the largest held-out "
-                        "point's SDP has 1000 columns or more, else 1; the result is the same either way)")
+                        "point's SDP has 1000 columns or more, or from the batch after one that took 1 s or more "
+                        "per instance in this process, else 1; the result is the same either way)")
     p.add_argument("--scheduler", metavar="ADDRESS", default=None,
                    help="run the held-out solves on a Dask cluster at this scheduler address")
     p.add_argument("--min-gap", type=pos_float, default=6.0,

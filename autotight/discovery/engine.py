@@ -78,7 +78,7 @@ from ..tightness import Criteria
 from ..unbounded import UnboundedRelaxation
 from .compare import paper_in_span, resemblance
 from .discovered import DiscoveredSet
-from .heldout import auto_jobs, solve_batch
+from .heldout import auto_jobs, jobs_after, solve_batch
 from .learn import LearnOptions
 from .result import DiscoveryResult, PointRecord, round_record
 from .select import reduce, tighten, tighten_each
@@ -150,7 +150,8 @@ def discover(problem: Problem | str, params: Mapping[str, Any] | None = None, se
     ``SolverConfig`` of every SDP solve.  compare: also solve the paper's families on each point's latest held-out
     batch (once validation ends).  jobs/scheduler: where held-out instances run (``heldout``; jobs None: every CPU
     when the largest held-out point has an SDP of ``heldout.AUTO_JOBS_MIN_N`` columns or more, else this process,
-    ``heldout.auto_jobs``; the result does not depend on it).
+    ``heldout.auto_jobs``, and every CPU for the later batches once a batch in this process took
+    ``heldout.AUTO_JOBS_MIN_S`` or more per instance, ``heldout.jobs_after``; the result does not depend on it).
     shortcut: a held-out instance whose local solution's certificate proves the set tight needs no full SDP
     (``shortcut``; the others are solved in full), tried at a point as long as it pays (``shortcut_pays``).
     progress(stage, text) is called as work proceeds.
@@ -179,6 +180,7 @@ def discover(problem: Problem | str, params: Mapping[str, Any] | None = None, se
     carry = {k: v for k, v in carry.items() if any(full[k] != v for full, _ in points)}
     fixed = {k: v for k, v in points[0][0].items() if k not in over_}
     check_points = points + [(full | carry, varied | carry) for full, varied in points] if carry else list(points)
+    chosen_jobs = jobs is None and scheduler is None  # the engine picks the held-out workers (``heldout``)
     if jobs is None:
         jobs = 1 if scheduler is not None or not n_heldout else auto_jobs(prob, [full for full, _ in check_points])
     t0 = time.perf_counter()
@@ -274,6 +276,7 @@ def discover(problem: Problem | str, params: Mapping[str, Any] | None = None, se
         batch = [[heldout_seed(seed, i, next_t[i] + t) for t in range(n_heldout)] if i in todo else []
                  for i in range(len(check_points))]
         next_t = [n + len(b) for n, b in zip(next_t, batch)]
+        t_batch = time.perf_counter()
         held, n = timed("heldout_s", solve_batch, prob, {"set": ConstraintSet(ds)}, check_points, batch,
                         min_fraction=float(min_fraction), criteria=criteria, config=config, n_random=1, jobs=jobs,
                         scheduler=scheduler, shortcut=quick,
@@ -282,6 +285,9 @@ def discover(problem: Problem | str, params: Mapping[str, Any] | None = None, se
         for i in todo:
             last[i] = held["set"][i]
             kept[i] = batch[i]
+        solved = sum(len(held["set"][i].seeds) for i in todo)
+        if chosen_jobs and jobs == 1 and solved:  # instances slower than their columns said: workers from here on
+            jobs = jobs_after(prob, (time.perf_counter() - t_batch) / solved)
         failing = [(i, s) for i in todo for s, _, _ in last[i].with_outcome("not tight")]
         passed = all(pr.passed for pr in last)
         rounds.append(round_record(len(rounds), [last[i] for i in todo], len(pairs), passed,

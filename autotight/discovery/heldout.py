@@ -56,18 +56,38 @@ def problem_ref(prob: Problem, local: bool) -> Problem | str:
 AUTO_JOBS_MIN_N = 1000
 
 
-def auto_jobs(prob: Problem, points: Sequence[Mapping[str, Any]]) -> int:
-    """The held-out workers when the caller gave none: every CPU this process may use
-    (``parallel.usable_cpus``) when the largest of ``points`` (full parameters) has an SDP of at least
-    ``AUTO_JOBS_MIN_N`` columns (one instance built at seed 0) and a worker can load the problem (a registered
-    name or a module file); else 1.  Results do not depend on it (``solve_batch``)."""
+#: seconds per held-out instance, measured on a batch run in this process, from which ``jobs_after`` moves the
+#: later batches to worker processes: the SDP's columns alone do not tell the cost (continuous time K = 21, N = 517:
+#: about 9 s an instance; pose averaging M = 10, N = 73: 0.05 s), and a worker's start (about 2 s, once per run) is
+#: repaid within a batch of such instances
+AUTO_JOBS_MIN_S = 1.0
+
+
+def _workers(prob: Problem) -> int:
+    """Every CPU this process may use (``parallel.usable_cpus``) when a worker can load ``prob`` (a registered
+    name or a module file), else 1."""
     from ..parallel import usable_cpus
 
     cpus = usable_cpus()
-    if cpus < 2 or not points or (registered_name(prob) is None and prob.path is None):
+    return 1 if cpus < 2 or (registered_name(prob) is None and prob.path is None) else cpus
+
+
+def auto_jobs(prob: Problem, points: Sequence[Mapping[str, Any]]) -> int:
+    """The held-out workers when the caller gave none: ``_workers`` when the largest of ``points`` (full
+    parameters) has an SDP of at least ``AUTO_JOBS_MIN_N`` columns (one instance built at seed 0); else 1.
+    Results do not depend on it (``solve_batch``)."""
+    workers = _workers(prob)
+    if workers < 2 or not points:
         return 1
     N = max(prob.build(prob.generate(dict(p), 0)).variables.N for p in points)
-    return cpus if N >= AUTO_JOBS_MIN_N else 1
+    return workers if N >= AUTO_JOBS_MIN_N else 1
+
+
+def jobs_after(prob: Problem, seconds_per_instance: float) -> int:
+    """The held-out workers for the later batches of a discovery that chose them itself and ran a batch in this
+    process at ``seconds_per_instance``: ``_workers`` from ``AUTO_JOBS_MIN_S`` on, else 1.  Results do not depend
+    on it (``solve_batch``)."""
+    return _workers(prob) if seconds_per_instance >= AUTO_JOBS_MIN_S else 1
 
 
 def solve_one(ref: Problem | str, params: dict[str, Any], seed: int, sets: Mapping[str, ConstraintsLike],
