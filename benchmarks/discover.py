@@ -12,7 +12,7 @@ discover times (new / old, wall and CPU).
 The old side is a ``git worktree`` of ``--old-ref`` (default 9d4129a, the engine before the held-out
 certificate, the shared held-out instances and the cheaper template fits), created on first use under /tmp.
 
-    python benchmarks/discover.py [--cases pose10,pose_range,discrete] [--seeds 0,1,2] [--old-ref 9d4129a]
+    python benchmarks/discover.py [--cases pose10,pose_range,discrete,continuous] [--seeds 0,1,2] [--old-ref 9d4129a]
 
 Writes benchmarks/results/discover.json (or ``--out``).
 """
@@ -41,6 +41,9 @@ CASES = {
     # the defaults (K = 20, carried to the module's CARRY_TO K = 200), then the set at K = 1000
     "discrete": (["discover", "discrete_trajectory"],
                  ["solve", "discrete_trajectory", "-p", "K=1000", "--set", "{out}", "--solver", "ipm"]),
+    # continuous time at the paper's K = 21: 517 columns, about 9 s an instance
+    "continuous": (["discover", "continuous_trajectory"],
+                   ["check", "continuous_trajectory", "--set", "{out}", "--instances", "10", "--min-fraction", "0.9"]),
 }
 
 
