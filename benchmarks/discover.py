@@ -12,7 +12,8 @@ discover times (new / old, wall and CPU).
 The old side is a ``git worktree`` of ``--old-ref`` (default 9d4129a, the engine before the held-out
 certificate, the shared held-out instances and the cheaper template fits), created on first use under /tmp.
 
-    python benchmarks/discover.py [--cases pose10,pose_range,discrete,continuous] [--seeds 0,1,2] [--old-ref 9d4129a]
+    python benchmarks/discover.py [--cases pose10,pose_range,discrete,continuous,robust_wahba] [--seeds 0,1,2]
+        [--old-ref 9d4129a]
 
 Writes benchmarks/results/discover.json (or ``--out``).
 """
@@ -44,6 +45,10 @@ CASES = {
     # continuous time at the paper's K = 21: 517 columns, about 9 s an instance
     "continuous": (["discover", "continuous_trajectory"],
                    ["check", "continuous_trajectory", "--set", "{out}", "--instances", "10", "--min-fraction", "0.9"]),
+    # the peer's robust Wahba (N = 4, TLS) at its defaults, cost-tight: the greedy takes every candidate pair
+    "robust_wahba": (["discover", "robust_wahba", "--accept", "cost"],
+                     ["check", "robust_wahba", "--set", "{out}", "--accept", "cost", "--instances", "10",
+                      "--min-fraction", "0.9"]),
 }
 
 

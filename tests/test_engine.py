@@ -78,6 +78,91 @@ def test_reduction_removes_on_the_hardest_instance_and_widens_only_where_the_res
     assert run.n_solves <= 45
 
 
+class _GapOpen(_Needs):
+    """_Needs whose loose verdicts all come with the cost gap open (``Trainer.gap_open_sets``)."""
+
+    def solve(self, tr, chosen, stage):
+        tight = super().solve(tr, chosen, stage)
+        if not tight:
+            tr.gap_open_sets.append(frozenset(chosen))
+        return tight
+
+
+def test_an_open_cost_gap_proves_the_removals_of_the_irreducibility_check_without_a_solve():
+    """The same irreducible set as with exact checks, in fewer solves: a pair found necessary while the set was
+    larger stays necessary (the smaller set lies inside one whose gap was open), so no set is solved twice and
+    no removal of the final set is solved again where a larger one already failed."""
+    needs = {1: [{"a", "b"}, {"c"}], 2: [{"b"}], 3: [{"d", "e"}, {"a", "b"}]}
+    pairs = list("abcdefgh")
+    results = {}
+    for cls in (_Needs, _GapOpen):
+        run = cls(needs)
+        trainers = [_trainer(s) for s in needs]
+        for tr in trainers:
+            tr.tight_sets.append(frozenset(pairs))
+        got, dropped = _reduce(run, trainers, pairs, lambda *a: None)
+        results[cls.__name__] = (set(got), run.n_solves, sum(1 for _, k in run.calls if len(k) == len(got) - 1))
+    (exact_set, exact_n, exact_verify), (gap_set, gap_n, gap_verify) = results["_Needs"], results["_GapOpen"]
+    assert gap_set == exact_set
+    for p_ in gap_set:  # still irreducible
+        assert any(not any(n <= gap_set - {p_} for n in needs[s]) for s in needs)
+    assert gap_n < exact_n and gap_verify < exact_verify
+
+
+def test_an_open_gap_on_a_real_instance_holds_for_every_subset_and_a_better_point_voids_it():
+    """Pose averaging (M = 5, σ = 0.5): the primary constraints with two learned pairs leave the cost gap open;
+    the set with one of them, inside it, is then known not tight without a solve, and its solve agrees: an
+    open gap, at an SDP optimum no higher (to the two solves' accuracy)."""
+    from autotight.discovery.engine import default_groups
+    from autotight.discovery.learn import LearnOptions
+    from autotight.discovery.trainers import make_trainer
+
+    prob = load_problem("pose_averaging")
+    tr = make_trainer(prob, prob.parse_params({"M": 5, "sigma": 0.5}), 0, 0, default_groups(prob, None),
+                      LearnOptions(), 1)
+    run = Solves(prob, None, Criteria())
+    larger = list(tr.pairs)[:2]
+    assert not run.solve(tr, larger, "reduce")
+    big = tr.last.verdict
+    assert big.cost_outcome == "not tight" and tr.gap_open_sets == [frozenset(larger)]
+    assert tr.known(frozenset(larger[:1]), exact=True) is False  # no solve needed
+    assert not run.solve(tr, larger[:1], "reduce")  # solved anyway: the inference against the solve
+    small = tr.last.verdict
+    assert small.cost_outcome == "not tight"
+    assert small.primal <= big.primal + big.accuracy + small.accuracy
+    tr.gap_open_sets.clear()  # as ``Solves.solve`` does when the SDP's estimate refines to a lower cost
+    tr.loose_sets.clear()
+    assert tr.known(frozenset(larger[:1]), exact=True) is None
+
+
+def test_a_candidate_off_at_a_local_solution_is_left_out_of_the_instance_s_pairs():
+    """A pair with one constraint that does not hold at the instance's local solutions (its b shifted by 1e-4 of
+    its scale, as an inexact template might be) is not a candidate there: its solves would fail the check
+    before every verdict.  The other pairs stay, every one holding at the points to the tool's tolerance."""
+    from dataclasses import replace as _replace
+
+    import numpy as np
+
+    from autotight.discovery.engine import default_groups
+    from autotight.discovery.learn import LearnOptions
+    from autotight.discovery.trainers import make_trainer, valid_pairs
+    from autotight.pipeline import feasible_points, seeds
+    from autotight.validity import VALID_RTOL, relative_violations
+
+    prob = load_problem("pose_averaging")
+    tr = make_trainer(prob, prob.parse_params({"M": 5}), 0, 0, default_groups(prob, None), LearnOptions(), 1)
+    points = feasible_points(prob, tr.inst, tr.local, seeds(0).validity())
+    cons = [c for cs in tr.pairs.values() for c in cs]
+    assert np.max(relative_violations(cons, list(points.values()))) <= VALID_RTOL
+    bad = next(iter(tr.pairs))
+    off = dict(tr.pairs)
+    c0 = off[bad][0]
+    scale = float(np.abs(c0.A.data).sum()) + abs(c0.b)
+    off[bad] = [_replace(c0, b=c0.b + 1e-4 * scale)] + off[bad][1:]
+    kept = valid_pairs(off, points)
+    assert set(kept) == set(tr.pairs) - {bad}
+
+
 class _Scored(_Needs):
     """_Needs that leaves an SDP solution whose violation by a pair is 1 for the pairs of needs[s], else 0.1."""
 
@@ -314,6 +399,31 @@ def test_a_spent_budget_exits_1_records_the_failure_and_solve_warns(tmp_path, ca
     assert rec["info"]["validation"]["passed"] is False and rec["summary"]["validated"] is False
     assert main(["solve", "pose_averaging", "-p", "M=3", "--set", str(out)]) in (0, 1)
     assert "failed validation" in capsys.readouterr().err
+
+
+def test_a_held_out_instance_that_rejects_the_set_fails_validation_plainly_and_keeps_the_set(tmp_path, capsys,
+                                                                                               monkeypatch):
+    """A held-out instance whose validity check rejects the set (an inexact template where it was carried) ends
+    the loop: exit 1, one line naming the constraint, and the set saved with validation failed."""
+    import autotight.discovery.engine as engine
+    from autotight.validity import InvalidConstraintError
+
+    solve_batch = engine.solve_batch
+
+    def reject(prob, sets, *a, **k):
+        if "set" not in sets:  # the paper's families, on the (empty) batches kept
+            return solve_batch(prob, sets, *a, **k)
+        raise InvalidConstraintError("pose_averaging: constraint 'x' (learned, factor m0) does not hold at the "
+                                     "local solution from random start 0 (relative violation 2e-06 > 1e-06)")
+
+    monkeypatch.setattr(engine, "solve_batch", reject)
+    out = tmp_path / "set.json"
+    code = main(["discover", "pose_averaging", "-p", "M=3", "--out", str(out), "--no-progress"])
+    cap = capsys.readouterr()
+    assert code == 1 and cap.err.count("\n") == 1
+    assert "validation FAILED" in cap.err and "rejects the set" in cap.err and "'x'" in cap.err
+    rec = json.loads(out.read_text(encoding="utf-8"))
+    assert rec["info"]["validation"]["passed"] is False and rec["pairs"]
 
 
 def test_a_set_not_tight_on_its_training_exits_1_with_the_reason_and_its_closed_forms(tmp_path, capsys):

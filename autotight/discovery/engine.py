@@ -49,7 +49,9 @@ those sizes as well.
    (validated), or when ``max_rounds`` rounds or ``max_solves`` SDP solver calls are spent: validated then
    when every point's latest batch passes at ``min_fraction`` (a passing batch's failing instances are still
    taken in), else the result records that validation failed.  Validated with a point short of its
-   confirmation (the budget spent), the message says so.
+   confirmation (the budget spent), the message says so.  A held-out instance whose check before any verdict
+   rejects the set (``validity``: a constraint off at one of its feasible points, e.g. a template fitted at the
+   learning size and off where it was carried) ends validation as failed, with that constraint named.
 6. The set (``DiscoveredSet``) is saved with the evidence of every round (``DiscoveryResult.record``).
 
 Seeds (``trainers``): training ``seed`` for the first instance at the first point, else
@@ -77,6 +79,7 @@ from ..sdp.config import SolverConfig
 from ..threads import single_blas_thread
 from ..tightness import Criteria
 from ..unbounded import UnboundedRelaxation
+from ..validity import InvalidConstraintError
 from .compare import paper_in_span, resemblance
 from .discovered import DiscoveredSet
 from .heldout import auto_jobs, jobs_after, solve_batch
@@ -278,10 +281,14 @@ def discover(problem: Problem | str, params: Mapping[str, Any] | None = None, se
                  for i in range(len(check_points))]
         next_t = [n + len(b) for n, b in zip(next_t, batch)]
         t_batch = time.perf_counter()
-        held, n = timed("heldout_s", solve_batch, prob, {"set": ConstraintSet(ds)}, check_points, batch,
-                        min_fraction=float(min_fraction), criteria=criteria, config=config, n_random=1, jobs=jobs,
-                        scheduler=scheduler, shortcut=quick,
-                        stop_hopeless=[i >= len(points) for i in range(len(check_points))])
+        try:
+            held, n = timed("heldout_s", solve_batch, prob, {"set": ConstraintSet(ds)}, check_points, batch,
+                            min_fraction=float(min_fraction), criteria=criteria, config=config, n_random=1,
+                            jobs=jobs, scheduler=scheduler, shortcut=quick,
+                            stop_hopeless=[i >= len(points) for i in range(len(check_points))])
+        except InvalidConstraintError as e:  # a template off where it was carried: no verdict can stand on it
+            validated, stop = False, f"a held-out instance rejects the set before any verdict: {e}"
+            break
         run.count("heldout", n["set"])
         for i in todo:
             last[i] = held["set"][i]
@@ -416,7 +423,7 @@ def _validation_message(validated: bool | None, stop: str, rounds: list[dict], n
         return (f"validated: every point's latest fresh held-out batch passed, but a point holds only {short} decided "
                 f"held-out instances since the last failure the set was grown to fix, short of the {need} that "
                 f"confirm it (the budget was spent) {rounds_taken}{aside}")
-    worst = min(((p["fraction"], p) for p in rounds[-1]["points"] if not p["passed"]),
+    worst = min(((p["fraction"], p) for p in (rounds[-1]["points"] if rounds else []) if not p["passed"]),
                 key=lambda x: float("inf") if x[0] != x[0] else x[0], default=(None, None))[1]
     where = f" (worst {worst['varied'] or 'point'}: {worst['tight']} tight of {worst['instances']})" if worst else ""
     return f"validation FAILED: {stop}{where}{aside}"

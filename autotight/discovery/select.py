@@ -21,8 +21,9 @@ known not to be tight on it); the result is then solved on the others, and the f
 tight joins the probe, gets back the fewest removed pairs that make it tight (ranked by their
 violation of its solution), and the removal runs again.  Every result is cached per instance
 (``trainers.Trainer.known``).  **Irreducible**: removing any remaining pair breaks tightness on at least
-one training instance, checked by a solve on exactly that set (a pair whose removal turns out not to
-break it is dropped, and the check repeats).
+one training instance, checked by a solve on exactly that set, or proved by an open cost gap of a set that
+contains it (``trainers`` module docstring); a pair whose removal turns out not to break it is dropped, and
+the check repeats.
 
 "Tight" is ``solve_instance``'s verdict under the discovery's ``Criteria`` (an "undecided" verdict
 counts as not tight here: it never lets a pair go).

@@ -7,6 +7,14 @@ with its block scaling and verdict), counts the solver calls per stage and cache
 instance: tightness is monotone in the constraint set, so a set containing a known tight set is tight
 and a set inside a known loose one is loose.
 
+An open cost gap is a proof for every subset.  A verdict whose bracket says "not tight" (``Verdict.cost_outcome``:
+U − P > tol + accuracy, P = ⟨Q, X⟩ of the SDP's solution X of the set S) holds for every S′ ⊆ S: X is feasible
+for S′'s relaxation, whose optimum is then at most P as well, against the same feasible cost U.  So a set
+inside one with an open gap is not tight as certainly as the verdict was, with no solve of its own
+(``Trainer.known``, even where a loose result otherwise decides only for exactly its set: undecided verdicts and
+rank-only ones prove nothing for subsets).  A better feasible point found later lowers U and voids that
+evidence (``Solves.solve`` drops it).
+
 Seeds: the first training instance at the first point has the discovery's seed (it is the instance
 ``solve --seed`` solves there); training instance t at point i otherwise has SeedSequence((seed, i, t, 1));
 held-out instances
@@ -24,12 +32,13 @@ import numpy as np
 
 from ..errors import AutotightError
 from ..model import Constraint, Model, frobenius
-from ..pipeline import LocalSearch, SolveResult, local_search, seeds, solve_instance
+from ..pipeline import LocalSearch, SolveResult, feasible_points, local_search, seeds, solve_instance
 from ..problem import Instance, Problem
 import autotight.sdp as sdp
 from ..sdp.config import SolverConfig
 from ..tightness import Criteria
 from ..unbounded import UNBOUNDED_STATUSES, is_unbounded, unbounded_blocks
+from ..validity import VALID_RTOL, relative_violations
 from .catalog import Catalog, Pair, by_pair, learn
 from .discovered import DiscoveredSet
 from .learn import LearnOptions
@@ -69,6 +78,8 @@ class Trainer:
     structural: bool = False
     tight_sets: list[frozenset] = field(default_factory=list)
     loose_sets: list[frozenset] = field(default_factory=list)
+    #: the loose sets whose bracket found the cost gap open at the current U (module docstring)
+    gap_open_sets: list[frozenset] = field(default_factory=list)
     last: SolveResult | None = None
     tight_result: SolveResult | None = None  # the last tight solve, with its pairs in order
     tight_pairs: list[Pair] = field(default_factory=list)
@@ -76,9 +87,12 @@ class Trainer:
     def known(self, chosen: frozenset, exact: bool = False) -> bool | None:
         """Tightness with ``chosen`` if a known result decides it (monotonicity), else None.
 
-        exact: a loose result decides only for exactly this set (a tight one still for any subset)."""
+        exact: a loose result decides only for exactly this set (a tight one still for any superset, an open
+        cost gap for any subset: module docstring)."""
         if any(t <= chosen for t in self.tight_sets):
             return True
+        if any(chosen <= s for s in self.gap_open_sets):
+            return False
         if any((chosen == s) if exact else (chosen <= s) for s in self.loose_sets):
             return False
         return None
@@ -135,8 +149,11 @@ class Solves:
                 r = replace(r, sdp=ray)
         if r.refined is not None and r.refined.cost < tr.local.best.cost:  # a better feasible point: a lower U
             tr.local = LocalSearch(tr.local.from_truth, [*tr.local.from_random, r.refined])
+            tr.gap_open_sets.clear()  # judged against the higher U
         tight = r.outcome == "tight"
         (tr.tight_sets if tight else tr.loose_sets).append(frozenset(chosen))
+        if r.verdict.cost_outcome == "not tight":
+            tr.gap_open_sets.append(frozenset(chosen))
         tr.last = r
         if tight:
             tr.tight_result, tr.tight_pairs = r, chosen
@@ -195,7 +212,27 @@ def make_trainer(prob: Problem, params: dict[str, Any], point: int, seed: int, g
             pairs.update(by_pair(given.apply(prob, inst, model, seeds(seed).constraints())))
         except AutotightError:  # check could not instantiate it either: the learned candidates stand
             pass
-    return Trainer(point, seed, inst, model, loc, pairs, cat, origin)
+    return Trainer(point, seed, inst, model, loc, valid_pairs(pairs, feasible_points(prob, inst, loc,
+                                                                                      seeds(seed).validity())),
+                   cat, origin)
+
+
+def valid_pairs(pairs: dict[Pair, list[Constraint]], points: dict[str, np.ndarray]) -> dict[Pair, list[Constraint]]:
+    """The pairs whose every constraint holds at every point (``validity.relative_violations`` ≤
+    ``validity.VALID_RTOL``): the feasible points ``solve_instance`` checks a set on before its verdict (the
+    truth, fresh samples, the local solutions), so that no candidate of the instance makes its solves fail that
+    check (a template carried to a size where its fit is off at some local solution, say).  A pair is a type-level
+    relation: one factor's constraint off is the pair off."""
+    cons = [c for cs in pairs.values() for c in cs]
+    if not cons:
+        return pairs
+    ok = np.all(relative_violations(cons, list(points.values())) <= VALID_RTOL, axis=0)
+    out, k = {}, 0
+    for p, cs in pairs.items():
+        if ok[k:k + len(cs)].all():
+            out[p] = cs
+        k += len(cs)
+    return out
 
 
 def learned_source(prob: Problem, params: dict[str, Any], seed: int, groups: Any, opts: LearnOptions,
