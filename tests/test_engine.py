@@ -4,24 +4,29 @@ failing one taken in, saved with its evidence, and passing `check` where it was 
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import textwrap
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 import autotight as at
 from autotight.check import instance_seed
 from autotight.cli import main
 from autotight.constraint_set import ConstraintSet
-from autotight.discovery.engine import discover
+from autotight.discovery.engine import default_groups, discover
+from autotight.discovery.learn import LearnOptions
 from autotight.discovery.result import DiscoveryResult
 from autotight.discovery.select import reduce as _reduce
-from autotight.discovery.trainers import Solves, Trainer, heldout_seed, training_seed
+from autotight.discovery.trainers import (Solves, Trainer, heldout_seed, make_trainer, training_seed,
+                                         valid_pairs)
 from autotight.errors import ParameterError
-from autotight.pipeline import solve_instance
+from autotight.pipeline import feasible_points, seeds, solve_instance
 from autotight.problem import load as load_problem
 from autotight.tightness import Criteria
+from autotight.validity import VALID_RTOL, InvalidConstraintError, relative_violations
 
 
 class _Needs(Solves):
@@ -113,10 +118,6 @@ def test_an_open_gap_on_a_real_instance_holds_for_every_subset_and_a_better_poin
     """Pose averaging (M = 5, σ = 0.5): the primary constraints with two learned pairs leave the cost gap open;
     the set with one of them, inside it, is then known not tight without a solve, and its solve agrees: an
     open gap, at an SDP optimum no higher (to the two solves' accuracy)."""
-    from autotight.discovery.engine import default_groups
-    from autotight.discovery.learn import LearnOptions
-    from autotight.discovery.trainers import make_trainer
-
     prob = load_problem("pose_averaging")
     tr = make_trainer(prob, prob.parse_params({"M": 5, "sigma": 0.5}), 0, 0, default_groups(prob, None),
                       LearnOptions(), 1)
@@ -139,16 +140,6 @@ def test_a_candidate_off_at_a_local_solution_is_left_out_of_the_instance_s_pairs
     """A pair with one constraint that does not hold at the instance's local solutions (its b shifted by 1e-4 of
     its scale, as an inexact template might be) is not a candidate there: its solves would fail the check
     before every verdict.  The other pairs stay, every one holding at the points to the tool's tolerance."""
-    from dataclasses import replace as _replace
-
-    import numpy as np
-
-    from autotight.discovery.engine import default_groups
-    from autotight.discovery.learn import LearnOptions
-    from autotight.discovery.trainers import make_trainer, valid_pairs
-    from autotight.pipeline import feasible_points, seeds
-    from autotight.validity import VALID_RTOL, relative_violations
-
     prob = load_problem("pose_averaging")
     tr = make_trainer(prob, prob.parse_params({"M": 5}), 0, 0, default_groups(prob, None), LearnOptions(), 1)
     points = feasible_points(prob, tr.inst, tr.local, seeds(0).validity())
@@ -158,7 +149,7 @@ def test_a_candidate_off_at_a_local_solution_is_left_out_of_the_instance_s_pairs
     off = dict(tr.pairs)
     c0 = off[bad][0]
     scale = float(np.abs(c0.A.data).sum()) + abs(c0.b)
-    off[bad] = [_replace(c0, b=c0.b + 1e-4 * scale)] + off[bad][1:]
+    off[bad] = [dataclasses.replace(c0, b=c0.b + 1e-4 * scale)] + off[bad][1:]
     kept = valid_pairs(off, points)
     assert set(kept) == set(tr.pairs) - {bad}
 
@@ -326,12 +317,7 @@ def test_a_heldout_instance_taken_in_keeps_the_constraints_its_check_solved():
     """The trainer made of a failing held-out instance holds, for the set's own pairs, exactly the constraints the
     held-out check instantiated (``DiscoveredSet.apply`` with the instance's constraint generator), not a re-learned
     copy; its other candidates are learned on it."""
-    import numpy as np
-
-    from autotight.discovery.learn import LearnOptions
-    from autotight.discovery.trainers import make_trainer
     from autotight.evaluate import instantiate
-    from autotight.pipeline import seeds
 
     prob = at.load_problem("stereo_3d")  # its landmark-pair relations are re-learned per factor by ``apply``
     cs = ConstraintSet.load(Path(__file__).parents[1] / "reports" / "peer_benchmark" / "sets" / "stereo_3d.json")
@@ -406,7 +392,6 @@ def test_a_held_out_instance_that_rejects_the_set_fails_validation_plainly_and_k
     """A held-out instance whose validity check rejects the set (an inexact template where it was carried) ends
     the loop: exit 1, one line naming the constraint, and the set saved with validation failed."""
     import autotight.discovery.engine as engine
-    from autotight.validity import InvalidConstraintError
 
     solve_batch = engine.solve_batch
 

@@ -152,7 +152,7 @@ class Solves:
             tr.gap_open_sets.clear()  # judged against the higher U
         tight = r.outcome == "tight"
         (tr.tight_sets if tight else tr.loose_sets).append(frozenset(chosen))
-        if r.verdict.cost_outcome == "not tight":
+        if not tight and r.verdict.cost_outcome == "not tight":  # (accept="certified" can call it tight all the same)
             tr.gap_open_sets.append(frozenset(chosen))
         tr.last = r
         if tight:
@@ -212,9 +212,8 @@ def make_trainer(prob: Problem, params: dict[str, Any], point: int, seed: int, g
             pairs.update(by_pair(given.apply(prob, inst, model, seeds(seed).constraints())))
         except AutotightError:  # check could not instantiate it either: the learned candidates stand
             pass
-    return Trainer(point, seed, inst, model, loc, valid_pairs(pairs, feasible_points(prob, inst, loc,
-                                                                                      seeds(seed).validity())),
-                   cat, origin)
+    pairs = valid_pairs(pairs, feasible_points(prob, inst, loc, seeds(seed).validity()))
+    return Trainer(point, seed, inst, model, loc, pairs, cat, origin)
 
 
 def valid_pairs(pairs: dict[Pair, list[Constraint]], points: dict[str, np.ndarray]) -> dict[Pair, list[Constraint]]:
