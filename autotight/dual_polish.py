@@ -97,6 +97,23 @@ def allowed_excess(res: SDPResult, Q, constraints: Sequence[Constraint], lambda_
     return float(acc.acc + tol * (abs(f_hat) + floor * acc.scale))
 
 
+def gap_stays_open(res: SDPResult, Q, constraints: Sequence[Constraint], y: np.ndarray, cert: Certificate,
+                   tol: float, floor: float) -> bool:
+    """Whether no multipliers of this relaxation can certify x̂.
+
+    Every y on a face (``autotight.face``) or in a recession frame (``autotight.recession``) is dual feasible
+    for the relaxation itself, so by weak duality its bᵀy is at most the relaxation's optimum, which the solve's
+    X puts at P = ⟨Q, X⟩ up to its accuracy (``tightness.accuracy``).  A certificate needs bᵀy within the
+    tolerance of f(x̂).  So once f(x̂) − P exceeds the tolerance plus that accuracy (``allowed_excess``: the
+    bracket's "not tight" test of ``tightness.bracket``), neither the face's own dual (an SDP solve) nor a
+    recession frame can close it, and they are not tried."""
+    if not np.isfinite(res.primal_cost):
+        return False
+    kept = replace(res, y=y, dual_cost=cert.dual_value)  # the accuracy of the multipliers kept so far
+    return bool(cert.cost - res.primal_cost > allowed_excess(kept, Q, constraints, cert.lambda_lower, cert.cost,
+                                                               tol, floor))
+
+
 def polished(Q, constraints: Sequence[Constraint], res: SDPResult, theta_hat: np.ndarray, *, d: int = 1,
              tol: float = 1e-6, floor: float = 1e-12,
              names: Sequence[str] | None = None) -> tuple[SDPResult, Certificate | None]:
@@ -106,7 +123,9 @@ def polished(Q, constraints: Sequence[Constraint], res: SDPResult, theta_hat: np
     finite y; its own y and certificate when X is unusable (no tr X to weigh two multipliers by).
     Where neither y nor a face of columns certifies but bᵀy closes the bracket, the frame of the
     relaxation's recession directions is tried (``autotight.recession``); the certificate is then that
-    frame's (same y, same bound).  names: the columns' names, for the certificate's description."""
+    frame's (same y, same bound).  Neither a face nor a frame is tried when f(x̂) − P already exceeds the
+    tolerance plus the solve's accuracy (``gap_stays_open``: no dual bound of this relaxation can close that; the
+    bracket's "not tight" says why).  names: the columns' names, for the certificate's description."""
     if res.y is None or not np.all(np.isfinite(res.y)):
         return res, None
     Th = np.asarray(theta_hat, dtype=float).reshape(d, -1)
@@ -131,14 +150,16 @@ def polished(Q, constraints: Sequence[Constraint], res: SDPResult, theta_hat: np
             steps.append(f"polished onto H(y)Θ̂ᵀ = 0 (‖δy‖ = {np.linalg.norm(y2 - y):.1e})")
             y, cert = y2, cert2
     free = None  # the columns set aside on a face, if one certified
-    if not cert.certified:  # the face of the bounded columns (autotight.face)
+    # no face or frame can certify where the bracket is open (its "not tight" then says why)
+    hopeless = not cert.certified and gap_stays_open(res, Q, constraints, y, cert, tol, floor)
+    if not cert.certified and not hopeless:  # the face of the bounded columns (autotight.face)
         from .face import face_certificate
 
         y, cert, note, free = face_certificate(Q, constraints, y, Th, cert, d=d, tol=tol, floor=floor,
                                                trace=cert.trace)
         steps += [note] if note else []
     judged = (Q, constraints, Th)  # the data the certificate is made in (a recession frame's, below)
-    if not cert.certified and closes(cert, Q, Th, tol, floor):
+    if not cert.certified and not hopeless and closes(cert, Q, Th, tol, floor):
         from .recession import frame_certificate
 
         got = frame_certificate(Q, constraints, y, Th, cert, d=d, tol=tol, floor=floor, names=names,

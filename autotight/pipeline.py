@@ -24,9 +24,11 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field, replace
+from collections.abc import Sequence
 from typing import Any, Callable
 
 import numpy as np
+import scipy.sparse as sp
 
 from .certificate import Certificate, certificate
 from .constraint_set import ConstraintsLike, resolve, set_name
@@ -37,12 +39,13 @@ from .model import Constraint, Model
 from .pretty import column_names
 from .problem import Instance, LocalResult, Problem
 import autotight.sdp as sdp
+from .sdp.backend import SettledRule
 from .sdp.config import SolverConfig
 from .sdp.result import SDPResult, Status
 from .sdp.scaling import block_scale
 from .svec import reusing_entries
 from .threads import single_blas_thread
-from .tightness import Criteria, Verdict, judge
+from .tightness import NOT_TIGHT, Criteria, Verdict, accuracy_of, bracket, judge
 from .unbounded import UnboundedRelaxation, is_unbounded, unbounded_blocks, unbounded_message
 from .validate import check_instance
 from .validity import check_valid
@@ -221,6 +224,21 @@ def certifies_local(problem: Problem, inst: Instance, model: Model, cons: list, 
     return rule
 
 
+def gap_settled(upper: float, criteria: Criteria) -> SettledRule:
+    """The SDP solve's retry rule (``sdp.solve``'s ``settled``): whether a usable result already proves the
+    relaxation not tight against the best feasible cost U = ``upper`` (``tightness.bracket`` on its own accuracy,
+    in the frame it was solved in).  A retry cannot change that verdict: it replaces a usable result only when
+    Solved, and then its P is the relaxation's optimum to its accuracy, below U by more than the tolerance
+    whenever this one's is (both within their accuracies of the same optimum)."""
+
+    def rule(res: SDPResult, Q: sp.csr_array, As: Sequence[sp.coo_array], b: np.ndarray) -> bool:
+        if res.X is None or res.y is None or not np.all(np.isfinite(res.y)):
+            return False
+        return bracket(res, upper, criteria, accuracy_of(res, Q, As, b))[0] == NOT_TIGHT
+
+    return rule
+
+
 #: fresh feasible states (the module's sampler around the truth) on which every constraint is checked
 N_VALIDITY_SAMPLES = 2
 
@@ -307,21 +325,24 @@ class Relaxation:
 def solve_relaxation(problem: Problem, inst: Instance, prep: Prepared, *, raise_unbounded: bool = True,
                      criteria: Criteria = Criteria()) -> Relaxation:
     """The SDP of ``prep`` in the frame of ``block_scale_at`` at the best local solution, and once more on the
-    plain data when that solve is not usable, unless its multipliers, polished at the best local solution,
-    certify that solution (``dual_certificate``): the relaxation's optimum is then known to the certificate's
-    bound and another solve cannot change the verdict.
+    plain data when that solve is not usable, unless it found a ray (unbounded in either frame) or its multipliers,
+    polished at the best local solution, certify that solution (``dual_certificate``): the relaxation's optimum is
+    then known to the certificate's bound and another solve cannot change the verdict.  Retries of a usable solve
+    whose bracket already says not tight are skipped (``gap_settled``).
     A ray of unboundedness in either solve raises ``UnboundedRelaxation`` (naming the unbounded blocks) when
     ``raise_unbounded``."""
     model, cons, config = prep.model, prep.constraints, prep.config
     scale = block_scale_at(problem, inst, model, prep.local.best.state, config)
     stop = certifies_local(problem, inst, model, cons, prep.local.best, criteria)
-    res = sdp.solve_model(model, cons, config, scale, stop=stop)
+    settled = gap_settled(prep.local.best.cost, criteria)
+    res = sdp.solve_model(model, cons, config, scale, stop=stop, settled=settled)
     unscaled, certified = None, None
     if not res.usable and res.y is not None and not is_unbounded(res):
         certified = dual_certificate(problem, inst, model, cons, res, prep.local.best, criteria)
-    if scale is not None and not res.usable and not (certified and certified[1] and certified[1].certified):
-        # the scaling did not help this solve: the plain data
-        unscaled = sdp.solve_model(model, cons, config, None, stop=stop)
+    if (scale is not None and not res.usable and not is_unbounded(res)
+            and not (certified and certified[1] and certified[1].certified)):
+        # the scaling did not help this solve: the plain data (a ray proves unboundedness in either frame)
+        unscaled = sdp.solve_model(model, cons, config, None, stop=stop, settled=settled)
         if unscaled.usable:
             res, unscaled, certified = unscaled, res, None
     ray = next((r for r in (res, unscaled) if r is not None and is_unbounded(r)), None)

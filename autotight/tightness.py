@@ -152,15 +152,25 @@ def accuracy(res: SDPResult, Q=None, constraints: Sequence | None = None,
     """The accuracy of ``res`` from its residuals (with the data) or from |P − D| alone.
     ``lambda_lower``: a certified lower bound on λ_min(Q − Σ yᵢAᵢ) for this solve's y when already
     known (a ``Certificate`` from the same y has it), else computed here."""
-    P, D = res.primal_cost, res.dual_cost
-    gap_pd = abs(P - D)
     if Q is None or constraints is None or res.X is None or res.y is None:
+        P, D = res.primal_cost, res.dual_cost
+        gap_pd = abs(P - D)
         scale = max(res.cost_scale, abs(P), abs(D))
         return Accuracy(gap_pd + 10 * np.finfo(float).eps * scale, 0.0, scale, gap_pd, 0.0, False)
-    from .certificate import dual_matrix, lambda_min, stack
-    from .model import constraint_values
+    from .certificate import stack
 
     As, b = stack(constraints)
+    return accuracy_of(res, Q, As, b, lambda_lower)
+
+
+def accuracy_of(res: SDPResult, Q, As: Sequence, b: np.ndarray, lambda_lower: float | None = None) -> Accuracy:
+    """``accuracy`` from the residuals, with the data as matrices: Q, the Aᵢ (COO) and b, in the frame of
+    ``res`` (which must hold X and y)."""
+    from .certificate import dual_matrix, lambda_min
+    from .model import constraint_values
+
+    P, D = res.primal_cost, res.dual_cost
+    gap_pd = abs(P - D)
     X = res.X
     r = constraint_values(As, X) - b  # COO: no per-constraint N×N work
     primal_term = float(np.abs(res.y) @ np.abs(r))

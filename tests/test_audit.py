@@ -357,7 +357,7 @@ def test_a_failed_solve_exits_2(monkeypatch, capsys):
     from autotight import pipeline
     from autotight.sdp.result import SDPResult
 
-    def failed(model, cons, config, scale=None, stop=None):
+    def failed(model, cons, config, scale=None, stop=None, settled=None):
         return SDPResult(status="NumericalError", solver="test", d=1, X=None, y=None, primal_cost=float("nan"),
                          dual_cost=float("nan"), solve_time_s=0.0)
 

@@ -161,9 +161,9 @@ def test_scale_flag_reaches_the_sdp_and_keeps_the_optimum(capsys, monkeypatch):
     seen = []
     solve_model = pipeline.sdp.solve_model
 
-    def spy(model, cons, config, scale, stop=None):
+    def spy(model, cons, config, scale, stop=None, settled=None):
         seen.append((config.scale, scale))
-        return solve_model(model, cons, config, scale, stop=stop)
+        return solve_model(model, cons, config, scale, stop=stop, settled=settled)
 
     monkeypatch.setattr(pipeline.sdp, "solve_model", spy)
     argv = ["solve", "rotation_averaging", "-p", "M=6", "-p", "sigma=0.001", "--json"]

@@ -121,8 +121,8 @@ def test_a_stalled_solve_whose_multipliers_certify_is_not_solved_again(monkeypat
     real, calls = pipeline.sdp.solve_model, []
 
     def stalled(y_of):
-        def solve(model, cons, config, scale, stop=None):
-            res = real(model, cons, config, scale, stop=stop)
+        def solve(model, cons, config, scale, stop=None, settled=None):
+            res = real(model, cons, config, scale, stop=stop, settled=settled)
             calls.append(scale is not None)
             if scale is not None:  # the scaled solve stalls
                 return replace(res, status="InsufficientProgress", X=None, y=y_of(res.y))

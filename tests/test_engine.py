@@ -37,7 +37,7 @@ class _Needs(Solves):
         self.needs = needs
         self.calls: list[tuple[int, frozenset]] = []
 
-    def solve(self, tr, chosen, stage):
+    def solve(self, tr, chosen, stage, with_ray=True):
         key = frozenset(chosen)
         self.calls.append((tr.seed, key))
         self.n_solves += 1
@@ -86,7 +86,7 @@ def test_reduction_removes_on_the_hardest_instance_and_widens_only_where_the_res
 class _GapOpen(_Needs):
     """_Needs whose loose verdicts all come with the cost gap open (``Trainer.gap_open_sets``)."""
 
-    def solve(self, tr, chosen, stage):
+    def solve(self, tr, chosen, stage, with_ray=True):
         tight = super().solve(tr, chosen, stage)
         if not tight:
             tr.gap_open_sets.append(frozenset(chosen))
@@ -157,7 +157,7 @@ def test_a_candidate_off_at_a_local_solution_is_left_out_of_the_instance_s_pairs
 class _Scored(_Needs):
     """_Needs that leaves an SDP solution whose violation by a pair is 1 for the pairs of needs[s], else 0.1."""
 
-    def solve(self, tr, chosen, stage):
+    def solve(self, tr, chosen, stage, with_ray=True):
         from types import SimpleNamespace
 
         tight = super().solve(tr, chosen, stage)
@@ -191,7 +191,7 @@ def test_instances_taken_in_together_are_tightened_one_at_a_time(monkeypatch):
 class _Blind(_Needs):
     """_Needs whose solves of a loose set return no usable X (a NumericalError)."""
 
-    def solve(self, tr, chosen, stage):
+    def solve(self, tr, chosen, stage, with_ray=True):
         from types import SimpleNamespace
 
         tight = super().solve(tr, chosen, stage)

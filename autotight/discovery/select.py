@@ -223,6 +223,6 @@ def _restore(run: Solves, tr: Trainer, current: list[Pair], removed: list[Pair])
             add, remaining = remaining, []
         chosen += add
         known = tr.known(frozenset(chosen))
-        if known or (known is None and run.solve(tr, chosen, "reduce")):
+        if known or (known is None and run.solve(tr, chosen, "reduce", with_ray=False)):
             break
     return chosen

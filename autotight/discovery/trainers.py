@@ -131,16 +131,17 @@ class Solves:
         self.n_solves += n
         self.by_stage[stage] = self.by_stage.get(stage, 0) + n
 
-    def solve(self, tr: Trainer, chosen: Sequence[Pair], stage: str) -> bool:
+    def solve(self, tr: Trainer, chosen: Sequence[Pair], stage: str, with_ray: bool = True) -> bool:
         """Solve ``tr`` with the primary constraints and ``chosen`` (``solve_instance``); True when tight.
-        An unbounded SDP is judged not tight here (its ray ranks the pairs that bound it)."""
+        An unbounded SDP is judged not tight here (its ray ranks the pairs that bound it; a caller
+        that needs only the verdict, ``with_ray`` False, such as the reduction, gets no ray from the plain data)."""
         chosen = list(chosen)
         cons = [c for p in chosen for c in tr.pairs.get(p, [])]
         r = solve_instance(self.problem, tr.inst, cons, config=self.config, criteria=self.criteria,
                            model=tr.model, local=tr.local, raise_unbounded=False)
         self.count(stage, max(1, len(r.attempts)))
         self.sdp_s += r.times.get("sdp_total_s", 0.0)
-        if not r.sdp.usable and any(a["status"] in UNBOUNDED_STATUSES for a in r.attempts):
+        if with_ray and not r.sdp.usable and any(a["status"] in UNBOUNDED_STATUSES for a in r.attempts):
             # the plain data gave a ray (DualInfeasible) where the scaled solve failed: keep the ray, which
             # ranks the pairs that bound it (``select``); the verdict stays not tight
             ray = sdp.solve_model(tr.model, tr.model.primary() + cons, self.config or SolverConfig(), None)
@@ -164,12 +165,13 @@ class Solves:
 
     def tight_on_all(self, trainers: list[Trainer], chosen: Sequence[Pair], stage: str,
                      exact: bool = False) -> tuple[bool, Trainer | None]:
-        """Tight on every trainer (cached results first; the first one to break is returned)."""
+        """Tight on every trainer (cached results first; the first one to break is returned).  The verdicts only:
+        no ray of an unbounded solve (``solve``'s ``with_ray``)."""
         key = frozenset(chosen)
         for tr in trainers:
             known = tr.known(key, exact)
             if known is None:
-                known = self.solve(tr, chosen, stage)
+                known = self.solve(tr, chosen, stage, with_ray=False)
             if not known:
                 return False, tr
         return True, None

@@ -11,7 +11,8 @@ model's own clique cover (a hint) and a scaling vector:
 - retries: a result is solved again with each of the backend's ``retries`` configs in turn whose
   statuses include its status (Clarabel, as ``config.clarabel`` allows: default regularisation on a
   stalled solve, or an AlmostSolved one of at most 100 columns, then clique-graph merging on a stalled
-  one); the retry replaces the result when it is Solved or the result is unusable;
+  one); the retry replaces the result when it is Solved or the result is unusable; a usable result that the
+  caller's ``settled`` rule calls settled is not retried;
 - fallback: an unusable result of a backend with a ``fallback`` (the IPM) is solved again by that
   backend on its own cover (Clarabel's), with its retries, up to ``FALLBACK_MAX_N`` columns; above, the
   first backend's result stands, and its message says that no fallback was tried and why;
@@ -60,7 +61,7 @@ from .config import (AUTO, FALLBACK_MAX_N, ClarabelOptions, IpmOptions, SolverCo
 from .covers import IPM_MERGE_CAPS, MERGE_MAX_SIZE, CliqueCovers
 from .clarabel_direct import ClarabelBackend
 from .cvxpy_path import CvxpyBackend
-from .backend import Backend, StopRule
+from .backend import Backend, SettledRule, StopRule
 from .registry import BACKENDS
 from .schur_ipm import IPMBackend
 from .result import SDPResult, Status, finish, log_svr, rank_d_factor
@@ -111,11 +112,15 @@ def _call(backend: Backend, why: str, Q: sp.csr_array, As: list[sp.csr_array], b
 
 def _with_retries(backend: Backend, why: str, Q: sp.csr_array, As: list[sp.csr_array], b: np.ndarray, d: int,
                   cliques: list[np.ndarray] | None, config: SolverConfig, log: list[_Attempt],
-                  stop: StopRule | None = None) -> SDPResult:
+                  stop: StopRule | None = None, settled: SettledRule | None = None) -> SDPResult:
     res = _call(backend, why, Q, As, b, d, cliques, config, log, stop)
     for what, cfg, statuses in backend.retries(config, cliques is not None, Q.shape[0]):
         if res.status not in statuses:
             continue
+        if settled is not None and res.usable and settled(res, Q, As, b):
+            res.message = "; ".join(m for m in (res.message.strip(), f"not retried with {what}: its verdict is settled")
+                                    if m)
+            break
         retry = _call(backend, f"retried with {what}", Q, As, b, d, cliques, cfg, log, stop)
         if retry.status == Status.SOLVED or not res.usable:
             res = retry
@@ -199,7 +204,8 @@ def congruence(A: sp.sparray, D: np.ndarray) -> sp.sparray:
 
 def _solve(Q: sp.spmatrix | sp.sparray, constraints: Sequence[Constraint], d: int, config: SolverConfig | None,
            cliques: Sequence[np.ndarray] | None, scale: np.ndarray | None,
-           block_sizes: Sequence[int] | None, stop: StopRule | None = None) -> SDPResult:
+           block_sizes: Sequence[int] | None, stop: StopRule | None = None,
+           settled: SettledRule | None = None) -> SDPResult:
     config = SolverConfig() if config is None else config
     Q = sp.csr_array(Q)
     N = Q.shape[0]
@@ -228,7 +234,8 @@ def _solve(Q: sp.spmatrix | sp.sparray, constraints: Sequence[Constraint], d: in
     needs_cover = decompose and (backend.cover is not None or (fb is not None and fb.cover is not None))
     covers = CliqueCovers(Qs, As_s, d, block_sizes, cliques) if needs_cover else None
     log: list[_Attempt] = []
-    res = _with_retries(backend, "", Qs, As_s, b, d, _cover(backend, decompose, covers), config, log, stop)
+    res = _with_retries(backend, "", Qs, As_s, b, d, _cover(backend, decompose, covers), config, log, stop,
+                        settled)
     skipped = ""
     if not res.usable and fb is not None and N > FALLBACK_MAX_N:
         skipped = (f"; not solved again by {fb.name}: N = {N} columns > {FALLBACK_MAX_N} (its memory grows faster "
@@ -236,7 +243,8 @@ def _solve(Q: sp.spmatrix | sp.sparray, constraints: Sequence[Constraint], d: in
     elif not res.usable and fb is not None:
         # the backend's attainable accuracy was not enough: the fallback on its own cover
         fb_cover = _cover(fb, decompose, covers)
-        res = _with_retries(fb, f"solved again by {fb.name}", Qs, As_s, b, d, fb_cover, config, log, stop)
+        res = _with_retries(fb, f"solved again by {fb.name}", Qs, As_s, b, d, fb_cover, config, log, stop,
+                            settled)
     message = "; ".join(a.describe(k + 1) for k, a in enumerate(log)) + skipped  # before res is changed
     solve_s, setup_s = sum(a.res.solve_time_s for a in log), sum(a.res.setup_time_s for a in log)
     res.n_calls, res.solve_time_s, res.setup_time_s, res.message = len(log), solve_s, setup_s, message
@@ -252,7 +260,8 @@ def _solve(Q: sp.spmatrix | sp.sparray, constraints: Sequence[Constraint], d: in
 @single_blas_thread
 def solve(Q: sp.spmatrix | sp.sparray, constraints: Sequence[Constraint], *, d: int = 1,
           config: SolverConfig | None = None, cliques: Sequence[np.ndarray] | None = None,
-          scale: np.ndarray | None = None, stop: StopRule | None = None) -> SDPResult:
+          scale: np.ndarray | None = None, stop: StopRule | None = None,
+          settled: SettledRule | None = None) -> SDPResult:
     """Solve the SDP; ``constraints`` are ``Constraint`` objects (A sparse symmetric N×N, b).
 
     d: the lifting width (h is the first d columns).  cliques: the model's own clique cover (column
@@ -265,10 +274,13 @@ def solve(Q: sp.spmatrix | sp.sparray, constraints: Sequence[Constraint], *, d: 
     at its best iterate once that is within reduced accuracy (a backend with ``stops_early``, ``backend.Backend``:
     our IPM asks it once its progress stalls; the others run to their end).  The result is then AlmostSolved and its
     message says so.
+    settled: a test of a usable result (``backend.SettledRule``) that skips the backend's retries of it (e.g. a
+    result whose bracket already proves the relaxation not tight: a retry cannot change that verdict); its
+    message then says so.
     Returns the last attempt's result (see the module docstring for retries and fallback) with
     ``n_calls``, the summed times and every attempt in ``message``.  ValueError on bad input.
     """
-    return _solve(Q, constraints, d, config, cliques, scale, None, stop)
+    return _solve(Q, constraints, d, config, cliques, scale, None, stop, settled)
 
 
 @single_blas_thread
@@ -283,12 +295,14 @@ def model_cover(model: Model, constraints: Sequence[Constraint], policy: str = "
 
 @single_blas_thread
 def solve_model(model: Model, constraints: Sequence[Constraint], config: SolverConfig | None = None,
-                scale: np.ndarray | None = None, stop: StopRule | None = None) -> SDPResult:
+                scale: np.ndarray | None = None, stop: StopRule | None = None,
+                settled: SettledRule | None = None) -> SDPResult:
     """``solve`` for a model: its Q and d, its own clique cover as the hint, and its variable blocks
-    for the block cover (``covers.CliqueCovers``); ``stop`` as for ``solve``."""
+    for the block cover (``covers.CliqueCovers``); ``stop`` and ``settled`` as for ``solve``."""
     V = model.variables
     hint = model.clique_indices() if model.cliques else None
     config = (config or SolverConfig()).for_size(V.N)
     if config.decompose is None and model.decompose is not None and BACKENDS[config.backend_name].cover is not None:
         config = replace(config, decompose=model.decompose)  # the module's advice, when the user left it open
-    return _solve(model.Q, constraints, model.d, config, hint, scale, [V.sizes[n] for n in V.names], stop)
+    return _solve(model.Q, constraints, model.d, config, hint, scale, [V.sizes[n] for n in V.names], stop,
+                  settled)

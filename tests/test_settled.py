@@ -1,0 +1,150 @@
+"""Work that cannot change a verdict is not done: no retry of a solve whose bracket is already open, and no face
+or recession-frame certificate where weak duality rules one out.
+
+The bracket's "not tight" (U − P above the tolerance plus the solve's accuracy) bounds every dual bound of the
+relaxation, so neither a second solve nor a certificate on a face can close it (``pipeline.gap_settled``,
+``dual_polish.gap_stays_open``).
+"""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from autotight import pipeline, sdp
+from autotight.certificate import stack
+from autotight.face import forced_face
+from autotight.pipeline import gap_settled, solve_instance
+from autotight.problem import load
+from autotight.sdp import clarabel_direct
+from autotight.tightness import NOT_TIGHT, Criteria, accuracy, bracket
+from autotight.unbounded import UnboundedRelaxation, is_unbounded, unbounded_blocks
+
+MODULE = str(Path(__file__).parent / "stereo_translation_module.py")
+PARAMS = {"prior_sigma": 2.0}
+COST = Criteria(accept="cost")
+
+
+def _almost_solved(monkeypatch) -> list:
+    """Clarabel's dense path, each result marked AlmostSolved (X kept): the status a retry is made for."""
+    real, calls = clarabel_direct.solve_dense, []
+
+    def almost(Q, As, b, d, opts):
+        calls.append(opts.clarabel.regularization)
+        res = real(Q, As, b, d, opts)
+        res.status = "AlmostSolved"
+        return res
+
+    monkeypatch.setattr(clarabel_direct, "solve_dense", almost)
+    return calls
+
+
+def test_a_settled_result_is_not_retried_and_the_rule_sees_the_frame_solved(monkeypatch):
+    """An AlmostSolved solve of ≤ 100 columns is retried with the default regularisation, unless the caller's rule
+    calls it settled.  The rule gets the data of the frame that was solved (scaled here): the solver's X satisfies
+    those constraints to its accuracy, and the message says that no retry was made."""
+    p = load("rotation_averaging")
+    inst = p.generate({"M": 5, "sigma": 0.1}, 0)
+    model = p.build(inst)
+    cons = model.primary()
+    D = np.linspace(0.5, 2.0, model.variables.N)
+    calls = _almost_solved(monkeypatch)
+    sdp.solve_model(model, cons, scale=D)
+    assert calls == ["small", "default"]  # retried without a rule
+    calls.clear()
+    seen = []
+
+    def rule(res, Q, As, b):  # X as the solver returned it (the layer unscales it afterwards)
+        X = np.array(res.X)
+        seen.append((X, res.primal_cost, Q.toarray(), [A.toarray() for A in As], b))
+        return True
+
+    out = sdp.solve_model(model, cons, scale=D, settled=rule)
+    assert calls == ["small"] and out.n_calls == 1 and len(seen) == 1
+    assert "not retried with default regularisation: its verdict is settled" in out.message
+    X, P, Q, As, b = seen[0]
+    residual = np.array([np.sum(A * X) for A in As]) - b
+    assert np.abs(residual).max() <= 1e-6 * max(1.0, np.abs(b).max())
+    assert abs(float(np.sum(Q * X)) - P) <= 1e-6 * abs(P)
+    plain = [np.sum(c.A.toarray() * X) for c in cons]  # the unscaled data do not fit the scaled X
+    assert np.abs(np.array(plain) - b).max() > 1e-3
+
+
+def test_gap_settled_is_the_brackets_not_tight():
+    """On a relaxation that is not tight (primary constraints of a lifting with free columns) the rule says
+    settled, and the bracket of the same result says not tight; on a tight one (rotation averaging at σ = 0.01)
+    neither."""
+    for name, params, crit, expect in [(MODULE, PARAMS, COST, True),
+                                       ("rotation_averaging", {"M": 5, "sigma": 0.01}, Criteria(), False)]:
+        p = load(name)
+        inst = p.generate(params, 0)
+        model = p.build(inst)
+        cons = model.primary()
+        U = p.local_solve(inst, inst.truth).cost
+        res = sdp.solve_model(model, cons)
+        As, b = stack(cons)
+        assert gap_settled(U, crit)(res, model.Q, As, b) is expect
+        assert (bracket(res, U, crit, accuracy(res, model.Q, cons))[0] == NOT_TIGHT) is expect
+
+
+def test_an_open_gap_tries_no_face_and_no_face_could_close_it(monkeypatch):
+    """The primary constraints of the free-column module: the verdict is not tight, the face's own dual is not
+    solved, and the bracket's reason says why.  Solved all the same, the face's dual bound stays below P plus the
+    solve's accuracy, and so below U by more than the tolerance: it could not have certified."""
+    import autotight.face as face
+
+    p = load(MODULE)
+    inst = p.generate(PARAMS, 0)
+    called = []
+    real = face.face_dual
+    monkeypatch.setattr(face, "face_dual", lambda *a, **k: called.append(1) or real(*a, **k))
+    r = solve_instance(p, inst, "primary", criteria=COST)
+    assert not r.tight and r.verdict.cost_outcome == NOT_TIGHT and not r.certificate.certified
+    assert called == [] and "exceeds the tolerance" in r.verdict.reason
+    model = p.build(inst)
+    cons = pipeline.prepare(p, inst, "primary").constraints
+    As, b = stack(cons)
+    res = sdp.solve_model(model, cons)
+    x = np.atleast_2d(p.lift(inst, r.local.best.state))
+    got = forced_face(model.Q, As, res.y, x)
+    assert got is not None
+    dual = real(model.Q, cons, got[1])
+    acc = accuracy(res, model.Q, cons)
+    if dual is not None:
+        assert float(b @ dual[0]) <= res.primal_cost + acc.acc + 1e-9 * abs(res.primal_cost)
+    assert r.upper - (res.primal_cost + acc.acc) > COST.gap_tol * abs(r.upper)
+
+
+def test_a_ray_of_the_scaled_solve_is_not_solved_again_on_the_plain_data():
+    """Robust Wahba's primary relaxation is unbounded: the scaled solve returns a ray, which proves it in either
+    frame, so the plain data are not solved again.  The ray names the blocks nothing bounds, and raising on it
+    names them too."""
+    p = load("robust_wahba")
+    inst = p.generate({}, 0)
+    r = solve_instance(p, inst, "primary", criteria=COST, raise_unbounded=False)
+    assert len(r.attempts) == 1 and is_unbounded(r.sdp) and not r.tight
+    blocks = unbounded_blocks(p.build(inst), r.sdp)
+    assert blocks
+    with pytest.raises(UnboundedRelaxation) as e:
+        solve_instance(p, inst, "primary", criteria=COST)
+    assert e.value.blocks == blocks
+
+
+def test_the_reduction_gets_its_verdict_of_an_unbounded_set_in_one_solver_call():
+    """Greedy ranking needs a ray of an unbounded set, the reduction only its verdict: ``Solves.solve`` with
+    ``with_ray=False`` makes one solver call for robust Wahba's primary relaxation, with the ray two, and both
+    judge it not tight."""
+    from autotight.discovery.trainers import Solves, Trainer
+    from autotight.pipeline import local_search, seeds
+    from autotight.sdp.config import SolverConfig
+
+    p = load("robust_wahba")
+    inst = p.generate({}, 0)
+    tr = Trainer(0, 0, inst, p.build(inst), local_search(p, inst, seeds(0).local(), 1), {})
+    calls = []
+    for with_ray in (False, True):
+        run = Solves(p, SolverConfig(), COST)
+        assert run.solve(tr, [], "reduce", with_ray=with_ray) is False
+        calls.append(run.n_solves)
+    assert calls == [1, 2]
+    assert is_unbounded(tr.last.sdp)
