@@ -169,13 +169,15 @@ def accuracy_of(res: SDPResult, Q, As: Sequence, b: np.ndarray, lambda_lower: fl
     from .certificate import dual_matrix, lambda_min
     from .model import constraint_values
 
+    X, y = res.X, res.y
+    if X is None or y is None:
+        raise ValueError("accuracy_of needs a result with X and y")
     P, D = res.primal_cost, res.dual_cost
     gap_pd = abs(P - D)
-    X = res.X
     r = constraint_values(As, X) - b  # COO: no per-constraint N×N work
-    primal_term = float(np.abs(res.y) @ np.abs(r))
+    primal_term = float(np.abs(y) @ np.abs(r))
     trX = float(X.trace())  # dense or sparse (X on the cliques' pattern)
-    lam_lo = lambda_min(dual_matrix(Q, As, res.y))[1] if lambda_lower is None else lambda_lower
+    lam_lo = lambda_min(dual_matrix(Q, As, y))[1] if lambda_lower is None else lambda_lower
     dual_corr = max(-lam_lo, 0.0) * trX
     scale = (float(abs(Q).max()) if Q.nnz else 0.0) * trX
     return Accuracy(max(gap_pd, primal_term, dual_corr), dual_corr, scale, gap_pd, primal_term)
