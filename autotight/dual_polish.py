@@ -99,19 +99,19 @@ def allowed_excess(res: SDPResult, Q, constraints: Sequence[Constraint], lambda_
 
 def gap_stays_open(res: SDPResult, Q, constraints: Sequence[Constraint], y: np.ndarray, cert: Certificate,
                    tol: float, floor: float) -> bool:
-    """Whether no multipliers of this relaxation can certify x̂.
+    """Whether no multipliers of this relaxation can certify x̂: the bracket (``tightness.bracket``, with the
+    certificate's tolerances, against U = f(x̂), on the accuracy of the multipliers kept so far) says not tight.
 
     Every y on a face (``autotight.face``) or in a recession frame (``autotight.recession``) is dual feasible
     for the relaxation itself, so by weak duality its bᵀy is at most the relaxation's optimum, which the solve's
-    X puts at P = ⟨Q, X⟩ up to its accuracy (``tightness.accuracy``).  A certificate needs bᵀy within the
-    tolerance of f(x̂).  So once f(x̂) − P exceeds the tolerance plus that accuracy (``allowed_excess``: the
-    bracket's "not tight" test of ``tightness.bracket``), neither the face's own dual (an SDP solve) nor a
+    X puts at P = ⟨Q, X⟩ up to its accuracy.  A certificate needs bᵀy within the tolerance of f(x̂); once
+    f(x̂) − P exceeds the tolerance plus that accuracy, neither the face's own dual (an SDP solve) nor a
     recession frame can close it, and they are not tried."""
-    if not np.isfinite(res.primal_cost):
-        return False
-    kept = replace(res, y=y, dual_cost=cert.dual_value)  # the accuracy of the multipliers kept so far
-    return bool(cert.cost - res.primal_cost > allowed_excess(kept, Q, constraints, cert.lambda_lower, cert.cost,
-                                                               tol, floor))
+    from .tightness import NOT_TIGHT, Criteria, accuracy, bracket
+
+    kept = replace(res, y=y, dual_cost=cert.dual_value)
+    crit = Criteria(gap_tol=tol, cost_atol=tol * floor)  # tol = gap_tol, floor = cost_atol / gap_tol
+    return bool(bracket(kept, cert.cost, crit, accuracy(kept, Q, constraints, cert.lambda_lower))[0] == NOT_TIGHT)
 
 
 def polished(Q, constraints: Sequence[Constraint], res: SDPResult, theta_hat: np.ndarray, *, d: int = 1,

@@ -142,8 +142,8 @@ class Solves:
         self.count(stage, max(1, len(r.attempts)))
         self.sdp_s += r.times.get("sdp_total_s", 0.0)
         if with_ray and not r.sdp.usable and any(a["status"] in UNBOUNDED_STATUSES for a in r.attempts):
-            # the plain data gave a ray (DualInfeasible) where the scaled solve failed: keep the ray, which
-            # ranks the pairs that bound it (``select``); the verdict stays not tight
+            # the ray of the plain data ranks the pairs that bound it (``select``), also where the scaled solve
+            # found one (that ray, in another frame, would rank them differently); the verdict stays not tight
             ray = sdp.solve_model(tr.model, tr.model.primary() + cons, self.config or SolverConfig(), None)
             self.count(stage, 1)
             if is_unbounded(ray):
