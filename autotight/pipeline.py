@@ -225,16 +225,17 @@ def certifies_local(problem: Problem, inst: Instance, model: Model, cons: list, 
 
 
 def gap_settled(upper: float, criteria: Criteria) -> SettledRule:
-    """The SDP solve's retry rule (``sdp.solve``'s ``settled``): whether a usable result already proves the
-    relaxation not tight against the best feasible cost U = ``upper`` (``tightness.bracket`` on its own accuracy,
-    in the frame it was solved in).  A retry cannot change that verdict: it replaces a usable result only when
-    Solved, and then its P is the relaxation's optimum to its accuracy, below U by more than the tolerance
-    whenever this one's is (both within their accuracies of the same optimum)."""
+    """The SDP solve's retry rule (``sdp.solve``'s ``settled``): whether a result, usable or the best iterate of a
+    solve that stopped early, already proves the relaxation not tight against the best feasible cost U = ``upper``
+    (``tightness.bracket`` on its own accuracy, in the frame it was solved in; ``partial`` for the iterate).  Another
+    solve cannot change that verdict: a retry replaces a usable result only when Solved, and then its P is the
+    relaxation's optimum to its accuracy, below U by more than the tolerance whenever this one's is (both within
+    their accuracies of the same optimum); so is the fallback's."""
 
     def rule(res: SDPResult, Q: sp.csr_array, As: Sequence[sp.coo_array], b: np.ndarray) -> bool:
         if res.X is None or res.y is None or not np.all(np.isfinite(res.y)):
             return False
-        return bracket(res, upper, criteria, accuracy_of(res, Q, As, b))[0] == NOT_TIGHT
+        return bracket(res, upper, criteria, accuracy_of(res, Q, As, b), partial=True)[0] == NOT_TIGHT
 
     return rule
 
@@ -327,8 +328,9 @@ def solve_relaxation(problem: Problem, inst: Instance, prep: Prepared, *, raise_
     """The SDP of ``prep`` in the frame of ``block_scale_at`` at the best local solution, and once more on the
     plain data when that solve is not usable, unless it found a ray (unbounded in either frame) or its multipliers,
     polished at the best local solution, certify that solution (``dual_certificate``): the relaxation's optimum is
-    then known to the certificate's bound and another solve cannot change the verdict.  Retries of a usable solve
-    whose bracket already says not tight are skipped (``gap_settled``).
+    then known to the certificate's bound and another solve cannot change the verdict.  A solve whose bracket
+    already says not tight (``gap_settled``) is not solved again: not retried when usable, and, when it stopped
+    early with its best iterate, neither by the fallback backend nor on the plain data.
     A ray of unboundedness in either solve raises ``UnboundedRelaxation`` (naming the unbounded blocks) when
     ``raise_unbounded``."""
     model, cons, config = prep.model, prep.constraints, prep.config
@@ -339,7 +341,7 @@ def solve_relaxation(problem: Problem, inst: Instance, prep: Prepared, *, raise_
     unscaled, certified = None, None
     if not res.usable and res.y is not None and not is_unbounded(res):
         certified = dual_certificate(problem, inst, model, cons, res, prep.local.best, criteria)
-    if (scale is not None and not res.usable and not is_unbounded(res)
+    if (scale is not None and not res.usable and not is_unbounded(res) and not res.settled
             and not (certified and certified[1] and certified[1].certified)):
         # the scaling did not help this solve: the plain data (a ray proves unboundedness in either frame)
         unscaled = sdp.solve_model(model, cons, config, None, stop=stop, settled=settled)

@@ -22,7 +22,9 @@ nothing is divided by 0.  Then:
   not tight  if U − P > tol + acc (the SDP's value is below U by more than tolerance and accuracy), or
              the SDP is unbounded (DualInfeasible);
   undecided  otherwise (the solver stopped early or is less accurate than the gap being tested; also any
-             unusable solve): never counted as not tight.  Also undecided instead of not tight: a
+             unusable solve, except the best iterate of one whose bracket already says not tight, which the SDP
+             layer then keeps instead of solving again, ``SDPResult.settled``): never counted as not tight.
+             Also undecided instead of not tight: a
              tolerance at least the cost it tests, tol ≥ |U| > ``ROUNDOFF``·s (ill-conditioned weights
              make s, hence tol, exceed the cost, and P < U − tol ≤ 0 is then a solve that cannot
              resolve the cost, not a gap).  Where such a bracket closes, it proves little: under
@@ -210,11 +212,23 @@ def ill_conditioned_reason(upper: float, tol: float, acc: Accuracy) -> str:
             f"‖Q‖·tr X = {acc.scale:.2e})")
 
 
-def bracket(res: SDPResult, upper: float, criteria: Criteria, acc: Accuracy) -> tuple[str, float, float, str]:
-    """(cost outcome, L, tol, reason) of the bracket test (module docstring)."""
+def bracket(res: SDPResult, upper: float, criteria: Criteria, acc: Accuracy,
+            partial: bool = False) -> tuple[str, float, float, str]:
+    """(cost outcome, L, tol, reason) of the bracket test (module docstring).  partial: a result that is not
+    usable but holds its best iterate (``SDPResult.has_iterate``: a solve that stopped early) is tested too, and
+    only "not tight" can come of it: U − P beyond the tolerance plus the accuracy that iterate's own residuals give
+    (|P − D|, the constraints' residuals weighted by y, the dual correction) is the same evidence as from a finished
+    solve, while "tight" needs a solve that reached its tolerance."""
     if res.status.endswith("DualInfeasible"):
         return NOT_TIGHT, -np.inf, np.nan, f"the relaxation is unbounded (solver status {res.status})"
-    if not res.usable or not np.isfinite(res.dual_cost) or not np.isfinite(res.primal_cost):
+    unfinished = not res.usable
+    if (unfinished and not (partial and res.has_iterate)) or not np.isfinite(res.dual_cost) \
+            or not np.isfinite(res.primal_cost):
+        return UNDECIDED, np.nan, np.nan, f"solver status {res.status}: no usable bracket"
+    if unfinished:
+        out, L, tol, why = bracket(replace(res, status=Status.SOLVED), upper, criteria, acc)
+        if out == NOT_TIGHT:
+            return out, L, tol, f"{why} (the best iterate of a solve that ended {res.status})"
         return UNDECIDED, np.nan, np.nan, f"solver status {res.status}: no usable bracket"
     U, P, D = float(upper), res.primal_cost, res.dual_cost
     L = D - acc.dual_correction
@@ -242,15 +256,17 @@ def judge(res: SDPResult, upper: float, criteria: Criteria = Criteria(), certifi
     certificate: an ``autotight.certificate.Certificate`` for the local solution from this solve's y
     (optional; needed for accept="certified"; its λ_min bound is reused for the accuracy).  Q, constraints: the SDP's
     data, for the residual-based accuracy.  scale: the solve's diagonal scaling D (N,), if any; an
-    undecided bracket is then tried once more with the dual correction of the scaled frame.
+    undecided bracket is then tried once more with the dual correction of the scaled frame.  A result that is not
+    usable but that the SDP layer settled (``SDPResult.settled``: its best iterate's bracket says not tight) is
+    bracketed as ``bracket``'s ``partial``.
     """
     acc = accuracy(res, Q, constraints, None if certificate is None else certificate.lambda_lower)
-    cost_outcome, L, tol, why = bracket(res, upper, criteria, acc)
+    cost_outcome, L, tol, why = bracket(res, upper, criteria, acc, res.settled)
     if (cost_outcome == UNDECIDED and scale is not None and constraints is not None and acc.from_residuals
             and acc.dual_correction > 0):
         acc = scaled_frame(acc, res, Q, constraints, scale)
         if acc.frame == "scaled":
-            cost_outcome, L, tol, why = bracket(res, upper, criteria, acc)
+            cost_outcome, L, tol, why = bracket(res, upper, criteria, acc, res.settled)
     lsvr = res.log_svr
     rank_tight = bool(lsvr == np.inf or (np.isfinite(lsvr) and lsvr > criteria.min_log_svr))
     cert = None if certificate is None else bool(certificate.certified)
@@ -295,7 +311,8 @@ def judge(res: SDPResult, upper: float, criteria: Criteria = Criteria(), certifi
     if res.status != Status.SOLVED and res.usable:
         reasons.append(f"status {res.status}")
     return Verdict(outcome == TIGHT, rank_tight, cost_outcome == TIGHT, lsvr,
-                   relative_gap(res.primal_cost, upper, criteria.cost_floor) if res.usable else float("nan"),
+                   relative_gap(res.primal_cost, upper, criteria.cost_floor)
+                   if res.usable or cost_outcome == NOT_TIGHT else float("nan"),
                    "; ".join(reasons) or "tight", undecided=outcome == UNDECIDED, outcome=outcome,
                    cost_outcome=cost_outcome, lower=float(L), primal=float(res.primal_cost), upper=float(upper),
                    accuracy=float(acc.acc), tolerance=float(tol), certified=cert, accept=criteria.accept,

@@ -148,3 +148,65 @@ def test_the_reduction_gets_its_verdict_of_an_unbounded_set_in_one_solver_call()
         calls.append(run.n_solves)
     assert calls == [1, 2]
     assert is_unbounded(tr.last.sdp)
+
+
+def _stalled_ipm(monkeypatch) -> tuple[list, list]:
+    """Our IPM's results marked InsufficientProgress (its iterate kept), and a count of Clarabel's solves: the
+    status after which the SDP layer hands an IPM result to its fallback."""
+    from autotight.sdp import schur_ipm
+    from autotight.sdp.registry import BACKENDS
+
+    real_ipm, ipm_calls, clarabel_calls = schur_ipm.solve_ipm, [], []
+    clarabel = BACKENDS["clarabel"]
+    real_clarabel = clarabel.solve
+
+    def stalled(*a, **k):
+        res = real_ipm(*a, **k)
+        res.status = "InsufficientProgress"
+        ipm_calls.append(res)
+        return res
+
+    monkeypatch.setattr(schur_ipm, "solve_ipm", stalled)
+    monkeypatch.setattr(clarabel, "solve", lambda *a, **k: clarabel_calls.append(1) or real_clarabel(*a, **k))
+    return ipm_calls, clarabel_calls
+
+
+def test_a_stalled_iterate_whose_gap_is_open_is_not_solved_again_by_the_fallback(monkeypatch):
+    """The free-column module's primary relaxation with our IPM, each of its solves stopped InsufficientProgress:
+    the best iterate's bracket says not tight, so neither Clarabel (the fallback) nor the plain data solve it again.
+    The verdict is the one Clarabel's finished solve gives (not tight; its P below U by more than the tolerance and
+    its accuracy), the result says it was settled, and the reason names the status it ended with."""
+    from autotight.sdp.config import SolverConfig
+
+    p = load(MODULE)
+    inst = p.generate(PARAMS, 0)
+    ipm_calls, clarabel_calls = _stalled_ipm(monkeypatch)
+    r = solve_instance(p, inst, "primary", config=SolverConfig(backend="ipm"), criteria=COST)
+    assert clarabel_calls == [] and len(ipm_calls) == r.sdp.n_calls >= 1
+    assert r.outcome == NOT_TIGHT and r.sdp.settled and not r.sdp.usable and len(r.attempts) == 1
+    assert "not solved again by clarabel" in r.sdp.message and "InsufficientProgress" in r.verdict.reason
+    done = solve_instance(p, inst, "primary", config=SolverConfig(backend="clarabel"), criteria=COST)
+    assert done.sdp.usable and done.outcome == NOT_TIGHT
+    assert done.upper - done.sdp.primal_cost > done.verdict.tolerance + done.verdict.accuracy
+
+
+def test_a_stalled_iterate_of_a_tight_relaxation_still_goes_to_the_fallback(monkeypatch):
+    """Rotation averaging at σ = 0.01 is tight: its stalled IPM iterate settles nothing (a bracket of an unfinished
+    solve says "not tight" or nothing, never "tight"), so Clarabel solves it again and decides it tight."""
+    from autotight.sdp.config import SolverConfig
+
+    p = load("rotation_averaging")
+    inst = p.generate({"M": 5, "sigma": 0.01}, 0)
+    ipm_calls, clarabel_calls = _stalled_ipm(monkeypatch)
+    r = solve_instance(p, inst, "primary", config=SolverConfig(backend="ipm"))
+    assert ipm_calls and clarabel_calls and r.tight and not r.sdp.settled
+    model = p.build(inst)
+    cons = pipeline.prepare(p, inst, "primary").constraints
+    ipm_calls.clear()
+    res = sdp.solve_model(model, cons, SolverConfig(backend="ipm"), settled=gap_settled(r.upper, Criteria()))
+    assert res.usable and not res.settled and clarabel_calls
+    stalled = ipm_calls[0]  # unscaled data: the frame it was solved in
+    acc = accuracy(stalled, model.Q, cons)
+    assert bracket(stalled, r.upper, Criteria(), acc, partial=True)[0] == "undecided"
+    stalled.status = "Solved"  # the same iterate, finished: tight
+    assert bracket(stalled, r.upper, Criteria(), acc)[0] == "tight"

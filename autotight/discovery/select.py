@@ -8,7 +8,8 @@ An unbounded SDP (its X is a ray, not a solution, or has blocks far beyond X_hh:
 ``unbounded.unbounded_blocks``) ranks only the pairs that can bound it: those with a constraint whose A has
 diagonal entries on those blocks.  A training instance that is not tight
 while no remaining pair cuts its solution cannot be made tight by the candidates: it is "not reached"
-and left out of the rest.  A solve without a usable X ranks nothing: the instances with a usable X
+and left out of the rest.  A solve without a usable X ranks nothing (the best iterate of a solve whose
+verdict was settled without finishing, ``SDPResult.settled``, counts as usable here): the instances with a usable X
 rank the round, and the blind one is solved again with the larger set; only when every loose instance
 is blind is every remaining pair added at once (the reduction removes those not needed).
 
@@ -94,7 +95,7 @@ def tighten(run: Solves, trainers: list[Trainer], candidates: list[Pair], say: S
         blind = False  # a loose trainer whose solve returned no usable X: nothing ranks the candidates
         for tr in loose:
             res = tr.last.sdp if tr.last is not None else None
-            if res is None or res.X is None or not (res.usable or is_unbounded(res)):
+            if res is None or res.X is None or not (res.usable or res.settled or is_unbounded(res)):
                 if remaining:
                     blind = True
                 else:
@@ -214,7 +215,7 @@ def _restore(run: Solves, tr: Trainer, current: list[Pair], removed: list[Pair])
     chosen, remaining, r = list(current), list(removed), 0
     while remaining:
         last = tr.last.sdp if tr.last is not None else None
-        X = None if last is None or not last.usable else last.X
+        X = None if last is None or not (last.usable or last.settled) else last.X
         if X is not None:
             remaining.sort(key=lambda p: -tr.violation(X, p))
             add, remaining = remaining[: 2 ** r], remaining[2 ** r:]

@@ -15,7 +15,8 @@ model's own clique cover (a hint) and a scaling vector:
   caller's ``settled`` rule calls settled is not retried;
 - fallback: an unusable result of a backend with a ``fallback`` (the IPM) is solved again by that
   backend on its own cover (Clarabel's), with its retries, up to ``FALLBACK_MAX_N`` columns; above, the
-  first backend's result stands, and its message says that no fallback was tried and why;
+  first backend's result stands, and its message says that no fallback was tried and why.  So does a best
+  iterate (``SDPResult.has_iterate``) that the caller's ``settled`` rule calls settled (``SDPResult.settled``);
 - scaling: ``scale`` = D (see ``solve``);
 - counting: every solver call is counted in ``SDPResult.n_calls``, its solve and set-up times are
   summed into ``solve_time_s`` and ``setup_time_s``, and ``message`` lists every attempt.
@@ -118,6 +119,7 @@ def _with_retries(backend: Backend, why: str, Q: sp.csr_array, As: list[sp.csr_a
         if res.status not in statuses:
             continue
         if settled is not None and res.usable and settled(res, Q, As, b):
+            res.settled = True
             res.message = "; ".join(m for m in (res.message.strip(), f"not retried with {what}: its verdict is settled")
                                     if m)
             break
@@ -237,7 +239,11 @@ def _solve(Q: sp.spmatrix | sp.sparray, constraints: Sequence[Constraint], d: in
     res = _with_retries(backend, "", Qs, As_s, b, d, _cover(backend, decompose, covers), config, log, stop,
                         settled)
     skipped = ""
-    if not res.usable and fb is not None and N > FALLBACK_MAX_N:
+    if not res.usable and fb is not None and settled is not None and res.has_iterate and settled(res, Qs, As_s, b):
+        # the best iterate already settles the verdict: another backend's solve of the same SDP cannot change it
+        res.settled = True
+        skipped = f"; not solved again by {fb.name}: the verdict of its best iterate is settled"
+    elif not res.usable and fb is not None and N > FALLBACK_MAX_N:
         skipped = (f"; not solved again by {fb.name}: N = {N} columns > {FALLBACK_MAX_N} (its memory grows faster "
                    "than the data)")
     elif not res.usable and fb is not None:
@@ -274,9 +280,10 @@ def solve(Q: sp.spmatrix | sp.sparray, constraints: Sequence[Constraint], *, d: 
     at its best iterate once that is within reduced accuracy (a backend with ``stops_early``, ``backend.Backend``:
     our IPM asks it once its progress stalls; the others run to their end).  The result is then AlmostSolved and its
     message says so.
-    settled: a test of a usable result (``backend.SettledRule``) that skips the backend's retries of it (e.g. a
-    result whose bracket already proves the relaxation not tight: a retry cannot change that verdict); its
-    message then says so.
+    settled: a test of a result (``backend.SettledRule``) that skips the backend's retries of a usable one, and the
+    fallback backend's solve of an unusable one that holds its best iterate (e.g. a result whose bracket already
+    proves the relaxation not tight: another solve cannot change that verdict); ``SDPResult.settled`` and its
+    message then say so.
     Returns the last attempt's result (see the module docstring for retries and fallback) with
     ``n_calls``, the summed times and every attempt in ``message``.  ValueError on bad input.
     """

@@ -13,9 +13,9 @@ from .result import SDPResult
 #: a caller's test of a solve's multipliers y (m,) (those of the constraints as given, unscaled): True ends an
 #: iterative solve at the iterate they came from (``Backend.solve``'s ``stop``)
 StopRule = Callable[[np.ndarray], bool]
-#: a caller's test of a usable result (as the backend returned it: in the frame solved, with that frame's Q, Aᵢ
-#: (COO) and b): True when the verdict the caller draws from it cannot change, so a retry is not needed
-#: (``autotight.sdp.solve``'s ``settled``)
+#: a caller's test of a result (as the backend returned it: in the frame solved, with that frame's Q, Aᵢ (COO) and
+#: b): True when the verdict the caller draws from it cannot change, so a retry (of a usable result) or the
+#: fallback's solve (of a best iterate) is not needed (``autotight.sdp.solve``'s ``settled``)
 SettledRule = Callable[[SDPResult, sp.csr_array, Sequence[sp.coo_array], np.ndarray], bool]
 
 

@@ -51,6 +51,9 @@ class SDPResult:
     (first attempt, retries, fallback); message: every attempt, in order.
     dual_cost_raw: nan, or the solver's own dual cost when ``autotight.dual_polish`` replaced y (and
     dual_cost) by a polished y with a better lower bound.
+    settled: the caller's ``settled`` rule (``autotight.sdp.solve``) held for this result, so it was not solved
+    again; for a result that is not ``usable`` (a best iterate, ``has_iterate``) it then ends the solve in place
+    of the fallback backend's.
     """
 
     status: str
@@ -73,6 +76,7 @@ class SDPResult:
     cliques: list[np.ndarray] | None = None
     completion: np.ndarray | None = None
     dual_cost_raw: float = float("nan")  # the solver's own bᵀy when y was replaced by its polish (dual_polish)
+    settled: bool = False
 
     @property
     def solved(self) -> bool:
@@ -82,6 +86,14 @@ class SDPResult:
     def usable(self) -> bool:
         """A solution was returned (Solved or AlmostSolved) and X is finite."""
         return self.X is not None and self.status in (Status.SOLVED, Status.ALMOST_SOLVED) and finite(self.X)
+
+    @property
+    def has_iterate(self) -> bool:
+        """X and y of the solve's last (or best) iterate, finite, with finite costs: usable, or a solve that stopped
+        early (InsufficientProgress, MaxIterations, …) but returned where it got to; never an infeasible one."""
+        return (self.X is not None and self.y is not None and finite(self.X) and bool(np.all(np.isfinite(self.y)))
+                and bool(np.isfinite(self.primal_cost)) and bool(np.isfinite(self.dual_cost))
+                and "Infeasible" not in self.status)
 
     @property
     def cost(self) -> float:
