@@ -312,7 +312,7 @@ def judge(res: SDPResult, upper: float, criteria: Criteria = Criteria(), certifi
         reasons.append(f"status {res.status}")
     return Verdict(outcome == TIGHT, rank_tight, cost_outcome == TIGHT, lsvr,
                    relative_gap(res.primal_cost, upper, criteria.cost_floor)
-                   if res.usable or cost_outcome == NOT_TIGHT else float("nan"),
+                   if res.usable or res.settled else float("nan"),
                    "; ".join(reasons) or "tight", undecided=outcome == UNDECIDED, outcome=outcome,
                    cost_outcome=cost_outcome, lower=float(L), primal=float(res.primal_cost), upper=float(upper),
                    accuracy=float(acc.acc), tolerance=float(tol), certified=cert, accept=criteria.accept,
