@@ -276,12 +276,24 @@ def _lambda_min_blocks(A: sp.csr_array) -> float:
     from scipy.sparse.csgraph import connected_components
 
     k, lab = connected_components(A != 0, directed=False)
+    sizes = np.bincount(lab, minlength=k)
+    if sizes.max(initial=0) > 400:
+        return -np.inf  # not worth it: no bound from this item
+    # each column's position within its component, in column order; the components of one size are
+    # gathered as a stack of dense blocks and decomposed at once
+    order = np.argsort(lab, kind="stable")
+    pos = np.empty(lab.size, dtype=np.int64)
+    pos[order] = np.arange(lab.size) - np.repeat(np.cumsum(sizes) - sizes, sizes)
+    C = sp.coo_array(A)
     out = np.inf
-    for c in range(k):
-        idx = np.flatnonzero(lab == c)
-        if idx.size > 400:
-            return -np.inf  # not worth it: no bound from this item
-        out = min(out, float(np.linalg.eigvalsh(A[idx][:, idx].toarray())[0]))
+    for s in np.unique(sizes):
+        comps = np.flatnonzero(sizes == s)
+        slot = np.full(k, -1, dtype=np.int64)
+        slot[comps] = np.arange(comps.size)
+        on = slot[lab[C.row]] >= 0  # an entry's two columns share a component
+        B = np.zeros((comps.size, s, s))
+        np.add.at(B, (slot[lab[C.row[on]]], pos[C.row[on]], pos[C.col[on]]), C.data[on])
+        out = min(out, float(np.linalg.eigvalsh(B)[:, 0].min()))
     return out
 
 

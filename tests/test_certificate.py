@@ -133,3 +133,22 @@ def test_lambda_min_of_a_chain_with_no_spectral_gap(shift):
     lam, low, method = lambda_min(H)
     assert "Lanczos" in method
     assert abs(lam - w[0]) <= 1e-9 * abs(H).max() and low <= w[0]
+
+
+def test_lambda_min_by_components_is_the_dense_lambda_min():
+    """``_lambda_min_blocks`` (the trace bound's λ_min of a large item, its components stacked by size) equals the
+    dense λ_min of the whole matrix to 1e-12 of its largest entry: block-diagonal matrices with components of
+    sizes 1 to 12 (isolated and empty columns included), permuted; and −inf once a component exceeds 400."""
+    from autotight.certificate import _lambda_min_blocks
+
+    rng = np.random.default_rng(7)
+    for _ in range(30):
+        sizes = rng.integers(1, 13, rng.integers(1, 40))
+        blocks = [rng.standard_normal((s, s)) for s in sizes]
+        M = sp.block_diag([b + b.T if rng.random() < 0.8 else np.zeros((s, s)) for b, s in zip(blocks, sizes)])
+        perm = rng.permutation(M.shape[0])
+        A = sp.csr_array(sp.csr_array(M)[perm][:, perm])
+        want = np.linalg.eigvalsh(A.toarray())[0]
+        assert abs(_lambda_min_blocks(A) - want) <= 1e-12 * max(1.0, abs(A).max())
+    chain = sp.diags_array([np.ones(400), 2 * np.ones(401), np.ones(400)], offsets=[-1, 0, 1], format="csr")
+    assert _lambda_min_blocks(chain) == -np.inf

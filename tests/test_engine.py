@@ -10,6 +10,7 @@ import textwrap
 from pathlib import Path
 
 import numpy as np
+import scipy.sparse as sp
 import pytest
 
 import autotight as at
@@ -166,8 +167,8 @@ class _Scored(_Needs):
 
 
 class _ScoredTrainer(Trainer):
-    def violation(self, X, pair):
-        return 1.0 if any(pair in n for n in _Scored.current.needs[X]) else 0.1
+    def violations(self, X, pairs):
+        return {p: 1.0 if any(p in n for n in _Scored.current.needs[X]) else 0.1 for p in pairs}
 
 
 def test_instances_taken_in_together_are_tightened_one_at_a_time(monkeypatch):
@@ -647,3 +648,27 @@ def test_held_out_workers_by_default_only_where_the_sdp_is_large(monkeypatch):
     assert heldout.auto_jobs(dt, [big]) == 1
     monkeypatch.setattr(parallel, "usable_cpus", lambda: 1)
     assert heldout.auto_jobs(dt, [big]) == 1
+
+
+def test_violations_are_the_relative_residuals_of_each_pairs_constraints_dense_and_sparse():
+    """``Trainer.violations``: per pair max |⟨A,X⟩ − b| / (‖A‖_F ‖X‖_F) computed densely, to 1e-12, for a random
+    symmetric X and for the sparse X that holds only the constraints' entries (whose norm is of those entries)."""
+    prob = load_problem("pose_averaging")
+    tr = make_trainer(prob, prob.parse_params({"M": 5}), 0, 0, default_groups(prob, None), LearnOptions(), 1)
+    pairs = list(tr.pairs)
+    assert len(pairs) >= 3
+    rng = np.random.default_rng(4)
+    N = tr.model.variables.N
+    G = rng.standard_normal((N, N))
+    dense = G + G.T
+    mask = sum(sp.csr_array((np.ones(c.A.nnz), (c.A.row, c.A.col)), shape=(N, N)) for p in pairs for c in tr.pairs[p])
+    sparse = sp.csr_array(sp.csr_array(dense).multiply(mask != 0))
+    for X in (dense, sparse):
+        nx = np.linalg.norm(X.toarray() if sp.issparse(X) else X)
+        Xd = X.toarray() if sp.issparse(X) else X
+        want = {p: max(abs(np.sum(c.A.toarray() * Xd) - c.b) / (np.linalg.norm(c.A.toarray()) * nx)
+                       for c in tr.pairs[p]) for p in pairs}
+        got = tr.violations(X, pairs)
+        assert set(got) == set(pairs)
+        assert all(abs(got[p] - want[p]) <= 1e-12 * max(want[p], 1e-3) for p in pairs), (got, want)
+        assert max(want.values()) > 1e-3

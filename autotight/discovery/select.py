@@ -60,7 +60,7 @@ def _scores(tr: Trainer, remaining: list[Pair], min_violation: float, accept: st
     unb = unbounded_blocks(tr.model, res)  # a ray's support, or blocks of X far beyond X_hh
     pool = bounding_pairs(tr, remaining, unb) if unb else remaining
     X = res.X
-    v = {} if X is None else {p: tr.violation(X, p) for p in pool}
+    v = {} if X is None else tr.violations(X, pool)
     v = {p: x for p, x in v.items() if x > min_violation}
     if v:
         return v
@@ -217,7 +217,8 @@ def _restore(run: Solves, tr: Trainer, current: list[Pair], removed: list[Pair])
         last = tr.last.sdp if tr.last is not None else None
         X = None if last is None or not (last.usable or last.settled) else last.X
         if X is not None:
-            remaining.sort(key=lambda p: -tr.violation(X, p))
+            v = tr.violations(X, remaining)
+            remaining.sort(key=lambda p: -v[p])
             add, remaining = remaining[: 2 ** r], remaining[2 ** r:]
             r += 1
         else:

@@ -29,6 +29,7 @@ from dataclasses import asdict, dataclass, field, replace
 from typing import Any
 
 import numpy as np
+import scipy.sparse as sp
 
 from ..errors import AutotightError
 from ..model import Constraint, Model, frobenius
@@ -83,6 +84,7 @@ class Trainer:
     last: SolveResult | None = None
     tight_result: SolveResult | None = None  # the last tight solve, with its pairs in order
     tight_pairs: list[Pair] = field(default_factory=list)
+    _norms: dict[int, float] = field(default_factory=dict, repr=False)  # ‖A‖_F by id of a constraint in ``pairs``
 
     def known(self, chosen: frozenset, exact: bool = False) -> bool | None:
         """Tightness with ``chosen`` if a known result decides it (monotonicity), else None.
@@ -97,10 +99,34 @@ class Trainer:
             return False
         return None
 
-    def violation(self, X: np.ndarray, pair: Pair) -> float:
-        """max over the pair's constraints on this instance of |⟨A,X⟩| / (‖A‖_F ‖X‖_F)."""
+    def violations(self, X: np.ndarray | sp.csr_array, pairs: Sequence[Pair]) -> dict[Pair, float]:
+        """Per pair, max over its constraints on this instance of |⟨A,X⟩ − b| / (‖A‖_F ‖X‖_F); X dense, or sparse
+        holding at least the constraints' entries.  X's entries are gathered once for every pair (a sparse X's
+        indexing costs far more than the products); each ⟨A,X⟩ is the dot product of ``Constraint.value``."""
+        if not pairs:
+            return {}
         nx = frobenius(X)
-        return max(abs(c.value(X)) / (np.sqrt((c.A.multiply(c.A)).sum()) * nx) for c in self.pairs[pair])
+        cons = [c for p in pairs for c in self.pairs[p]]
+        rows = np.concatenate([c.A.row for c in cons])
+        cols = np.concatenate([c.A.col for c in cons])
+        vals = np.asarray(X[rows, cols]).ravel() if sp.issparse(X) else np.asarray(X)[rows, cols]
+        out: dict[Pair, float] = {}
+        at = 0
+        for p in pairs:
+            worst = []
+            for c in self.pairs[p]:
+                got = float(np.dot(c.A.data, vals[at:at + c.A.nnz]) - c.b)
+                at += c.A.nnz
+                worst.append(abs(got) / (self._norm(c) * nx))
+            out[p] = max(worst)
+        return out
+
+    def _norm(self, c: Constraint) -> float:
+        """‖A‖_F of one of this trainer's constraints, computed once."""
+        key = id(c)
+        if key not in self._norms:
+            self._norms[key] = float(np.sqrt((c.A.multiply(c.A)).sum()))
+        return self._norms[key]
 
     def importance(self) -> dict[Pair, float]:
         """Σ|yᵢ|‖Aᵢ‖_F per pair of the last tight solve, normalised to sum 1 over its pairs."""
