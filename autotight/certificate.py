@@ -217,30 +217,37 @@ def trace_bound(Q: sp.sparray, As: Sequence[sp.sparray], b: np.ndarray, f_bar: f
     for i in range(len(As)):
         sel = order[cuts[i]:cuts[i + 1]]
         dense.append(_item_block(None, r[sel], c[sel], v[sel]))
+    # per item, the free columns of its support when it was last found without a definite part: its part on
+    # them is the same until one of them is bounded, so it is not decomposed again before that
+    tried: list[np.ndarray | None] = [None] * len(items)
     for _ in range(max_passes):
         progress = False
-        for (A, rhs, is_cost), (sup, D) in zip(items, dense):
+        for k, ((A, rhs, is_cost), (sup, D)) in enumerate(zip(items, dense)):
             if sup.size == 0:
                 continue
             free = bound_of[sup] < 0
-            if not free.any():
+            seen = tried[k]
+            if not free.any() or (seen is not None and np.array_equal(seen, free)):
                 continue
             U, B = sup[free], sup[~free]
             if D is not None:
-                Auu, Aub, Abb = D[np.ix_(free, free)], D[np.ix_(free, ~free)], D[np.ix_(~free, ~free)]
-                w = np.linalg.eigvalsh(Auu)
+                w = np.linalg.eigvalsh(D[np.ix_(free, free)])
                 a = w[0] if is_cost else max(w[0], -w[-1])
-                n_ub, n_bb = float(np.linalg.norm(Aub)), float(np.linalg.norm(Abb))
             else:  # a large item (the cost): its definite part from its connected components
                 A = sp.csr_array(A)
                 Auu = sp.csr_array(A[U][:, U])
                 a = _lambda_min_blocks(Auu)
                 if not is_cost:
                     a = max(a, _lambda_min_blocks(-Auu))
+            if not a > 0:
+                tried[k] = free
+                continue
+            if D is not None:
+                n_ub = float(np.linalg.norm(D[np.ix_(free, ~free)]))
+                n_bb = float(np.linalg.norm(D[np.ix_(~free, ~free)]))
+            else:
                 n_ub, n_bb = float(sp.linalg.norm(A[U][:, B])) if B.size else 0.0, \
                     float(sp.linalg.norm(A[B][:, B])) if B.size else 0.0
-            if not a > 0:
-                continue
             TB = float(sum(groups[g] for g in np.unique(bound_of[B]))) if B.size else 0.0
             beta = abs(rhs) + n_bb * TB
             alpha = n_ub * np.sqrt(TB)

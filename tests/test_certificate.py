@@ -152,3 +152,14 @@ def test_lambda_min_by_components_is_the_dense_lambda_min():
         assert abs(_lambda_min_blocks(A) - want) <= 1e-12 * max(1.0, abs(A).max())
     chain = sp.diags_array([np.ones(400), 2 * np.ones(401), np.ones(400)], offsets=[-1, 0, 1], format="csr")
     assert _lambda_min_blocks(chain) == -np.inf
+
+
+def test_trace_bound_returns_to_an_item_once_one_of_its_columns_is_bounded():
+    """⟨diag(−1, 1), X⟩ = 2 comes first and is indefinite on both its columns; ⟨e₀e₀ᵀ, X⟩ = 1 bounds X₀₀; on
+    the next pass the first item, definite on its one free column, bounds X₁₁.  Every feasible X has
+    tr X = 1 + 3 = 4, and so is the bound here (to roundoff); an item skipped for good would leave X₁₁ unbounded."""
+    Q = sp.coo_array((2, 2))
+    As = [sp.coo_array(np.diag([-1.0, 1.0])), sp.coo_array(np.diag([1.0, 0.0]))]
+    T = trace_bound(Q, As, np.array([2.0, 1.0]), 1.0)
+    assert T is not None and abs(T - 4.0) <= 1e-12
+    assert trace_bound(Q, As[:1], np.array([2.0]), 1.0) is None  # X₀₀ = X₁₁ − 2 alone bounds neither
