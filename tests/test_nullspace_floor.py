@@ -61,3 +61,27 @@ def test_a_true_gap_above_the_floor_still_decides():
     Yn = Y / np.linalg.norm(Y, axis=0)
     spec = spectrum(Yn, 6.0)
     assert spec.rank == 3 and spec.gap_decades > 10
+
+
+def test_refit_on_support_zeroes_roundoff_terms_and_keeps_a_column_whose_support_misses_a_term():
+    """x² + y² − 1 = 0 on the unit circle, monomials [1, x, y, x², xy, y²] normalised by column: a basic solution
+    with a 1e-9 stray on xy is refitted to the exact relation (xy exactly 0, the rest to 1e-12); with a support
+    threshold that drops a true term the refit fits worse, and the column is kept as it was."""
+    from autotight.discovery.nullspace import refit_on_support
+
+    rng = np.random.default_rng(0)
+    a = rng.uniform(0, 2 * np.pi, 40)
+    x, y = np.cos(a), np.sin(a)
+    Y = np.column_stack([np.ones_like(x), x, y, x * x, x * y, y * y])
+    D = np.linalg.norm(Y, axis=0)
+    Yn = Y / D
+    exact = np.array([-1.0, 0, 0, 1.0, 0, 1.0]) * D / D[5]  # normalised frame, y² (free) coefficient 1
+    v = exact.copy()
+    v[4] = 1e-9
+    free = np.array([5])
+    sigma = float(np.linalg.svd(Yn, compute_uv=False)[0])
+    got = refit_on_support(Yn, v[:, None], free, sigma)[:, 0]
+    assert got[4] == 0.0 and got[1] == 0.0 and got[2] == 0.0 and got[5] == 1.0
+    assert np.max(np.abs(got - exact)) <= 1e-12 * np.max(np.abs(exact))
+    kept = refit_on_support(Yn, v[:, None], free, sigma, rtol=0.7)[:, 0]  # keeps the constant alone: drops x²
+    assert np.array_equal(kept, v)

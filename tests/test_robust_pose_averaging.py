@@ -258,17 +258,17 @@ def test_carry_over_to_a_near_degenerate_instance_uses_the_whole_nullspace_of_it
 
 
 def test_carry_over_replaces_an_identity_that_fails_its_heldout_check_by_the_groups_nullspace():
-    """σ = 0.001, the instance of the robust report's σ = 0.001 trial 19: a carried identity computed on
-    pair (1, 4) fails the held-out check (1.9e-8 > 1e-8); the group's orthonormal nullspace stands in."""
+    """σ = 0.001, the instance of the robust report's σ = 0.001 trial 29: a carried identity computed on
+    pair (1, 4) fails the held-out check; the group's orthonormal nullspace stands in."""
     from autotight.discovery.catalog import carry_over
     from autotight.pipeline import seeds
 
-    seed = 2283809948
+    seed = 2030781380
     inst = _instance(seed, sigma=0.001)
     model = PROB.build(inst)
     pairs = [("robust_pair", "1.urho[2]·2.urho[2]"), ("robust_pair", "1.uphi[2]·2.urho[1]")]
     co = carry_over(PROB, inst, pairs, seeds(seed).constraints(), model=model)
-    assert not co.issues and any("failed the held-out check" in w for w in co.whole)
+    assert not co.issues and any("pair_1_4" in w and "failed the held-out check" in w for w in co.whole)
     assert co.counts["robust_pair"] == (30, 30) and co.n_whole > 0
 
 

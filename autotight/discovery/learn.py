@@ -12,7 +12,8 @@ import scipy.sparse as sp
 from ..errors import LearningError, ProblemDefinitionError
 from ..model import HOMOGENISING, Constraint, Factor, Model, canonical_coo
 from ..svec import sym_to_poly, triu_indices
-from .nullspace import CLEAN, Spectrum, basic_solutions, free_monomials, nullspace, spectrum, svd
+from .nullspace import (CLEAN, Spectrum, basic_solutions, free_monomials, nullspace, refit_on_support, spectrum,
+                        svd)
 from .samples import SampleBank
 
 
@@ -289,7 +290,7 @@ def learn_group(model: Model, group: Group, bank: SampleBank, heldout: SampleBan
             whole[order] = _orthonormal_relations(Nn, D)  # checked below only where it is needed
         try:
             free = free_monomials(Nn, opts.free_tol)
-            Vn = basic_solutions(Nn, free)
+            Vn = refit_on_support(Yn, basic_solutions(Nn, free), free, float(sv[0]))
             P = Vn / D[:, None]  # back to polynomial coefficients (scan order); P[free] = diag(1/D[free])
             P = P * D[free][None, :]
             coeffs = np.zeros((m, k))
