@@ -174,11 +174,11 @@ def refit_on_support(Yn: np.ndarray, V: np.ndarray, free: np.ndarray, sigma_max:
     the least-squares v_S with Yn v ≈ 0, v[free[q]] = 1 and every entry off S exactly 0.
 
     The nullspace's roundoff (about ε·cond of the data, 1e-12 to 1e-9 of a relation's largest coefficient) sits on
-    every monomial.  Near the samples it is harmless; at a feasible point far from them (a local solution at
-    |t| ≈ 5e4) a monomial can grow by 1e9 more than the relation's own terms, and the roundoff then decides its
-    residual.  On S alone the data are far better conditioned and the other entries are exact zeros.  A refit is
-    kept only where its residual ‖Yn v‖ is at most twice the original's plus the roundoff floor
-    (``RANK_FLOOR``·σ_max·‖v‖): a support that misses a true term fits worse and leaves the column as it was.
+    every monomial.  Near the samples it is harmless; at a feasible point far from them a monomial can grow by
+    many orders more than the relation's own terms, and the roundoff then decides its residual.  On S alone the
+    data are far better conditioned and the other entries are exact zeros.  A refit is kept only where its
+    residual ‖Yn v‖ is at most twice the original's plus the roundoff floor (``RANK_FLOOR``·σ_max·‖v‖): a support
+    that misses a true term fits worse and leaves the column as it was.
     Yn: the column-normalised data (samples × m) whose nullspace gave V; sigma_max: its largest singular value."""
     out = V.copy()
     for q, f in enumerate(free):

@@ -84,7 +84,7 @@ class Trainer:
     last: SolveResult | None = None
     tight_result: SolveResult | None = None  # the last tight solve, with its pairs in order
     tight_pairs: list[Pair] = field(default_factory=list)
-    _norms: dict[int, float] = field(default_factory=dict, repr=False)  # ‖A‖_F by id of a constraint in ``pairs``
+    _norms: dict[int, tuple[Constraint, float]] = field(default_factory=dict, repr=False)  # ``_norm``'s cache
 
     def known(self, chosen: frozenset, exact: bool = False) -> bool | None:
         """Tightness with ``chosen`` if a known result decides it (monotonicity), else None.
@@ -122,11 +122,11 @@ class Trainer:
         return out
 
     def _norm(self, c: Constraint) -> float:
-        """‖A‖_F of one of this trainer's constraints, computed once."""
-        key = id(c)
-        if key not in self._norms:
-            self._norms[key] = float(np.sqrt((c.A.multiply(c.A)).sum()))
-        return self._norms[key]
+        """‖A‖_F of a constraint, computed once (the cache holds the constraint: its id is not reused)."""
+        hit = self._norms.get(id(c))
+        if hit is None or hit[0] is not c:
+            hit = self._norms[id(c)] = (c, float(np.sqrt((c.A.multiply(c.A)).sum())))
+        return hit[1]
 
     def importance(self) -> dict[Pair, float]:
         """Σ|yᵢ|‖Aᵢ‖_F per pair of the last tight solve, normalised to sum 1 over its pairs."""
