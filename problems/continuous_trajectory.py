@@ -116,9 +116,8 @@ META = Meta(
     },
     #: a hint (``autotight.discovery.engine``): a learned set should carry to longer trajectories, so ``discover``
     #: also validates it on held-out trajectories of 41 states (every failing one becomes a training instance),
-    #: with our IPM unless --solver is given.  Selected at K = 21 alone the set is two pairs, which fail about one
-    #: K = 21 instance in 20 (30 held-out instances all pass with probability 0.2) and 3 of 11 decided ones at
-    #: K = 41, where the pair those failures need (motion c2'[2]·rho[2]) is learned in the first round.
+    #: with our IPM unless --solver is given.  A set selected at K = 21 alone can miss a pair that rare K = 21
+    #: instances and more K = 41 ones need (docs/continuous_trajectory_notes.md, "Discovery's carry hint").
     carry_to={"params": {"K": 41}, "solver": "ipm"},
 )
 

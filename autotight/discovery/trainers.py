@@ -137,7 +137,7 @@ class Trainer:
         k = len(self.model.primary())
         for p in self.tight_pairs:
             for c in self.pairs[p]:
-                out[p] += abs(float(res.y[k])) * float(np.sqrt((c.A.multiply(c.A)).sum()))
+                out[p] += abs(float(res.y[k])) * self._norm(c)
                 k += 1
         total = sum(out.values())
         return {p: v / total for p, v in out.items()} if total > 0 else out
