@@ -26,10 +26,15 @@ Written on the factor-graph layer (``autotight.graph``):
   u_j = [q_{<d}, 1]/q_d (block ``u{j}``) and, at "urT", w_j = vec_row(u_j tᵀ) (block ``w{j}``) (``lifted``):
   residual (y_j − M ū_j)/f, its lifted cost, the substitution rows subst(j:k) and the product rows urT(j:a,b)
   its primary constraints, data p_j; blocks (h, t, c, u_j[, w_j]);
-- groups: at "urT", per cyclically consecutive pair "pair_i_j" of type "stereo_pair" (h, u_i, w_i, u_j, w_j),
-  data (p_i, p_j), no cost or constraint: a learning group for the relations between two landmarks without the
-  pose (the peer's cost-tight set at "urT" needs its [h, z_0, z_1] group).  At level "no" two landmarks' u have
-  no quadratic relation, and their monomial data no clean spectral gap: no pair groups there;
+- groups: at "urT", per landmark pair "pair_i_j" of type "stereo_pair" (h, u_i, w_i, u_j, w_j), data (p_i, p_j),
+  no cost or constraint: a learning group for the relations between two landmarks without the pose (the peer's
+  cost-tight set at "urT" needs its [h, z_0, z_1] group).  In 2-D every pair i < j (``all_pairs``), as the peer's
+  templates take them: with only the cyclically consecutive ones a set learned at N = 3 was not tight at N = 20.
+  In 3-D the cyclically consecutive pairs (``cyclic_pairs``, N of them): every pair would give its SDP at N = 20
+  about 1700 constraints on 253 columns, one Clarabel solve of more than 10 minutes, and the 3-D set is not
+  cost-tight at N = 3 to begin with (reports/peer_benchmark/report.md).  At N = 3 both are the same three pairs.
+  At level "no" two landmarks' u have no quadratic relation, and their monomial data no clean spectral gap: no
+  pair groups there;
 - sampler: C = exp(spread·ν^∧) C̄ then t = t̄ + spread·n (the rotation's step drawn first), drawn again until
   every landmark is at depth ≥ ``MIN_DEPTH`` (u = q/q_d is singular at q_d = 0; ``in_front``), up to
   ``SAMPLE_TRIES`` times.
@@ -202,7 +207,7 @@ def factors(inst: Instance) -> Iterator[Factor | Group]:
         yield Factor(("t", "C"), residual, type="stereo" if level == "no" else "stereo_urT",
                      cost=landmark_cost(L, Y[j]), constraints=landmark_constraints(L, j, P[j], level),
                      constraint_names="{constraint}", data=P[j], auxiliary=aux, name=f"landmark_{j}")
-    for i, j in pairs(N) if level == "urT" else []:
+    for i, j in (all_pairs(N) if d == 2 else cyclic_pairs(N)) if level == "urT" else []:
         yield Group((u_block(i), w_block(i), u_block(j), w_block(j)), "stereo_pair", roles=("u_i", "w_i", "u_j", "w_j"),
                     data=np.concatenate([P[i], P[j]]), name=f"pair_{i}_{j}")
 
@@ -220,11 +225,16 @@ build, lift, cost, sample, _, recover = derive(variables, factors, tangent=("C",
                                                tries=SAMPLE_TRIES)
 
 
-def pairs(N: int) -> list[tuple[int, int]]:
+def cyclic_pairs(N: int) -> list[tuple[int, int]]:
     """Cyclically consecutive landmark pairs (j, j + 1 mod N): N pairs for N ≥ 3, one for N = 2."""
     if N < 2:
         return []
     return sorted({tuple(sorted((j, (j + 1) % N))) for j in range(N)})
+
+
+def all_pairs(N: int) -> list[tuple[int, int]]:
+    """Every landmark pair (i, j), i < j: N(N − 1)/2 pairs.  At N = 3 the same three as ``cyclic_pairs``."""
+    return [(i, j) for i in range(N) for j in range(i + 1, N)]
 
 
 def transport(data: np.ndarray) -> np.ndarray:

@@ -12,7 +12,7 @@ Written on the factor-graph layer (``autotight.graph``):
 - variable: x ∈ R, with no model factor of its own (neither a constraint nor a cost is on x alone);
 - factors: per landmark "landmark_j" of type "stereo1d" on x, owning z_j = 1/(x − a_j) (block ``z{j}``):
   residual y_j − z_j, the substitution "subst(j)" its primary constraint, data a_j;
-- groups: per cyclically consecutive pair (i, j) (``_stereo.pairs``: N pairs, not N(N − 1)/2) "pair_i_j" of type
+- groups: per cyclically consecutive pair (i, j) (``_stereo.cyclic_pairs``: N pairs, not N(N − 1)/2) "pair_i_j" of type
   "stereo1d_pair" on (z_i, z_j), data (a_i, a_j), no cost or constraint: a learning group, so that discovery
   learns the pair relations;
 - sampler: x̄ + spread·ν, drawn again until x keeps a distance ≥ ``gap`` from every landmark (``apart``).
@@ -43,7 +43,7 @@ from autotight.gauss_newton import gauss_newton
 from autotight.graph import Auxiliary, Euclidean, Factor, Group, Variable, derive
 from autotight.problem import Instance, LocalResult, Param
 
-from ._stereo import pairs
+from ._stereo import cyclic_pairs
 
 NAME = "stereo_1d"
 DESCRIPTION = "1-D stereo localisation from inverse distances z_j = 1/(x − a_j) (AutoTight's stereo1d)."
@@ -108,7 +108,7 @@ def factors(inst: Instance) -> Iterator[Factor | Group]:
         yield Factor("x", lambda x, z, y=y[j]: y - z.z, type="stereo1d", cost=landmark_cost(y[j]),
                      constraints=[(f"subst({j})", substitution(a[j]))], constraint_names="{constraint}",
                      data=np.array([a[j]]), auxiliary=z, name=f"landmark_{j}")
-    for i, j in pairs(len(a)):
+    for i, j in cyclic_pairs(len(a)):
         yield Group((z_block(i), z_block(j)), "stereo1d_pair", roles=("z_i", "z_j"), data=np.array([a[i], a[j]]),
                     name=f"pair_{i}_{j}")
 

@@ -85,3 +85,31 @@ def test_refit_on_support_zeroes_roundoff_terms_and_keeps_a_column_whose_support
     assert np.max(np.abs(got - exact)) <= 1e-12 * np.max(np.abs(exact))
     kept = refit_on_support(Yn, v[:, None], free, sigma, rtol=0.7)[:, 0]  # keeps the constant alone: drops x²
     assert np.array_equal(kept, v)
+
+
+def _with_spectrum(rng: np.random.Generator, s: np.ndarray, rows: int = 40) -> np.ndarray:
+    """A rows × s.size matrix with singular values s (random orthogonal factors)."""
+    U = np.linalg.qr(rng.standard_normal((rows, s.size)))[0]
+    V = np.linalg.qr(rng.standard_normal((s.size, s.size)))[0]
+    return (U * s) @ V.T
+
+
+def test_a_half_gap_decides_only_above_an_exact_nullspace():
+    """Ill-conditioned data whose true values reach 1e-10.4 above a nullspace at roundoff (1e-16.2): a 5.8-decade
+    gap, whose lower end lies below the floor, decides the rank; the same gap above values at 1e-11.2
+    (near-relations above the floor, not roundoff) does not, and neither does a gap under half the required width."""
+    import pytest
+
+    from autotight.errors import LearningError
+
+    rng = np.random.default_rng(3)
+    true = np.logspace(0, -10.4, 12)
+    exact = _with_spectrum(rng, np.concatenate([true, np.full(4, 10 ** -16.2)]))
+    spec = spectrum(exact, 6.0)
+    assert spec.rank == 12 and 5.6 < spec.gap_decades < 6.0
+    near = _with_spectrum(rng, np.concatenate([np.logspace(0, -5.4, 12), np.full(4, 10 ** -11.2)]))
+    with pytest.raises(LearningError, match=r"need ≥ 6\)"):
+        spectrum(near, 6.0)  # the same 5.8 decades, its lower end 1e-11.2 above the floor: not exact
+    narrow = _with_spectrum(rng, np.concatenate([np.logspace(0, -11.5, 12), np.full(4, 10 ** -14.2)]))
+    with pytest.raises(LearningError, match=r"need ≥ 3\)"):
+        spectrum(narrow, 6.0)  # 2.7 decades above an exact nullspace: less than half

@@ -67,7 +67,11 @@ def spectrum(Yn: np.ndarray, min_gap_decades: float, where: str = "", floor: flo
     Full rank (no relation) when the whole spectrum spans fewer than min_gap_decades/2
     decades.  Otherwise the largest gap whose upper end is ≥ floor (relative to σ_1) must span at
     least ``min_gap_decades``, else LearningError: near-relations that are neither exact nor absent
-    cannot be read off.  A larger gap below the floor is reported in ``ignored_gap_decades``.
+    cannot be read off.  A gap whose lower end is itself below the floor needs only min_gap_decades/2:
+    every value below it is consistent with an exact relation (see ``RANK_FLOOR``) and every value above
+    is at least that far from one, so the cut cannot take a near-relation for an exact one.  (Ill-conditioned
+    data, e.g. two landmarks at nearly the same bearing, keep true values down to 1e-11 above an exact
+    nullspace at 1e-16.)  A larger gap below the floor is reported in ``ignored_gap_decades``.
     ``values``: Yn's singular values when already known (``svd``).
     """
     s = sla.svdvals(Yn) if values is None else np.asarray(values)
@@ -88,12 +92,13 @@ def spectrum(Yn: np.ndarray, min_gap_decades: float, where: str = "", floor: flo
         j = int(below[np.argmax(gaps[below])])
         if gaps[j] > gap:
             ignored, ignored_rank = float(gaps[j]), j + 1
-    if gap < min_gap_decades:
+    need = min_gap_decades / 2 if allowed.any() and rel[k + 1] <= floor else min_gap_decades
+    if gap < need:
         extra = (f"; a {ignored:.1f}-decade gap at rank {ignored_rank} lies below the roundoff floor "
                  f"{floor:.0e} and was ignored") if ignored is not None else ""
         raise LearningError(
             f"no clear spectral gap{where}: the largest gap is {gap:.1f} decades at rank {k + 1} of {m} "
-            f"(need ≥ {min_gap_decades:g}){extra}; learn on smaller variable groups (e.g. the problem's factors)")
+            f"(need ≥ {need:g}){extra}; learn on smaller variable groups (e.g. the problem's factors)")
     return Spectrum(rel, k + 1, gap, ignored, ignored_rank)
 
 
