@@ -69,11 +69,11 @@ def _touches_cost_only(elements: Sequence[Element]) -> bool:
 
 
 def _roles(elements: Sequence[Element], over: Sequence[Element] = ()) -> tuple[str, ...]:
-    """h, the main blocks' names of ``over`` (the variables of the elements' products), then each element's
-    main, lifting and product blocks' names (suffixed ``_k`` for a variable appearing twice)."""
+    """h, the main and lifting blocks' names of ``over`` (the variables of the elements' products), then each
+    element's main, lifting and product blocks' names (suffixed ``_k`` for a variable appearing twice)."""
     elements = _modelled(elements)
     stems = [el.var.main_blocks() for el in elements]
-    out: list[str] = ["h"] + [b for el in over for b in el.var.main_blocks()]
+    out: list[str] = ["h"] + [b for el in over for b in el.var.main_blocks() + tuple(f.name for f in el.var.fits())]
     for k, el in enumerate(elements):
         sfx = f"_{k}" if stems.count(el.var.main_blocks()) > 1 else ""
         out += [b + sfx for b in el.var.main_blocks()] + [f.name + sfx for f in el.var.fits()] + \
@@ -256,7 +256,8 @@ class Graph:
             cost = self._cost(costs[(typ, index)], N)
             if cons or cost is not None:  # a variable with neither (e.g. a free translation) has no factor
                 over = _over(L, els)
-                blocks = ("h",) + tuple(b for o in over for b in o.blocks[:len(o.var.main_blocks())]) + \
+                blocks = ("h",) + tuple(b for o in over for b in o.blocks[:len(o.var.main_blocks()) +
+                                                                           len(o.var.fits())]) + \
                     tuple(b for el in els for b in el.blocks)
                 var_factors[(typ, index)] = Factor(name, typ, blocks, cost=cost, constraints=cons,
                                                    roles=_roles(els, over))

@@ -46,8 +46,10 @@ lifted vector (by name, h prepended), a learning group for discovery.
 ``Variable(…, products={block: variables})``: blocks z = x ⊗ θ, the variable's embedding x times θ, the
 embeddings of the given single ``Variable`` objects stacked (Kronecker, entry a·q + c = x_a θ_c; e.g. a label w
 with z = w [t; vec C]), after its lifting blocks; their primary constraints h·z = x ⊗ θ.  The element's own
-model factor then holds those variables' main blocks first (h, t, c, w_i, z_i), and the cost of a factor on the
-element and those variables joins it.  A factor on such a variable must also be on its products' variables.
+model factor then holds those variables' main and lifting blocks first (h, t, c, w_i, z_i), so that discovery
+learns the relations between the products and the liftings (for z = a ⊗ b with liftings vech(a aᵀ), vech(b bᵀ):
+z₀² = a₀²·b₀²), and the cost of a factor on the element and those variables joins it.  A factor on such a
+variable must also be on its products' variables.
 
 ``Variable(…, cost_only=True)``: a variable that only costs see (no constraints, no lifting; e.g. the twists of
 a motion prior): its blocks come last in the lifted vector, it has no model factor and the model factors of the
@@ -199,7 +201,7 @@ class Variable:
     constraint_names: str | Callable[..., str] = "{factor}:{variable}:{constraint}"
     #: product blocks {block: variables}, z = x ⊗ θ: the variable's embedding times θ, the embeddings of the given
     #: single variables stacked (Kronecker; e.g. {"z": (t, C)}: z = w [t; vec C]); primary constraints h·z = x ⊗ θ;
-    #: its own model factor holds those variables' main blocks first
+    #: its own model factor holds those variables' main and lifting blocks first
     products: Mapping[str, Sequence[Variable]] = field(default_factory=dict)
     #: a variable of the cost only (e.g. twists under a motion prior): blocks last in the lifted vector (after
     #: the factors' auxiliary blocks), no model factor of its own, left out of the model factors' blocks; the

@@ -77,8 +77,12 @@ class Term:
             found = [[[j for j, e in enumerate(self.elements) if e is o] for o in src]
                      for src in layout.sources.get(id(el.var), [])]
             if any(not js for src in found for js in src):
-                raise ProblemDefinitionError(f"{self.where}: a factor on {el.main!r} must also be on the variables of "
-                                             "its product blocks")
+                need = [o.main for src in layout.sources.get(id(el.var), []) for o in src
+                        if all(o is not e for e in self.elements)]
+                raise ProblemDefinitionError(
+                    f"{self.where}: a factor on {el.main!r} must also be on the variables of its product blocks "
+                    f"({', '.join(repr(m) for m in need)}); declare it on {tuple([el.main] + need)!r}, its residual "
+                    "taking one view per variable (it may ignore the ones it does not use)")
             self.sources.append([[js[0] for js in src] for src in found])
         #: the auxiliary blocks' names in the lifted vector and their columns
         self.aux_blocks = tuple(aux_blocks)
