@@ -639,6 +639,19 @@ def test_products_of_lifted_variables_are_learned_with_their_liftings(tmp_path):
     assert primary.log_svr < RANK_ONE_LOG_SVR - 2
 
 
+def test_a_products_lifting_named_like_the_elements_gets_a_distinct_role():
+    """Points p_i (a stack) with lifting z and products with b, whose lifting is also named z: p_i's own factor holds
+    b's z as role z_b, so every identity learned there names one block."""
+    B = Variable("b", Euclidean(2), lifting={"z": lambda p: np.array([p[0] * p[0], p[0] * p[1], p[1] * p[1]])})
+    P = Variable("p", Euclidean(2), lifting={"z": lambda p: np.array([p[0] * p[0], p[0] * p[1], p[1] * p[1]])},
+                 products={"pb": (B,)})
+    truth = {"p": np.array([[0.3, 0.4], [1.0, -0.5]]), "b": np.array([0.2, 0.7])}
+    factors = [Factor(("p0", "b"), lambda p, b: [p.z[0] - 1.0]), Factor(("p1", "b"), lambda p, b: [p.z[2] - p.pb[0]])]
+    model = Graph([P, B], truth, factors).model()
+    f = model.factor("p_1")
+    assert f.blocks == ("h", "b", "z", "p1", "z1", "pb1") and f.roles == ("h", "b", "z_b", "p", "z", "pb")
+
+
 def test_the_labels_snippet_is_the_shipped_module():
     from doc_snippets import missing_lines
 

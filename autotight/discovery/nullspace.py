@@ -70,8 +70,8 @@ def spectrum(Yn: np.ndarray, min_gap_decades: float, where: str = "", floor: flo
     cannot be read off.  A gap whose lower end is itself below the floor needs only min_gap_decades/2:
     every value below it is consistent with an exact relation (see ``RANK_FLOOR``) and every value above
     is at least that far from one, so the cut cannot take a near-relation for an exact one.  (Ill-conditioned
-    data, e.g. two landmarks at nearly the same bearing, keep true values down to 1e-11 above an exact
-    nullspace at 1e-16.)  A larger gap below the floor is reported in ``ignored_gap_decades``.
+    data, e.g. a stereo group of two landmarks, can keep true values down to 1e-11 above an exact nullspace at
+    1e-16.)  A larger gap below the floor is reported in ``ignored_gap_decades``.
     ``values``: Yn's singular values when already known (``svd``).
     """
     s = sla.svdvals(Yn) if values is None else np.asarray(values)

@@ -69,16 +69,21 @@ def _touches_cost_only(elements: Sequence[Element]) -> bool:
 
 
 def _roles(elements: Sequence[Element], over: Sequence[Element] = ()) -> tuple[str, ...]:
-    """h, the main and lifting blocks' names of ``over`` (the variables of the elements' products), then each
-    element's main, lifting and product blocks' names (suffixed ``_k`` for a variable appearing twice)."""
+    """h, the main and lifting blocks' names of ``over`` (the variables of the elements' products; a lifting's
+    suffixed ``_`` and its variable's name where an element's block has the same name), then each element's main,
+    lifting and product blocks' names (suffixed ``_k`` for a variable appearing twice)."""
     elements = _modelled(elements)
     stems = [el.var.main_blocks() for el in elements]
-    out: list[str] = ["h"] + [b for el in over for b in el.var.main_blocks() + tuple(f.name for f in el.var.fits())]
+    own: list[str] = []
     for k, el in enumerate(elements):
         sfx = f"_{k}" if stems.count(el.var.main_blocks()) > 1 else ""
-        out += [b + sfx for b in el.var.main_blocks()] + [f.name + sfx for f in el.var.fits()] + \
+        own += [b + sfx for b in el.var.main_blocks()] + [f.name + sfx for f in el.var.fits()] + \
             [b + sfx for b in el.var.products]
-    return tuple(out)
+    out: list[str] = ["h"]
+    for el in over:
+        out += list(el.var.main_blocks()) + [f.name if f.name not in own else f"{f.name}_{el.var.name}"
+                                             for f in el.var.fits()]
+    return tuple(out + own)
 
 
 def _over(layout: Layout, elements: Sequence[Element]) -> list[Element]:
