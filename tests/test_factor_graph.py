@@ -557,10 +557,7 @@ def test_the_product_blocks_derivative_is_the_lifts():
 @pytest.mark.parametrize("variables, factors, message", [
     (lambda inst: [Variable("w", Binary(), products={"z": (Variable("t", Euclidean(2)),)})], lambda inst: [],
      r"^variable 'w': the variables of its product block 'z' must be declared single variables$"),
-    (_labelled_variables, lambda inst: [Factor("w0", lambda w: w.z)],
-     r"^factor 'factor_0': a factor on 'w0' must also be on the variables of its product blocks \('t', 'c'\); "
-     r"declare it on \('w0', 't', 'c'\), its residual taking one view per variable"),
-], ids=["product-of-undeclared", "factor-without-product-variables"])
+], ids=["product-of-undeclared"])
 def test_bad_products_are_one_line_errors(variables, factors, message):
     prob = load(_module(variables, factors, _labelled))
     with pytest.raises(ProblemDefinitionError, match=message):
@@ -601,7 +598,7 @@ VARIABLES = [A, B]
 def factors(inst):
     m = inst.measurements
     for c, ra, rb in zip(m["anchors"], m["ra"], m["rb"]):
-        yield Factor(("a", "b"), lambda a, b, c=c, r=ra: [r * r - c @ c + 2 * c @ a.x - a.za[0] - a.za[2]], type="ra")
+        yield Factor("a", lambda a, c=c, r=ra: [r * r - c @ c + 2 * c @ a.x - a.za[0] - a.za[2]])
         yield Factor("b", lambda b, c=c, r=rb: [r * r - c @ c + 2 * c @ b.x - b.zb[0] - b.zb[2]])
     yield Factor(("a", "b"), lambda a, b, r=m["rab"]: [r * r - a.za[0] - a.za[2] - b.zb[0] - b.zb[2]
                                                        + 2 * (a.ab[0] + a.ab[3])])
@@ -637,6 +634,39 @@ def test_products_of_lifted_variables_are_learned_with_their_liftings(tmp_path):
     assert abs(learned.sdp.primal_cost - learned.upper) <= 1e-4 * learned.upper
     primary = at.solve(prob, {}, 11, constraints="primary")
     assert primary.log_svr < RANK_ONE_LOG_SVR - 2
+
+
+def test_a_factor_without_its_products_variables_gets_them_after_its_own(tmp_path):
+    """TWO_POINTS declares its anchor ranges on a alone, whose product block ab needs b: the factor gets b after a,
+    its residual sees a's view only, and the model is the one of the same factors declared on (a, b) to the bit.
+    A declared cost (on [h, a's blocks]) and jacobian (a's steps) of a non-affine residual on a alone give the same
+    cost and the same local optimum."""
+    explicit = TWO_POINTS.replace('yield Factor("a", lambda a, c=c, r=ra:',
+                                  'yield Factor(("a", "b"), lambda a, b, c=c, r=ra:').replace(
+        "a.za[0] - a.za[2]])", 'a.za[0] - a.za[2]], type="a_factor")', 1)
+    declared = TWO_POINTS.replace(
+        'yield Factor("a", lambda a, c=c, r=ra: [r * r - c @ c + 2 * c @ a.x - a.za[0] - a.za[2]])',
+        'row = np.r_[ra * ra - c @ c, 2 * c, -1.0, 0.0, -1.0, np.zeros(4)]  # on [h, a, za, ab]\n'
+        '        yield Factor("a", lambda a, c=c, r=ra: [r * r - (c - a.x) @ (c - a.x)], cost=np.outer(row, row),\n'
+        '                     jacobian=lambda a, c=c: (2 * (c - a.x))[None])')
+    assert explicit != TWO_POINTS and declared != TWO_POINTS
+    probs = []
+    for name, text in (("implicit", TWO_POINTS), ("explicit", explicit), ("declared", declared)):
+        (tmp_path / f"{name}.py").write_text(text)
+        probs.append(load(str(tmp_path / f"{name}.py")))
+    insts = [p.generate({}, 3) for p in probs]
+    models = [p.build(i) for p, i in zip(probs, insts)]
+    ref = models[0]
+    for m in models[1:]:
+        assert [(f.name, f.type, f.blocks) for f in m.factors] == [(f.name, f.type, f.blocks) for f in ref.factors]
+        assert [c.name for c in m.constraints] == [c.name for c in ref.constraints]
+        assert all((abs(c.A - d.A)).max() == 0 for c, d in zip(m.constraints, ref.constraints))
+    assert abs(models[1].Q - ref.Q).max() == 0  # the same factors, the same bits
+    assert abs(models[2].Q - ref.Q).max() <= 1e-12 * abs(ref.Q).max()  # the declared cost: the same up to rounding
+    start = {"a": np.array([0.5, -0.4]), "b": np.array([-0.3, 0.8])}
+    a, c = probs[0].local_solve(insts[0], start), probs[2].local_solve(insts[2], start)
+    assert a.converged and c.converged and abs(a.cost - c.cost) <= 1e-9 * a.cost
+    assert np.abs(a.state["a"] - c.state["a"]).max() <= 1e-6
 
 
 def test_a_products_lifting_named_like_the_elements_gets_a_distinct_role():

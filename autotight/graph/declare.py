@@ -48,8 +48,8 @@ embeddings of the given single ``Variable`` objects stacked (Kronecker, entry a�
 with z = w [t; vec C]), after its lifting blocks; their primary constraints h·z = x ⊗ θ.  The element's own
 model factor then holds those variables' main and lifting blocks first (h, t, c, w_i, z_i), so that discovery
 learns the relations between the products and the liftings (for z = a ⊗ b with liftings vech(a aᵀ), vech(b bᵀ):
-z₀² = a₀²·b₀²), and the cost of a factor on the element and those variables joins it.  A factor on such a
-variable must also be on its products' variables.
+z₀² = a₀²·b₀²), and the cost of a factor on the element and those variables joins it.  A factor declared on
+such a variable without its products' variables is on them too, after the ones it names (``terms.Term``).
 
 ``Variable(…, cost_only=True)``: a variable that only costs see (no constraints, no lifting; e.g. the twists of
 a motion prior): its blocks come last in the lifted vector, it has no model factor and the model factors of the

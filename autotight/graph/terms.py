@@ -70,26 +70,25 @@ class Term:
         self.factor, self.name, self.aux = factor, name, factor.auxiliary
         self.where = f"factor {name!r}"
         self.elements: list[Element] = [layout.element(v, self.where) for v in factor.variables]
+        #: the declared variables come first; the variables of their product blocks that the factor does not
+        #: declare follow (its residual, jacobian and auxiliary see the declared ones: ``_views``, ``_state_views``)
+        self.n_declared = len(self.elements)
+        for el in list(self.elements):
+            for src in layout.sources.get(id(el.var), []):
+                self.elements += [o for o in src if all(o is not e for e in self.elements)]
         self.positions = [layout.position[el.main] for el in self.elements]
         #: per variable, per product block of it, the positions in the factor of the block's variables
-        self.sources: list[list[list[int]]] = []
-        for el in self.elements:
-            found = [[[j for j, e in enumerate(self.elements) if e is o] for o in src]
-                     for src in layout.sources.get(id(el.var), [])]
-            if any(not js for src in found for js in src):
-                need = [o.main for src in layout.sources.get(id(el.var), []) for o in src
-                        if all(o is not e for e in self.elements)]
-                raise ProblemDefinitionError(
-                    f"{self.where}: a factor on {el.main!r} must also be on the variables of its product blocks "
-                    f"({', '.join(repr(m) for m in need)}); declare it on {tuple([el.main] + need)!r}, its residual "
-                    "taking one view per variable (it may ignore the ones it does not use)")
-            self.sources.append([[js[0] for js in src] for src in found])
+        self.sources: list[list[list[int]]] = [
+            [[next(j for j, e in enumerate(self.elements) if e is o) for o in src]
+             for src in layout.sources.get(id(el.var), [])] for el in self.elements]
         #: the auxiliary blocks' names in the lifted vector and their columns
         self.aux_blocks = tuple(aux_blocks)
         self.aux_columns = layout.V.index(self.aux_blocks) if self.aux_blocks else np.zeros(0, int)
         #: the model's columns of its local columns (with a lifting width d: h's d columns, then the variables')
         self.columns = np.concatenate([np.arange(layout.V.d)] + [layout.columns(el) for el in self.elements] +
                                       [self.aux_columns])
+        #: each variable's number of local columns
+        self.ncols = [layout.columns(el).size for el in self.elements]
         #: the size of each variable's lifted vector, its entries in the views (in a lifting of width d > 1, its
         #: embedding, which the model holds as a d × k block)
         self.sizes = [el.var.manifold.size if layout.V.d > 1 else layout.columns(el).size for el in self.elements]
@@ -124,7 +123,7 @@ class Term:
     def type(self) -> str:
         """The declared type, else the variables' names joined by '-' (one variable: ``name_factor``, apart from
         the type of the variable's own factor)."""
-        names = [el.var.name for el in self.elements]
+        names = [el.var.name for el in self.elements[:self.n_declared]]
         return self.factor.type or ("-".join(names) if len(names) > 1 else f"{names[0]}_factor")
 
     def _var_views(self, theta: np.ndarray) -> list[View]:
@@ -137,8 +136,8 @@ class Term:
         return out
 
     def _views(self, theta: np.ndarray) -> list[View]:
-        """The residual's arguments: the variables' views, then the auxiliary blocks' view (if any)."""
-        out = self._var_views(theta)
+        """The residual's arguments: the declared variables' views, then the auxiliary blocks' view (if any)."""
+        out = self._var_views(theta)[:self.n_declared]
         if self.aux is not None:
             out.append(self.aux.view(theta[self.n - self.aux.size:]))
         return out
@@ -179,7 +178,7 @@ class Term:
             blocks = {f.name: np.asarray(f.fn(v), float).reshape(-1) for f in el.var.fits()}
             blocks |= {b: np.kron(el.var.manifold.embed(v), th) for b, th in zip(el.var.products, self._thetas(k, own))}
             out.append(View(x=np.asarray(v, float), **blocks))
-        return out
+        return out[:self.n_declared]
 
     def aux_value(self, own: Sequence[np.ndarray]) -> np.ndarray:
         """The auxiliary blocks' values at the factor's variables' values (ValueError where undefined)."""
@@ -197,12 +196,20 @@ class Term:
         a = self.aux_value(own)
         if self.aux.jacobian is None:
             return a, self._differences(own, self.aux_value)
-        dof = sum(el.dof for el in self.elements)
+        dof = self._declared_dof()
         J = np.asarray(self.aux.jacobian(*self._state_views(own), self.aux.view(a)), float)
         if J.shape != (self.aux.size, dof):
             raise ProblemDefinitionError(f"{self.where}: the auxiliary's jacobian returned shape {J.shape}, "
                                          f"expected ({self.aux.size}, {dof})")
-        return a, J
+        return a, self._pad(J)
+
+    def _declared_dof(self) -> int:
+        return sum(el.dof for el in self.elements[:self.n_declared])
+
+    def _pad(self, J: np.ndarray) -> np.ndarray:
+        """A declared jacobian (·, dof of the declared variables) with zero columns for the variables after them."""
+        extra = sum(el.dof for el in self.elements[self.n_declared:])
+        return np.hstack([J, np.zeros((J.shape[0], extra))]) if extra else J
 
     def _residual(self, theta: np.ndarray) -> np.ndarray:
         return _vector(self.factor.residual(*self._views(theta)), self.where)
@@ -247,12 +254,18 @@ class Term:
         return 0.5 * (W + W.T)  # symmetric to the last bit (eᵀWe is the same), so is the lifted cost
 
     def _local(self, C: object, what: str) -> np.ndarray:
+        """A declared matrix on [h, the declared variables' blocks, the auxiliary blocks], placed on the local
+        columns (which hold the undeclared variables of product blocks after the declared ones)."""
         A = cast(Any, C).toarray() if sp.issparse(C) else np.asarray(C, float)
-        n = self.columns.size
-        if A.shape != (n, n) or not np.all(np.isfinite(A)):
-            raise ProblemDefinitionError(f"{self.where}: {what} must be a finite ({n}, {n}) matrix on the "
-                                         "factor's local columns [h, its variables' blocks]")
-        return 0.5 * (A + A.T)
+        width = self.columns.size - self.aux_columns.size - sum(self.ncols)  # h's columns
+        inner = width + sum(self.ncols[:self.n_declared])
+        shown = np.r_[0:inner, inner + sum(self.ncols[self.n_declared:]):self.columns.size]
+        if A.shape != (shown.size, shown.size) or not np.all(np.isfinite(A)):
+            raise ProblemDefinitionError(f"{self.where}: {what} must be a finite ({shown.size}, {shown.size}) matrix "
+                                         "on the factor's local columns [h, its variables' blocks]")
+        full = np.zeros((self.columns.size, self.columns.size))
+        full[np.ix_(shown, shown)] = A
+        return 0.5 * (full + full.T)
 
     def cost_matrix(self) -> np.ndarray:
         """The lifted cost on the local columns: the declared one, else Mᵀ W M."""
@@ -287,12 +300,12 @@ class Term:
         theta = self.lifted(own)
         e = self._residual(theta)
         if self.factor.jacobian is not None:
-            dof = sum(el.dof for el in self.elements)
+            dof = self._declared_dof()
             J = np.asarray(self.factor.jacobian(*self._views(theta)), float)
             if J.shape != (e.size, dof):
                 raise ProblemDefinitionError(f"{self.where}: jacobian returned shape {J.shape}, "
                                              f"expected ({e.size}, {dof})")
-            return e, J
+            return e, self._pad(J)
         return e, self._differences(own, lambda vals: self._residual(self.lifted(vals)))
 
     def _differences(self, own: Sequence[np.ndarray], fn: Callable[[list], np.ndarray]) -> np.ndarray:
