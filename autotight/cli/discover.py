@@ -57,7 +57,8 @@ def register(sub: argparse._SubParsersAction, add_problem_args: Callable) -> Non
     p.add_argument("--scheduler", metavar="ADDRESS", default=None,
                    help="run the held-out solves on a Dask cluster at this scheduler address")
     p.add_argument("--min-gap", type=pos_float, default=6.0,
-                   help="spectral gap in decades that decides the rank (default 6)")
+                   help="spectral gap in decades that decides the rank (default 6; half of it where the "
+                        "values below the gap are at roundoff, nullspace.spectrum)")
     p.add_argument("--gap-tol", type=nonneg_float, default=1e-5,
                    help="relative cost gap counted as tight (default 1e-5)")
     add_accept_arg(p)
