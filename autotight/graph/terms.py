@@ -73,9 +73,11 @@ class Term:
         #: the declared variables come first; the variables of their product blocks that the factor does not
         #: declare follow (its residual, jacobian and auxiliary see the declared ones: ``_views``, ``_state_views``)
         self.n_declared = len(self.elements)
-        for el in list(self.elements):
-            for src in layout.sources.get(id(el.var), []):
+        k = 0
+        while k < len(self.elements):  # and theirs, if they have product blocks too
+            for src in layout.sources.get(id(self.elements[k].var), []):
                 self.elements += [o for o in src if all(o is not e for e in self.elements)]
+            k += 1
         self.positions = [layout.position[el.main] for el in self.elements]
         #: per variable, per product block of it, the positions in the factor of the block's variables
         self.sources: list[list[list[int]]] = [
