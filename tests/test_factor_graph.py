@@ -682,6 +682,21 @@ def test_a_products_lifting_named_like_the_elements_gets_a_distinct_role():
     assert f.blocks == ("h", "b", "z", "p1", "z1", "pb1") and f.roles == ("h", "b", "z_b", "p", "z", "pb")
 
 
+def test_a_factor_gets_the_product_variables_of_the_ones_it_gets():
+    """w's product block needs t, whose product block needs C: a factor declared on w alone is on (w, t, C), its
+    residual sees w's view, and its lifted cost is on w's z only."""
+    C = Variable("C", Rotation(2), block="c")
+    t = Variable("t", Euclidean(2), products={"tc": (C,)})
+    w = Variable("w", Binary(), products={"z": (t,)})
+    truth = {"C": np.eye(2), "t": np.array([0.3, -0.2]), "w": np.array(1.0)}
+    model = Graph([C, t, w], truth, [Factor("w", lambda w: [w.z[0] - 0.1], type="wz")]).model()
+    f = model.factor("wz:w-t-c")
+    assert f.blocks == ("h", "w", "z", "t", "tc", "c")
+    Q = model.Q.toarray()
+    z0, h = model.variables.index(["z"])[0], 0
+    assert Q[z0, z0] == 1.0 and Q[h, z0] == -0.1 and np.count_nonzero(Q) == 4
+
+
 def test_the_labels_snippet_is_the_shipped_module():
     from doc_snippets import missing_lines
 
