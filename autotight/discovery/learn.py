@@ -232,9 +232,14 @@ class SpanningIndex:
             self.buckets.setdefault(int(cols[-1]), []).append((cols, U))
 
     def within(self, cols: np.ndarray) -> list[sp.coo_array]:
-        """The matrices whose every row and column is one of ``cols``."""
-        return [U for c in np.asarray(cols).tolist() for ucols, U in self.buckets.get(c, ())
-                if np.isin(ucols, cols).all()]
+        """The matrices whose every row and column is one of ``cols`` (membership by a mask over the columns up
+        to the largest of ``cols``, which bounds every column of the buckets looked at)."""
+        cols = np.asarray(cols, dtype=np.int64)
+        if not cols.size:
+            return []
+        inside = np.zeros(int(cols.max()) + 1, dtype=bool)
+        inside[cols] = True
+        return [U for c in cols.tolist() for ucols, U in self.buckets.get(c, ()) if inside[ucols].all()]
 
 
 def learn_group(model: Model, group: Group, bank: SampleBank, heldout: SampleBank, opts: LearnOptions,
