@@ -347,7 +347,8 @@ def _span_and_heldout(coeffs: np.ndarray, cols: np.ndarray, order: np.ndarray, D
     sorter = np.argsort(cols)
     for U in spanning.within(cols):
         r, c = (sorter[np.searchsorted(cols, x, sorter=sorter)] for x in (U.row, U.col))  # local indices
-        loc = sp.coo_array((U.data, (r, c)), shape=(n, n))
+        loc = np.zeros((n, n))
+        np.add.at(loc, (r, c), U.data)  # repeated entries summed in order, as its CSR form sums them
         prim.append(sym_to_poly(loc)[order] * D)
     basis = np.zeros((m, 0))
     if prim:
