@@ -89,8 +89,11 @@ class Term:
         #: the model's columns of its local columns (with a lifting width d: h's d columns, then the variables')
         self.columns = np.concatenate([np.arange(layout.V.d)] + [layout.columns(el) for el in self.elements] +
                                       [self.aux_columns])
-        #: each variable's number of local columns
-        self.ncols = [layout.columns(el).size for el in self.elements]
+        #: the local columns that declared matrices are on: h's, the declared variables' and the auxiliary blocks'
+        added = np.concatenate([np.zeros(layout.V.d, bool)] + [np.full(layout.columns(el).size, k >= self.n_declared)
+                                                                for k, el in enumerate(self.elements)] +
+                               [np.zeros(self.aux_columns.size, bool)])
+        self.declared_columns = np.flatnonzero(~added)
         #: the size of each variable's lifted vector, its entries in the views (in a lifting of width d > 1, its
         #: embedding, which the model holds as a d × k block)
         self.sizes = [el.var.manifold.size if layout.V.d > 1 else layout.columns(el).size for el in self.elements]
@@ -259,9 +262,7 @@ class Term:
         """A declared matrix on [h, the declared variables' blocks, the auxiliary blocks], placed on the local
         columns (which hold the undeclared variables of product blocks after the declared ones)."""
         A = cast(Any, C).toarray() if sp.issparse(C) else np.asarray(C, float)
-        width = self.columns.size - self.aux_columns.size - sum(self.ncols)  # h's columns
-        inner = width + sum(self.ncols[:self.n_declared])
-        shown = np.r_[0:inner, inner + sum(self.ncols[self.n_declared:]):self.columns.size]
+        shown = self.declared_columns
         if A.shape != (shown.size, shown.size) or not np.all(np.isfinite(A)):
             raise ProblemDefinitionError(f"{self.where}: {what} must be a finite ({shown.size}, {shown.size}) matrix "
                                          "on the factor's local columns [h, its variables' blocks]")
