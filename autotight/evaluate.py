@@ -121,11 +121,11 @@ def evaluate_instance(problem: Problem, inst: Instance, sets: Mapping[str, Const
                       rng_local: np.random.Generator | None = None,
                       rng_constraints: np.random.Generator | None = None, n_random: int = 1,
                       shortcut: Certifier | None = None, raise_unbounded: bool = True,
-                      catch_instantiate: bool = True) -> InstanceEvaluation:
+                      catch_instantiate: bool = True, settle_early: bool = False) -> InstanceEvaluation:
     """Every set of ``sets`` (name → "paper", "primary", a ``ConstraintSet`` or a list of ``Constraint``) on
     ``inst``, as the module docstring says: one model and one local search (``n_random`` random starts) shared
-    by the sets.  ``raise_unbounded`` is ``solve_instance``'s; any error other than a failed instantiation
-    propagates (the sets after it are not evaluated)."""
+    by the sets.  ``raise_unbounded`` is ``solve_instance``'s, ``settle_early`` ``solve_prepared``'s; any error
+    other than a failed instantiation propagates (the sets after it are not evaluated)."""
     s = seeds(inst.seed if inst.seed is not None else 0)
     t0 = time.perf_counter()
     model = model if model is not None else problem.build(inst)
@@ -148,10 +148,11 @@ def evaluate_instance(problem: Problem, inst: Instance, sets: Mapping[str, Const
             prep = prepare(problem, inst, given, config=config, model=model, local=local)
             proved = certify_local(problem, inst, prep, shortcut, criteria)
             results[name] = proved if proved is not None else solve_prepared(
-                problem, inst, prep, set_name(given, model), criteria=criteria, raise_unbounded=raise_unbounded)
+                problem, inst, prep, set_name(given, model), criteria=criteria, raise_unbounded=raise_unbounded,
+                settle_early=settle_early)
             continue
         results[name] = solve_instance(problem, inst, given, config=config, criteria=criteria, model=model,
-                                       local=local, raise_unbounded=raise_unbounded)
+                                       local=local, raise_unbounded=raise_unbounded, settle_early=settle_early)
     return InstanceEvaluation(inst, model, local, results, {"build_s": t1 - t0, "local_s": t2 - t1})
 
 

@@ -224,7 +224,8 @@ def certifies_local(problem: Problem, inst: Instance, model: Model, cons: list, 
     return rule
 
 
-def gap_settled(upper: float, criteria: Criteria) -> SettledRule:
+@dataclass(frozen=True)
+class GapSettled:
     """The SDP solve's retry rule (``sdp.solve``'s ``settled``): whether a result, usable or the best iterate of a
     solve that stopped early, already proves the relaxation not tight against the best feasible cost U = ``upper``
     (``tightness.bracket`` on its own accuracy, in the frame it was solved in; ``partial`` for the iterate).  Another
@@ -232,12 +233,29 @@ def gap_settled(upper: float, criteria: Criteria) -> SettledRule:
     relaxation's optimum to its accuracy, below U by more than the tolerance whenever this one's is (both within
     their accuracies of the same optimum); so is the fallback's."""
 
-    def rule(res: SDPResult, Q: sp.csr_array, As: Sequence[sp.coo_array], b: np.ndarray) -> bool:
+    upper: float
+    criteria: Criteria
+
+    def __call__(self, res: SDPResult, Q: sp.csr_array, As: Sequence[sp.coo_array], b: np.ndarray) -> bool:
         if res.X is None or res.y is None or not np.all(np.isfinite(res.y)):
             return False
-        return bracket(res, upper, criteria, accuracy_of(res, Q, As, b), partial=True)[0] == NOT_TIGHT
+        return bracket(res, self.upper, self.criteria, accuracy_of(res, Q, As, b), partial=True)[0] == NOT_TIGHT
 
-    return rule
+
+@dataclass(frozen=True)
+class EarlyGapSettled(GapSettled):
+    """``GapSettled``, also asked of an iterative solver's iterates (``sdp.backend.EarlySettle``): the solve ends at
+    the first iterate whose bracket proves the relaxation not tight, the evidence a finished solve would give (the
+    bracket of an iterate counts its residuals in its accuracy).  ``may_settle``: U − P > gap_tol·|U| + |P − D|, which
+    the bracket's "not tight" implies (its tolerance is at least gap_tol·|U| and its accuracy at least |P − D|)."""
+
+    def may_settle(self, primal: float, dual: float) -> bool:
+        return self.upper - primal > self.criteria.gap_tol * abs(self.upper) + abs(primal - dual)
+
+
+def gap_settled(upper: float, criteria: Criteria, early: bool = False) -> SettledRule:
+    """``GapSettled`` at U = ``upper``; ``early``: ``EarlyGapSettled`` (the solve may end at an iterate)."""
+    return (EarlyGapSettled if early else GapSettled)(float(upper), criteria)
 
 
 #: fresh feasible states (the module's sampler around the truth) on which every constraint is checked
@@ -324,7 +342,7 @@ class Relaxation:
 
 
 def solve_relaxation(problem: Problem, inst: Instance, prep: Prepared, *, raise_unbounded: bool = True,
-                     criteria: Criteria = Criteria()) -> Relaxation:
+                     criteria: Criteria = Criteria(), settle_early: bool = False) -> Relaxation:
     """The SDP of ``prep`` in the frame of ``block_scale_at`` at the best local solution, and once more on the
     plain data when that solve is not usable, unless it found a ray (unbounded in either frame) or its multipliers,
     polished at the best local solution, certify that solution (``dual_certificate``): the relaxation's optimum is
@@ -336,7 +354,7 @@ def solve_relaxation(problem: Problem, inst: Instance, prep: Prepared, *, raise_
     model, cons, config = prep.model, prep.constraints, prep.config
     scale = block_scale_at(problem, inst, model, prep.local.best.state, config)
     stop = certifies_local(problem, inst, model, cons, prep.local.best, criteria)
-    settled = gap_settled(prep.local.best.cost, criteria)
+    settled = gap_settled(prep.local.best.cost, criteria, settle_early)
     res = sdp.solve_model(model, cons, config, scale, stop=stop, settled=settled)
     unscaled, certified = None, None
     if not res.usable and res.y is not None and not is_unbounded(res):
@@ -445,7 +463,7 @@ def solve_instance(problem: Problem, inst: Instance, constraints: ConstraintsLik
                    model: Model | None = None, local: LocalSearch | None = None,
                    rng_local: np.random.Generator | None = None,
                    rng_constraints: np.random.Generator | None = None,
-                   raise_unbounded: bool = True) -> SolveResult:
+                   raise_unbounded: bool = True, settle_early: bool = False) -> SolveResult:
     """Solve ``inst`` with ``constraints`` (see ``autotight.constraint_set``) and judge tightness.
 
     ``model`` and ``local`` may be given to share them between several constraint sets of one
@@ -457,7 +475,8 @@ def solve_instance(problem: Problem, inst: Instance, constraints: ConstraintsLik
     more at a 100× tighter tolerance (``judge_relaxation``); ``attempts`` records both.  An unbounded SDP
     (DualInfeasible: nothing bounds some blocks) raises ``UnboundedRelaxation`` naming those blocks in one
     line, unless ``raise_unbounded`` is False (then it is judged not tight, as discovery's held-out check
-    needs for the primary constraints of a problem such as robust pose averaging).
+    needs for the primary constraints of a problem such as robust pose averaging).  ``settle_early``:
+    ``solve_prepared``'s.
 
     The steps, in order: ``prepare`` (model, constraints, local search, checks) → ``solve_relaxation`` (the
     SDP) → ``recover_estimate`` (estimate, refinement, U) → ``judge_relaxation`` (polish, certificate,
@@ -467,16 +486,19 @@ def solve_instance(problem: Problem, inst: Instance, constraints: ConstraintsLik
         prep = prepare(problem, inst, constraints, config=config, n_random=n_random, model=model, local=local,
                        rng_local=rng_local, rng_constraints=rng_constraints)
         return solve_prepared(problem, inst, prep, set_name(constraints, prep.model), criteria=criteria,
-                              raise_unbounded=raise_unbounded)
+                              raise_unbounded=raise_unbounded, settle_early=settle_early)
 
 
 @single_blas_thread
 def solve_prepared(problem: Problem, inst: Instance, prep: Prepared, name: str, *, criteria: Criteria = Criteria(),
-                   raise_unbounded: bool = True) -> SolveResult:
+                   raise_unbounded: bool = True, settle_early: bool = False) -> SolveResult:
     """``solve_instance`` after its ``prepare`` step (``prep``; ``name``: the set's name in the result), for a
-    caller that prepared the instance already (e.g. to try a certificate first)."""
+    caller that prepared the instance already (e.g. to try a certificate first).  ``settle_early``: an iterative
+    solver may end at the first iterate whose bracket proves the relaxation not tight (``EarlyGapSettled``; the
+    verdict is the same, its P, log SVR and reason are the iterate's)."""
     t2 = time.perf_counter()
-    relax = solve_relaxation(problem, inst, prep, raise_unbounded=raise_unbounded, criteria=criteria)
+    relax = solve_relaxation(problem, inst, prep, raise_unbounded=raise_unbounded, criteria=criteria,
+                             settle_early=settle_early)
     t3 = time.perf_counter()
     rec = recover_estimate(problem, inst, prep, relax.res, criteria)
     jd = judge_relaxation(problem, inst, prep, relax, rec.best, criteria)

@@ -210,3 +210,38 @@ def test_a_stalled_iterate_of_a_tight_relaxation_still_goes_to_the_fallback(monk
     assert bracket(stalled, r.upper, Criteria(), acc, partial=True)[0] == "undecided"
     stalled.status = "Solved"  # the same iterate, finished: tight
     assert bracket(stalled, r.upper, Criteria(), acc)[0] == "tight"
+
+
+def test_an_ipm_solve_asked_to_settle_early_ends_at_an_iterate_that_proves_not_tight():
+    """The free-column module's primary relaxation (not tight) with our IPM: asked to settle early, the solve ends
+    at an iterate whose own bracket says not tight, in fewer iterations than the finished solve, and neither the
+    fallback nor the plain data solve it again.  ``solve_instance`` with ``settle_early`` judges it as the finished
+    solve does.  Rotation averaging at σ = 0.01 (tight) never meets the rule's cheap test: its solve is the same."""
+    from autotight.sdp.config import SolverConfig
+
+    ipm = SolverConfig(backend="ipm")
+    p = load(MODULE)
+    inst = p.generate(PARAMS, 0)
+    model = p.build(inst)
+    cons = pipeline.prepare(p, inst, "primary").constraints
+    U = solve_instance(p, inst, "primary", config=ipm, criteria=COST).upper
+    full = sdp.solve_model(model, cons, ipm, settled=gap_settled(U, COST))
+    early = sdp.solve_model(model, cons, ipm, settled=gap_settled(U, COST, early=True))
+    assert early.settled and early.n_calls == 1 and early.iterations < full.iterations
+    assert "settles the verdict" in early.message
+    acc = accuracy(early, model.Q, cons)
+    assert bracket(early, U, COST, acc, partial=True)[0] == NOT_TIGHT
+    assert U - early.primal_cost > COST.gap_tol * abs(U) + acc.acc
+    done = solve_instance(p, inst, "primary", config=ipm, criteria=COST)
+    fast = solve_instance(p, inst, "primary", config=ipm, criteria=COST, settle_early=True)
+    assert done.outcome == fast.outcome == NOT_TIGHT and fast.sdp.settled and len(fast.attempts) == 1
+
+    p = load("rotation_averaging")
+    inst = p.generate({"M": 5, "sigma": 0.01}, 0)
+    model = p.build(inst)
+    cons = pipeline.prepare(p, inst, "primary").constraints
+    U = solve_instance(p, inst, "primary", config=ipm).upper
+    a = sdp.solve_model(model, cons, ipm, settled=gap_settled(U, Criteria()))
+    b = sdp.solve_model(model, cons, ipm, settled=gap_settled(U, Criteria(), early=True))
+    assert not b.settled and a.iterations == b.iterations and a.status == b.status
+    assert np.array_equal(a.y, b.y)

@@ -12,6 +12,9 @@ With ``shortcut`` an instance whose local solution's certificate proves the set 
 (``shortcut.certified_tight``: cost and rank, by exact tests) is counted tight without the full SDP;
 every other instance is solved as above, so an instance that fails is always one the full SDP judged.
 The set's constraints are checked on the instance's feasible points (``validity.check_valid``) either way.
+An SDP solved by an iterative backend ends at the first iterate whose bracket proves the set not tight
+(``pipeline.EarlyGapSettled``): the outcome a finished solve gives, at a fraction of its iterations (a failing
+instance's P, log SVR and reason are then its iterate's).
 
 With ``stop_hopeless`` (one set; True, or per point) a point's batch ends at the first instance, in seed
 order, after which the point cannot pass any more whatever the rest would give (``hopeless``): its later
@@ -98,7 +101,7 @@ def solve_one(ref: Problem | str, params: dict[str, Any], seed: int, sets: Mappi
     solver call)."""
     prob = load(ref)
     ev = evaluate(prob, params, seed, sets, config=config, criteria=criteria, n_random=n_random,
-                  shortcut=certified_tight if shortcut else None, raise_unbounded=False)
+                  shortcut=certified_tight if shortcut else None, raise_unbounded=False, settle_early=True)
     return {name: summary(r) for name, r in ev.results.items()}
 
 

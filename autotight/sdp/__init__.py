@@ -96,11 +96,13 @@ class _Attempt:
 
 def _call(backend: Backend, why: str, Q: sp.csr_array, As: list[sp.csr_array], b: np.ndarray, d: int,
           cliques: list[np.ndarray] | None, config: SolverConfig, log: list[_Attempt],
-          stop: StopRule | None = None) -> SDPResult:
-    """One solver call, logged; an exception the backend declares becomes a "Failed" status."""
+          stop: StopRule | None = None, settled: SettledRule | None = None) -> SDPResult:
+    """One solver call, logged; an exception the backend declares becomes a "Failed" status.  A backend with
+    ``stops_early`` gets ``stop``, and ``settled`` when that is an ``EarlySettle`` (``backend.Backend``)."""
+    early = settled if callable(getattr(settled, "may_settle", None)) else None
     try:
-        if stop is not None and getattr(backend, "stops_early", False):
-            res = backend.solve(Q, As, b, d, cliques, config, stop)  # type: ignore[call-arg]
+        if (stop is not None or early is not None) and getattr(backend, "stops_early", False):
+            res = backend.solve(Q, As, b, d, cliques, config, stop, early)  # type: ignore[call-arg]
         else:
             res = backend.solve(Q, As, b, d, cliques, config)
     except backend.errors as e:
@@ -114,16 +116,16 @@ def _call(backend: Backend, why: str, Q: sp.csr_array, As: list[sp.csr_array], b
 def _with_retries(backend: Backend, why: str, Q: sp.csr_array, As: list[sp.csr_array], b: np.ndarray, d: int,
                   cliques: list[np.ndarray] | None, config: SolverConfig, log: list[_Attempt],
                   stop: StopRule | None = None, settled: SettledRule | None = None) -> SDPResult:
-    res = _call(backend, why, Q, As, b, d, cliques, config, log, stop)
+    res = _call(backend, why, Q, As, b, d, cliques, config, log, stop, settled)
     for what, cfg, statuses in backend.retries(config, cliques is not None, Q.shape[0]):
-        if res.status not in statuses:
+        if res.status not in statuses or res.settled:  # settled: the backend ended at an iterate the rule settles
             continue
         if settled is not None and res.usable and settled(res, Q, As, b):
             res.settled = True
             res.message = "; ".join(m for m in (res.message.strip(), f"not retried with {what}: its verdict is settled")
                                     if m)
             break
-        retry = _call(backend, f"retried with {what}", Q, As, b, d, cliques, cfg, log, stop)
+        retry = _call(backend, f"retried with {what}", Q, As, b, d, cliques, cfg, log, stop, settled)
         if retry.status == Status.SOLVED or not res.usable:
             res = retry
     return res
@@ -239,7 +241,8 @@ def _solve(Q: sp.spmatrix | sp.sparray, constraints: Sequence[Constraint], d: in
     res = _with_retries(backend, "", Qs, As_s, b, d, _cover(backend, decompose, covers), config, log, stop,
                         settled)
     skipped = ""
-    if not res.usable and fb is not None and settled is not None and res.has_iterate and settled(res, Qs, As_s, b):
+    if not res.usable and fb is not None and settled is not None and res.has_iterate and (res.settled or
+                                                                                         settled(res, Qs, As_s, b)):
         # the best iterate already settles the verdict: another backend's solve of the same SDP cannot change it
         res.settled = True
         skipped = f"; not solved again by {fb.name}: the verdict of its best iterate is settled"
@@ -283,7 +286,8 @@ def solve(Q: sp.spmatrix | sp.sparray, constraints: Sequence[Constraint], *, d: 
     settled: a test of a result (``backend.SettledRule``) that skips the backend's retries of a usable one, and the
     fallback backend's solve of an unusable one that holds its best iterate (e.g. a result whose bracket already
     proves the relaxation not tight: another solve cannot change that verdict); ``SDPResult.settled`` and its
-    message then say so.
+    message then say so.  A rule that is a ``backend.EarlySettle`` asking for it is also asked of the iterates of a
+    backend with ``stops_early`` (our IPM), which then ends at the first iterate the rule settles.
     Returns the last attempt's result (see the module docstring for retries and fallback) with
     ``n_calls``, the summed times and every attempt in ``message``.  ValueError on bad input.
     """

@@ -19,6 +19,18 @@ StopRule = Callable[[np.ndarray], bool]
 SettledRule = Callable[[SDPResult, sp.csr_array, Sequence[sp.coo_array], np.ndarray], bool]
 
 
+class EarlySettle(Protocol):
+    """A ``SettledRule`` that an iterative backend with ``stops_early`` also asks of its iterates during the solve
+    (``Backend.solve``'s ``settled``).  ``may_settle(P, D)``, a cheap necessary condition on an iterate's primal and
+    dual costs (those of the problem as given to the backend), is asked first; only an iterate that meets it and is
+    within reduced accuracy of feasibility (our IPM: pinf, dinf ≤ Clarabel's reduced tolerance) is completed into a
+    result and tested by the rule.  True ends the solve at that iterate, which it returns marked ``settled``."""
+
+    def __call__(self, res: SDPResult, Q: sp.csr_array, As: Sequence[sp.coo_array], b: np.ndarray) -> bool: ...
+
+    def may_settle(self, primal: float, dual: float) -> bool: ...
+
+
 class Backend(Protocol):
     """What a solver backend provides: its name, whether solves decompose by default, the clique-cover
     policy it takes (None: none), the backend that re-solves an unusable result (None: none), the
@@ -27,8 +39,9 @@ class Backend(Protocol):
     A backend that can end a solve early on the caller's word sets the optional attribute ``stops_early = True``;
     its ``solve`` then also takes ``stop`` (a ``StopRule``, or None): it asks the rule with the multipliers of its
     best iterate once that iterate is within reduced accuracy and progress has stalled (our IPM: two iterations
-    without a better one), and returns that iterate when the rule says True.  The SDP layer passes ``stop`` to those
-    only."""
+    without a better one), and returns that iterate when the rule says True; and ``settled`` (an ``EarlySettle``, or
+    None), asked of its iterates as that protocol says.  The SDP layer passes ``stop`` and ``settled`` to those
+    only, ``settled`` only when the caller's rule is an ``EarlySettle`` that asks for it."""
 
     @property
     def name(self) -> str: ...

@@ -19,8 +19,9 @@ Contract.
   ``STALL_ITERATIONS`` iterations without progress (InsufficientProgress; ``STALL_ITERATIONS_ALMOST``
   once the best iterate is within ``ALMOST_TOL``), ``JAM_ITERATIONS`` jammed steps once the best iterate is
   AlmostSolved (InsufficientProgress), the caller's stop rule accepting the best iterate's multipliers once
-  ``STOP_ASK_ITERATIONS`` iterations have not bettered it (``solve_blocks``'s ``stop``), or a factorisation that
-  breaks down (NumericalError).  A run that
+  ``STOP_ASK_ITERATIONS`` iterations have not bettered it (``solve_blocks``'s ``stop``), the caller's settle test
+  accepting an iterate (``solve_blocks``'s ``settle``: the bracket of a relaxation already proved not tight), or a
+  factorisation that breaks down (NumericalError).  A run that
   stops with a relative gap ≤ ``REDUCED_TOL_GAP`` and pinf, dinf ≤ ``REDUCED_TOL_FEAS`` (Clarabel's reduced
   accuracy) is AlmostSolved.  There is no infeasibility detection: an infeasible or unbounded SDP ends with
   one of those statuses.  It never raises on a numerical failure.  A result that is not usable is solved
@@ -66,7 +67,7 @@ from ..svec import SQRT2, triu_indices
 from .clique_program import clique_program, complete_auto
 from ..errors import SolverConfigError
 from ..threads import single_blas_thread
-from .backend import StopRule
+from .backend import EarlySettle, StopRule
 from .config import FALLBACK_MAX_N, Retries, SolverConfig
 from .options import SEARCH_DIRECTIONS
 from .result import SDPResult, Status, finish
@@ -137,6 +138,17 @@ class IPMSolution:
     iterations: int
     time_s: float
     message: str = ""
+    settled: bool = False  # ended at an iterate the caller's ``Settle`` settles (``solve_blocks``)
+
+
+@dataclass(frozen=True)
+class Settle:
+    """A caller's test of the IPM's iterates (``solve_blocks``'s ``settle``): ``may(pobj, dobj)`` a cheap necessary
+    condition on the iterate's costs (the IPM's scaled cost), ``test(z, y)`` the test of its primal blocks z (svec,
+    the layout of ``IPMSolution.z``) and multipliers y (M,)."""
+
+    may: Callable[[float, float], bool]
+    test: Callable[[np.ndarray, np.ndarray], bool]
 
 
 def almost_solved(status: str, gap: float, pinf: float, dinf: float) -> bool:
@@ -649,7 +661,8 @@ class _BandSchur:
 def solve_blocks(F: sp.csc_matrix, c: np.ndarray, g: np.ndarray, sizes: list[int], *, tol: float = 1e-7,
                  max_iter: int = 100, time_limit: float = np.inf, verbose: bool = False,
                  search: str = "nt", step_fraction: float | None = None, threads: int | None = None,
-                 stop: Callable[[np.ndarray], bool] | None = None) -> IPMSolution:
+                 stop: Callable[[np.ndarray], bool] | None = None,
+                 settle: Settle | None = None) -> IPMSolution:
     """Solve the block SDP with svec data: cost c (R,), constraint columns F (R × M), right side g (M,),
     block sizes n_k (R = Σ svec(n_k)).  Solved: gap, pinf and dinf (see IPMSolution) all ≤ tol.
     search: "nt" (Nesterov–Todd, default) or "hkm" (HKM) direction.  step_fraction: each step goes this
@@ -658,6 +671,8 @@ def solve_blocks(F: sp.csc_matrix, c: np.ndarray, g: np.ndarray, sizes: list[int
     iterations have not found a better one (smaller max residual), once per best iterate; True ends the solve
     there (AlmostSolved, "stopped by the caller's test of y").  The caller's test (the pipeline: y certifies the
     local solution) decides whether more accuracy can change anything.
+    settle: asked of every iterate with pinf and dinf ≤ ``REDUCED_TOL_FEAS`` whose costs meet ``settle.may``;
+    ``settle.test(z, y)`` True ends the solve at that iterate (returned in place of the best one, ``settled``).
     Never raises on a numerical failure: the status says what happened."""
     if search not in SEARCH_DIRECTIONS:
         raise ValueError(f"unknown search direction {search!r}; use " + " or ".join(map(repr, SEARCH_DIRECTIONS)))
@@ -686,6 +701,7 @@ def solve_blocks(F: sp.csc_matrix, c: np.ndarray, g: np.ndarray, sizes: list[int
     C = blocks.split(cv)
     gamma = GAMMA_START if step_fraction is None else step_fraction
     status, message, it = Status.MAX_ITERATIONS, "", 0
+    settled = False  # ended by ``settle``
     best: tuple | None = None
     clock = _StallClock(tol)
     jammed = 0  # jammed steps in a row (JAM_STEP)
@@ -712,6 +728,11 @@ def solve_blocks(F: sp.csc_matrix, c: np.ndarray, g: np.ndarray, sizes: list[int
                 print(f"{it:3d} pobj {pobj:+.10e} dobj {dobj:+.10e} gap {gap:.1e} pinf {pinf:.1e} dinf {dinf:.1e}")
             if best is None or err < best[0]:
                 best = (err, [x.copy() for x in X], y.copy(), pobj, dobj, gap, pinf, dinf, it)
+            if (settle is not None and err > tol and max(pinf, dinf) <= REDUCED_TOL_FEAS and settle.may(pobj, dobj)
+                    and settle.test(P.T @ blocks.join(X), y)):
+                best = (err, [x.copy() for x in X], y.copy(), pobj, dobj, gap, pinf, dinf, it)
+                status, message, settled = Status.INSUFFICIENT_PROGRESS, f"iteration {it} settles the verdict", True
+                break
             clock.tick(it, err, abs(pobj - dobj), gap, pinf, dinf)
             if err <= tol:
                 status = Status.SOLVED
@@ -801,7 +822,7 @@ def solve_blocks(F: sp.csc_matrix, c: np.ndarray, g: np.ndarray, sizes: list[int
         message = f"{status}: {message}" if message else status
         status = Status.ALMOST_SOLVED
     z = P.T @ blocks.join(Xb)
-    return IPMSolution(status, z, yb, pobj, dobj, gap, pinf, dinf, it, time.perf_counter() - t0, message)
+    return IPMSolution(status, z, yb, pobj, dobj, gap, pinf, dinf, it, time.perf_counter() - t0, message, settled)
 
 
 #: weight of the dense per-block terms of ``iteration_cost`` (BLAS-3 products) against the factorisation of
@@ -831,29 +852,41 @@ IPM_MIN_TOL = 1e-7
 
 def solve_ipm(Q: sp.csr_array, As: Sequence[sp.csr_array], b: np.ndarray, d: int,
               cliques: Sequence[np.ndarray] | None, opts: SolverConfig, finished: bool = True,
-              stop: StopRule | None = None) -> SDPResult:
+              stop: StopRule | None = None, settled: EarlySettle | None = None) -> SDPResult:
     """The Shor SDP by our IPM on the clique blocks of ``clique_program`` (one block of all N
     columns when ``cliques`` is None), with ``opts.ipm``'s search direction.  X is completed from the
     blocks' rank-d factors.  ``finished``: with X's eigenvalues, log SVR and Θ (``result.finish``); False
     leaves them to the caller (the SDP layer, which finishes once, after undoing its scaling).  ``stop``: see
-    ``solve_blocks``, given the multipliers of the constraints As (m,)."""
+    ``solve_blocks``, given the multipliers of the constraints As (m,).  ``settled``: asked of the iterates as
+    ``backend.EarlySettle`` says, with the result of the iterate (``result`` below) and (Q, As as COO, b); the
+    costs it pre-tests are those of Q, the IPM's divided by ``prog.scale``."""
     t0 = time.perf_counter()
     prog = clique_program(Q, As, b, cliques if cliques is not None else [np.arange(Q.shape[0])])
     t1 = time.perf_counter()
     blocks_stop = None if stop is None else (lambda y: stop(y[:prog.m] / prog.scale))  # y as ``res.y`` below
+
+    def result(status: str, z: np.ndarray, y_all: np.ndarray, time_s: float, iterations: int,
+               message: str) -> SDPResult:
+        X, svrs, completion = complete_auto(prog, z, d)
+        y = y_all[:prog.m] / prog.scale
+        return SDPResult(status=status, solver="autotight-ipm", d=d, X=X, y=y,
+                         primal_cost=float(Q.multiply(X).sum()) if X is not None else float("nan"),
+                         dual_cost=float(np.dot(b, y)), solve_time_s=time_s, setup_time_s=t1 - t0,
+                         iterations=iterations, clique_log_svr=svrs or None, cliques=prog.cliques if svrs else None,
+                         completion=completion, message=message)
+
+    settle = None
+    if settled is not None:
+        coo = [sp.coo_array(A) for A in As]
+        settle = Settle(lambda pobj, dobj: settled.may_settle(pobj / prog.scale, dobj / prog.scale),
+                        lambda z, y: settled(result(Status.INSUFFICIENT_PROGRESS, z, y, 0.0, 0, ""), Q, coo, b))
     sol = solve_blocks(prog.F, prog.c, prog.g, prog.sizes, tol=max(opts.tol, IPM_MIN_TOL),
                        max_iter=opts.max_iter, time_limit=opts.time_limit, verbose=opts.verbose,
                        search=opts.ipm.search, step_fraction=opts.ipm.step_fraction, threads=opts.ipm.threads,
-                       stop=blocks_stop)
-    X, svrs, completion = complete_auto(prog, sol.z, d)
-    y = sol.y[:prog.m] / prog.scale
-    res = SDPResult(status=sol.status, solver="autotight-ipm", d=d, X=X, y=y,
-                    primal_cost=float(Q.multiply(X).sum()) if X is not None else float("nan"),
-                    dual_cost=float(np.dot(b, y)), solve_time_s=sol.time_s, setup_time_s=t1 - t0,
-                    iterations=sol.iterations, clique_log_svr=svrs or None, cliques=prog.cliques if svrs else None,
-                    completion=completion,
-                    message=(f"{sol.message}; " if sol.message else "")
-                    + f"relative gap {sol.gap:.1e}, pinf {sol.pinf:.1e}, dinf {sol.dinf:.1e}")
+                       stop=blocks_stop, settle=settle)
+    res = result(sol.status, sol.z, sol.y, sol.time_s, sol.iterations, (f"{sol.message}; " if sol.message else "")
+                 + f"relative gap {sol.gap:.1e}, pinf {sol.pinf:.1e}, dinf {sol.dinf:.1e}")
+    res.settled = sol.settled
     return finish(res) if finished else res
 
 
@@ -887,8 +920,10 @@ class IPMBackend:
             raise SolverConfigError(f"backend 'ipm' takes no argument, got 'ipm:{arg}'")
 
     def solve(self, Q: sp.csr_array, As: Sequence[sp.csr_array], b: np.ndarray, d: int,
-              cliques: Sequence[np.ndarray] | None, config: SolverConfig, stop: StopRule | None = None) -> SDPResult:
-        return solve_ipm(Q, As, b, d, cliques, config, finished=False, stop=stop)  # the layer finishes (``sdp._solve``)
+              cliques: Sequence[np.ndarray] | None, config: SolverConfig, stop: StopRule | None = None,
+              settled: EarlySettle | None = None) -> SDPResult:
+        # the layer finishes (``sdp._solve``)
+        return solve_ipm(Q, As, b, d, cliques, config, finished=False, stop=stop, settled=settled)
 
     def retries(self, config: SolverConfig, decomposed: bool, N: int) -> Retries:
         if config.ipm.step_fraction is not None or N > RETRY_MAX_N:
