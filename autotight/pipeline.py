@@ -246,11 +246,14 @@ class GapSettled:
 class EarlyGapSettled(GapSettled):
     """``GapSettled``, also asked of an iterative solver's iterates (``sdp.backend.EarlySettle``): the solve ends at
     the first iterate whose bracket proves the relaxation not tight, the evidence a finished solve would give (the
-    bracket of an iterate counts its residuals in its accuracy).  ``may_settle``: U − P > gap_tol·|U| + |P − D|, which
-    the bracket's "not tight" implies (its tolerance is at least gap_tol·|U| and its accuracy at least |P − D|)."""
+    bracket of an iterate counts its residuals in its accuracy).  ``may_settle``: U − P > gap_tol·|U| +
+    cost_atol·scale/2 + |P − D| (scale = max|Q_ij|·tr X), which the bracket's "not tight" implies: its tolerance is
+    gap_tol·|U| + cost_atol·scale and its accuracy at least |P − D| (the half spares a trace read off the iterate's
+    blocks, which agree on shared columns only to its residuals)."""
 
-    def may_settle(self, primal: float, dual: float) -> bool:
-        return self.upper - primal > self.criteria.gap_tol * abs(self.upper) + abs(primal - dual)
+    def may_settle(self, primal: float, dual: float, scale: float) -> bool:
+        c = self.criteria
+        return self.upper - primal > c.gap_tol * abs(self.upper) + 0.5 * c.cost_atol * scale + abs(primal - dual)
 
 
 def gap_settled(upper: float, criteria: Criteria, early: bool = False) -> SettledRule:

@@ -245,3 +245,49 @@ def test_an_ipm_solve_asked_to_settle_early_ends_at_an_iterate_that_proves_not_t
     b = sdp.solve_model(model, cons, ipm, settled=gap_settled(U, Criteria(), early=True))
     assert not b.settled and a.iterations == b.iterations and a.status == b.status
     assert np.array_equal(a.y, b.y)
+
+
+def test_the_ipm_asks_a_settle_rule_a_bounded_number_of_times():
+    """A rule whose cheap test always passes and whose full test never does is asked ``SETTLE_TRIES`` times, and the
+    solve is the one made without it (the same iterations and multipliers): a relaxation whose iterates keep
+    looking loose to the cheap test but never settle costs at most that many tests.  The cheap test's scale
+    max|Q_ij|·tr X, read off the clique blocks of the decomposed solve (discrete trajectory, K = 5: one block per
+    pose pair), is the trace of the X that the same iterate completes to."""
+    from autotight.sdp import schur_ipm
+    from autotight.sdp.config import SolverConfig
+
+    class Never:
+        def __init__(self):
+            self.scales, self.traces = [], []
+
+        def __call__(self, res, Q, As, b):
+            self.traces.append(float(abs(Q).max()) * float(res.X.diagonal().sum()))
+            return False
+
+        def may_settle(self, primal, dual, scale):
+            self.scales.append(scale)
+            return True
+
+    p = load("discrete_trajectory")
+    inst = p.generate({"K": 5}, 0)
+    model = p.build(inst)
+    cons = model.primary()
+    ipm = SolverConfig(backend="ipm")
+    rule = Never()
+    with_rule = sdp.solve_model(model, cons, ipm, settled=rule)
+    plain = sdp.solve_model(model, cons, ipm)
+    assert len(rule.traces) == schur_ipm.SETTLE_TRIES and len(rule.scales) == schur_ipm.SETTLE_TRIES
+    assert len(sdp.model_cover(model, cons, "ipm")) > 1
+    np.testing.assert_allclose(rule.scales, rule.traces, rtol=1e-6)
+    assert not with_rule.settled and with_rule.iterations == plain.iterations and np.array_equal(with_rule.y, plain.y)
+
+
+def test_the_cheap_test_reads_the_brackets_absolute_tolerance():
+    """``EarlyGapSettled.may_settle`` is implied by the bracket's "not tight": with U − P above gap_tol·|U| + |P − D|
+    but below the absolute tolerance cost_atol·max|Q|·tr X, it says no (the bracket could not say not tight)."""
+    rule = gap_settled(1.0, Criteria(), early=True)
+    c = Criteria()
+    P, D = 0.9, 0.9
+    assert rule.may_settle(P, D, 0.0)
+    assert not rule.may_settle(P, D, 2 * (1.0 - P) / c.cost_atol * 1.01)
+    assert not rule.may_settle(P, D - 0.2, 0.0)

@@ -21,14 +21,15 @@ SettledRule = Callable[[SDPResult, sp.csr_array, Sequence[sp.coo_array], np.ndar
 
 class EarlySettle(Protocol):
     """A ``SettledRule`` that an iterative backend with ``stops_early`` also asks of its iterates during the solve
-    (``Backend.solve``'s ``settled``).  ``may_settle(P, D)``, a cheap necessary condition on an iterate's primal and
-    dual costs (those of the problem as given to the backend), is asked first; only an iterate that meets it and is
-    within reduced accuracy of feasibility (our IPM: pinf, dinf ≤ Clarabel's reduced tolerance) is completed into a
-    result and tested by the rule.  True ends the solve at that iterate, which it returns marked ``settled``."""
+    (``Backend.solve``'s ``settled``).  ``may_settle(P, D, scale)``, a cheap necessary condition on an iterate's
+    primal and dual costs (those of the problem as given to the backend) and scale = max|Q_ij|·tr X, is asked first;
+    only an iterate that meets it and is within reduced accuracy of feasibility (our IPM: pinf, dinf ≤ Clarabel's
+    reduced tolerance) is completed into a result and tested by the rule.  True ends the solve at that iterate, which
+    it returns marked ``settled``."""
 
     def __call__(self, res: SDPResult, Q: sp.csr_array, As: Sequence[sp.coo_array], b: np.ndarray) -> bool: ...
 
-    def may_settle(self, primal: float, dual: float) -> bool: ...
+    def may_settle(self, primal: float, dual: float, scale: float) -> bool: ...
 
 
 class Backend(Protocol):

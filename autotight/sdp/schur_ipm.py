@@ -110,6 +110,11 @@ STALL_ITERATIONS_ALMOST = 6
 #: the set learned at K = 5: gap 6.1e-6 from iteration 15 on, pinf 7e-7 → 9e-5, five more iterations)
 JAM_STEP = 0.05
 JAM_ITERATIONS = 2
+#: tests of iterates by the caller's settle rule per solve at most (``solve_blocks``'s ``settle``): each completes X
+#: and bounds λ_min of the dual matrix, and where the first ones fail, later ones rarely pass (continuous time
+#: K = 41, a 2-pair set: 32 tests, 106 s, none passed, on a solve of 126 s; discrete trajectory K = 200, a 1-pair
+#: set: the first test passed, iteration 18 of 64)
+SETTLE_TRIES = 2
 #: iterations without a better iterate after which ``solve_blocks`` asks its caller's stop rule about an
 #: AlmostSolved best iterate.  One is not enough: after a single jammed step the residuals may fall again (discrete
 #: trajectory K = 100, seed 2, K = 5 set: Solved three iterations after it, at a cost 1.6e-5 lower).  Not the stall
@@ -143,12 +148,15 @@ class IPMSolution:
 
 @dataclass(frozen=True)
 class Settle:
-    """A caller's test of the IPM's iterates (``solve_blocks``'s ``settle``): ``may(pobj, dobj)`` a cheap necessary
-    condition on the iterate's costs (the IPM's scaled cost), ``test(z, y)`` the test of its primal blocks z (svec,
-    the layout of ``IPMSolution.z``) and multipliers y (M,)."""
+    """A caller's test of the IPM's iterates (``solve_blocks``'s ``settle``): ``may(pobj, dobj, trace)`` a cheap
+    necessary condition on the iterate's costs (the IPM's scaled cost) and the trace of the N×N matrix its blocks
+    complete to, ``test(z, y)`` the test of its primal blocks z (svec, the layout of ``IPMSolution.z``) and
+    multipliers y (M,).  ``diag``: the positions, in the blocks' joined vec (``_Blocks.join``), of one diagonal entry
+    per column (each column counted once in the trace)."""
 
-    may: Callable[[float, float], bool]
+    may: Callable[[float, float, float], bool]
     test: Callable[[np.ndarray, np.ndarray], bool]
+    diag: np.ndarray
 
 
 def almost_solved(status: str, gap: float, pinf: float, dinf: float) -> bool:
@@ -671,8 +679,9 @@ def solve_blocks(F: sp.csc_matrix, c: np.ndarray, g: np.ndarray, sizes: list[int
     iterations have not found a better one (smaller max residual), once per best iterate; True ends the solve
     there (AlmostSolved, "stopped by the caller's test of y").  The caller's test (the pipeline: y certifies the
     local solution) decides whether more accuracy can change anything.
-    settle: asked of every iterate with pinf and dinf ≤ ``REDUCED_TOL_FEAS`` whose costs meet ``settle.may``;
-    ``settle.test(z, y)`` True ends the solve at that iterate (returned in place of the best one, ``settled``).
+    settle: asked of every iterate with pinf and dinf ≤ ``REDUCED_TOL_FEAS`` whose costs and trace meet
+    ``settle.may``, ``SETTLE_TRIES`` times at most; ``settle.test(z, y)`` True ends the solve at that iterate
+    (returned in place of the best one, ``settled``).
     Never raises on a numerical failure: the status says what happened."""
     if search not in SEARCH_DIRECTIONS:
         raise ValueError(f"unknown search direction {search!r}; use " + " or ".join(map(repr, SEARCH_DIRECTIONS)))
@@ -701,7 +710,7 @@ def solve_blocks(F: sp.csc_matrix, c: np.ndarray, g: np.ndarray, sizes: list[int
     C = blocks.split(cv)
     gamma = GAMMA_START if step_fraction is None else step_fraction
     status, message, it = Status.MAX_ITERATIONS, "", 0
-    settled = False  # ended by ``settle``
+    settled, tries = False, 0  # ended by ``settle``; its tests made
     best: tuple | None = None
     clock = _StallClock(tol)
     jammed = 0  # jammed steps in a row (JAM_STEP)
@@ -728,11 +737,13 @@ def solve_blocks(F: sp.csc_matrix, c: np.ndarray, g: np.ndarray, sizes: list[int
                 print(f"{it:3d} pobj {pobj:+.10e} dobj {dobj:+.10e} gap {gap:.1e} pinf {pinf:.1e} dinf {dinf:.1e}")
             if best is None or err < best[0]:
                 best = (err, [x.copy() for x in X], y.copy(), pobj, dobj, gap, pinf, dinf, it)
-            if (settle is not None and err > tol and max(pinf, dinf) <= REDUCED_TOL_FEAS and settle.may(pobj, dobj)
-                    and settle.test(P.T @ blocks.join(X), y)):
-                best = (err, [x.copy() for x in X], y.copy(), pobj, dobj, gap, pinf, dinf, it)
-                status, message, settled = Status.INSUFFICIENT_PROGRESS, f"iteration {it} settles the verdict", True
-                break
+            if (settle is not None and tries < SETTLE_TRIES and err > tol and max(pinf, dinf) <= REDUCED_TOL_FEAS
+                    and settle.may(pobj, dobj, float(np.sum(blocks.join(X)[settle.diag])))):
+                tries += 1
+                if settle.test(P.T @ blocks.join(X), y):
+                    best = (err, [x.copy() for x in X], y.copy(), pobj, dobj, gap, pinf, dinf, it)
+                    status, message, settled = Status.INSUFFICIENT_PROGRESS, f"iteration {it} settles the verdict", True
+                    break
             clock.tick(it, err, abs(pobj - dobj), gap, pinf, dinf)
             if err <= tol:
                 status = Status.SOLVED
@@ -878,8 +889,16 @@ def solve_ipm(Q: sp.csr_array, As: Sequence[sp.csr_array], b: np.ndarray, d: int
     settle = None
     if settled is not None:
         coo = [sp.coo_array(A) for A in As]
-        settle = Settle(lambda pobj, dobj: settled.may_settle(pobj / prog.scale, dobj / prog.scale),
-                        lambda z, y: settled(result(Status.INSUFFICIENT_PROGRESS, z, y, 0.0, 0, ""), Q, coo, b))
+        top = float(abs(Q).max()) if Q.nnz else 0.0
+        seen, diag, voff = np.zeros(Q.shape[0], bool), [], 0
+        for C in prog.cliques:  # each column's diagonal entry in the first block that holds it
+            f = np.flatnonzero(~seen[C])
+            diag.append(voff + f * (len(C) + 1))
+            seen[C] = True
+            voff += len(C) ** 2
+        settle = Settle(lambda pobj, dobj, tr: settled.may_settle(pobj / prog.scale, dobj / prog.scale, top * tr),
+                        lambda z, y: settled(result(Status.INSUFFICIENT_PROGRESS, z, y, 0.0, 0, ""), Q, coo, b),
+                        np.concatenate(diag))
     sol = solve_blocks(prog.F, prog.c, prog.g, prog.sizes, tol=max(opts.tol, IPM_MIN_TOL),
                        max_iter=opts.max_iter, time_limit=opts.time_limit, verbose=opts.verbose,
                        search=opts.ipm.search, step_fraction=opts.ipm.step_fraction, threads=opts.ipm.threads,
