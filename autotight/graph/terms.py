@@ -201,20 +201,18 @@ class Term:
         a = self.aux_value(own)
         if self.aux.jacobian is None:
             return a, self._differences(own, self.aux_value)
-        dof = self._declared_dof()
-        J = np.asarray(self.aux.jacobian(*self._state_views(own), self.aux.view(a)), float)
-        if J.shape != (self.aux.size, dof):
-            raise ProblemDefinitionError(f"{self.where}: the auxiliary's jacobian returned shape {J.shape}, "
-                                         f"expected ({self.aux.size}, {dof})")
-        return a, self._pad(J)
+        J = self.aux.jacobian(*self._state_views(own), self.aux.view(a))
+        return a, self._declared_jacobian(J, self.aux.size, "the auxiliary's jacobian")
 
-    def _declared_dof(self) -> int:
-        return sum(el.dof for el in self.elements[:self.n_declared])
-
-    def _pad(self, J: np.ndarray) -> np.ndarray:
-        """A declared jacobian (·, dof of the declared variables) with zero columns for the variables after them."""
+    def _declared_jacobian(self, J: object, rows: int, what: str) -> np.ndarray:
+        """A declared jacobian, checked to be (rows, dof of the declared variables), with zero columns for the
+        variables after them (the product blocks' variables the factor does not name)."""
+        J = np.asarray(J, float)
+        dof = sum(el.dof for el in self.elements[:self.n_declared])
+        if J.shape != (rows, dof):
+            raise ProblemDefinitionError(f"{self.where}: {what} returned shape {J.shape}, expected ({rows}, {dof})")
         extra = sum(el.dof for el in self.elements[self.n_declared:])
-        return np.hstack([J, np.zeros((J.shape[0], extra))]) if extra else J
+        return np.hstack([J, np.zeros((rows, extra))]) if extra else J
 
     def _residual(self, theta: np.ndarray) -> np.ndarray:
         return _vector(self.factor.residual(*self._views(theta)), self.where)
@@ -303,12 +301,7 @@ class Term:
         theta = self.lifted(own)
         e = self._residual(theta)
         if self.factor.jacobian is not None:
-            dof = self._declared_dof()
-            J = np.asarray(self.factor.jacobian(*self._views(theta)), float)
-            if J.shape != (e.size, dof):
-                raise ProblemDefinitionError(f"{self.where}: jacobian returned shape {J.shape}, "
-                                             f"expected ({e.size}, {dof})")
-            return e, self._pad(J)
+            return e, self._declared_jacobian(self.factor.jacobian(*self._views(theta)), e.size, "jacobian")
         return e, self._differences(own, lambda vals: self._residual(self.lifted(vals)))
 
     def _differences(self, own: Sequence[np.ndarray], fn: Callable[[list], np.ndarray]) -> np.ndarray:

@@ -737,10 +737,11 @@ def solve_blocks(F: sp.csc_matrix, c: np.ndarray, g: np.ndarray, sizes: list[int
                 print(f"{it:3d} pobj {pobj:+.10e} dobj {dobj:+.10e} gap {gap:.1e} pinf {pinf:.1e} dinf {dinf:.1e}")
             if best is None or err < best[0]:
                 best = (err, [x.copy() for x in X], y.copy(), pobj, dobj, gap, pinf, dinf, it)
-            if (settle is not None and tries < SETTLE_TRIES and err > tol and max(pinf, dinf) <= REDUCED_TOL_FEAS
-                    and settle.may(pobj, dobj, float(np.sum(blocks.join(X)[settle.diag])))):
+            xv = (blocks.join(X) if settle is not None and tries < SETTLE_TRIES and err > tol
+                  and max(pinf, dinf) <= REDUCED_TOL_FEAS else None)
+            if xv is not None and settle is not None and settle.may(pobj, dobj, float(np.sum(xv[settle.diag]))):
                 tries += 1
-                if settle.test(P.T @ blocks.join(X), y):
+                if settle.test(P.T @ xv, y):
                     best = (err, [x.copy() for x in X], y.copy(), pobj, dobj, gap, pinf, dinf, it)
                     status, message, settled = Status.INSUFFICIENT_PROGRESS, f"iteration {it} settles the verdict", True
                     break
