@@ -636,6 +636,27 @@ def test_products_of_lifted_variables_are_learned_with_their_liftings(tmp_path):
     assert primary.log_svr < RANK_ONE_LOG_SVR - 2
 
 
+def test_products_discovered_with_the_ipm_raise_no_numpy_warnings(tmp_path):
+    """With our IPM, TWO_POINTS' discovery solves sets under which X grows on blocks nothing bounds yet and the Schur
+    system turns numerically singular: the IPM ends such a solve as a numerical breakdown (its best iterate, then
+    the fallback) instead of stepping on in overflowing arithmetic, so no numpy RuntimeWarning reaches the user,
+    and the set it hands back is validated and passes ``check``."""
+    import warnings
+
+    import autotight as at
+    from autotight.check import check_sufficient
+
+    path = tmp_path / "two_points.py"
+    path.write_text(TWO_POINTS)
+    prob = load(str(path))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)
+        res = at.discover(prob, {}, 0, solver="ipm", progress=None)
+    assert res.validated is True
+    rep = check_sufficient(prob, res.constraint_set, sigmas=[0.01], instances=10, min_fraction=0.9)
+    assert rep.passed, rep
+
+
 def test_a_factor_without_its_products_variables_gets_them_after_its_own(tmp_path):
     """TWO_POINTS declares its anchor ranges on a alone, whose product block ab needs b: the factor gets b after a,
     its residual sees a's view only, and the model is the one of the same factors declared on (a, b) to the bit.

@@ -723,7 +723,8 @@ def solve_blocks(F: sp.csc_matrix, c: np.ndarray, g: np.ndarray, sizes: list[int
         ad = step(LZi, dZ, gamma)
         return fp.result(), ad
 
-    with par:
+    # overflow is caught where it matters: a direction that is not finite ends the solve (``direction``)
+    with par, np.errstate(over="ignore", invalid="ignore"):
         for it in range(max_iter + 1):
             rp = g - A(X)
             Rd = [Cg - Ag - Zg for Cg, Ag, Zg in zip(C, At(y), Z)]
@@ -793,10 +794,13 @@ def solve_blocks(F: sp.csc_matrix, c: np.ndarray, g: np.ndarray, sizes: list[int
 
                 def direction(H: list[np.ndarray]) -> tuple[list[np.ndarray], np.ndarray, list[np.ndarray]]:
                     """(ΔX, Δy, ΔZ) with ΔX = sym(H − 𝒦(ΔZ)), ΔZ = Rd − A*(Δy), A(ΔX) = rp;
-                    𝒦(R) = X R Z⁻¹ (HKM) or W R W (NT)."""
+                    𝒦(R) = X R Z⁻¹ (HKM) or W R W (NT).  A direction that overflows (S numerically singular,
+                    seen where X grows on blocks nothing bounds) raises ``LinAlgError``: a numerical breakdown."""
                     dy = solve(rp - A([Hg - Kg for Hg, Kg in zip(H, KRd)]))
                     dZ = [Rg - Ag for Rg, Ag in zip(Rd, At(dy))]
                     dX = par.each(_primal_direction, H, left, dZ, right)
+                    if not (np.all(np.isfinite(dy)) and all(np.all(np.isfinite(a)) for a in dX + dZ)):
+                        raise np.linalg.LinAlgError(f"the Newton direction overflowed at iteration {it}")
                     return dX, dy, dZ
 
                 dX, dy, dZ = direction([-Xg for Xg in X])  # predictor: σ = 0
