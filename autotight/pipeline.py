@@ -426,14 +426,14 @@ class Judgement:
 
 
 def judge_relaxation(problem: Problem, inst: Instance, prep: Prepared, relax: Relaxation, best: LocalResult,
-                     criteria: Criteria) -> Judgement:
+                     criteria: Criteria, retry_undecided: bool = True) -> Judgement:
     """Polish the multipliers at ``best`` and certify it (``dual_certificate``), judge against U = best.cost
     (``tightness.judge``); an undecided verdict of a solve that reached its tolerance (Solved) is solved
     once more at a 100× tighter tolerance where the backend can go tighter (kept when that solve is
     usable).  A solve that stopped short of its tolerance is not: it would stop short of a tighter one
     too (Clarabel's steps do not depend on its stopping tolerances: it retraces the same path to the same
-    stop).  A verdict neither rank nor cost tight notes blocks that can grow at no cost
-    (``unbounded.rank_out_of_reach``)."""
+    stop).  ``retry_undecided`` False: no such solve (the undecided verdict stands).  A verdict neither rank nor
+    cost tight notes blocks that can grow at no cost (``unbounded.rank_out_of_reach``)."""
     model, cons, config, scale = prep.model, prep.constraints, prep.config, relax.scale
     upper = best.cost
     if relax.certified is not None and best is prep.local.best:  # made by ``solve_relaxation`` at this point
@@ -445,7 +445,7 @@ def judge_relaxation(problem: Problem, inst: Instance, prep: Prepared, relax: Re
     tighter = replace(config, tol=max(config.tol / 100, 1e-13))
     # once more at a tighter tolerance, unless the solve stopped short of its own, or the backend cannot
     # go tighter (the IPM's floor): either way the same solve again
-    if (getattr(verdict, "undecided", False) and res.status == Status.SOLVED
+    if (retry_undecided and getattr(verdict, "undecided", False) and res.status == Status.SOLVED
             and sdp.effective_tol(tighter) < sdp.effective_tol(config)):
         res2 = sdp.solve_model(model, cons, tighter, scale)
         res2, cert2 = dual_certificate(problem, inst, model, cons, res2, best, criteria)
@@ -466,7 +466,8 @@ def solve_instance(problem: Problem, inst: Instance, constraints: ConstraintsLik
                    model: Model | None = None, local: LocalSearch | None = None,
                    rng_local: np.random.Generator | None = None,
                    rng_constraints: np.random.Generator | None = None,
-                   raise_unbounded: bool = True, settle_early: bool = False) -> SolveResult:
+                   raise_unbounded: bool = True, settle_early: bool = False,
+                   retry_undecided: bool = True) -> SolveResult:
     """Solve ``inst`` with ``constraints`` (see ``autotight.constraint_set``) and judge tightness.
 
     ``model`` and ``local`` may be given to share them between several constraint sets of one
@@ -478,8 +479,8 @@ def solve_instance(problem: Problem, inst: Instance, constraints: ConstraintsLik
     more at a 100× tighter tolerance (``judge_relaxation``); ``attempts`` records both.  An unbounded SDP
     (DualInfeasible: nothing bounds some blocks) raises ``UnboundedRelaxation`` naming those blocks in one
     line, unless ``raise_unbounded`` is False (then it is judged not tight, as discovery's held-out check
-    needs for the primary constraints of a problem such as robust pose averaging).  ``settle_early``:
-    ``solve_prepared``'s.
+    needs for the primary constraints of a problem such as robust pose averaging).  ``settle_early``,
+    ``retry_undecided``: ``solve_prepared``'s.
 
     The steps, in order: ``prepare`` (model, constraints, local search, checks) → ``solve_relaxation`` (the
     SDP) → ``recover_estimate`` (estimate, refinement, U) → ``judge_relaxation`` (polish, certificate,
@@ -489,22 +490,26 @@ def solve_instance(problem: Problem, inst: Instance, constraints: ConstraintsLik
         prep = prepare(problem, inst, constraints, config=config, n_random=n_random, model=model, local=local,
                        rng_local=rng_local, rng_constraints=rng_constraints)
         return solve_prepared(problem, inst, prep, set_name(constraints, prep.model), criteria=criteria,
-                              raise_unbounded=raise_unbounded, settle_early=settle_early)
+                              raise_unbounded=raise_unbounded, settle_early=settle_early,
+                              retry_undecided=retry_undecided)
 
 
 @single_blas_thread
 def solve_prepared(problem: Problem, inst: Instance, prep: Prepared, name: str, *, criteria: Criteria = Criteria(),
-                   raise_unbounded: bool = True, settle_early: bool = False) -> SolveResult:
+                   raise_unbounded: bool = True, settle_early: bool = False,
+                   retry_undecided: bool = True) -> SolveResult:
     """``solve_instance`` after its ``prepare`` step (``prep``; ``name``: the set's name in the result), for a
     caller that prepared the instance already (e.g. to try a certificate first).  ``settle_early``: an iterative
     solver may end at the first iterate whose bracket proves the relaxation not tight (``EarlyGapSettled``; the
-    verdict is the same, its P, log SVR and reason are the iterate's)."""
+    verdict is the same, its P, log SVR and reason are the iterate's).  ``retry_undecided`` False: an undecided
+    verdict is not solved again at a tighter tolerance (``judge_relaxation``), for a caller to whom undecided
+    already means "not shown tight" (discovery's training solves)."""
     t2 = time.perf_counter()
     relax = solve_relaxation(problem, inst, prep, raise_unbounded=raise_unbounded, criteria=criteria,
                              settle_early=settle_early)
     t3 = time.perf_counter()
     rec = recover_estimate(problem, inst, prep, relax.res, criteria)
-    jd = judge_relaxation(problem, inst, prep, relax, rec.best, criteria)
+    jd = judge_relaxation(problem, inst, prep, relax, rec.best, criteria, retry_undecided)
     jd.verdict.reason += rec.note + jd.note
     t4 = time.perf_counter()
     local = prep.local

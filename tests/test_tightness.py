@@ -182,3 +182,29 @@ def test_an_undecided_verdict_is_solved_again_only_after_a_solve_that_reached_it
     jd = pl.judge_relaxation(prob, inst, prep, relax, prep.local.best, Criteria())
     assert len(jd.attempts) == solves
     assert calls == ([prep.config.tol / 100] if solves == 2 else [])
+
+
+
+def test_discoverys_training_solves_leave_an_undecided_verdict_standing(monkeypatch):
+    """``retry_undecided=False`` (discovery's training solves): the undecided verdict of a Solved solve stands, with
+    no solve at a tighter tolerance; the verdict and the multipliers judged are the first solve's (the verdict is
+    stubbed undecided, the SDP is real).  Through ``solve_instance`` as well: one attempt, the same verdict."""
+    import autotight.pipeline as pl
+
+    prob = load("pose_averaging")
+    inst = prob.generate(prob.parse_params({"M": 3}), 0)
+    prep = pl.prepare(prob, inst, "primary", config=SolverConfig(backend="clarabel"))
+    relax = pl.solve_relaxation(prob, inst, prep)
+    relax = replace(relax, res=replace(relax.res, status="Solved"), certified=None)
+    calls = []
+    real_solve = pl.sdp.solve_model
+    monkeypatch.setattr(pl.sdp, "solve_model", lambda *a, **k: calls.append(a[2].tol) or real_solve(*a, **k))
+    undecided = Verdict(False, False, False, 0.0, 1e-3, "stub", undecided=True, outcome="undecided")
+    monkeypatch.setattr(pl, "judge", lambda *a, **k: undecided)
+    jd = pl.judge_relaxation(prob, inst, prep, relax, prep.local.best, Criteria(), retry_undecided=False)
+    assert len(jd.attempts) == 1 and calls == [] and jd.verdict is undecided
+    assert np.array_equal(jd.res.y, pl.dual_certificate(prob, inst, prep.model, prep.constraints, relax.res,
+                                                        prep.local.best, Criteria())[0].y)
+    monkeypatch.setattr(pl.sdp, "solve_model", real_solve)
+    res = pl.solve_instance(prob, inst, "primary", retry_undecided=False)
+    assert len(res.attempts) == 1 and res.outcome == "undecided"

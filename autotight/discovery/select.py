@@ -23,8 +23,8 @@ tight joins the probe, gets back the fewest removed pairs that make it tight (ra
 violation of its solution), and the removal runs again.  Every result is cached per instance
 (``trainers.Trainer.known``).  **Irreducible**: removing any remaining pair breaks tightness on at least
 one training instance, checked by a solve on exactly that set, or proved by an open cost gap of a set that
-contains it (``trainers`` module docstring); a pair whose removal turns out not to break it is dropped, and
-the check repeats.
+contains it (``trainers`` module docstring); a pair whose removal turns out not to break it is dropped, the pass
+goes on with the smaller set, and passes repeat until one drops nothing.
 
 "Tight" is ``solve_instance``'s verdict under the discovery's ``Criteria`` (an "undecided" verdict
 counts as not tight here: it never lets a pair go).
@@ -155,7 +155,7 @@ def reduce(run: Solves, trainers: list[Trainer], chosen: list[Pair], say: Say,
     order = probe + [tr for tr in trainers if tr not in probe]
     dropped: list[Pair] = []
     changed = True
-    while changed:
+    while changed:  # passes until one drops nothing: then every check of it was made on the final set
         changed = False
         for p in [q for q in current if q not in kept]:
             rest = [q for q in current if q != p]
@@ -166,8 +166,7 @@ def reduce(run: Solves, trainers: list[Trainer], chosen: list[Pair], say: Say,
                 current.remove(p)
                 dropped.append(p)
                 changed = True
-                break
-            if bad is not None:
+            elif bad is not None:
                 breaker[p] = bad
     return current, dropped
 

@@ -5,7 +5,10 @@ templates of a set learned elsewhere) and every tightness result known for it.  
 training solve through ``autotight.pipeline.solve_instance`` (the function ``solve`` and ``check`` use,
 with its block scaling and verdict), counts the solver calls per stage and caches each result per
 instance: tightness is monotone in the constraint set, so a set containing a known tight set is tight
-and a set inside a known loose one is loose.
+and a set inside a known loose one is loose.  An undecided verdict stands here: it is not solved again at a
+tighter tolerance (``solve_instance``'s ``retry_undecided``), since to the selection it already means "not shown
+tight" (the pair stays).  Held-out validation and ``check`` still make that solve, so what the set is judged by is
+``solve``'s verdict.
 
 An open cost gap is a proof for every subset.  A verdict whose bracket says "not tight" (``Verdict.cost_outcome``:
 U − P > tol + accuracy, P = ⟨Q, X⟩ of the SDP's solution X of the set S) holds for every S′ ⊆ S: X is feasible
@@ -164,7 +167,7 @@ class Solves:
         chosen = list(chosen)
         cons = [c for p in chosen for c in tr.pairs.get(p, [])]
         r = solve_instance(self.problem, tr.inst, cons, config=self.config, criteria=self.criteria,
-                           model=tr.model, local=tr.local, raise_unbounded=False)
+                           model=tr.model, local=tr.local, raise_unbounded=False, retry_undecided=False)
         self.count(stage, max(1, len(r.attempts)))
         self.sdp_s += r.times.get("sdp_total_s", 0.0)
         if with_ray and not r.sdp.usable and any(a["status"] in UNBOUNDED_STATUSES for a in r.attempts):
