@@ -162,11 +162,10 @@ def test_scaled_frame_bound_is_a_lower_bound_on_a_real_relaxation():
         assert both[1].frame == "scaled"
 
 
-@pytest.mark.parametrize("status, solves", [("Solved", 2), ("AlmostSolved", 1), ("InsufficientProgress", 1)])
-def test_an_undecided_verdict_is_solved_again_only_after_a_solve_that_reached_its_tolerance(monkeypatch, status,
-                                                                                           solves):
-    """The retry at a 100× tighter tolerance: a solve that stopped short of its tolerance would stop at the same
-    point again, so only a Solved one is solved again (the verdict is stubbed undecided; the SDPs are real)."""
+def _undecided_relaxation(monkeypatch, status: str):
+    """pose averaging (M = 3, primary) solved by Clarabel, its status set to ``status``, every verdict stubbed
+    undecided, and every later SDP solve's tolerance recorded: (pipeline, problem, instance, prepared, relaxation,
+    tolerances, the stub verdict)."""
     import autotight.pipeline as pl
 
     prob = load("pose_averaging")
@@ -174,37 +173,34 @@ def test_an_undecided_verdict_is_solved_again_only_after_a_solve_that_reached_it
     prep = pl.prepare(prob, inst, "primary", config=SolverConfig(backend="clarabel"))
     relax = pl.solve_relaxation(prob, inst, prep)
     relax = replace(relax, res=replace(relax.res, status=status), certified=None)
-    calls = []
+    calls: list = []
     real_solve = pl.sdp.solve_model
     monkeypatch.setattr(pl.sdp, "solve_model", lambda *a, **k: calls.append(a[2].tol) or real_solve(*a, **k))
     undecided = Verdict(False, False, False, 0.0, 1e-3, "stub", undecided=True, outcome="undecided")
     monkeypatch.setattr(pl, "judge", lambda *a, **k: undecided)
+    return pl, prob, inst, prep, relax, calls, undecided
+
+
+@pytest.mark.parametrize("status, solves", [("Solved", 2), ("AlmostSolved", 1), ("InsufficientProgress", 1)])
+def test_an_undecided_verdict_is_solved_again_only_after_a_solve_that_reached_its_tolerance(monkeypatch, status,
+                                                                                           solves):
+    """The retry at a 100× tighter tolerance: a solve that stopped short of its tolerance would stop at the same
+    point again, so only a Solved one is solved again (the verdict is stubbed undecided; the SDPs are real)."""
+    pl, prob, inst, prep, relax, calls, _ = _undecided_relaxation(monkeypatch, status)
     jd = pl.judge_relaxation(prob, inst, prep, relax, prep.local.best, Criteria())
     assert len(jd.attempts) == solves
     assert calls == ([prep.config.tol / 100] if solves == 2 else [])
-
 
 
 def test_discoverys_training_solves_leave_an_undecided_verdict_standing(monkeypatch):
     """``retry_undecided=False`` (discovery's training solves): the undecided verdict of a Solved solve stands, with
     no solve at a tighter tolerance; the verdict and the multipliers judged are the first solve's (the verdict is
     stubbed undecided, the SDP is real).  Through ``solve_instance`` as well: one attempt, the same verdict."""
-    import autotight.pipeline as pl
-
-    prob = load("pose_averaging")
-    inst = prob.generate(prob.parse_params({"M": 3}), 0)
-    prep = pl.prepare(prob, inst, "primary", config=SolverConfig(backend="clarabel"))
-    relax = pl.solve_relaxation(prob, inst, prep)
-    relax = replace(relax, res=replace(relax.res, status="Solved"), certified=None)
-    calls = []
-    real_solve = pl.sdp.solve_model
-    monkeypatch.setattr(pl.sdp, "solve_model", lambda *a, **k: calls.append(a[2].tol) or real_solve(*a, **k))
-    undecided = Verdict(False, False, False, 0.0, 1e-3, "stub", undecided=True, outcome="undecided")
-    monkeypatch.setattr(pl, "judge", lambda *a, **k: undecided)
+    pl, prob, inst, prep, relax, calls, undecided = _undecided_relaxation(monkeypatch, "Solved")
     jd = pl.judge_relaxation(prob, inst, prep, relax, prep.local.best, Criteria(), retry_undecided=False)
     assert len(jd.attempts) == 1 and calls == [] and jd.verdict is undecided
     assert np.array_equal(jd.res.y, pl.dual_certificate(prob, inst, prep.model, prep.constraints, relax.res,
                                                         prep.local.best, Criteria())[0].y)
-    monkeypatch.setattr(pl.sdp, "solve_model", real_solve)
+    monkeypatch.setattr(pl.sdp, "solve_model", solve_model)  # the real solve again; the verdict stays stubbed
     res = pl.solve_instance(prob, inst, "primary", retry_undecided=False)
     assert len(res.attempts) == 1 and res.outcome == "undecided"
