@@ -205,6 +205,21 @@ def trace_bound(Q: sp.sparray, As: Sequence[sp.sparray], b: np.ndarray, f_bar: f
     """A bound on tr(X) over {X ⪰ 0 : ⟨Aᵢ,X⟩ = bᵢ, ⟨Q,X⟩ ≤ f_bar} (see the module docstring), or None
     when the constraints and the cost leave some column unbounded.  columns: bound only the trace over
     these columns (the others may stay unbounded)."""
+    bound_of, groups = trace_groups(Q, As, b, f_bar, max_passes, columns)
+    if (bound_of[slice(None) if columns is None else columns] >= 0).all():
+        return float(sum(groups))
+    return None
+
+
+def trace_groups(Q: sp.sparray, As: Sequence[sp.sparray], b: np.ndarray, f_bar: float,
+                 max_passes: int = 8, columns: np.ndarray | None = None,
+                 cost_last: bool = False) -> tuple[np.ndarray, list[float]]:
+    """(group of each column, −1 where none bounds it; each group's bound on tr X over its columns): the
+    greedy of ``trace_bound`` (module docstring), which stops once every column of ``columns`` (default: all)
+    is bounded or a pass bounds nothing more.  cost_last: each pass tries the constraints before the cost, so
+    that exact relations (h² = 1, cᵢᵀcᵢ = 1) bound their columns alone, before the cost bounds them in one
+    group with others (stereo-2D, N = 20: groups of 1 on h and each rotation column pair, instead of one of
+    6e14 over every column the cost touches)."""
     n = Q.shape[0]
     bound_of = np.full(n, -1, dtype=np.int64)  # the group that bounds each column (−1: none yet)
     groups: list[float] = []
@@ -217,6 +232,8 @@ def trace_bound(Q: sp.sparray, As: Sequence[sp.sparray], b: np.ndarray, f_bar: f
     for i in range(len(As)):
         sel = order[cuts[i]:cuts[i + 1]]
         dense.append(_item_block(None, r[sel], c[sel], v[sel]))
+    if cost_last:
+        items, dense = items[1:] + items[:1], dense[1:] + dense[:1]
     # per item, the free columns of its support when it was last found without a definite part: its part on
     # them is the same until one of them is bounded, so it is not decomposed again before that
     tried: list[np.ndarray | None] = [None] * len(items)
@@ -255,11 +272,9 @@ def trace_bound(Q: sp.sparray, As: Sequence[sp.sparray], b: np.ndarray, f_bar: f
             groups.append(root ** 2)
             bound_of[U] = len(groups) - 1
             progress = True
-        if (bound_of[slice(None) if columns is None else columns] >= 0).all():
-            return float(sum(groups))
-        if not progress:
-            return None
-    return None
+        if (bound_of[slice(None) if columns is None else columns] >= 0).all() or not progress:
+            break
+    return bound_of, groups
 
 
 def _item_block(A: sp.csr_array | None, r: np.ndarray | None = None, c: np.ndarray | None = None,
@@ -441,6 +456,7 @@ def certificate(Q: sp.sparray, constraints: Sequence[Constraint], y: np.ndarray,
     excess = float(np.sum(Th.T * HT) + y @ res_A)  # f(x̂) − bᵀy (exact identity)
     denom = tolerance_scale(f_hat, scale, Xhat_tr, floor)
     budget = tol * denom - excess  # the largest correction that can still certify
+    f_bar = 2 * abs(f_hat) + floor * scale * Xhat_tr  # ≥ p*: the sublevel set the trace bounds hold on
     if free_res > FREE_ATOL:
         msg = (f"H does not vanish on the {J.size} {'recession ' if J.size == n_recession else ''}columns set aside "
                f"(max |H_J·| = {free_res:.1e} of max |H|)")
@@ -448,10 +464,24 @@ def certificate(Q: sp.sparray, constraints: Sequence[Constraint], y: np.ndarray,
         correction, argument = 0.0, "H ⪰ 0"
     else:
         if budget > 0 and E is not None:  # the strict dual first: no trace bound needed
-            from .strict_dual import strict_dual
+            from .strict_dual import bounded_shift, strict_dual
 
             Hk, Ek, Thk = (H, E, Th) if K is None else (H[K][:, K], sp.csc_array(E)[K][:, K], Th[:, K])
             sd = strict_dual(Hk, Ek, Thk, delta_max=budget)
+            if not sd.ok:  # other null directions than Θ̂'s: lift tightly bounded columns too
+                group_of, groups = trace_groups(Q, As, b, f_bar, columns=K, cost_last=True)
+                bs = bounded_shift(Hk, group_of if K is None else group_of[K], groups, Thk, loss_max=budget)
+                if bs.ok:
+                    correction, delta, argument = bs.loss, bs.delta, "bounded shift"
+                    assumptions = (f"LDLᵀ inertia of H + δ·E_S in the Jacobi frame with margin {bs.margin:.1e} "
+                                   f"(smallest pivot {bs.min_pivot:.1e}, {bs.tries} factorisation(s)), S the "
+                                   f"{bs.columns.size} column(s) of trace groups with tr X_SS ≤ {bs.trace:.3e} on "
+                                   "the sublevel set of 2|f(x̂)|")
+                    if not np.isfinite(lam_lo):  # Weyl: λ_min(H) ≥ −δ·λ_max(E_S) = −δ
+                        lam = lam_lo = -bs.delta
+                        how = "not estimated: H + δ·E_S ⪰ 0 (bounded shift) bounds it" + where
+                else:
+                    msg = f"strict dual: {sd.message}; bounded shift: {bs.message}"
             if sd.ok:
                 correction, delta = sd.delta, sd.delta
                 argument = "strict dual" if sd.delta > 0 else "H ⪰ 0 (LDLᵀ inertia)"
@@ -463,8 +493,6 @@ def certificate(Q: sp.sparray, constraints: Sequence[Constraint], y: np.ndarray,
                     e_max = float(np.linalg.eigvalsh(sp.csr_array(E)[on][:, on].toarray())[-1]) if on.size else 0.0
                     lam = lam_lo = -(sd.delta / d) * max(e_max, 0.0) if sd.delta > 0 else 0.0
                     how = "not estimated: H + (δ/d)·E_h ⪰ 0 (strict dual) bounds it" + where
-            else:
-                msg = f"strict dual: {sd.message}"
         if not np.isfinite(lam_lo):  # the strict dual proved nothing: λ_min after all
             lam, lam_lo, how = estimated()
             neg = max(-lam_lo, 0.0)
@@ -472,7 +500,7 @@ def certificate(Q: sp.sparray, constraints: Sequence[Constraint], y: np.ndarray,
                 correction, argument, msg = 0.0, "H ⪰ 0", ""
         if not np.isfinite(correction):  # the trace bound, where the strict dual proved nothing
             if T is None:
-                T = trace_bound(Q, As, b, 2 * abs(f_hat) + floor * scale * Xhat_tr, columns=K)
+                T = trace_bound(Q, As, b, f_bar, columns=K)
             if T is None:
                 msg = "; ".join(filter(None, ["λ_min(H) < 0 and no trace bound follows from the constraints", msg]))
             else:

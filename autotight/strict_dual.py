@@ -22,6 +22,15 @@ computed LDLᵀ is exact for a perturbation of entries ≤ c·n·ε (Cholesky's 
 relative to √(H_jj H_kk)); the margin τ = ``MARGIN``·n·ε is that size, so a positive LDLᵀ of the shifted
 matrix is not an artefact of roundoff of that order.  qdldl (AMD ordering, no pivoting) factors it.
 
+Argument (bounded shift, ``bounded_shift``).  Where H has null directions besides Θ̂'s (the relaxation's
+optimal X is not unique there, so no H has Θ̂ alone in its null space), lift a set S of columns instead of h:
+if tr X_SS ≤ T_S for every feasible X of cost ≤ f̄ (f̄ ≥ p*, a trace bound on S alone,
+``certificate.trace_groups``) and H + δ·E_S ⪰ 0 (E_S: the identity on S), then p* ≥ bᵀy − δ·T_S.
+  Proof: for such X, ⟨Q,X⟩ = bᵀy + ⟨H,X⟩ ≥ bᵀy − δ·tr X_SS ≥ bᵀy − δ·T_S; the minimiser has cost p* ≤ f̄.
+S = {h} is the strict dual (T_S = d).  S grows by the trace groups in increasing order of their bounds, so only
+columns that exact relations bound tightly (h, rotations) are lifted first; T_S stays small where the trace over
+all columns (or over some) has no useful bound.
+
 The search for δ (``strict_dual``) only proposes; the inertia test decides.  It starts from the
 Rayleigh quotient of Θ̂ (δ₀ = 2·(τ·Σ_j H_jj‖Θ̂_j‖² − ⟨H, X̂⟩)⁺, what makes Θ̂'s own directions positive
 in the Jacobi frame) and grows by ``GROWTH`` a bounded number of times.
@@ -117,3 +126,61 @@ def strict_dual(H: sp.sparray, E: sp.sparray, Theta: np.ndarray, *, delta_max: f
             return StrictDual(True, delta, low, tau, tries)
         delta *= GROWTH
     return StrictDual(False, np.inf, low, tau, tries, f"no δ made H + δ·E_h ⪰ 0 provable: {why}")
+
+
+@dataclass
+class BoundedShift:
+    """Outcome of ``bounded_shift``: ok when H + δ·E_S ⪰ 0 was proved, S the columns ``columns`` with
+    tr X_SS ≤ ``trace`` (T_S); the bound is then bᵀy − δ·T_S (``loss``); min_pivot, margin, tries, message:
+    as ``StrictDual``'s."""
+
+    ok: bool
+    delta: float
+    columns: np.ndarray
+    trace: float
+    min_pivot: float
+    margin: float
+    tries: int
+    message: str = ""
+
+    @property
+    def loss(self) -> float:
+        return self.delta * self.trace if self.ok else np.inf
+
+
+#: ``bounded_shift`` tries at most this many sets S (prefixes of the trace groups by bound)
+MAX_SHIFT_SETS = 4
+
+
+def bounded_shift(H: sp.sparray, group_of: np.ndarray, groups: list[float], Theta: np.ndarray, *,
+                  loss_max: float) -> BoundedShift:
+    """Search S and δ with δ·T_S ≤ ``loss_max`` and H + δ·E_S ⪰ 0 proved by ``psd_by_inertia`` (module docstring,
+    bounded shift).  group_of: each column's trace group (−1: unbounded; ``certificate.trace_groups``),
+    groups: their bounds; S is the union of the groups of bound ≤ B for the smallest distinct bounds B
+    (``MAX_SHIFT_SETS`` of them), δ starts as ``strict_dual``'s and grows by ``GROWTH``.  Θ̂: (d, N)."""
+    H = sp.csc_array(H)
+    n = H.shape[0]
+    Th = np.atleast_2d(np.asarray(Theta, dtype=float))
+    tau = MARGIN * n * np.finfo(float).eps
+    quad = float(np.sum(Th * (H @ Th.T).T))
+    weight = float(np.clip(H.diagonal(), 0.0, None) @ np.sum(Th * Th, axis=0))
+    scale = float(abs(H).max()) if H.nnz else 1.0
+    start = max(2.0 * (tau * weight - quad), 2.0 * tau * weight, 1e-15 * scale)
+    bounds = np.asarray(groups, dtype=float)
+    tries, low, why = 0, 0.0, "no column has a trace bound"
+    for B in np.unique(bounds)[:MAX_SHIFT_SETS]:
+        on = (group_of >= 0) & (bounds[np.maximum(group_of, 0)] <= B)
+        T_S = float(bounds[bounds <= B].sum())
+        E = sp.diags_array(on.astype(float), format="csc")
+        delta = start
+        for _ in range(MAX_TRIES):
+            if delta * T_S > loss_max:
+                why = f"δ·T_S would exceed {loss_max:.2e} ({why})"
+                break
+            ok, low, why = psd_by_inertia(H + delta * E)
+            tries += 1
+            if ok:
+                return BoundedShift(True, delta, np.flatnonzero(on), T_S, low, tau, tries)
+            delta *= GROWTH
+    return BoundedShift(False, np.inf, np.zeros(0, dtype=np.int64), np.inf, low, tau, tries,
+                        f"no δ made H + δ·E_S ⪰ 0 provable: {why}")

@@ -194,9 +194,9 @@ def test_from_the_fallback_size_on_a_failed_projection_is_the_answer(monkeypatch
 
 
 def test_both_frames_share_one_trace_bound(monkeypatch):
-    """When neither frame's multipliers prove H ⪰ 0 (the strict dual and the λ_min estimate made to fail), the
-    certificate falls back on the trace bound in both: the bound (the same data and x̂) is derived once and the
-    second frame reuses it."""
+    """When neither frame's multipliers prove H ⪰ 0 (the strict dual, the bounded shift and the λ_min estimate made
+    to fail), the certificate falls back on the trace bound in both: the bound (the same data and x̂) is derived
+    once and the second frame reuses it."""
     from types import SimpleNamespace
 
     import autotight.certificate as certificate_module
@@ -216,6 +216,7 @@ def test_both_frames_share_one_trace_bound(monkeypatch):
 
     calls, judged = recording(certificate_module, "trace_bound"), recording(certifier_module, "certificate")
     monkeypatch.setattr(strict_dual_module, "strict_dual", lambda *a, **k: SimpleNamespace(ok=False, message="off"))
+    monkeypatch.setattr(strict_dual_module, "bounded_shift", lambda *a, **k: SimpleNamespace(ok=False, message="off"))
     monkeypatch.setattr(certificate_module, "lambda_min", lambda H: (-1e-6, -1e-6, "forced"))
     p, inst, model, cons, loc = _carry_set_k50()
     cert = certify_model(model, cons, p.lift(inst, loc.state), method="projection")

@@ -382,10 +382,24 @@ def test_a_spent_budget_exits_1_records_the_failure_and_solve_warns(tmp_path, ca
                  "--max-rounds", "1", "--out", str(out), "--no-progress"])
     cap = capsys.readouterr()
     assert code == 1 and cap.err.count("\n") == 1 and "validation FAILED" in cap.err
+    assert "the held-out evidence covers the points above only" in cap.out
     rec = json.loads(out.read_text(encoding="utf-8"))
     assert rec["info"]["validation"]["passed"] is False and rec["summary"]["validated"] is False
     assert main(["solve", "pose_averaging", "-p", "M=3", "--set", str(out)]) in (0, 1)
     assert "failed validation" in capsys.readouterr().err
+
+
+def test_a_set_used_outside_its_validated_points_is_noted(capsys):
+    """The committed pose-averaging set (M = 10, validated at σ = 0.1 only): `check` over σ = 0.1 and 1 notes σ = 1
+    (once, on stderr) and not 0.1; at another M the note names M; at its own parameters there is none."""
+    path = str(Path(__file__).resolve().parents[1] / "reports" / "pose_averaging" / "discovered.json")
+    ds = ConstraintSet.load(path).discovered
+    here = load_problem("pose_averaging").parse_params({"M": 10})
+    assert ds.validated_points() == [here] and ds.scope_note([here]) == ""
+    assert "not at M = 4, sigma = 0.5" in ds.scope_note([here | {"M": 4, "sigma": 0.5}])
+    main(["check", "pose_averaging", "--set", path, "--sigmas", "0.1,1", "--instances", "1"])
+    err = capsys.readouterr().err
+    assert err.count("note:") == 1 and "not at sigma = 1.0:" in err and "not at sigma = 0.1" not in err
 
 
 def test_a_held_out_instance_that_rejects_the_set_fails_validation_plainly_and_keeps_the_set(tmp_path, capsys,

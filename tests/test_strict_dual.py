@@ -12,7 +12,8 @@ from autotight.face import free_columns
 from autotight.pipeline import solve_instance
 from autotight.problem import load
 from autotight.sdp import solve_model
-from autotight.strict_dual import psd_by_inertia, strict_dual
+from autotight.model import Constraint
+from autotight.strict_dual import bounded_shift, psd_by_inertia, strict_dual
 from autotight.tightness import Criteria
 
 MODULE = str(Path(__file__).parent / "free_columns_module.py")
@@ -80,6 +81,41 @@ def test_strict_dual_certifies_where_the_trace_bound_is_loose():
     assert c.certified and c.argument == "strict dual", c
     assert 1e-6 * abs(loc.cost) <= c.delta + (c.cost - c.dual_value) <= 1e-5 * abs(loc.cost)
     assert c.bound <= 1e-5 * abs(loc.cost)
+
+
+def test_bounded_shift_lifts_null_directions_without_an_h_part():
+    """H = diag(0, 0, 1, 1) on [h, a, b, c]: its null direction e_a has no h part, so the strict dual fails;
+    lifting the group {h, a} (trace ≤ 1 each) proves H + δ·E_S ⪰ 0 at a loss δ·T_S of 2δ.  With a unbounded
+    (group −1) nothing lifts e_a and the shift fails."""
+    H = sp.csc_array(np.diag([0.0, 0.0, 1.0, 1.0]) - 1e-9 * np.diag([1.0, 1.0, 0.0, 0.0]))
+    x = np.array([1.0, 0.0, 0.0, 0.0])
+    E = sp.csc_array(([1.0], ([0], [0])), shape=(4, 4))
+    assert not strict_dual(H, E, x, delta_max=1.0).ok
+    bs = bounded_shift(H, np.array([0, 1, 2, 2]), [1.0, 1.0, 5.0], x, loss_max=1.0)
+    assert bs.ok and list(bs.columns) == [0, 1] and bs.trace == 2.0
+    assert np.linalg.eigvalsh(H.toarray() + bs.delta * np.diag([1.0, 1.0, 0.0, 0.0]))[0] > 0
+    assert bs.loss == pytest.approx(2 * bs.delta) and 1e-9 < bs.delta < 1e-6
+    assert not bounded_shift(H, np.array([0, -1, 1, 1]), [1.0, 5.0], x, loss_max=1.0).ok
+
+
+def test_certificate_by_bounded_shift_where_the_optimum_is_not_unique():
+    """min a² + b² + z² s.t. h² = 1, a² + b² = h², z² = M·h² (M = 1e12): every point of the circle is optimal,
+    so H(y) has e_b in its null space besides x̂ = (1, 1, 0, √M).  Multipliers off by ε = 1e-5 on the circle's
+    relation make H indefinite along e_a, e_b: the strict dual cannot lift them (no h part) and the trace bound
+    (≥ M) times ε exceeds the tolerance; the bounded shift lifts h, a, b (trace ≤ 1 + 1) and certifies."""
+    M, eps = 1e12, 1e-5
+    diag = lambda *v: sp.coo_array(np.diag(v))  # noqa: E731
+    cons = [Constraint(diag(1.0, 0, 0, 0), 1.0, name="h²", family="homogenisation"),
+            Constraint(diag(-1.0, 1, 1, 0), 0.0, name="circle"), Constraint(diag(-M, 0, 0, 1), 0.0, name="z")]
+    Q = sp.csr_array(np.diag([0.0, 1, 1, 1]))
+    x = np.array([1.0, 1.0, 0.0, np.sqrt(M)])
+    y = np.array([1.0 + M, 1.0 + eps, 1.0])
+    c = certificate(Q, cons, y, x, tol=1e-6)
+    assert c.lambda_min < 0
+    assert c.certified and c.argument == "bounded shift", c
+    assert c.bound <= 1e-9 * (1 + M)  # the loss δ·T_S with T_S = 3 (h, and a, b) and δ ≈ ε
+    # p* = 1 + M exactly: the bound claims no more than that
+    assert c.dual_value - c.delta * 3 <= 1 + M
 
 
 def test_free_columns_are_the_product_block():

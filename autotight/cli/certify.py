@@ -51,7 +51,7 @@ def cmd_certify(args: argparse.Namespace) -> int:
     inst = prob.generate(params, _seed(args.seed))
     model = prob.build(inst)
     check_data(prob, inst, model)  # NaN/inf data, weights beyond the solver's reach
-    cons = constraints_arg(args.set)
+    cons = constraints_arg(args.set, points=[params])
     run = certify_instance(prob, inst, cons, start=start, model=model)
     c = run.certificate
     rec = {"problem": prob.name, "params": inst.params, "seed": inst.seed,

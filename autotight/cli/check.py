@@ -34,14 +34,16 @@ def register(sub: argparse._SubParsersAction, add_problem_args: Callable) -> Non
 
 def cmd_check(args: argparse.Namespace) -> int:
     from ..check import check_sufficient
+    from ..points import points_of
     from ..tightness import Criteria
 
     config = solver_config(args)
     prob = load(args.problem)
     over: dict[str, Any] = parse_range(args.sigmas, args.range)
-    rep = check_sufficient(prob, constraints_arg(args.set), None, args.instances, args.min_fraction,
-                           parse_assignments(args.param), args.seed, config, over=over,
-                           criteria=Criteria(accept=args.accept))
+    fixed = parse_assignments(args.param)
+    cons = constraints_arg(args.set, points=[full for full, _ in points_of(prob, fixed, over)])
+    rep = check_sufficient(prob, cons, None, args.instances, args.min_fraction, fixed, args.seed, config,
+                           over=over, criteria=Criteria(accept=args.accept))
     if args.json:
         print(json.dumps(jsonable(rep.record()), ensure_ascii=False))
     else:

@@ -13,7 +13,7 @@ from __future__ import annotations
 import argparse
 import math
 import sys
-from typing import Any, Callable
+from typing import Any, Callable, Sequence
 
 from ..errors import ParameterError
 
@@ -60,8 +60,10 @@ def add_problem_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--json", action="store_true", help="print one JSON object instead of text")
 
 
-def constraints_arg(value: str | None, skip_invalid: bool = False):
-    """``--set``: "primary", "paper", or the path of a saved constraint set (JSON)."""
+def constraints_arg(value: str | None, skip_invalid: bool = False, points: Sequence[dict[str, Any]] = ()):
+    """``--set``: "primary", "paper", or the path of a saved constraint set (JSON).  For a saved set, one line on
+    stderr when its discovery failed validation, and one naming the parameter points of ``points`` (full
+    parameters) outside those its held-out validation ran at (``DiscoveredSet.scope_note``)."""
     if value is None or value in ("primary", "paper"):
         return value
     from ..set_file import check_set_file
@@ -72,6 +74,9 @@ def constraints_arg(value: str | None, skip_invalid: bool = False):
     warning = cs.discovered.validation_warning()
     if warning:
         print(f"warning: {value}: {warning}", file=sys.stderr)
+    note = cs.discovered.scope_note(points)
+    if note:
+        print(f"note: {value}: {note}", file=sys.stderr)
     return cs
 
 

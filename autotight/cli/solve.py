@@ -50,16 +50,16 @@ def cmd_solve(args: argparse.Namespace) -> int:
     prob = load(args.problem)
     params = prob.parse_params(parse_assignments(args.param))
     check_random_starts(prob, params, args.random_starts, "--random-starts")
+    constraints = constraints_arg(args.set, args.skip_invalid, points=[params])
     if args.verify == "certificate":  # the certificate of the local solution first; the SDP only if it fails
         from .certify import certificate_first
 
         check_certify_size(prob, params)  # ``solve`` checks the SDP's size itself, before any work
 
-        done = certificate_first(args, prob, params, constraints_arg(args.set, args.skip_invalid),
-                                 Criteria(accept=args.accept))
+        done = certificate_first(args, prob, params, constraints, Criteria(accept=args.accept))
         if done is not None:
             return done
-    out = solve(prob, params, args.seed, constraints=constraints_arg(args.set, args.skip_invalid), solver=config,
+    out = solve(prob, params, args.seed, constraints=constraints, solver=config,
                 n_random=args.random_starts, criteria=Criteria(accept=args.accept))
     inst = out.instance
     rec = out.record()

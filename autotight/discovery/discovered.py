@@ -14,7 +14,7 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Sequence
 
 import numpy as np
 import scipy.sparse as sp
@@ -110,6 +110,53 @@ class DiscoveredSet:
         if isinstance(v, dict) and v.get("passed") is False:
             return f"this set failed validation when it was discovered ({v.get('message', '')})"
         return ""
+
+    def validated_points(self) -> list[dict[str, Any]] | None:
+        """The parameters of every point at which discovery's held-out validation solved instances with this
+        set (``info["validation"]["rounds"]``: the set's parameters with each point's varied ones, over all
+        rounds, without repeats), or None when the file records no such evidence (older formats, sets made
+        from Python)."""
+        v = self.info.get("validation") if isinstance(self.info, dict) else None
+        rounds = v.get("rounds") if isinstance(v, dict) else None
+        if not rounds:
+            return None
+        out: list[dict[str, Any]] = []
+        for r in rounds:
+            for p in r.get("points", []):
+                if p.get("instances", 0) and (point := dict(self.params) | dict(p.get("varied") or {})) not in out:
+                    out.append(point)
+        return out or None
+
+    def scope_note(self, points: Sequence[dict[str, Any]]) -> str:
+        """'' when held-out validation ran at every parameter point of ``points`` (full parameters; equal when every
+        parameter the validated point has is equal, numbers to a relative 1e-9), else one line: where it ran and the
+        points of ``points`` it did not reach, by the parameters that differ.  A verdict there is still that
+        instance's own (its validity check and certificate); the note says the set's held-out evidence does not
+        cover it."""
+        done = self.validated_points()
+        if done is None:
+            return ""
+
+        def same(a: Any, b: Any) -> bool:
+            if isinstance(a, (int, float)) and isinstance(b, (int, float)) and not isinstance(a, bool):
+                return bool(np.isclose(float(a), float(b), rtol=1e-9, atol=0.0))
+            return bool(a == b)
+
+        def differ(point: dict[str, Any], params: dict[str, Any]) -> list[str]:
+            return [k for k in point if k in params and not same(point[k], params[k])]
+
+        missed = [p for p in points if all(differ(q, p) for q in done)]
+        if not missed:
+            return ""
+        keys = sorted({k for p in missed for q in done for k in differ(q, p)})
+
+        def label(p: dict[str, Any]) -> str:
+            return ", ".join(f"{k} = {p[k]}" for k in keys)
+
+        return (f"held-out validation of this set ran at {'; '.join(dict.fromkeys(map(label, done)))} only, not at "
+                f"{'; '.join(dict.fromkeys(map(label, missed)))}: verdicts there are the instances' own, outside the "
+                "set's evidence (`autotight discover` over those parameters, e.g. with --sigmas, validates a set "
+                "there)")
 
     def options(self) -> LearnOptions:
         return LearnOptions(**self.learn_options) if self.learn_options else LearnOptions()

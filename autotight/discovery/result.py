@@ -187,6 +187,8 @@ class DiscoveryResult:
         lines.append("pairs: " + (", ".join(f"{t}:{i}" for t, i in self.pairs)
                                   or ("none (the primary constraints suffice)" if self.tight else "none")))
         lines.append(v["message"])
+        lines.append("the held-out evidence covers the points above only: at other parameters (another σ or size) "
+                     "`autotight check --set FILE` tests the set")
         return "\n".join(lines)
 
 
