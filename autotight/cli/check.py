@@ -11,6 +11,7 @@ import json
 from collections.abc import Callable
 from typing import Any
 
+from ..errors import ParameterError
 from ..io import jsonable
 from ..problem import load, parse_assignments
 from .options import (add_accept_arg, add_range_args, add_solver_args, constraints_arg, parse_range, pos_int,
@@ -41,7 +42,11 @@ def cmd_check(args: argparse.Namespace) -> int:
     prob = load(args.problem)
     over: dict[str, Any] = parse_range(args.sigmas, args.range)
     fixed = parse_assignments(args.param)
-    cons = constraints_arg(args.set, points=[full for full, _ in points_of(prob, fixed, over)])
+    try:  # the points, for the set's scope note; check_sufficient reports bad parameters its own way
+        points = [full for full, _ in points_of(prob, fixed, over)]
+    except ParameterError:
+        points = []
+    cons = constraints_arg(args.set, points=points)
     rep = check_sufficient(prob, cons, None, args.instances, args.min_fraction, fixed, args.seed, config,
                            over=over, criteria=Criteria(accept=args.accept))
     if args.json:
