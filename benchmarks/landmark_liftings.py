@@ -66,13 +66,10 @@ def run_discovery(prob, params: dict, seed: int, sets_dir: Path, tag: str) -> di
     s = res.record()
     first = res.points[0]
     held = first.heldout
-    # the example's solve with the primary constraints alone; none when the example is a held-out instance taken in
-    # (its first solve already had the set's pairs)
-    primary = next((e for e in res.log if e["stage"] == "primary" and e["seed"] == res.example.seed), None)
+    primary = next(e for e in res.log if e["stage"] == "primary" and e["seed"] == res.example.seed)
     s |= {"message": first.messages[0] or res.validation["message"], "n_minimal": s["n_constraints"],
           "heldout_tight_fraction": None if held is None else held.fraction,
-          "heldout_instances": 0 if held is None else len(held.seeds),
-          "log_svr_primary": None if primary is None else primary["log_svr"],
+          "heldout_instances": 0 if held is None else len(held.seeds), "log_svr_primary": primary["log_svr"],
           "log_svr": (res.example.tight_result or res.example.last).log_svr}
     first_pose = {}
     for c in res.constraints:  # one pose's / one factor's polynomials (the others are the same by identity)
@@ -165,8 +162,7 @@ def markdown(findings: list[dict]) -> str:
             verdict = "tight" if s["tight"] else ("not tightenable with this lifting"
                                                   if "not tightenable" in s["message"] else s["message"])
             polys = "<br>".join(s.get("readable", [])) or "—"
-            before = "—" if s["log_svr_primary"] is None else f"{s['log_svr_primary']:.1f}"
-            lines.append(head + f"| {s['seed']} | {verdict} (log SVR {before} → "
+            lines.append(head + f"| {s['seed']} | {verdict} (log SVR {s['log_svr_primary']:.1f} → "
                          f"{s['log_svr']:.1f}) | {', '.join(s['pairs']) or '—'} | {s['n_minimal']} | {frac} | "
                          f"{polys} |")
     return "\n".join(lines) + "\n"
