@@ -100,18 +100,23 @@ def psd_by_inertia(H: sp.sparray, margin: float | None = None) -> tuple[bool, fl
     return True, low, ""
 
 
+def first_shift(H: sp.csc_array, Th: np.ndarray) -> tuple[float, float]:
+    """(τ, δ₀): the inertia margin ``MARGIN``·n·ε and the first δ tried (module docstring: what makes Θ̂'s own
+    directions positive in the Jacobi frame, at least 2τ·Σ_j H_jj‖Θ̂_j‖² and 1e-15·max|H|).  Θ̂: (d, N)."""
+    tau = MARGIN * H.shape[0] * np.finfo(float).eps
+    quad = float(np.sum(Th * (H @ Th.T).T))  # ⟨H, X̂⟩
+    weight = float(np.clip(H.diagonal(), 0.0, None) @ np.sum(Th * Th, axis=0))
+    scale = float(abs(H).max()) if H.nnz else 1.0
+    return tau, max(2.0 * (tau * weight - quad), 2.0 * tau * weight, 1e-15 * scale)
+
+
 def strict_dual(H: sp.sparray, E: sp.sparray, Theta: np.ndarray, *, delta_max: float = np.inf) -> StrictDual:
     """Search δ ≤ ``delta_max`` with H + (δ/d)·E ⪰ 0 proved by ``psd_by_inertia`` (module docstring).
     E: Σ Aᵢ over the d constraints (X_hh)_ii = 1 (E_h); Θ̂: (d, N) the lifted candidate."""
     H = sp.csc_array(H)
-    n = H.shape[0]
     Th = np.atleast_2d(np.asarray(Theta, dtype=float))
     d = Th.shape[0]
-    tau = MARGIN * n * np.finfo(float).eps
-    quad = float(np.sum(Th * (H @ Th.T).T))  # ⟨H, X̂⟩
-    weight = float(np.clip(H.diagonal(), 0.0, None) @ np.sum(Th * Th, axis=0))
-    scale = float(abs(H).max()) if H.nnz else 1.0
-    delta = max(2.0 * (tau * weight - quad), 2.0 * tau * weight, 1e-15 * scale)
+    tau, delta = first_shift(H, Th)
     ok, low, why = psd_by_inertia(H)
     if ok:
         return StrictDual(True, 0.0, low, tau, 1)
@@ -159,13 +164,7 @@ def bounded_shift(H: sp.sparray, group_of: np.ndarray, groups: list[float], Thet
     groups: their bounds; S is the union of the groups of bound ≤ B for the smallest distinct bounds B
     (``MAX_SHIFT_SETS`` of them), δ starts as ``strict_dual``'s and grows by ``GROWTH``.  Θ̂: (d, N)."""
     H = sp.csc_array(H)
-    n = H.shape[0]
-    Th = np.atleast_2d(np.asarray(Theta, dtype=float))
-    tau = MARGIN * n * np.finfo(float).eps
-    quad = float(np.sum(Th * (H @ Th.T).T))
-    weight = float(np.clip(H.diagonal(), 0.0, None) @ np.sum(Th * Th, axis=0))
-    scale = float(abs(H).max()) if H.nnz else 1.0
-    start = max(2.0 * (tau * weight - quad), 2.0 * tau * weight, 1e-15 * scale)
+    tau, start = first_shift(H, np.atleast_2d(np.asarray(Theta, dtype=float)))
     bounds = np.asarray(groups, dtype=float)
     tries, low, why = 0, 0.0, "no column has a trace bound"
     for B in np.unique(bounds)[:MAX_SHIFT_SETS]:
