@@ -17,6 +17,7 @@ import autotight as at
 from autotight.check import instance_seed
 from autotight.cli import main
 from autotight.constraint_set import ConstraintSet
+from autotight.discovery.discovered import DiscoveredSet
 from autotight.discovery.engine import default_groups, discover
 from autotight.discovery.learn import LearnOptions
 from autotight.discovery.result import DiscoveryResult
@@ -400,6 +401,13 @@ def test_a_set_used_outside_its_validated_points_is_noted(capsys):
     main(["check", "pose_averaging", "--set", path, "--sigmas", "0.1,1", "--instances", "1"])
     err = capsys.readouterr().err
     assert err.count("note:") == 1 and "not at sigma = 1.0:" in err and "not at sigma = 0.1" not in err
+    # a range set: every point it was validated at counts, an instance without held-out solves does not
+    points = [{"varied": {"sigma": 0.01}, "instances": 10}, {"varied": {"sigma": 1.0}, "instances": 10},
+              {"varied": {"sigma": 0.1}, "instances": 0}]
+    rng = DiscoveredSet("pose_averaging", here, 0, [], info={"validation": {"rounds": [{"points": points}]}})
+    assert rng.scope_note([here | {"sigma": 0.01}, here | {"sigma": 1.0 + 1e-12}]) == ""
+    note = rng.scope_note([here | {"sigma": 0.01}, here | {"sigma": 0.1}])
+    assert "ran at sigma = 0.01; sigma = 1.0 only, not at sigma = 0.1:" in note
 
 
 def test_a_held_out_instance_that_rejects_the_set_fails_validation_plainly_and_keeps_the_set(tmp_path, capsys,
