@@ -120,17 +120,28 @@ def strict_dual(H: sp.sparray, E: sp.sparray, Theta: np.ndarray, *, delta_max: f
     ok, low, why = psd_by_inertia(H)
     if ok:
         return StrictDual(True, 0.0, low, tau, 1)
-    tries = 1
+    ok, delta, low, why, tries = grow_shift(H, sp.csc_array(E), delta, d, 1.0, delta_max, "δ", low, why)
+    if ok:
+        return StrictDual(True, delta, low, tau, tries + 1)
+    return StrictDual(False, np.inf, low, tau, tries + 1, f"no δ made H + δ·E_h ⪰ 0 provable: {why}")
+
+
+def grow_shift(H: sp.csc_array, E: sp.sparray, delta: float, div: float, loss_per_delta: float, loss_max: float,
+               label: str, low: float, why: str) -> tuple[bool, float, float, str, int]:
+    """(proved, δ, smallest pivot, reason, factorisations): the first δ = δ₀·GROWTHᵏ (k < ``MAX_TRIES``) for which
+    ``psd_by_inertia`` proves H + (δ/div)·E ⪰ 0, while its loss δ·loss_per_delta stays ≤ ``loss_max`` (the search
+    of the strict dual and of the bounded shift; ``label`` names the loss in the reason, ``why`` is the reason so
+    far, ``low`` the smallest pivot so far)."""
+    tries = 0
     for _ in range(MAX_TRIES):
-        if delta > delta_max:
-            why = f"δ would exceed {delta_max:.2e} ({why})"
-            break
-        ok, low, why = psd_by_inertia(H + (delta / d) * sp.csc_array(E))
+        if delta * loss_per_delta > loss_max:
+            return False, delta, low, f"{label} would exceed {loss_max:.2e} ({why})", tries
+        ok, low, why = psd_by_inertia(H + (delta / div) * E)
         tries += 1
         if ok:
-            return StrictDual(True, delta, low, tau, tries)
+            return True, delta, low, why, tries
         delta *= GROWTH
-    return StrictDual(False, np.inf, low, tau, tries, f"no δ made H + δ·E_h ⪰ 0 provable: {why}")
+    return False, delta, low, why, tries
 
 
 @dataclass
@@ -171,15 +182,9 @@ def bounded_shift(H: sp.sparray, group_of: np.ndarray, groups: list[float], Thet
         on = (group_of >= 0) & (bounds[np.maximum(group_of, 0)] <= B)
         T_S = float(bounds[bounds <= B].sum())
         E = sp.diags_array(on.astype(float), format="csc")
-        delta = start
-        for _ in range(MAX_TRIES):
-            if delta * T_S > loss_max:
-                why = f"δ·T_S would exceed {loss_max:.2e} ({why})"
-                break
-            ok, low, why = psd_by_inertia(H + delta * E)
-            tries += 1
-            if ok:
-                return BoundedShift(True, delta, np.flatnonzero(on), T_S, low, tau, tries)
-            delta *= GROWTH
+        ok, delta, low, why, n = grow_shift(H, E, start, 1.0, T_S, loss_max, "δ·T_S", low, why)
+        tries += n
+        if ok:
+            return BoundedShift(True, delta, np.flatnonzero(on), T_S, low, tau, tries)
     return BoundedShift(False, np.inf, np.zeros(0, dtype=np.int64), np.inf, low, tau, tries,
                         f"no δ made H + δ·E_S ⪰ 0 provable: {why}")
