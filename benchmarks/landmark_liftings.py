@@ -1,19 +1,20 @@
 """Where is Shor not tight on the landmark problems, and does discovery tighten it?
 
-For each case (problem, d, lifting, σ): solve the SDP with the primary constraints on seeds
-0 … n−1 and judge it against the best local solution (truth + 2 random starts).  A seed whose SDP
-is rank d but cheaper than every local solution is re-checked: the local solver is started from
-the SDP's recovered estimate; if that reaches the SDP cost the relaxation was tight and only the
-local solver was trapped (classified "local trapped", not a failure of the relaxation); if instead
-some recovered C_k has det −1, the rank-d solution is a reflection (classified "reflection").
+For each case (problem, d, lifting, σ = 1):
 
-On the first ``--discover`` genuinely non-tight seeds, ``discover`` runs (groups "factors", 10
-held-out instances) and the result — pairs, constraint count, the readable polynomials of one
-pose, held-out tight fraction, or "not tightenable with this lifting" — goes to
-``OUT/findings.json`` and ``OUT/findings.md``.  Sets that tighten their learning instance are
-saved as ``OUT/sets/<case>_seed<N>.json`` (usable with ``autotight report --discovered``).
+1. **Scan.** ``autotight.solve`` with the primary constraints on seeds 0 … n−1 (its verdict: local solves from
+   the truth and a random start, and the local solve refined from the SDP's estimate, so a trapped local
+   solver is not counted against the relaxation).  A not-tight seed whose SDP is rank d but some recovered
+   C_k has det −1 is a **reflection** (O(d) instead of SO(d)); the others are **not tight** (rank > d).
+2. **Discover** with the defaults a user types (``autotight.discover(problem, params)``, seed 0: the closed
+   loop trains, validates on fresh held-out instances and takes failures in), saved as ``OUT/sets/<case>.json``
+   when it is tight on its training instances.
+3. **Carry** to the scan's failing seeds: each solved with the discovered set and with the whole learned
+   catalogue of the factors (every identity the learner found on discovery's example instance, not reduced).
 
-    .venv/bin/python benchmarks/landmark_liftings.py --out reports/landmark_liftings
+Writes ``OUT/findings.json`` (every figure, with the versions) and ``OUT/findings.md`` (the table).
+
+    python benchmarks/landmark_liftings.py --out reports/landmark_liftings
 """
 
 from __future__ import annotations
@@ -22,104 +23,89 @@ import argparse
 import json
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
-from autotight.discovery import discover
-from autotight.discovery.discovered import constraint_record
-from autotight.io import jsonable
-from autotight.problem import load
-from autotight.pipeline import local_search
-from autotight.sdp import solve_model
-from autotight.tightness import judge, relative_gap
+from autotight import api
+from autotight.constraint_set import ConstraintSet
+from autotight.discovery.discovered import DiscoveredSet, constraint_record
+from autotight.io import jsonable, versions
+from autotight.problem import Problem, load
 
-CASES = [(p, d, lift, s) for p, s in (("pose_graph", 1.0), ("landmark_slam", 1.0))
-         for d in (2, 3) for lift in ("matrix", "vector")]
+CASES = [(p, d, lift, 1.0) for p in ("pose_graph", "landmark_slam") for d in (2, 3) for lift in ("matrix", "vector")]
 
 
-def scan(prob, params: dict, seeds: range) -> list[dict]:
-    """Primary-only verdict per seed, with trapped local solves told apart."""
+def classify(res: Any) -> str:
+    """"tight", "undecided", "reflection" (rank d, some recovered C_k with det −1) or "not tight"."""
+    if res.outcome != "not tight":
+        return res.outcome
+    det = (res.estimate or {}).get("det_raw")
+    return "reflection" if res.verdict.rank_tight and det is not None and np.min(det) < 0 else "not tight"
+
+
+def scan(prob: Problem, params: dict[str, Any], seeds: range) -> list[dict[str, Any]]:
+    """Primary-only verdict per seed (``classify``)."""
     rows = []
     for s in seeds:
-        inst = prob.generate(params, s)
-        model = prob.build(inst)
-        res = solve_model(model, model.primary())
-        loc = local_search(prob, inst, np.random.default_rng([s, 1]), 2)
-        v = judge(res, loc.best.cost)
-        kind = "tight" if v.tight else "not tight"
-        best = loc.best.cost
-        if not v.tight and v.rank_tight and res.Theta is not None and res.primal_cost < best:
-            est = prob.recover(inst, res.Theta)
-            ref = prob.local_solve(inst, est)
-            if judge(res, min(best, ref.cost)).tight:
-                kind, best = "local trapped", ref.cost
-            elif np.min(est["det_raw"]) < 0:
-                kind = "reflection"  # rank d, but some C_k has det −1: the relaxation ignores handedness
-        rows.append({"seed": s, "verdict": kind, "log_svr": res.log_svr, "sdp_cost": res.primal_cost,
-                     "best_local_cost": best, "rel_gap": relative_gap(res.primal_cost, best)})
+        res = api.solve(prob, params, s, constraints="primary")
+        rows.append({"seed": s, "verdict": classify(res), "log_svr": res.sdp.log_svr, "upper": res.upper,
+                     "sdp_cost": res.sdp.primal_cost, "reason": res.verdict.reason})
     return rows
 
 
-def run_discovery(prob, params: dict, seed: int, sets_dir: Path, tag: str) -> dict:
-    t = time.perf_counter()
-    res = discover(prob, params, seed, n_heldout=10)
-    s = res.record()
-    first = res.points[0]
-    held = first.heldout
-    primary = next(e for e in res.log if e["stage"] == "primary" and e["seed"] == res.example.seed)
-    s |= {"message": first.messages[0] or res.validation["message"], "n_minimal": s["n_constraints"],
-          "heldout_tight_fraction": None if held is None else held.fraction,
-          "heldout_instances": 0 if held is None else len(held.seeds), "log_svr_primary": primary["log_svr"],
-          "log_svr": (res.example.tight_result or res.example.last).log_svr}
-    first_pose = {}
-    for c in res.constraints:  # one pose's / one factor's polynomials (the others are the same by identity)
+def readable_per_type(res: Any) -> list[str]:
+    """The set's polynomials on the first factor of each factor type (the others are the same identities)."""
+    first: dict[str, str | None] = {}
+    out = []
+    for c in res.constraints:
         key = (c.factor or "").rsplit("_", 1)[0]
-        if first_pose.setdefault(key, c.factor) == c.factor:
-            rec = constraint_record(c, res.model)
-            s.setdefault("readable", []).append(f"[{c.factor}] {rec['readable']}")
-    if res.tight and res.discovered.pairs:
-        sets_dir.mkdir(parents=True, exist_ok=True)
-        res.discovered.save(sets_dir / f"{tag}_seed{seed}.json", res.model, res.constraints, {"summary": s})
-    s["wall_s"] = time.perf_counter() - t
-    return s
+        if first.setdefault(key, c.factor) == c.factor:
+            out.append(f"[{c.factor}] {constraint_record(c, res.model)['readable']}")
+    return out
 
 
-def save_catalogue(name: str, params: dict, seed: int, types: list[str], path: Path) -> int:
-    """Every learned (new) identity of the given factor types on one instance, saved as a discovered set.
-
-    The irreducible set of one instance is specific to it at high noise; the whole catalogue of a
-    factor type (e.g. all handedness and row relations of a pose) carries over much better.
-    """
-    from dataclasses import asdict
-
-    from autotight.discovery import DiscoveredSet, LearnOptions, learn
-
-    prob = load(name)
-    inst = prob.generate(params, seed)
-    model = prob.build(inst)
-    cat = learn(prob, inst, model, np.random.default_rng([seed, 1]), types=types)
+def catalogue(prob: Problem, params: dict[str, Any], res: Any) -> ConstraintSet | None:
+    """Every learned identity of discovery's example instance (its catalog), as a set; None without one."""
+    cat = res.catalog
+    if cat is None:
+        return None
     pairs = sorted(cat.by_pair())
-    ds = DiscoveredSet(prob.name, prob.parse_params(params), seed, pairs, asdict(LearnOptions()),
-                       {"note": f"all learned identities of {types}, not reduced"})
-    path.parent.mkdir(parents=True, exist_ok=True)
-    ds.save(path, model, cat.candidates())
-    return len(pairs)
+    return ConstraintSet(DiscoveredSet(prob.name, prob.parse_params(params), res.seed, pairs,
+                                       res.discovered.learn_options, {"note": "every learned identity, not reduced"},
+                                       res.discovered.groups)) if pairs else None
+
+
+def run_discovery(prob: Problem, params: dict[str, Any], sets_dir: Path, tag: str) -> tuple[dict[str, Any], Any]:
+    t = time.perf_counter()
+    res = api.discover(prob, params)
+    rec = res.record()
+    s = {"tight": res.tight, "validated": res.validated, "message": res.validation["message"],
+         "pairs": rec["pairs"], "n_pairs": rec["n_pairs"], "n_constraints": rec["n_constraints"],
+         "n_candidate_pairs": rec["n_candidate_pairs"],
+         "n_trained": sum(len(p["train_seeds"]) for p in rec["points"]),
+         "heldout": [p["heldout"] for p in rec["points"]], "readable": readable_per_type(res),
+         "n_solves": rec["n_solves"], "wall_s": time.perf_counter() - t}
+    if res.tight and res.pairs:
+        sets_dir.mkdir(parents=True, exist_ok=True)
+        s["set_file"] = str(res.save(sets_dir / f"{tag}.json", replace=True))
+    return s, res
+
+
+def carry(prob: Problem, params: dict[str, Any], seeds: list[int], sets: dict[str, ConstraintSet | None]
+          ) -> dict[str, list[dict[str, Any]]]:
+    """Per set (None: not available), each seed's verdict with it."""
+    return {name: [{"seed": s, "verdict": classify(api.solve(prob, params, s, constraints=cs))} for s in seeds]
+            for name, cs in sets.items() if cs is not None}
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--out", default="reports/landmark_liftings")
     ap.add_argument("--seeds", type=int, default=10, help="seeds scanned per case (default 10)")
-    ap.add_argument("--discover", type=int, default=3, help="non-tight seeds per case run through discovery")
-    ap.add_argument("--catalogue-only", action="store_true",
-                    help="only save sets/landmark_slam_d3_vector_catalogue.json (all learned pose identities)")
     args = ap.parse_args()
     out = Path(args.out)
-    n = save_catalogue("landmark_slam", {"dim": 3, "lifting": "vector", "sigma": 1.0}, 4, ["pose"],
-                       out / "sets" / "landmark_slam_d3_vector_catalogue.json")
-    print(f"catalogue: {n} pose identities saved", flush=True)
-    if args.catalogue_only:
-        return
+    t0 = time.perf_counter()
     findings = []
     for name, d, lift, sigma in CASES:
         prob = load(name)
@@ -127,44 +113,58 @@ def main() -> None:
         tag = f"{name}_d{d}_{lift}_s{sigma:g}"
         rows = scan(prob, params, range(args.seeds))
         bad = [r["seed"] for r in rows if r["verdict"] in ("not tight", "reflection")]
+        disc, res = run_discovery(prob, params, out / "sets", tag)
+        sets = {"discovered": res.constraint_set if res.tight else None, "catalogue": catalogue(prob, params, res)}
         case = {"case": tag, "problem": name, "params": params, "scan": rows,
                 "primary_tight": sum(r["verdict"] == "tight" for r in rows),
-                "local_trapped": sum(r["verdict"] == "local trapped" for r in rows),
                 "reflection": sum(r["verdict"] == "reflection" for r in rows),
-                "not_tight": bad, "discovery": []}
-        print(f"{tag}: primary tight {case['primary_tight']}/{len(rows)}, local trapped {case['local_trapped']}, "
-              f"of which reflections {case['reflection']}, not tight {bad}", flush=True)
-        for seed in bad[:args.discover]:
-            s = run_discovery(prob, params, seed, out / "sets", tag)
-            case["discovery"].append(s)
-            print(f"  seed {seed}: {'TIGHT' if s['tight'] else 'NOT TIGHT'} ({s['message']}); "
-                  f"pairs {s['pairs']}, {s['n_minimal']} constraints, held-out {s['heldout_tight_fraction']}",
-                  flush=True)
-            for line in s.get("readable", []):
-                print("    " + line)
+                "undecided": sum(r["verdict"] == "undecided" for r in rows), "not_tight": bad,
+                "discovery": disc, "carry": carry(prob, params, bad, sets),
+                "n_catalogue_pairs": len(sets["catalogue"].discovered.pairs) if sets["catalogue"] else 0}
         findings.append(case)
+        print(summary_line(case), flush=True)
     out.mkdir(parents=True, exist_ok=True)
-    (out / "findings.json").write_text(json.dumps(jsonable(findings), indent=1, ensure_ascii=False))
-    (out / "findings.md").write_text(markdown(findings), encoding="utf-8")
+    meta = {"command": f"python benchmarks/landmark_liftings.py --out {args.out} --seeds {args.seeds}",
+            "wall_s": time.perf_counter() - t0, "versions": versions()}
+    (out / "findings.json").write_text(json.dumps(jsonable({"meta": meta, "cases": findings}), indent=1,
+                                                  ensure_ascii=False))
+    (out / "findings.md").write_text(markdown(findings, meta), encoding="utf-8")
 
 
-def markdown(findings: list[dict]) -> str:
-    lines = ["| case | primary tight (of seeds) | local trapped / reflection | seed | discovery | pairs "
-             "| constraints | held-out tight | polynomials (one pose) |", "|" + "---|" * 9]
+def _tight_of(rows: list[dict[str, Any]] | None) -> str:
+    return "—" if rows is None else f"{sum(r['verdict'] == 'tight' for r in rows)}/{len(rows)}"
+
+
+def _heldout(disc: dict[str, Any]) -> str:
+    h = [p for p in disc["heldout"] if p]
+    return ", ".join(f"{p['tight']} of {p['instances']}" + (f" (+{p['undecided']} undecided)" if p["undecided"]
+                                                            else "") for p in h) or "—"
+
+
+def summary_line(c: dict[str, Any]) -> str:
+    disc = c["discovery"]
+    return (f"{c['case']}: primary tight {c['primary_tight']}/{len(c['scan'])} (reflections {c['reflection']}, "
+            f"not tight {c['not_tight']}); discovery {'tight' if disc['tight'] else 'NOT TIGHT'}, validated "
+            f"{disc['validated']}, {disc['n_pairs']} pairs ({disc['n_constraints']} constraints), held-out "
+            f"{_heldout(disc)}, {disc['wall_s']:.0f} s; failing seeds tight with the set "
+            f"{_tight_of(c['carry'].get('discovered'))}, with the catalogue {_tight_of(c['carry'].get('catalogue'))}")
+
+
+def markdown(findings: list[dict[str, Any]], meta: dict[str, Any]) -> str:
+    lines = [f"Generated by `{meta['command']}` ({meta['wall_s']:.0f} s; versions in findings.json).", "",
+             "| case | primary tight (of seeds) | reflection / rank > d / undecided | discovery (defaults) "
+             "| pairs (constraints) | held-out tight | failing seeds tight: set / catalogue (pairs) "
+             "| polynomials (one factor per type) |", "|" + "---|" * 8]
     for c in findings:
-        n = len(c["scan"])
-        head = f"| {c['case']} | {c['primary_tight']}/{n} | {c['local_trapped']} / {c['reflection']} "
-        if not c["discovery"]:
-            lines.append(head + "| — | (no non-tight seed) | | | | |")
-        for s in c["discovery"]:
-            frac = s["heldout_tight_fraction"]
-            frac = "—" if frac is None or frac != frac else f"{frac:.0%} of {s['heldout_instances']}"
-            verdict = "tight" if s["tight"] else ("not tightenable with this lifting"
-                                                  if "not tightenable" in s["message"] else s["message"])
-            polys = "<br>".join(s.get("readable", [])) or "—"
-            lines.append(head + f"| {s['seed']} | {verdict} (log SVR {s['log_svr_primary']:.1f} → "
-                         f"{s['log_svr']:.1f}) | {', '.join(s['pairs']) or '—'} | {s['n_minimal']} | {frac} | "
-                         f"{polys} |")
+        n, disc = len(c["scan"]), c["discovery"]
+        rank = len(c["not_tight"]) - c["reflection"]
+        verdict = ("validated" if disc["validated"] else "validation failed" if disc["tight"]
+                   else "not tight on training") + f" ({disc['n_trained']} training instances, {disc['wall_s']:.0f} s)"
+        polys = "<br>".join(disc["readable"]) or "—"
+        lines.append(f"| {c['case']} | {c['primary_tight']}/{n} | {c['reflection']} / {rank} / {c['undecided']} "
+                     f"| {verdict} | {disc['n_pairs']} ({disc['n_constraints']}) | {_heldout(disc)} "
+                     f"| {_tight_of(c['carry'].get('discovered'))} / {_tight_of(c['carry'].get('catalogue'))} "
+                     f"({c['n_catalogue_pairs']}) | {polys} |")
     return "\n".join(lines) + "\n"
 
 

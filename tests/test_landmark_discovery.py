@@ -1,7 +1,7 @@
 """Discovery on the landmark problems where Shor with the primary constraints is not tight.
 
-Cases (landmark SLAM, K = L = 3, σ = 1; found with benchmarks/landmark_liftings.py, whose table is in
-reports/landmark_liftings/README.md):
+Cases (landmark SLAM, K = L = 3, σ = 1; benchmarks/landmark_liftings.py scans these problems and runs the default
+discovery on them, reports/landmark_liftings/README.md):
 
 - d = 2, matrix lifting, seed 9: the primary SDP is rank 2 but two of its poses are reflections
   (det C = −1), so its cost is below every rotation.  Discovery learns one identity of the odometry
@@ -15,9 +15,9 @@ DiscoveredSet.instantiate on fresh instances at the same parameters (seeds seed+
 is judged against its best local solution (truth + 2 random starts).  What we find at σ = 1: the
 irreducible set is specific to its learning instance (it cuts that instance's reflection), so on these
 held-out seeds it is tight exactly where the primary set already is (90 % for d = 2 matrix, 60 % for
-d = 3 vector); the full learned catalogue carries over much better (see the README of
-reports/landmark_liftings).  The tests assert the floors found and that the set never does worse than
-the primary set on the same instances, and print the fractions.
+d = 3 vector): here there are no held-out rounds (n_heldout=0), whose failures the default discovery takes in.
+The tests assert the floors found and that the set never does worse than the primary set on the same
+instances, and print the fractions.
 
 Tolerances: tightness as in autotight.tightness (log SVR > 5, relative cost gap 1e-5 + solver
 accuracy); learned constraints vanish on fresh samples to a relative violation of 1e-9 (they are
