@@ -341,7 +341,6 @@ def certify(Q: sp.sparray, constraints: Sequence[Constraint], theta_hat: np.ndar
     if cliques is None:
         cliques = default_cliques(Q, As, d)
     prog = clique_program(Q, As, b, [np.asarray(C) for C in cliques])
-    load, flops, big = barrier_too_costly(prog)
     tried = ""
     if method == "projection" or (method == "auto" and Q.shape[0] >= PROJECTION_MIN_N):
         cert = _certify_projected(Q, As, constraints, prog, Th, d=d, tol=tol, floor=floor, trace=trace,
@@ -353,6 +352,7 @@ def certify(Q: sp.sparray, constraints: Sequence[Constraint], theta_hat: np.ndar
                            method=f"{cert.method}; from {FALLBACK_MAX_N} columns on neither the barrier nor the full "
                                   "SDP follows: `autotight solve` decides")
         tried = f"Douglas–Rachford did not certify ({cert.method.split(';')[0]}); "
+    load, flops, big = barrier_too_costly(prog)
     if big and method == "auto":  # the full SDP's y, certified alike
         import autotight.sdp as sdp
         from .dual_polish import polished

@@ -72,24 +72,38 @@ def stationarity_rows(prog, Th: np.ndarray, blocks, Gv: sp.csr_array, cv: np.nda
     Gv, cv: the program's F and c on those vec blocks (S(w) = cv − Gv w)."""
     d = Th.shape[0]
     UU = np.zeros(blocks.voff[-1])
-    first = np.concatenate([[0], np.cumsum(prog.sizes)])  # Σ_{k' < k} n_k'
-    rows, cols, vals = [], [], []
+    sizes = np.asarray(prog.sizes, dtype=np.int64)
+    # Kb in CSR, row (k, i, a) of vec(S U) holding U_k[j, a] at vec(S) entry (i, j), j = 0 … n_k − 1 (sorted):
+    # block k's rows and entries follow the earlier blocks'
+    indptr = np.concatenate([[0], np.cumsum(np.repeat(sizes, d * sizes))])
+    indices = np.empty(d * blocks.voff[-1], dtype=np.int64)
+    data = np.empty(d * blocks.voff[-1])
     for n, ids, idx in blocks.groups:  # per size n: vec(S) (row-major) → vec(S U) (n × d, row-major), batched
         C = np.stack([prog.cliques[k] for k in ids])  # (B, n)
         U = np.linalg.qr(np.swapaxes(Th[:, C], 0, 1).transpose(0, 2, 1))[0]  # (B, n, d), orthonormal columns
         UU[idx.ravel()] = (U @ np.swapaxes(U, -1, -2)).reshape(-1)
-        out0 = d * first[ids]  # first row of block k in the stacked vec(S U)
-        i, j, a = np.meshgrid(np.arange(n), np.arange(n), np.arange(d), indexing="ij")
-        rows.append((out0[:, None] + (i * d + a).ravel()[None, :]).ravel())
-        cols.append((blocks.voff[ids][:, None] + (i * n + j).ravel()[None, :]).ravel())
-        vals.append(U[:, j.ravel(), a.ravel()].ravel())
-    Kb = sp.csr_array((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
-                      shape=(d * int(sum(prog.sizes)), blocks.voff[-1]))
+        i, a, j = (x.ravel() for x in np.meshgrid(np.arange(n), np.arange(d), np.arange(n), indexing="ij"))
+        at = d * blocks.voff[ids][:, None] + ((i * d + a) * n + j)[None, :]
+        indices[at] = blocks.voff[ids][:, None] + (i * n + j)[None, :]
+        data[at] = U[:, j, a]
+    Kb = sp.csr_array((data, indices, indptr), shape=(d * int(sizes.sum()), blocks.voff[-1]))
     L = sp.csr_array(Kb @ Gv)
     lv = Kb @ cv
     nr = np.sqrt(np.asarray(L.multiply(L).sum(axis=1)).ravel())
     inv = np.where(nr > 0, 1.0 / np.where(nr > 0, nr, 1.0), 0.0)
     return sp.csr_array(sp.diags_array(inv) @ L), inv * lv, UU
+
+
+def _row_stack(G: sp.csr_array, H: sp.csr_array, ridge: float) -> sp.csr_array:
+    """[G; H; ridge·I] (I: the identity of G's columns; G, H without duplicate entries) as canonical CSR (each
+    row's columns sorted, explicit zeros kept): the arrays of ``sp.vstack([G, H, ridge·I], format="csr")``, by
+    concatenating the rows instead of passing through COO."""
+    M = G.shape[1]
+    G, H = G.sorted_indices(), H.sorted_indices()
+    indptr = np.concatenate([G.indptr, G.nnz + H.indptr[1:], G.nnz + H.nnz + np.arange(1, M + 1)])
+    indices = np.concatenate([G.indices, H.indices, np.arange(M)])
+    data = np.concatenate([G.data, H.data, np.full(M, ridge)])
+    return sp.csr_array((data, indices, indptr), shape=(G.shape[0] + H.shape[0] + M, M))
 
 
 def project_multipliers(prog, Th: np.ndarray, *, clips: tuple[float, ...] = CLIPS, alpha: float = 1.0,
@@ -110,7 +124,7 @@ def project_multipliers(prog, Th: np.ndarray, *, clips: tuple[float, ...] = CLIP
     scale = float(np.mean(np.asarray(Gv.multiply(Gv).sum(axis=0)))) or 1.0  # the mean diagonal of GvᵀGv
     # N = GvᵀGv + β LᵀD²L + ridge·I as BᵀB of one stack B = [Gv; √β DL; √ridge I]: one sparse product and
     # no sum of large sparse matrices
-    B = sp.vstack([Gv, DL * np.sqrt(PENALTY * scale), np.sqrt(RIDGE * scale) * sp.identity(M)], format="csr")
+    B = _row_stack(Gv, DL * np.sqrt(PENALTY * scale), np.sqrt(RIDGE * scale))
     N = sp.csc_matrix(B.T @ B)
     try:
         lu = spla.splu(N, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options=dict(SymmetricMode=True))
@@ -149,10 +163,11 @@ def _douglas_rachford(w: np.ndarray, clip: float, max_iter: int, Gv, base: np.nd
             out[g][bad] = (V[bad] * np.maximum(ev[bad], clip)[:, None, :]) @ np.swapaxes(V[bad], -1, -2)
         return blocks.join(out)
 
-    z = base - Gv @ w
+    s = base - Gv @ w  # S̃(w), the point of A at w
+    z = s
     best, last_gain, margin, status, it = -np.inf, 0, -np.inf, "max_iter", 0
     for it in range(1, max_iter + 1):
-        lows = [np.linalg.eigvalsh(Sg)[:, 0] for Sg in blocks.split(base - Gv @ w)]
+        lows = [np.linalg.eigvalsh(Sg)[:, 0] for Sg in blocks.split(s)]
         margin = min(float(low.min()) for low in lows)
         if not np.isfinite(margin):
             status = "breakdown: a block is not finite"
@@ -167,5 +182,6 @@ def _douglas_rachford(w: np.ndarray, clip: float, max_iter: int, Gv, base: np.nd
             break
         c = onto_cone(z)  # Douglas–Rachford: z ← z + P_A(2 P_C(z) − z) − P_C(z)
         w = onto_affine(2 * c - z)
-        z = z + (base - Gv @ w) - c
+        s = base - Gv @ w
+        z = z + s - c
     return w, margin, status, it

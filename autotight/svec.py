@@ -128,10 +128,20 @@ def _stored_entries(As: Sequence[sp.spmatrix | sp.sparray]) -> Entries:
     return np.concatenate(rows), np.concatenate(cols), np.concatenate(vals).astype(float), owner
 
 
-def svec_columns(As: Sequence[sp.spmatrix | sp.sparray], n: int) -> sp.csc_array:
-    """[svec A₁ … svec A_m] of sparse symmetric n×n matrices as one sparse (n(n+1)/2 × m) array,
-    assembled in one pass from their upper triangles (no dense n×n)."""
+def prepended_entries(A: sp.spmatrix | sp.sparray, As: Sequence[sp.spmatrix | sp.sparray]) -> Entries:
+    """``stored_entries([A, *As])``, with the entries of ``As`` read through ``stored_entries(As)`` (shared
+    within ``reusing_entries``)."""
+    r0, c0, v0, _ = _stored_entries([A])
     r, c, v, k = stored_entries(As)
+    return (np.concatenate([r0, r]), np.concatenate([c0, c]), np.concatenate([v0, v]),
+            np.concatenate([np.zeros(v0.size, dtype=k.dtype), k + 1]))
+
+
+def svec_columns(As: Sequence[sp.spmatrix | sp.sparray], n: int, entries: Entries | None = None) -> sp.csc_array:
+    """[svec A₁ … svec A_m] of sparse symmetric n×n matrices as one sparse (n(n+1)/2 × m) array,
+    assembled in one pass from their upper triangles (no dense n×n).  entries: ``stored_entries(As)``
+    when known."""
+    r, c, v, k = stored_entries(As) if entries is None else entries
     r, c = r.astype(np.int64), c.astype(np.int64)  # c(c + 1)/2 overflows int32 from n ≈ 46 000
     keep = r <= c
     r, c, v, k = r[keep], c[keep], v[keep], k[keep]

@@ -30,9 +30,10 @@ from dataclasses import dataclass, field, replace
 from typing import Any, Sequence
 
 import numpy as np
+import scipy.sparse as sp
 
 from ..errors import AutotightError
-from ..model import Constraint, Model, canonical_coo
+from ..model import Constraint, Model, canonical_coo, fast_coo
 from ..problem import Instance, Problem
 from ..svec import triu_indices
 from ..validity import VALID_RTOL
@@ -447,10 +448,12 @@ def check_template(problem: Problem, inst: Instance, model: Model, tpl: TypeTemp
     return {f.name: float(x) for f, x in zip(fs, v)}
 
 
-def apply_template(model: Model, tpl: TypeTemplate | TransportTemplate, coeffs: np.ndarray) -> list[Constraint]:
+def apply_template(model: Model, tpl: TypeTemplate | TransportTemplate, coeffs: np.ndarray,
+                   columns: tuple[list, np.ndarray, np.ndarray] | None = None) -> list[Constraint]:
     """The template's constraints on every factor of its type in ``model``, from their coefficients
-    (``tpl.coefficients`` of the factors' data, in ``factor_columns`` order)."""
-    fs, cols, D = factor_columns(model, tpl)
+    (``tpl.coefficients`` of the factors' data, in ``factor_columns`` order), identity by identity; each
+    matrix is ``canonical_coo`` of the factor's entries.  columns: ``factor_columns(model, tpl)`` when known."""
+    fs, cols, _ = factor_columns(model, tpl) if columns is None else columns
     if not fs:
         return []
     m = tpl.n_monomials
@@ -461,20 +464,36 @@ def apply_template(model: Model, tpl: TypeTemplate | TransportTemplate, coeffs: 
     for a, ident in enumerate(tpl.identities):
         sel = np.flatnonzero(q == a)
         li, lj = ii[mono[sel]], jj[mono[sel]]
-        off = li != lj
-        for r, f in enumerate(fs):
-            p = coeffs[r, sel]
-            gi, gj = cols[r, li], cols[r, lj]
-            o = off
-            if tpl.kind == "transport":  # support is every position: keep this factor's nonzeros
-                nz = p != 0
-                p, gi, gj, o = p[nz], gi[nz], gj[nz], off[nz]
-            rows = np.concatenate([gi, gj[o]])
-            cc = np.concatenate([gj, gi[o]])
-            vals = np.concatenate([np.where(o, p / 2, p), p[o] / 2])
-            out.append(Constraint(canonical_coo(rows, cc, vals, N), 0.0, name=f"{f.name}:{ident}", family="learned",
-                                  factor=f.name, identity=f"{tpl.factor_type}:{ident}"))
+        p = coeffs[:, sel]
+        keep = p != 0 if tpl.kind == "transport" else np.ones(p.shape, dtype=bool)  # transport: every position
+        mats = _factor_matrices(cols[:, li], cols[:, lj], p, li != lj, keep, N)
+        out += [Constraint(A, 0.0, name=f"{f.name}:{ident}", family="learned", factor=f.name,
+                           identity=f"{tpl.factor_type}:{ident}") for f, A in zip(fs, mats)]
     return out
+
+
+def _factor_matrices(gi: np.ndarray, gj: np.ndarray, p: np.ndarray, off: np.ndarray, keep: np.ndarray,
+                     N: int) -> list[sp.coo_array]:
+    """Per factor r (a row of the (n_f, s) arrays): ``canonical_coo`` of the symmetric entries p/2 at (gi, gj)
+    and (gj, gi) (p at a diagonal monomial, ``off`` False) of its monomials where ``keep``.  The factors are
+    sorted together; one whose entries repeat a position goes through ``canonical_coo`` itself (its sums)."""
+    mask = np.concatenate([keep, keep[:, off]], axis=1)
+    rows = np.concatenate([gi, gj[:, off]], axis=1)[mask]
+    cols = np.concatenate([gj, gi[:, off]], axis=1)[mask]
+    vals = np.concatenate([np.where(off, p / 2, p), p[:, off] / 2], axis=1)[mask]
+    owner = np.repeat(np.arange(p.shape[0]), mask.sum(axis=1))
+    key = rows.astype(np.int64) * N + cols
+    order = np.lexsort((key, owner))
+    skey, sown, svals = key[order], owner[order], vals[order]
+    repeats = np.zeros(p.shape[0], dtype=bool)
+    repeats[sown[1:][(skey[1:] == skey[:-1]) & (sown[1:] == sown[:-1])]] = True
+    nz = svals != 0
+    skey, sown, svals = skey[nz], sown[nz], svals[nz]
+    ends = np.searchsorted(sown, np.arange(1, p.shape[0]))  # each factor's sorted nonzero entries
+    bounds = np.concatenate([[0], np.searchsorted(owner, np.arange(1, p.shape[0])), [owner.size]]).tolist()
+    return [canonical_coo(rows[lo:hi], cols[lo:hi], vals[lo:hi], N) if rep else fast_coo(v, k // N, k % N, N)
+            for rep, lo, hi, k, v in zip(repeats.tolist(), bounds[:-1], bounds[1:], np.split(skey, ends),
+                                         np.split(svals, ends))]
 
 
 def check_tolerance(saved: float) -> float:
@@ -523,7 +542,7 @@ def apply_templates(problem: Problem, inst: Instance, model: Model, ts: Template
             bad_pairs = {(fs[r].name, tpl.identities[a]) for r, a in bad}
             skipped += [f"{f}:{i}" for f, i in sorted(bad_pairs)]
             drop |= bad_pairs
-        cons = apply_template(model, tpl, coeffs)
+        cons = apply_template(model, tpl, coeffs, (fs, cols, D))
         if drop:
             cons = [c for n, c in enumerate(cons) if (fs[n % len(fs)].name, tpl.identities[n // len(fs)]) not in drop]
         out += cons

@@ -140,25 +140,38 @@ def merged_covers(cliques: Sequence[np.ndarray], caps: Sequence[int]) -> dict[in
 
 
 def maximal(cliques: Sequence[np.ndarray]) -> list[np.ndarray]:
-    """Drop cliques contained in another clique (keeps the first of equal ones).
+    """Drop cliques contained in another clique (keeps the first of equal ones), each kept one sorted
+    without repeats (int64).
 
-    Only the cliques holding a clique's rarest column can contain it, so each clique is compared
-    with those alone (an inverted index; near-linear on chains, where the pairwise test was O(p²))."""
-    sets = [frozenset(np.asarray(c).tolist()) for c in cliques]
-    holders: dict[int, list[int]] = {}
-    for i, s in enumerate(sets):
-        for e in s:
-            holders.setdefault(e, []).append(i)
-    out = []
-    for i, s in enumerate(sets):
-        if s:
-            rare = min(s, key=lambda e: len(holders[e]))
-            if any((s < sets[j]) or (s == sets[j] and j < i) for j in holders[rare] if j != i):
-                continue
-        elif len(sets) > 1:
-            continue  # an empty clique is contained in any other
-        out.append(np.array(sorted(s), dtype=np.int64))
-    return out
+    Clique i lies in clique j exactly when they share |C_i| columns.  Columns in every clique add the same to
+    each pair, so the shared counts come from a sparse product over the other columns (memory ∝ the pairs
+    sharing one of them, as ``_tree``'s overlap graph); a clique of such common columns only lies in every
+    other clique."""
+    p = len(cliques)
+    if not p:
+        return []
+    owner = np.repeat(np.arange(p, dtype=np.int64), [np.size(c) for c in cliques])
+    cols = np.concatenate([np.asarray(c, dtype=np.int64).ravel() for c in cliques])
+    width = int(cols.max(initial=0)) + 1
+    key = np.unique(owner * width + cols)  # each clique's distinct columns, sorted, clique by clique
+    owner, cols = key // width, key % width
+    size = np.bincount(owner, minlength=p)
+    sets = np.split(cols, np.cumsum(size)[:-1])
+    if p <= 1 or not size.any():
+        return sets if p <= 1 else []  # an empty clique is contained in any other
+    B = sp.csc_array(sp.csr_array((np.ones(cols.size), cols, np.concatenate([[0], np.cumsum(size)])),
+                                  shape=(p, width)))
+    every = np.diff(B.indptr) == p
+    rest = size - int(every.sum())
+    Bs = sp.csr_array(B[:, np.flatnonzero(~every)])
+    O = sp.coo_array(Bs @ Bs.T)
+    i, j = O.row, O.col
+    inside = (i != j) & (O.data == rest[i]) & ((size[j] > size[i]) | ((size[j] == size[i]) & (j < i)))
+    drop = np.zeros(p, dtype=bool)
+    drop[i[inside]] = True
+    common = np.flatnonzero(rest == 0)  # the smallest cliques possible: inside a larger one, or the first of equals
+    drop[common if size.max() > size.min() else common[1:]] = True
+    return [s for s, d in zip(sets, drop.tolist()) if not d]
 
 
 def column_cliques(N: int, matrices: Sequence[sp.sparray], always: Sequence[int] = (0,)) -> list[np.ndarray]:
@@ -183,10 +196,11 @@ def entry_cliques(N: int, rows: np.ndarray, cols: np.ndarray, always: Sequence[i
     free = np.ones(N, bool)
     free[list(fixed)] = False
     keep = (rows != cols) & free[rows] & free[cols]
-    pairs = np.unique(np.concatenate([rows[keep] * N + cols[keep], cols[keep] * N + rows[keep]]))
-    adj: list[set[int]] = [set() for _ in range(N)]
-    for i, j in zip((pairs // N).tolist(), (pairs % N).tolist()):
-        adj[i].add(j)
+    edges = np.unique(np.minimum(rows[keep], cols[keep]) * N + np.maximum(rows[keep], cols[keep]))  # i < j
+    pairs = np.unique(np.concatenate([edges, (edges % N) * N + edges // N]))  # both orientations, sorted
+    starts = np.searchsorted(pairs, np.arange(N + 1) * N).tolist()  # each vertex's neighbours, increasing
+    nbrs = (pairs % N).tolist()
+    adj: list[set[int]] = [set(nbrs[starts[i]:starts[i + 1]]) for i in range(N)]
     alive = free.tolist()
 
     def fill(v: int) -> int:
@@ -204,6 +218,11 @@ def entry_cliques(N: int, rows: np.ndarray, cols: np.ndarray, always: Sequence[i
         if not alive[v] or key[v] != k:
             continue  # stale entry
         nb = list(adj[v])
+        if k[0] == 0:  # simplicial: nb is a clique, no edge to add
+            _eliminate_simplicial(v, nb, adj, key, heap)
+            alive[v] = False
+            cliques.append((v, nb))
+            continue
         added = []
         for i, a in enumerate(nb):
             adj[a].discard(v)
@@ -225,6 +244,19 @@ def entry_cliques(N: int, rows: np.ndarray, cols: np.ndarray, always: Sequence[i
                 heapq.heappush(heap, (key[u], u))
     head = sorted(fixed)
     return [np.array(head + sorted([v, *nb]), dtype=np.int64) for v, nb in elimination_maximal(cliques)]
+
+
+def _eliminate_simplicial(v: int, nb: list[int], adj: list[set[int]], key: dict[int, tuple[int, int]],
+                          heap: list[tuple[tuple[int, int], int]]) -> None:
+    """Remove v, whose neighbours ``nb`` form a clique, from the graph ``adj``, and push the new (fill, degree)
+    key of each neighbour u.  Its missing pairs lose those with v, one per neighbour of u outside nb ∪ {v}
+    (nb ∖ {u} ⊆ adj[u]): fill − (deg(u) − |nb|), without recounting."""
+    import heapq
+
+    for u in nb:
+        adj[u].discard(v)
+        key[u] = (key[u][0] - (len(adj[u]) + 1 - len(nb)), len(adj[u]))
+        heapq.heappush(heap, (key[u], u))
 
 
 def elimination_maximal(cliques: Sequence[tuple[int, list[int]]]) -> list[tuple[int, list[int]]]:
@@ -256,8 +288,16 @@ def block_cliques(sizes: Sequence[int], rows: np.ndarray, cols: np.ndarray) -> l
     edges = np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64)
     block = np.repeat(np.arange(len(sizes), dtype=np.int64), sizes)  # column → its block: a gather, not a search
     br, bc = block[np.asarray(rows, np.int64)], block[np.asarray(cols, np.int64)]
-    return [np.concatenate([np.arange(edges[b], edges[b + 1]) for b in cl])
-            for cl in entry_cliques(len(sizes), br, bc, always=(0,))]
+    cliques = entry_cliques(len(sizes), br, bc, always=(0,))
+    if not cliques:
+        return []
+    blocks = np.concatenate(cliques)  # every clique's blocks in turn, each block expanded to its columns at once
+    width = edges[blocks + 1] - edges[blocks]
+    first = np.cumsum(width) - width  # each block's first position in the expansion
+    columns = np.arange(int(width.sum()), dtype=np.int64) + np.repeat(edges[blocks] - first, width)
+    count = np.array([len(cl) for cl in cliques])
+    per_clique = np.add.reduceat(width, np.cumsum(count) - count)  # each clique's columns
+    return [c.copy() for c in np.split(columns, np.cumsum(per_clique)[:-1])]
 
 
 def nonzeros(matrices: Sequence[sp.sparray]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -24,7 +24,7 @@ from typing import Sequence
 import numpy as np
 import scipy.sparse as sp
 
-from ..svec import SQRT2, position_to_ij, svec_columns, triu_indices
+from ..svec import SQRT2, position_to_ij, prepended_entries, svec_columns, triu_indices
 from .chordal import clique_tree, home_cliques, maximal, support_matrix
 from ..svec import smat
 from .result import DENSE_X_MAX, log_svr, rank_d_factor
@@ -169,6 +169,20 @@ def _home_rows(G: sp.coo_array, cliques: Sequence[np.ndarray], pos: np.ndarray, 
     return rows
 
 
+def _block_positions(cliques: Sequence[np.ndarray]) -> tuple[np.ndarray, list[int]]:
+    """(pos, start): one row per (clique k, svec entry of its block), blocks in order; pos the entry's position
+    in svec of N×N (increasing within a block, each clique being sorted), start[k] block k's first row."""
+    sizes = np.array([len(C) for C in cliques], dtype=np.int64)
+    start = np.concatenate([[0], np.cumsum(sizes * (sizes + 1) // 2)])
+    pos = np.empty(int(start[-1]), dtype=np.int64)
+    for n in np.unique(sizes).tolist():  # the cliques of one size at once
+        ids = np.flatnonzero(sizes == n)
+        C = np.stack([np.asarray(cliques[k], dtype=np.int64) for k in ids.tolist()])  # (B, n)
+        i, j = triu_indices(n)
+        pos[start[ids][:, None] + np.arange(i.size)[None, :]] = C[:, j] * (C[:, j] + 1) // 2 + C[:, i]
+    return pos, start.tolist()
+
+
 def clique_program(Q: sp.csr_array, As: Sequence[sp.csr_array], b: np.ndarray,
                    cliques: Sequence[np.ndarray]) -> CliqueProgram:
     """Decompose  min ⟨Q,X⟩ s.t. ⟨Aᵢ,X⟩ = bᵢ, X ⪰ 0  over ``cliques`` (see the module docstring).
@@ -180,31 +194,28 @@ def clique_program(Q: sp.csr_array, As: Sequence[sp.csr_array], b: np.ndarray,
     cliques = maximal(cliques)
     parent = clique_tree(cliques)  # ValueError unless the cliques form a clique tree
     m = len(As)
-    # one row per (clique k, svec entry of its block); pos = the entry's position in svec of N×N
-    pos_k, start = [], [0]
-    for C in cliques:
-        i, j = triu_indices(len(C))
-        pos_k.append(C[j] * (C[j] + 1) // 2 + C[i])  # increasing, since C is sorted
-        start.append(start[-1] + i.size)
+    pos, start = _block_positions(cliques)
     nrow = start[-1]
-    # the row of the same entry in the parent's block (−1: the entry is not in the parent, k owns it)
+    # the row of the same entry in the parent's block (−1: the entry is not in the parent, k owns it): one search
+    # of (block, position) keys, increasing along the rows
+    block = np.repeat(np.arange(len(cliques), dtype=np.int64), np.diff(start))
+    span = int(pos.max(initial=0)) + 1
+    up = np.asarray(parent, dtype=np.int64)[block]
+    child = np.flatnonzero(up >= 0)
+    at, hit = _find(block * span + pos, up[child] * span + pos[child])
     par_row = np.full(nrow, -1, dtype=np.int64)
-    for k, pk in enumerate(parent):
-        if pk >= 0:
-            at, hit = _find(pos_k[pk], pos_k[k])
-            par_row[start[k]:start[k + 1]][hit] = start[pk] + at[hit]
-    pos = np.concatenate(pos_k)
+    par_row[child[hit]] = at[hit]
     own = np.flatnonzero(par_row < 0)  # the top clique's row of each entry (one per entry)
     moved = np.flatnonzero(par_row >= 0)
     t = m + np.arange(moved.size)  # transfer variables, one per entry shared with the parent
     # COO throughout: a CSR copy of the svec data would hold an index array of N(N+1)/2 + 1 entries
     # (2.3 GB at N = 24 000), the one quadratic array of the decomposition
-    data = svec_columns([Q, *As], N).tocoo()  # column 0: Q
+    data = svec_columns([Q, *As], N, prepended_entries(Q, As)).tocoo()  # column 0: Q
     own_order = np.argsort(pos[own])
     known = pos[own][own_order]  # every entry of the pattern once, increasing
-    rows_used = np.unique(data.row)
-    outside = rows_used[~_find(known, rows_used)[1]]
-    if outside.size:
+    inside = _find(known, data.row)[1]
+    if not inside.all():
+        outside = np.unique(data.row[~inside])
         raise ValueError(f"{outside.size} entries of the cost or constraints lie outside every clique")
     isq = data.col == 0
     G = sp.coo_array((data.data[~isq], (data.row[~isq], data.col[~isq] - 1)), shape=(data.shape[0], m))

@@ -195,19 +195,22 @@ class _StallClock:
 def svec_to_vec(sizes: list[int]) -> sp.csr_array:
     """Block-diagonal operator P with P svec(S) = vec(S) (row-major) for symmetric blocks S;
     Pᵀ vec(S) = svec(S)."""
+    sizes_a = np.asarray(sizes, dtype=np.int64)
+    voff = np.concatenate([[0], np.cumsum(sizes_a * sizes_a)])
+    soff = np.concatenate([[0], np.cumsum(sizes_a * (sizes_a + 1) // 2)])
     rows, cols, vals = [], [], []
-    voff, soff = 0, 0
-    for n in sizes:
+    for n in np.unique(sizes_a).tolist():  # the pattern of one block of size n, at every such block's offsets
+        ids = np.flatnonzero(sizes_a == n)
         i, j = triu_indices(n)
-        e = soff + np.arange(i.size)
+        e = np.arange(i.size)
         off = i != j
         w = np.where(off, 1 / SQRT2, 1.0)
-        rows += [voff + i * n + j, voff + (j * n + i)[off]]
-        cols += [e, e[off]]
-        vals += [w, w[off]]
-        voff += n * n
-        soff += i.size
-    return sp.csr_array((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(voff, soff))
+        r = np.concatenate([i * n + j, (j * n + i)[off]])
+        rows.append((voff[ids][:, None] + r[None, :]).ravel())
+        cols.append((soff[ids][:, None] + np.concatenate([e, e[off]])[None, :]).ravel())
+        vals.append(np.tile(np.concatenate([w, w[off]]), ids.size))
+    return sp.csr_array((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+                        shape=(int(voff[-1]), int(soff[-1])))
 
 
 class _Blocks:
