@@ -126,6 +126,7 @@ def project_multipliers(prog, Th: np.ndarray, *, clips: tuple[float, ...] = CLIP
     # no sum of large sparse matrices
     B = _row_stack(Gv, DL * np.sqrt(PENALTY * scale), np.sqrt(RIDGE * scale))
     N = sp.csc_matrix(B.T @ B)
+    del B  # the factorisation below is the peak of memory: B is not needed there
     try:
         lu = spla.splu(N, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options=dict(SymmetricMode=True))
     except RuntimeError as e:
