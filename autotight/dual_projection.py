@@ -120,7 +120,7 @@ def project_multipliers(prog, Th: np.ndarray, *, clips: tuple[float, ...] = CLIP
     DL, dl, UU = stationarity_rows(prog, Th, blocks, Gv, base)
     base = base + alpha * UU
     M = Gv.shape[1]
-    GvT = sp.csr_array(Gv.T)
+    GvT = Gv.T  # CSC view: the same sums in the same order as a CSR copy, without the copy
     scale = float(np.mean(np.asarray(Gv.multiply(Gv).sum(axis=0)))) or 1.0  # the mean diagonal of GvᵀGv
     # N = GvᵀGv + β LᵀD²L + ridge·I as BᵀB of one stack B = [Gv; √β DL; √ridge I]: one sparse product and
     # no sum of large sparse matrices
