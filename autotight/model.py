@@ -156,6 +156,25 @@ def canonical_coo(rows: np.ndarray, cols: np.ndarray, vals: np.ndarray, N: int) 
     return fast_coo(vals, rows, cols, N)
 
 
+def canonical_coos(owner: np.ndarray, rows: np.ndarray, cols: np.ndarray, vals: np.ndarray, N: int,
+                   n: int) -> list[sp.coo_array]:
+    """``canonical_coo`` of each of n N×N matrices given as one stack of entries, entry k of matrix owner[k]
+    (nondecreasing): one sort for all of them; a matrix whose entries repeat a position goes through
+    ``canonical_coo`` itself (its sums)."""
+    key = np.asarray(rows, np.int64) * N + cols
+    order = np.lexsort((key, owner))
+    skey, sown, svals = key[order], owner[order], vals[order]
+    repeats = np.zeros(n, dtype=bool)
+    repeats[sown[1:][(skey[1:] == skey[:-1]) & (sown[1:] == sown[:-1])]] = True
+    nz = svals != 0
+    skey, sown, svals = skey[nz], sown[nz], svals[nz]
+    ends = np.searchsorted(sown, np.arange(1, n))  # each matrix's sorted nonzero entries
+    bounds = np.concatenate([[0], np.searchsorted(owner, np.arange(1, n)), [owner.size]]).tolist()
+    return [canonical_coo(rows[lo:hi], cols[lo:hi], vals[lo:hi], N) if rep else fast_coo(v, k // N, k % N, N)
+            for rep, lo, hi, k, v in zip(repeats.tolist(), bounds[:-1], bounds[1:], np.split(skey, ends),
+                                         np.split(svals, ends))]
+
+
 def _coo_by_attributes(vals: np.ndarray, rows: np.ndarray, cols: np.ndarray, N: int) -> sp.coo_array:
     A = sp.coo_array.__new__(sp.coo_array)
     A._shape, A.coords, A.data, A.has_canonical_format = (N, N), (rows, cols), vals, True

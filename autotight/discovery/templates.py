@@ -33,7 +33,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..errors import AutotightError
-from ..model import Constraint, Model, canonical_coo, fast_coo
+from ..model import Constraint, Model, canonical_coos
 from ..problem import Instance, Problem
 from ..svec import triu_indices
 from ..validity import VALID_RTOL
@@ -475,25 +475,14 @@ def apply_template(model: Model, tpl: TypeTemplate | TransportTemplate, coeffs: 
 def _factor_matrices(gi: np.ndarray, gj: np.ndarray, p: np.ndarray, off: np.ndarray, keep: np.ndarray,
                      N: int) -> list[sp.coo_array]:
     """Per factor r (a row of the (n_f, s) arrays): ``canonical_coo`` of the symmetric entries p/2 at (gi, gj)
-    and (gj, gi) (p at a diagonal monomial, ``off`` False) of its monomials where ``keep``.  The factors are
-    sorted together; one whose entries repeat a position goes through ``canonical_coo`` itself (its sums)."""
+    and (gj, gi) (p at a diagonal monomial, ``off`` False) of its monomials where ``keep``
+    (``model.canonical_coos``: every factor in one sort)."""
     mask = np.concatenate([keep, keep[:, off]], axis=1)
     rows = np.concatenate([gi, gj[:, off]], axis=1)[mask]
     cols = np.concatenate([gj, gi[:, off]], axis=1)[mask]
     vals = np.concatenate([np.where(off, p / 2, p), p[:, off] / 2], axis=1)[mask]
     owner = np.repeat(np.arange(p.shape[0]), mask.sum(axis=1))
-    key = rows.astype(np.int64) * N + cols
-    order = np.lexsort((key, owner))
-    skey, sown, svals = key[order], owner[order], vals[order]
-    repeats = np.zeros(p.shape[0], dtype=bool)
-    repeats[sown[1:][(skey[1:] == skey[:-1]) & (sown[1:] == sown[:-1])]] = True
-    nz = svals != 0
-    skey, sown, svals = skey[nz], sown[nz], svals[nz]
-    ends = np.searchsorted(sown, np.arange(1, p.shape[0]))  # each factor's sorted nonzero entries
-    bounds = np.concatenate([[0], np.searchsorted(owner, np.arange(1, p.shape[0])), [owner.size]]).tolist()
-    return [canonical_coo(rows[lo:hi], cols[lo:hi], vals[lo:hi], N) if rep else fast_coo(v, k // N, k % N, N)
-            for rep, lo, hi, k, v in zip(repeats.tolist(), bounds[:-1], bounds[1:], np.split(skey, ends),
-                                         np.split(svals, ends))]
+    return canonical_coos(owner, rows, cols, vals, N, p.shape[0])
 
 
 def check_tolerance(saved: float) -> float:

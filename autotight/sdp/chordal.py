@@ -27,6 +27,18 @@ def incidence(cliques: Sequence[np.ndarray], N: int | None = None) -> sp.csr_arr
                         shape=(len(cliques), N))
 
 
+def _overlaps(B: sp.csr_array) -> tuple[sp.csr_array, np.ndarray, np.ndarray]:
+    """(O, every, count) of the p × N incidence B of cliques without repeated columns: O (p × p) the number of
+    columns each pair of cliques shares outside the columns in every clique (``every``; h: a constant overlap of
+    every pair, left out), count the cliques holding each column.  O is sparse: memory ∝ the pairs sharing such a
+    column, not p²."""
+    p = B.shape[0]
+    count = np.asarray(B.sum(axis=0)).ravel()
+    every = count == p
+    Bs = B[:, np.flatnonzero(~every)] if every.any() else B
+    return sp.csr_array(Bs @ Bs.T), every, count
+
+
 def _tree(cliques: Sequence[np.ndarray]) -> tuple[np.ndarray, np.ndarray, bool]:
     """(parent, order, running intersection) of a maximum-overlap spanning tree rooted at clique 0.
 
@@ -38,12 +50,9 @@ def _tree(cliques: Sequence[np.ndarray]) -> tuple[np.ndarray, np.ndarray, bool]:
     if p <= 1:
         return parent, np.arange(p), True
     B = sp.csr_array(incidence(cliques))
-    count = np.asarray(B.sum(axis=0)).ravel()
-    every = count == p  # columns in every clique (h): a constant overlap of every pair, left out of the graph
+    O, every, count = _overlaps(B)
     n_every = int(every.sum())
-    Bs = B[:, np.flatnonzero(~every)] if n_every else B
-    # sparse overlap graph (pairs sharing a column beyond the common ones): memory ∝ its edges, not p²
-    W = sp.triu(sp.csr_array(Bs @ Bs.T), k=1).tocoo()
+    W = sp.triu(O, k=1).tocoo()  # the overlap graph
     big = float(W.data.max()) + 1 if W.nnz else 1.0
     # max overlap; among equal overlaps the nearest clique index (penalty |i − j|/p² < 1/p per edge): cliques
     # sharing only one separator (pose averaging's {h, C, r}) form a chain, not a star whose root block every
@@ -144,9 +153,8 @@ def maximal(cliques: Sequence[np.ndarray]) -> list[np.ndarray]:
     without repeats (int64).
 
     Clique i lies in clique j exactly when they share |C_i| columns.  Columns in every clique add the same to
-    each pair, so the shared counts come from a sparse product over the other columns (memory ∝ the pairs
-    sharing one of them, as ``_tree``'s overlap graph); a clique of such common columns only lies in every
-    other clique."""
+    each pair, so the shared counts are ``_overlaps`` (the other columns) plus those; a clique of such common
+    columns only lies in every other clique."""
     p = len(cliques)
     if not p:
         return []
@@ -159,12 +167,9 @@ def maximal(cliques: Sequence[np.ndarray]) -> list[np.ndarray]:
     sets = np.split(cols, np.cumsum(size)[:-1])
     if p <= 1 or not size.any():
         return sets if p <= 1 else []  # an empty clique is contained in any other
-    B = sp.csc_array(sp.csr_array((np.ones(cols.size), cols, np.concatenate([[0], np.cumsum(size)])),
-                                  shape=(p, width)))
-    every = np.diff(B.indptr) == p
+    overlaps, every, _ = _overlaps(incidence(sets, width))
     rest = size - int(every.sum())
-    Bs = sp.csr_array(B[:, np.flatnonzero(~every)])
-    O = sp.coo_array(Bs @ Bs.T)
+    O = sp.coo_array(overlaps)
     i, j = O.row, O.col
     inside = (i != j) & (O.data == rest[i]) & ((size[j] > size[i]) | ((size[j] == size[i]) & (j < i)))
     drop = np.zeros(p, dtype=bool)
